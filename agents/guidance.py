@@ -1,0 +1,49 @@
+"""Guidance: what heading each role should have at simulation time ``t``.
+
+The leader runs the paper's reference maneuver (section 5): still for ``start``
+seconds (the sync phase), then a gradual rotation to ``amplitude`` and back
+within ``duration`` seconds. The profile is a raised cosine, so heading and rate
+are continuous:
+
+.. math::
+
+    \\psi(t) = \\frac{A}{2} \\left(1 - \\cos \\frac{2\\pi (t - t_0)}{T}\\right),
+    \\qquad t_0 \\le t \\le t_0 + T
+
+The follower's reference is the heading it last received from the agent it follows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from federation.wire import PoseSample
+
+__all__ = ["ReferenceManeuver", "track_heading"]
+
+
+@dataclass(frozen=True)
+class ReferenceManeuver:
+    start: float = 10.0  # s of reference time held still (the sync phase)
+    duration: float = 60.0  # s for the rotation out and back
+    amplitude: float = math.radians(45.0)  # rad
+
+    def __call__(self, t: float) -> tuple[float, float]:
+        """(heading, heading rate) at reference time ``t`` (rad, rad/s)."""
+        phase = (t - self.start) / self.duration
+        if not 0.0 <= phase <= 1.0:
+            return 0.0, 0.0
+        w = 2.0 * math.pi / self.duration
+        heading = 0.5 * self.amplitude * (1.0 - math.cos(2.0 * math.pi * phase))
+        rate = 0.5 * self.amplitude * w * math.sin(2.0 * math.pi * phase)
+        return heading, rate
+
+
+def track_heading(received: PoseSample | None) -> tuple[float, float]:
+    """Follower reference: the leader's received heading and rate (none yet: hold 0)."""
+    if received is None:
+        return 0.0, 0.0
+    return received.pose.heading, received.pose.omega
+
+

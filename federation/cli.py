@@ -1,0 +1,261 @@
+"""``fedlab`` command line: parse, call the library, turn errors into clear messages.
+
+Every command that opens a Zenoh session takes Zenoh's usual flags
+(-m/--mode, -e/--connect, -l/--listen, -c/--config, --cfg KEY:VALUE).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from federation.session import ZenohConfigError
+from schemas.config import AgentConfig, ConfigError, ZenohOptions, load_model, validate
+
+__all__ = ["main"]
+
+log = logging.getLogger("fedlab")
+
+
+def _version() -> str:
+    try:
+        return version("fedlab")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    pass
+
+
+def _zenoh_flags(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("zenoh")
+    group.add_argument("-m", "--mode", choices=["client", "peer", "router"], help="session mode")
+    group.add_argument(
+        "-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+        help="endpoint to dial, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument(
+        "-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+        help="endpoint to listen on (repeatable)",
+    )
+    group.add_argument("-c", "--config", type=Path, metavar="FILE", help="Zenoh json5 config file")
+    group.add_argument(
+        "--cfg", action="append", default=[], metavar="KEY:VALUE",
+        help="extra Zenoh setting, VALUE as json5 (repeatable)",
+    )
+
+
+def _zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+    data = {k: getattr(args, k) for k in ("mode", "connect", "listen", "config", "cfg")}
+    return validate(ZenohOptions, data, "command line")
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM: both stop cleanly with exit code 0."""
+    stop = threading.Event()
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        log.info("received %s, stopping", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+# -- router --------------------------------------------------------------------
+def cmd_router(args: argparse.Namespace) -> int:
+    from federation.router import load_router_config, run_router
+
+    settings, conf = load_router_config(_zenoh_options(args), args.lab)
+    run_router(settings, conf, _stop_on_signals())
+    return 0
+
+
+# -- agent ---------------------------------------------------------------------
+_AGENT_FLAGS = (
+    "federation", "lab", "name", "role", "follow", "sync_with", "sync_period", "sync_timeout",
+    "sync_window", "estimator", "pose_rate", "status_period", "clock_offset", "clock_drift_ppm",
+    "duration", "status_json",
+)
+
+
+def agent_config(args: argparse.Namespace) -> AgentConfig:
+    """The agent's file (if any) overlaid with the flags given on the command line."""
+    data: dict[str, Any] = {}
+    source = "command line"
+    if args.agent_config is not None:
+        base = load_model(AgentConfig, args.agent_config)
+        data = base.model_dump(exclude_unset=True)
+        source = f"{args.agent_config} + command line"
+    for name in _AGENT_FLAGS:
+        value = getattr(args, name)
+        if value is not None and value != []:
+            data[name] = value
+    return validate(AgentConfig, data, source)
+
+
+def cmd_agent(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from federation.agent import AgentRuntime
+    from federation.session import build_config
+
+    config = agent_config(args)
+    conf = build_config(_zenoh_options(args), default_mode="client")
+    stop = _stop_on_signals()
+    session = _open_interruptible(zenoh.open, conf, stop)
+    if session is None:
+        return 0
+    with session:
+        runtime = AgentRuntime(config, session)
+        try:
+            runtime.start()
+            runtime.run(stop)
+        finally:
+            runtime.close()
+    log.info("agent %s stopped", config.agent)
+    return 0
+
+
+def _open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.Event) -> Any:
+    """Open a session in a helper thread, so a signal can stop an agent still waiting for its
+    router (zenoh.open retries a missing router forever and does not return to Python)."""
+    result: dict[str, Any] = {}
+
+    def target() -> None:
+        try:
+            result["session"] = opener(conf)
+        except Exception as error:
+            result["error"] = error
+
+    thread = threading.Thread(target=target, name="zenoh-open", daemon=True)
+    thread.start()
+    started = time.monotonic()
+    next_note = started + 2.0
+    while thread.is_alive() and not stop.is_set():
+        thread.join(0.1)
+        if time.monotonic() >= next_note:
+            log.info("waiting for the router (%.0f s)...", time.monotonic() - started)
+            next_note += 10.0
+    if "error" in result:
+        raise ZenohConfigError(f"cannot open a Zenoh session: {result['error']}")
+    if stop.is_set() and "session" not in result:
+        log.info("stopped before the router was reached")
+        return None
+    return result["session"]
+
+
+# -- demo ------------------------------------------------------------------------
+def cmd_demo(args: argparse.Namespace) -> int:
+    from federation.demo import run_demo
+
+    return run_demo(duration=args.duration, out=args.out, clock_offset=args.clock_offset)
+
+
+# -- parser ----------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fedlab",
+        description="Run one experiment across several remote labs' floating platforms, over Zenoh.",
+        formatter_class=_Formatter,
+        epilog="Example: fedlab demo --duration 30",
+    )
+    parser.add_argument("--version", action="version", version=f"fedlab {_version()}")
+    parser.add_argument(
+        "--log-level", default="info", choices=["debug", "info", "warning", "error"],
+        help="log verbosity",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser(
+        "router", help="run a lab's Zenoh router", formatter_class=_Formatter,
+        description="Run a lab's Zenoh router: the only fedlab process that crosses the firewall.",
+        epilog=(
+            "Examples:\n"
+            "  fedlab router --lab kiruna -l tcp/0.0.0.0:7447\n"
+            "  fedlab router --lab rome -l tcp/127.0.0.1:7448 -e tcp/kiruna.example.org:7447\n"
+            "  fedlab router -c deploy/routers/kiruna.json5"
+        ),
+    )
+    p.add_argument("--lab", help="lab name (else metadata.lab in the config file)")
+    _zenoh_flags(p)
+    p.set_defaults(func=cmd_router)
+
+    p = sub.add_parser(
+        "agent", help="run an agent (a platform in the federation)", formatter_class=_Formatter,
+        description="Run an agent: serve sync queries, sync with peers, publish pose and status.",
+        epilog=(
+            "Examples:\n"
+            "  fedlab agent --role leader --lab kiruna --name knatte -e tcp/127.0.0.1:7447\n"
+            "  fedlab agent --role follower --lab rome --name pinocchio --follow kiruna/knatte \\\n"
+            "      -e tcp/127.0.0.1:7448 --clock-offset 26.42 --status-json rome.jsonl"
+        ),
+    )
+    p.add_argument("--agent-config", type=Path, metavar="FILE", help="agent settings (TOML or JSON)")
+    p.add_argument("--federation", help="federation name (default: default)")
+    p.add_argument("--lab", help="this agent's lab")
+    p.add_argument("--name", help="this agent's name")
+    p.add_argument("--role", choices=["leader", "follower"], help="leader runs the maneuver")
+    p.add_argument("--follow", metavar="LAB/NAME", help="agent whose heading a follower tracks")
+    p.add_argument(
+        "--sync-with", action="append", default=[], metavar="LAB/NAME",
+        help="sync only with these agents (default: every agent alive)",
+    )
+    p.add_argument("--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)")
+    p.add_argument("--sync-timeout", type=float, metavar="S", help="sync reply timeout (0.5)")
+    p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
+    p.add_argument("--estimator", choices=["mean", "median"], help="statistic over the window (mean)")
+    p.add_argument("--pose-rate", type=float, metavar="HZ", help="pose samples per second (20)")
+    p.add_argument("--status-period", type=float, metavar="S", help="seconds between status (1)")
+    p.add_argument("--clock-offset", type=float, metavar="S", help="skew this agent's clock (s)")
+    p.add_argument("--clock-drift-ppm", type=float, metavar="PPM", help="clock rate error (ppm)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
+    _zenoh_flags(p)
+    p.set_defaults(func=cmd_agent)
+
+    p = sub.add_parser(
+        "demo", help="two labs on this machine: routers, leader and follower", formatter_class=_Formatter,
+        description=(
+            "Start two lab routers (kiruna listening, rome dialling it), a leader in kiruna and a\n"
+            "follower in rome with clocks 26.42 s apart, then report the sync estimates against\n"
+            "the truth."
+        ),
+        epilog="Example: fedlab demo --duration 20 --out runs/demo",
+    )
+    p.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds to run")
+    p.add_argument("--out", type=Path, default=Path("runs/demo"), metavar="DIR", help="output folder")
+    p.add_argument("--clock-offset", type=float, default=26.42, metavar="S", help="follower's clock skew")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=args.log_level.upper(),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        code: int = args.func(args)
+    except (ConfigError, ZenohConfigError) as error:
+        print(f"fedlab {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

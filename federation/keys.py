@@ -1,0 +1,93 @@
+"""Key space of a federation.
+
+Every key fedlab uses is built here, so the layout is written down once::
+
+    fedlab/<federation>/<lab>/<agent>/pose     pose samples (put)
+    fedlab/<federation>/<lab>/<agent>/sync     three-timestamp sync (queryable)
+    fedlab/<federation>/<lab>/<agent>/status   estimates and counters (put, JSON)
+    fedlab/<federation>/<lab>/<agent>          liveliness token
+
+Names are lowercase letters, digits, ``-`` and ``_`` (1 to 63 characters), so no name
+can smuggle a ``/``, ``*`` or ``$`` into a key expression.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+__all__ = [
+    "DEFAULT_FEDERATION",
+    "ROOT",
+    "AgentId",
+    "agent_key",
+    "all_agents",
+    "all_of",
+    "parse_agent_key",
+    "validate_name",
+]
+
+ROOT = "fedlab"
+DEFAULT_FEDERATION = "default"
+_NAME = re.compile(r"^[a-z0-9_-]{1,63}$")
+
+
+def validate_name(value: str, what: str = "name") -> str:
+    """Return ``value`` if it is a valid federation, lab or agent name, else raise ValueError."""
+    if not isinstance(value, str) or not _NAME.fullmatch(value):
+        raise ValueError(
+            f"invalid {what} {value!r}: use 1-63 lowercase letters, digits, '-' or '_'"
+        )
+    return value
+
+
+@dataclass(frozen=True, order=True)
+class AgentId:
+    """One agent's address in the federation: ``lab/name``."""
+
+    lab: str
+    name: str
+
+    def __post_init__(self) -> None:
+        validate_name(self.lab, "lab name")
+        validate_name(self.name, "agent name")
+
+    @classmethod
+    def parse(cls, text: str) -> AgentId:
+        """Parse ``"lab/name"``."""
+        lab, sep, name = text.partition("/")
+        if not sep:
+            raise ValueError(f"invalid agent {text!r}: expected LAB/NAME, e.g. kiruna/knatte")
+        return cls(lab, name)
+
+    def __str__(self) -> str:
+        return f"{self.lab}/{self.name}"
+
+
+def agent_key(federation: str, agent: AgentId, topic: str | None = None) -> str:
+    """Key of one agent (its liveliness token), or of one of its topics."""
+    validate_name(federation, "federation name")
+    key = f"{ROOT}/{federation}/{agent.lab}/{agent.name}"
+    return f"{key}/{topic}" if topic else key
+
+
+def all_agents(federation: str) -> str:
+    """Key expression matching every agent's liveliness token in a federation."""
+    return f"{ROOT}/{validate_name(federation, 'federation name')}/*/*"
+
+
+def all_of(federation: str, topic: str) -> str:
+    """Key expression matching one topic (``pose``, ``status``, ...) of every agent."""
+    return f"{all_agents(federation)}/{topic}"
+
+
+def parse_agent_key(federation: str, key: str) -> tuple[AgentId, str | None] | None:
+    """Split a concrete key into (agent, topic); None if it is not an agent key of ``federation``."""
+    parts = str(key).split("/")
+    if len(parts) not in (4, 5) or parts[0] != ROOT or parts[1] != federation:
+        return None
+    try:
+        agent = AgentId(parts[2], parts[3])
+    except ValueError:
+        return None
+    return agent, (parts[4] if len(parts) == 5 else None)

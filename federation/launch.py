@@ -1,0 +1,107 @@
+"""Start fedlab routers and agents as child processes and stop them by pid.
+
+Used by ``fedlab demo`` and by the integration tests: every process started
+here is tracked and stopped (SIGTERM, then SIGKILL after a grace period).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import IO
+
+__all__ = ["Fleet", "free_port", "wait_for"]
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port on ``host`` that nothing listens on right now."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+class Fleet:
+    """A set of ``fedlab`` child processes, each logging to ``log_dir/<name>.log``."""
+
+    def __init__(self, log_dir: str | Path):
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self._logs: dict[str, IO[bytes]] = {}
+
+    def start(self, name: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
+        """Run ``fedlab ARGS...`` with this interpreter; ``name`` must be unique while running."""
+        if name in self.procs and self.procs[name].poll() is None:
+            raise ValueError(f"process {name!r} is already running")
+        log = self.log_path(name).open("ab")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "federation", *args],
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
+        self.procs[name] = proc
+        self._logs[name] = log
+        return proc
+
+    def log_path(self, name: str) -> Path:
+        return self.log_dir / f"{name}.log"
+
+    def stop(self, name: str, grace: float = 5.0, sig: int = signal.SIGTERM) -> int | None:
+        """Stop one process by pid; returns its exit code."""
+        proc = self.procs.get(name)
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(proc.pid, sig)
+            try:
+                proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(proc.pid, signal.SIGKILL)
+                proc.wait(grace)
+        log = self._logs.pop(name, None)
+        if log is not None:
+            log.close()
+        return proc.returncode
+
+    def kill(self, name: str) -> None:
+        """Kill one process abruptly (SIGKILL), as a crash would."""
+        self.stop(name, sig=signal.SIGKILL)
+
+    def stop_all(self) -> dict[str, int | None]:
+        # Agents before routers, so sessions close while their router is still up.
+        order = sorted(self.procs, key=lambda n: n.startswith("router"))
+        return {name: self.stop(name) for name in order}
+
+    def alive(self, name: str) -> bool:
+        proc = self.procs.get(name)
+        return proc is not None and proc.poll() is None
+
+    def __enter__(self) -> Fleet:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop_all()
+
+
+def wait_for(predicate: Callable[[], object], timeout: float, interval: float = 0.1) -> bool:
+    """Poll ``predicate()`` until true or ``timeout`` seconds pass (bounded)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return bool(predicate())

@@ -1,0 +1,242 @@
+"""Three-timestamp clock synchronization (paper section 3.1), free of I/O.
+
+One exchange between a client and a server::
+
+    t1  client clock, request sent
+    t2  server clock, request received and reply sent (one instant)
+    t3  client clock, reply received
+
+.. math::
+
+    \\text{delay} = (t_3 - t_1) / 2                     \\quad\\text{(Eq. 3)}
+
+    \\text{offset} = t_2 - (t_1 + t_3) / 2              \\quad\\text{(Eq. 4)}
+
+``offset`` is server clock minus client clock, so the server's time is
+``t_client + offset`` (Eq. 5). If the outbound and return trips differ, the
+offset is wrong by half their difference; no application-layer method can see
+that, so :attr:`Exchange.error_bound` reports the worst case instead.
+
+:class:`SyncClient` matches replies to requests by the echoed ``t1`` and rejects
+late, duplicate, unmatched and malformed ones; an estimator turns accepted
+exchanges into one offset. Time is always passed in (``now``): nothing here
+reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import Counter, OrderedDict, deque
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+from federation import wire
+
+__all__ = [
+    "DEFAULT_WINDOW",
+    "Estimator",
+    "Exchange",
+    "PaperEstimator",
+    "Rejection",
+    "SyncClient",
+]
+
+DEFAULT_WINDOW = 10.0
+"""Seconds of reference time over which the paper averages the offset (Eq. 6)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Exchange:
+    """The three timestamps of one query/reply, and what they give."""
+
+    t1: float
+    t2: float
+    t3: float
+
+    @property
+    def delay(self) -> float:
+        """One-way delay, Eq. 3 (seconds)."""
+        return (self.t3 - self.t1) / 2.0
+
+    @property
+    def offset(self) -> float:
+        """Server clock minus client clock, Eq. 4 (seconds)."""
+        return self.t2 - (self.t1 + self.t3) / 2.0
+
+    @property
+    def error_bound(self) -> float:
+        """Largest offset error any path asymmetry can cause: half the round trip."""
+        return self.delay
+
+
+class Estimator(Protocol):
+    """Turns accepted exchanges into a clock offset."""
+
+    def add(self, exchange: Exchange) -> None: ...
+
+    @property
+    def offset(self) -> float | None: ...
+
+    @property
+    def locked(self) -> bool: ...
+
+    def reset(self) -> None: ...
+
+
+class PaperEstimator:
+    """The paper's estimate (Eq. 6): the mean (or median) of the offsets measured
+    during the first ``window`` seconds of reference time, held constant afterwards.
+
+    The window is measured on the server's clock (``t2``) from the first accepted
+    exchange: the server is the reference. Until the window closes, the estimate is
+    the statistic of the samples so far, so an agent has a usable offset at once.
+    """
+
+    def __init__(self, statistic: Literal["mean", "median"] = "mean", window: float = DEFAULT_WINDOW):
+        if statistic not in ("mean", "median"):
+            raise ValueError(f"statistic must be 'mean' or 'median', not {statistic!r}")
+        if not window > 0:
+            raise ValueError(f"window must be positive seconds, not {window!r}")
+        self.statistic = statistic
+        self.window = window
+        self.reset()
+
+    def reset(self) -> None:
+        self._samples: list[float] = []
+        self._start: float | None = None
+        self._held: float | None = None
+
+    def add(self, exchange: Exchange) -> None:
+        if self._held is not None:
+            return
+        if self._start is None:
+            self._start = exchange.t2
+        if exchange.t2 - self._start > self.window:
+            self._held = self._compute()
+            return
+        self._samples.append(exchange.offset)
+
+    def _compute(self) -> float | None:
+        if not self._samples:
+            return None
+        if self.statistic == "median":
+            return statistics.median(self._samples)
+        return math.fsum(self._samples) / len(self._samples)
+
+    @property
+    def offset(self) -> float | None:
+        return self._held if self._held is not None else self._compute()
+
+    @property
+    def locked(self) -> bool:
+        """True once the window has closed and the offset is held."""
+        return self._held is not None
+
+
+Rejection = Literal["malformed", "unmatched", "duplicate", "late"]
+
+
+class SyncClient:
+    """Client side of the exchange with one server.
+
+    ``request(now)`` gives the payload to send; ``receive(payload, now)`` takes a
+    reply and returns the decoded reply once the exchange is accepted, or ``None`` if
+    it was rejected (``rejected`` counts why). Pending requests older than ``timeout``
+    are expired by ``expire(now)`` (also called by ``request``) and counted in
+    ``timeouts``; a reply to one is late.
+    """
+
+    _HISTORY = 256  # answered and expired t1 values remembered to classify rejects
+
+    def __init__(self, estimator: Estimator, timeout: float = 0.5, delay_window: int = 50):
+        if not timeout > 0:
+            raise ValueError(f"timeout must be positive seconds, not {timeout!r}")
+        self.estimator = estimator
+        self.timeout = timeout
+        self.sent = 0
+        self.timeouts = 0
+        self.accepted = 0
+        self.rejected: Counter[str] = Counter()
+        self.last: Exchange | None = None
+        self.last_rejection: str | None = None
+        self._delays: deque[float] = deque(maxlen=delay_window)
+        self._pending: OrderedDict[float, None] = OrderedDict()
+        self._answered: OrderedDict[float, None] = OrderedDict()
+        self._expired: OrderedDict[float, None] = OrderedDict()
+        self._last_t1 = -math.inf
+
+    def request(self, now: float) -> bytes:
+        self.expire(now)
+        # t1 is the request's identity: keep it unique even if the clock repeats.
+        t1 = now if now > self._last_t1 else math.nextafter(self._last_t1, math.inf)
+        self._last_t1 = t1
+        self._pending[t1] = None
+        self.sent += 1
+        return wire.encode_request(t1)
+
+    def expire(self, now: float) -> None:
+        while self._pending:
+            t1 = next(iter(self._pending))
+            if now - t1 <= self.timeout:
+                break
+            del self._pending[t1]
+            self.timeouts += 1
+            _remember(self._expired, t1)
+
+    def receive(self, payload: bytes | bytearray | memoryview, now: float) -> wire.SyncReply | None:
+        """Match a reply read at ``now`` (t3); on success feed the estimator."""
+        try:
+            reply = wire.decode_reply(payload)
+        except wire.DecodeError:
+            return self._reject("malformed")
+        t1 = reply.t1
+        if t1 in self._pending:
+            if now - t1 > self.timeout:
+                del self._pending[t1]
+                _remember(self._expired, t1)
+                return self._reject("late")
+            del self._pending[t1]
+        elif t1 in self._answered:
+            return self._reject("duplicate")
+        elif t1 in self._expired:
+            return self._reject("late")
+        else:
+            return self._reject("unmatched")
+        _remember(self._answered, t1)
+        exchange = Exchange(t1, reply.t2, now)
+        self.accepted += 1
+        self.last = exchange
+        self._delays.append(exchange.delay)
+        self.estimator.add(exchange)
+        return reply
+
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] += 1
+        self.last_rejection = reason
+
+    @property
+    def offset(self) -> float | None:
+        return self.estimator.offset
+
+    @property
+    def delay(self) -> float | None:
+        """Median one-way delay of the recent exchanges (seconds)."""
+        return statistics.median(self._delays) if self._delays else None
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def reset(self) -> None:
+        """Forget all estimates (after a clock step); counters are kept."""
+        self.estimator.reset()
+        self._delays.clear()
+        self._pending.clear()
+        self.last = None
+
+
+def _remember(history: OrderedDict[float, None], t1: float) -> None:
+    history[t1] = None
+    if len(history) > SyncClient._HISTORY:
+        history.popitem(last=False)

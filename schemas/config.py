@@ -1,0 +1,168 @@
+"""Configuration models. Units are in each field's description.
+
+A bad value fails at load with the file, the field and the reason::
+
+    ConfigError: deploy/agents/rome.toml: field 'sync_period': Input should be greater than 0
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal, TypeVar
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from federation.keys import DEFAULT_FEDERATION, AgentId, validate_name
+
+__all__ = [
+    "AgentConfig",
+    "ConfigError",
+    "PlatformConfig",
+    "RouterConfig",
+    "ZenohOptions",
+    "format_validation_error",
+    "load_model",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; the message names where and why."""
+
+
+def _name(what: str) -> AfterValidator:
+    return AfterValidator(lambda v: validate_name(v, what))
+
+
+def _agent_id(value: str) -> str:
+    AgentId.parse(value)
+    return value
+
+
+def _endpoint(value: str) -> str:
+    proto, sep, address = value.partition("/")
+    if not sep or not proto or not address:
+        raise ValueError(f"invalid endpoint {value!r}: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447")
+    return value
+
+
+Name = Annotated[str, _name("name")]
+AgentRef = Annotated[str, AfterValidator(_agent_id)]
+Endpoint = Annotated[str, AfterValidator(_endpoint)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ZenohOptions(_Model):
+    """Zenoh's usual connection flags, shared by every command that opens a session."""
+
+    mode: Literal["client", "peer", "router"] | None = Field(None, description="Zenoh session mode")
+    connect: list[Endpoint] = Field(default_factory=list, description="endpoints to dial")
+    listen: list[Endpoint] = Field(default_factory=list, description="endpoints to listen on")
+    config: Path | None = Field(None, description="Zenoh json5 configuration file")
+    cfg: list[str] = Field(
+        default_factory=list, description="extra settings KEY:VALUE, VALUE as json5"
+    )
+
+
+class AgentConfig(_Model):
+    """One agent of a federation."""
+
+    federation: Annotated[str, _name("federation name")] = DEFAULT_FEDERATION
+    lab: Annotated[str, _name("lab name")]
+    name: Annotated[str, _name("agent name")]
+    role: Literal["leader", "follower"]
+    follow: AgentRef | None = Field(None, description="LAB/NAME of the agent a follower tracks")
+    sync_with: list[AgentRef] = Field(
+        default_factory=list,
+        description="LAB/NAME of the agents to query for sync; empty: every agent seen alive",
+    )
+    sync_period: float = Field(0.1, gt=0, le=10, description="seconds between sync requests")
+    sync_timeout: float = Field(0.5, gt=0, le=10, description="seconds before a request is given up")
+    sync_window: float = Field(10.0, gt=0, description="seconds of reference time averaged (Eq. 6)")
+    estimator: Literal["mean", "median"] = Field("mean", description="statistic over the window")
+    pose_rate: float = Field(20.0, gt=0, le=1000, description="pose samples per second (Hz)")
+    status_period: float = Field(1.0, gt=0, le=60, description="seconds between status messages")
+    clock_offset: float = Field(0.0, allow_inf_nan=False, description="seconds added to the clock")
+    clock_drift_ppm: float = Field(
+        0.0, gt=-1e5, lt=1e5, allow_inf_nan=False, description="clock rate error (ppm)"
+    )
+    duration: float | None = Field(None, gt=0, description="seconds to run; none: until stopped")
+    status_json: Path | None = Field(None, description="file to append status lines (JSON) to")
+    platform: Literal["kinematic"] = Field("kinematic", description="pose source")
+
+    @model_validator(mode="after")
+    def _roles(self) -> AgentConfig:
+        me = f"{self.lab}/{self.name}"
+        if self.role == "follower" and self.follow is None:
+            raise ValueError("a follower needs 'follow' (LAB/NAME of the agent to track)")
+        if self.follow == me:
+            raise ValueError(f"agent {me} cannot follow itself")
+        return self
+
+    @property
+    def agent(self) -> AgentId:
+        return AgentId(self.lab, self.name)
+
+
+class RouterConfig(_Model):
+    """A lab router: the only fedlab process that crosses the lab's firewall."""
+
+    lab: Annotated[str, _name("lab name")]
+    listen: list[Endpoint] = Field(default_factory=list, description="endpoints to listen on")
+    connect: list[Endpoint] = Field(
+        default_factory=list, description="other labs' routers to dial (outbound only)"
+    )
+
+
+class PlatformConfig(_Model):
+    """Physical description of a platform (paper section 2)."""
+
+    name: Annotated[str, _name("platform name")]
+    mass: float = Field(gt=0, description="kg")
+    inertia: float = Field(gt=0, description="moment of inertia about the vertical axis, kg m^2")
+    max_rate: float = Field(
+        0.5, gt=0, description="largest heading rate the kinematic model follows, rad/s"
+    )
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def format_validation_error(source: str, error: ValidationError) -> str:
+    """One line per problem: ``source: field 'a.b': reason``."""
+    lines = []
+    for item in error.errors():
+        where = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        reason = item["msg"]
+        if item["type"] == "extra_forbidden":
+            reason = "unknown field"
+        lines.append(f"{source}: field '{where}': {reason}")
+    return "\n".join(lines)
+
+
+def validate(model: type[M], data: dict[str, Any], source: str) -> M:
+    """Build ``model`` from ``data``; a ConfigError names ``source`` and the field."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(format_validation_error(source, error)) from None
+
+
+def load_model(model: type[M], path: str | Path) -> M:
+    """Load a TOML or JSON file into ``model``."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read: {error.strerror}") from None
+    try:
+        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+    except (ValueError, tomllib.TOMLDecodeError) as error:
+        raise ConfigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a table of fields at the top level")
+    return validate(model, data, str(path))

@@ -1,0 +1,50 @@
+"""Messages other than the paper's binary packets: the JSON an agent publishes
+on ``.../status`` and appends to ``--status-json``."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["PeerStatus", "Status"]
+
+
+class PeerStatus(BaseModel):
+    """What one agent knows of the clock of one peer (peer clock minus own clock)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    offset: float | None = Field(description="clock offset estimate, peer minus self, s")
+    delay: float | None = Field(description="median one-way delay of recent exchanges, s")
+    error_bound: float | None = Field(
+        None, description="largest offset error path asymmetry can cause (last exchange), s"
+    )
+    last_offset: float | None = Field(None, description="offset of the last exchange, s")
+    last_delay: float | None = Field(None, description="delay of the last exchange, s")
+    locked: bool = Field(False, description="the sync window has closed; offset held")
+    alive: bool = Field(True, description="the peer's liveliness token is present")
+    samples: int = Field(description="accepted exchanges")
+    sent: int = Field(0, description="requests sent")
+    timeouts: int = Field(0, description="requests that got no reply in time")
+    rejected: int = Field(description="rejected replies (all reasons)")
+    rejected_by_reason: dict[str, int] = Field(default_factory=dict)
+
+
+class Status(BaseModel):
+    """One status line; published once per status period."""
+
+    model_config = ConfigDict(extra="allow")
+
+    agent: str = Field(description="LAB/NAME")
+    federation: str
+    role: Literal["leader", "follower"]
+    reference: str = Field(description="LAB/NAME whose clock is the simulation time")
+    t_exec: float = Field(description="own execution clock, s")
+    host_monotonic: float = Field(description="host monotonic clock read with t_exec, s")
+    t_sim: float | None = Field(description="simulation (reference) time, Eq. 5, s")
+    pose: list[float] = Field(description="x, y, heading, vx, vy, omega (m, rad, m/s, rad/s)")
+    peers: dict[str, PeerStatus]
+    counters: dict[str, int] = Field(
+        default_factory=dict, description="rejected inputs and served requests"
+    )
