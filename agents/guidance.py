@@ -45,5 +45,3 @@ def track_heading(received: PoseSample | None) -> tuple[float, float]:
     if received is None:
         return 0.0, 0.0
     return received.pose.heading, received.pose.omega
-
-

@@ -12,6 +12,7 @@ Threads and who owns what:
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
@@ -133,7 +134,9 @@ class AgentRuntime:
             path = Path(self.config.status_json)
             path.parent.mkdir(parents=True, exist_ok=True)
             self._status_file = path.open("a", encoding="utf-8")
-        log.info("agent %s (%s) up in federation %s", self.me, self.config.role, self.config.federation)
+        log.info(
+            "agent %s (%s) up in federation %s", self.me, self.config.role, self.config.federation
+        )
 
     def close(self) -> None:
         """Undeclare everything (tokens and subscribers first); the caller closes the session."""
@@ -201,12 +204,11 @@ class AgentRuntime:
             peer = self.peers[agent]
             with self._lock:
                 payload = peer.client.request(self.clock.now())
+            on_reply = functools.partial(self._on_sync_reply, peer)
             try:
                 self.session.get(
                     peer.key,
-                    zenoh.handlers.Callback(
-                        lambda reply, peer=peer: self._on_sync_reply(peer, reply), indirect=False
-                    ),
+                    zenoh.handlers.Callback(on_reply, indirect=False),
                     payload=payload,
                     timeout=self.config.sync_timeout,
                     consolidation=zenoh.ConsolidationMode.NONE,
@@ -276,7 +278,7 @@ class AgentRuntime:
         except Exception:
             log.exception("sync query on %s failed", query.key_expr)
         finally:
-            query.drop()  # release it now, or the querier waits for its timeout
+            query.drop()  # type: ignore[no-untyped-call]  # release now, or the querier waits
 
     def _on_sync_reply(self, peer: Peer, reply: zenoh.Reply) -> None:
         t3 = self.clock.now()  # read on arrival: the paper's t3

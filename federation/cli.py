@@ -41,16 +41,27 @@ def _zenoh_flags(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("zenoh")
     group.add_argument("-m", "--mode", choices=["client", "peer", "router"], help="session mode")
     group.add_argument(
-        "-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+        "-e",
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
         help="endpoint to dial, e.g. tcp/127.0.0.1:7447 (repeatable)",
     )
     group.add_argument(
-        "-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+        "-l",
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
         help="endpoint to listen on (repeatable)",
     )
     group.add_argument("-c", "--config", type=Path, metavar="FILE", help="Zenoh json5 config file")
     group.add_argument(
-        "--cfg", action="append", default=[], metavar="KEY:VALUE",
+        "--cfg",
+        action="append",
+        default=[],
+        metavar="KEY:VALUE",
         help="extra Zenoh setting, VALUE as json5 (repeatable)",
     )
 
@@ -84,9 +95,22 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 # -- agent ---------------------------------------------------------------------
 _AGENT_FLAGS = (
-    "federation", "lab", "name", "role", "follow", "sync_with", "sync_period", "sync_timeout",
-    "sync_window", "estimator", "pose_rate", "status_period", "clock_offset", "clock_drift_ppm",
-    "duration", "status_json",
+    "federation",
+    "lab",
+    "name",
+    "role",
+    "follow",
+    "sync_with",
+    "sync_period",
+    "sync_timeout",
+    "sync_window",
+    "estimator",
+    "pose_rate",
+    "status_period",
+    "clock_offset",
+    "clock_drift_ppm",
+    "duration",
+    "status_json",
 )
 
 
@@ -167,19 +191,23 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fedlab",
-        description="Run one experiment across several remote labs' floating platforms, over Zenoh.",
+        description="One experiment across several remote labs' floating platforms, over Zenoh.",
         formatter_class=_Formatter,
         epilog="Example: fedlab demo --duration 30",
     )
     parser.add_argument("--version", action="version", version=f"fedlab {_version()}")
     parser.add_argument(
-        "--log-level", default="info", choices=["debug", "info", "warning", "error"],
+        "--log-level",
+        default="info",
+        choices=["debug", "info", "warning", "error"],
         help="log verbosity",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser(
-        "router", help="run a lab's Zenoh router", formatter_class=_Formatter,
+        "router",
+        help="run a lab's Zenoh router",
+        formatter_class=_Formatter,
         description="Run a lab's Zenoh router: the only fedlab process that crosses the firewall.",
         epilog=(
             "Examples:\n"
@@ -193,7 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_router)
 
     p = sub.add_parser(
-        "agent", help="run an agent (a platform in the federation)", formatter_class=_Formatter,
+        "agent",
+        help="run an agent (a platform in the federation)",
+        formatter_class=_Formatter,
         description="Run an agent: serve sync queries, sync with peers, publish pose and status.",
         epilog=(
             "Examples:\n"
@@ -202,20 +232,29 @@ def build_parser() -> argparse.ArgumentParser:
             "      -e tcp/127.0.0.1:7448 --clock-offset 26.42 --status-json rome.jsonl"
         ),
     )
-    p.add_argument("--agent-config", type=Path, metavar="FILE", help="agent settings (TOML or JSON)")
+    p.add_argument(
+        "--agent-config", type=Path, metavar="FILE", help="agent settings (TOML or JSON)"
+    )
     p.add_argument("--federation", help="federation name (default: default)")
     p.add_argument("--lab", help="this agent's lab")
     p.add_argument("--name", help="this agent's name")
     p.add_argument("--role", choices=["leader", "follower"], help="leader runs the maneuver")
     p.add_argument("--follow", metavar="LAB/NAME", help="agent whose heading a follower tracks")
     p.add_argument(
-        "--sync-with", action="append", default=[], metavar="LAB/NAME",
+        "--sync-with",
+        action="append",
+        default=[],
+        metavar="LAB/NAME",
         help="sync only with these agents (default: every agent alive)",
     )
-    p.add_argument("--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)")
+    p.add_argument(
+        "--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)"
+    )
     p.add_argument("--sync-timeout", type=float, metavar="S", help="sync reply timeout (0.5)")
     p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
-    p.add_argument("--estimator", choices=["mean", "median"], help="statistic over the window (mean)")
+    p.add_argument(
+        "--estimator", choices=["mean", "median"], help="statistic over the window (mean)"
+    )
     p.add_argument("--pose-rate", type=float, metavar="HZ", help="pose samples per second (20)")
     p.add_argument("--status-period", type=float, metavar="S", help="seconds between status (1)")
     p.add_argument("--clock-offset", type=float, metavar="S", help="skew this agent's clock (s)")
@@ -226,7 +265,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_agent)
 
     p = sub.add_parser(
-        "demo", help="two labs on this machine: routers, leader and follower", formatter_class=_Formatter,
+        "demo",
+        help="two labs on this machine: routers, leader and follower",
+        formatter_class=_Formatter,
         description=(
             "Start two lab routers (kiruna listening, rome dialling it), a leader in kiruna and a\n"
             "follower in rome with clocks 26.42 s apart, then report the sync estimates against\n"
@@ -235,8 +276,12 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Example: fedlab demo --duration 20 --out runs/demo",
     )
     p.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds to run")
-    p.add_argument("--out", type=Path, default=Path("runs/demo"), metavar="DIR", help="output folder")
-    p.add_argument("--clock-offset", type=float, default=26.42, metavar="S", help="follower's clock skew")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/demo"), metavar="DIR", help="output folder"
+    )
+    p.add_argument(
+        "--clock-offset", type=float, default=26.42, metavar="S", help="follower's clock skew"
+    )
     p.set_defaults(func=cmd_demo)
     return parser
 

@@ -38,8 +38,19 @@ PAPER = {
 def _agent_args(role: str, agent: str, endpoint: str, status: Path, duration: float) -> list[str]:
     lab, name = agent.split("/")
     return [
-        "agent", "--role", role, "--lab", lab, "--name", name, "-e", endpoint,
-        "--duration", f"{duration}", "--status-json", str(status),
+        "agent",
+        "--role",
+        role,
+        "--lab",
+        lab,
+        "--name",
+        name,
+        "-e",
+        endpoint,
+        "--duration",
+        f"{duration}",
+        "--status-json",
+        str(status),
     ]
 
 
@@ -113,7 +124,9 @@ def run_demo(duration: float, out: Path, clock_offset: float = 26.42) -> int:
         follower += ["--follow", LEADER, "--clock-offset", f"{clock_offset}"]
         fleet.start("rome-pinocchio", follower)
         try:
-            with Live(console=console, refresh_per_second=2, transient=not console.is_terminal) as live:
+            with Live(
+                console=console, refresh_per_second=2, transient=not console.is_terminal
+            ) as live:
                 while fleet.alive("kiruna-knatte") or fleet.alive("rome-pinocchio"):
                     elapsed = time.monotonic() - started
                     live.update(_progress(elapsed, duration, leader_file, follower_file))
@@ -142,10 +155,22 @@ def _print_summary(console: Console, summary: dict[str, Any], out: Path) -> None
     table.add_column("paper (internet, 600 s)", justify="right")
     table.add_row("true offset (s)", f"{summary['true_offset_s']:.6f}", "26.420 (median)")
     table.add_row("estimated offset (s)", f"{summary['offset_estimate_s']:.6f}", "")
-    table.add_row("offset error (ms)", f"{summary['offset_error_s'] * 1e3:+.3f}", "unknown (no truth)")
-    table.add_row("offset std (ms)", f"{summary['offset_std_s'] * 1e3:.3f}", f"{PAPER['offset_std_s'] * 1e3:.0f}")
-    table.add_row("delay median (ms)", f"{summary['delay_median_s'] * 1e3:.3f}", f"{PAPER['delay_median_s'] * 1e3:.1f}")
-    table.add_row("delay std (ms)", f"{summary['delay_std_s'] * 1e3:.3f}", f"{PAPER['delay_std_s'] * 1e3:.0f}")
+    table.add_row(
+        "offset error (ms)", f"{summary['offset_error_s'] * 1e3:+.3f}", "unknown (no truth)"
+    )
+    table.add_row(
+        "offset std (ms)",
+        f"{summary['offset_std_s'] * 1e3:.3f}",
+        f"{PAPER['offset_std_s'] * 1e3:.0f}",
+    )
+    table.add_row(
+        "delay median (ms)",
+        f"{summary['delay_median_s'] * 1e3:.3f}",
+        f"{PAPER['delay_median_s'] * 1e3:.1f}",
+    )
+    table.add_row(
+        "delay std (ms)", f"{summary['delay_std_s'] * 1e3:.3f}", f"{PAPER['delay_std_s'] * 1e3:.0f}"
+    )
     table.add_row("sync exchanges", str(summary["sync_samples"]), "")
     console.print(table)
     console.print(f"status lines, logs and summary.json in {out}")

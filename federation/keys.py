@@ -82,7 +82,7 @@ def all_of(federation: str, topic: str) -> str:
 
 
 def parse_agent_key(federation: str, key: str) -> tuple[AgentId, str | None] | None:
-    """Split a concrete key into (agent, topic); None if it is not an agent key of ``federation``."""
+    """Split a concrete key into (agent, topic); None if not an agent key of ``federation``."""
     parts = str(key).split("/")
     if len(parts) not in (4, 5) or parts[0] != ROOT or parts[1] != federation:
         return None

@@ -37,11 +37,15 @@ def load_router_config(options: ZenohOptions, lab: str | None) -> tuple[RouterCo
     conf = build_config(options, default_mode="router", extra=_ROUTER_DEFAULTS)
     mode = config_value(conf, "mode")
     if mode not in (None, "router"):
-        raise ConfigError(f"{source}: field 'mode': a lab router must have mode 'router', not {mode!r}")
+        raise ConfigError(
+            f"{source}: field 'mode': a lab router must have mode 'router', not {mode!r}"
+        )
     metadata = config_value(conf, "metadata") or {}
     lab = lab or (metadata.get("lab") if isinstance(metadata, dict) else None)
     if lab is None:
-        raise ConfigError(f"{source}: field 'metadata.lab': missing; give --lab LAB or set it in the file")
+        raise ConfigError(
+            f"{source}: field 'metadata.lab': missing; give --lab LAB or set it in the file"
+        )
     data = {
         "lab": lab,
         "listen": _endpoints(config_value(conf, "listen/endpoints")),
@@ -49,7 +53,9 @@ def load_router_config(options: ZenohOptions, lab: str | None) -> tuple[RouterCo
     }
     settings = validate(RouterConfig, data, source)
     if not settings.listen and not settings.connect:
-        raise ConfigError(f"{source}: field 'listen': a router needs at least one listen or connect endpoint")
+        raise ConfigError(
+            f"{source}: field 'listen': a router needs at least one listen or connect endpoint"
+        )
     # Keep the lab name in the config so it shows in Zenoh's admin space.
     conf.insert_json5("metadata", f'{{"lab": "{settings.lab}"}}')
     return settings, conf

@@ -72,7 +72,9 @@ def build_config(
     for item in options.cfg:
         key, sep, value = item.partition(":")
         if not sep or not key:
-            raise ZenohConfigError(f"--cfg {item!r}: expected KEY:VALUE, e.g. transport/link/tx/lease:3000")
+            raise ZenohConfigError(
+                f"--cfg {item!r}: expected KEY:VALUE, e.g. transport/link/tx/lease:3000"
+            )
         _insert(conf, key, value, f"--cfg {item}")
     return conf
 

@@ -40,5 +40,6 @@ def last_status(path: str | Path) -> dict[str, Any] | None:
 def true_offset(server: dict[str, Any], client: dict[str, Any]) -> float:
     """Server's clock minus client's clock, from one status line of each."""
     return float(
-        (server["t_exec"] - server["host_monotonic"]) - (client["t_exec"] - client["host_monotonic"])
+        (server["t_exec"] - server["host_monotonic"])
+        - (client["t_exec"] - client["host_monotonic"])
     )

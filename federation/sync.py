@@ -93,7 +93,9 @@ class PaperEstimator:
     the statistic of the samples so far, so an agent has a usable offset at once.
     """
 
-    def __init__(self, statistic: Literal["mean", "median"] = "mean", window: float = DEFAULT_WINDOW):
+    def __init__(
+        self, statistic: Literal["mean", "median"] = "mean", window: float = DEFAULT_WINDOW
+    ):
         if statistic not in ("mean", "median"):
             raise ValueError(f"statistic must be 'mean' or 'median', not {statistic!r}")
         if not window > 0:
@@ -189,20 +191,25 @@ class SyncClient:
         try:
             reply = wire.decode_reply(payload)
         except wire.DecodeError:
-            return self._reject("malformed")
+            self._reject("malformed")
+            return None
         t1 = reply.t1
         if t1 in self._pending:
             if now - t1 > self.timeout:
                 del self._pending[t1]
                 _remember(self._expired, t1)
-                return self._reject("late")
+                self._reject("late")
+                return None
             del self._pending[t1]
         elif t1 in self._answered:
-            return self._reject("duplicate")
+            self._reject("duplicate")
+            return None
         elif t1 in self._expired:
-            return self._reject("late")
+            self._reject("late")
+            return None
         else:
-            return self._reject("unmatched")
+            self._reject("unmatched")
+            return None
         _remember(self._answered, t1)
         exchange = Exchange(t1, reply.t2, now)
         self.accepted += 1

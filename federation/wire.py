@@ -76,7 +76,9 @@ class PoseSample(NamedTuple):
     pose: Pose
 
 
-def _unpack(codec: struct.Struct, payload: bytes | bytearray | memoryview, what: str) -> tuple[float, ...]:
+def _unpack(
+    codec: struct.Struct, payload: bytes | bytearray | memoryview, what: str
+) -> tuple[float, ...]:
     if len(payload) != codec.size:
         raise DecodeError(f"{what}: expected {codec.size} bytes, got {len(payload)}")
     values: tuple[float, ...] = codec.unpack(payload)

@@ -43,7 +43,9 @@ def _agent_id(value: str) -> str:
 def _endpoint(value: str) -> str:
     proto, sep, address = value.partition("/")
     if not sep or not proto or not address:
-        raise ValueError(f"invalid endpoint {value!r}: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447")
+        raise ValueError(
+            f"invalid endpoint {value!r}: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
+        )
     return value
 
 
@@ -81,7 +83,9 @@ class AgentConfig(_Model):
         description="LAB/NAME of the agents to query for sync; empty: every agent seen alive",
     )
     sync_period: float = Field(0.1, gt=0, le=10, description="seconds between sync requests")
-    sync_timeout: float = Field(0.5, gt=0, le=10, description="seconds before a request is given up")
+    sync_timeout: float = Field(
+        0.5, gt=0, le=10, description="seconds before a request is given up"
+    )
     sync_window: float = Field(10.0, gt=0, description="seconds of reference time averaged (Eq. 6)")
     estimator: Literal["mean", "median"] = Field("mean", description="statistic over the window")
     pose_rate: float = Field(20.0, gt=0, le=1000, description="pose samples per second (Hz)")
@@ -162,7 +166,9 @@ def load_model(model: type[M], path: str | Path) -> M:
     try:
         data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
     except (ValueError, tomllib.TOMLDecodeError) as error:
-        raise ConfigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}") from None
+        raise ConfigError(
+            f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}"
+        ) from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a table of fields at the top level")
     return validate(model, data, str(path))
