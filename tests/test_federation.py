@@ -32,9 +32,7 @@ def start_router(fleet: Fleet, lab: str, listen: str, connect: str | None = None
     fleet.start(f"router-{lab}", args)
 
 
-def start_agent(
-    fleet: Fleet, tmp: Path, role: str, agent: str, endpoint: str, *extra: str
-) -> Path:
+def start_agent(fleet: Fleet, tmp: Path, role: str, agent: str, endpoint: str, *extra: str) -> Path:
     lab, name = agent.split("/")
     status = tmp / f"{lab}-{name}.jsonl"
     args = ["agent", "--role", role, "--lab", lab, "--name", name, "-e", endpoint]
@@ -97,7 +95,12 @@ def test_four_agents_in_two_labs_find_each_other_by_name(
     fleet: Fleet, endpoint: Callable[[], str], tmp_path: Path
 ) -> None:
     kiruna, rome = two_labs(fleet, endpoint)
-    names = {"kiruna/knatte": kiruna, "kiruna/ghost": kiruna, "rome/pinocchio": rome, "rome/ada": rome}
+    names = {
+        "kiruna/knatte": kiruna,
+        "kiruna/ghost": kiruna,
+        "rome/pinocchio": rome,
+        "rome/ada": rome,
+    }
     files = {}
     for agent, ep in names.items():
         if agent == LEADER:
