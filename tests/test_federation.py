@@ -122,7 +122,7 @@ def test_four_agents_in_two_labs_find_each_other_by_name(
 
     assert wait_for(everyone_synced, timeout=20), {a: last_status(p) for a, p in files.items()}
     first = {a: read_status(p)[-1] for a, p in files.items()}
-    for agent, line in first.items():
+    for line in first.values():
         for other, view in line["peers"].items():
             assert view["alive"]
             assert abs(view["offset"] - true_offset(first[other], line)) < 0.002
