@@ -29,6 +29,10 @@ class ReferenceManeuver:
     duration: float = 60.0  # s for the rotation out and back
     amplitude: float = math.radians(45.0)  # rad
 
+    def __post_init__(self) -> None:
+        if not self.duration > 0:
+            raise ValueError(f"maneuver duration must be positive seconds, not {self.duration!r}")
+
     def __call__(self, t: float) -> tuple[float, float]:
         """(heading, heading rate) at reference time ``t`` (rad, rad/s)."""
         phase = (t - self.start) / self.duration

@@ -86,6 +86,8 @@ def parse_agent_key(federation: str, key: str) -> tuple[AgentId, str | None] | N
     parts = str(key).split("/")
     if len(parts) not in (4, 5) or parts[0] != ROOT or parts[1] != federation:
         return None
+    if len(parts) == 5 and not parts[4]:
+        return None
     try:
         agent = AgentId(parts[2], parts[3])
     except ValueError:

@@ -154,6 +154,8 @@ class SyncClient:
     def __init__(self, estimator: Estimator, timeout: float = 0.5, delay_window: int = 50):
         if not timeout > 0:
             raise ValueError(f"timeout must be positive seconds, not {timeout!r}")
+        if delay_window < 1:
+            raise ValueError(f"delay_window must be at least 1 exchange, not {delay_window!r}")
         self.estimator = estimator
         self.timeout = timeout
         self.sent = 0
@@ -195,9 +197,10 @@ class SyncClient:
             return None
         t1 = reply.t1
         if t1 in self._pending:
-            if now - t1 > self.timeout:
+            if now - t1 > self.timeout:  # expired, though expire() has not run yet
                 del self._pending[t1]
                 _remember(self._expired, t1)
+                self.timeouts += 1
                 self._reject("late")
                 return None
             del self._pending[t1]
