@@ -28,8 +28,9 @@ from agents.guidance import ReferenceManeuver, track_heading
 from agents.kinematic import KinematicPlatform, Platform
 from federation import keys, wire
 from federation.clock import ExecClock
+from federation.estimators import make_estimator
 from federation.keys import AgentId
-from federation.sync import PaperEstimator, SyncClient
+from federation.sync import SyncClient
 from schemas.config import AgentConfig
 from schemas.messages import PeerStatus, Status
 
@@ -56,6 +57,7 @@ class RateLimitedLog:
 
 @dataclass
 class Peer:
+    agent: AgentId
     client: SyncClient
     key: str
     alive: bool = True
@@ -92,6 +94,11 @@ class AgentRuntime:
         self._lock = threading.Lock()
         self._declared: list[Any] = []
         self._status_file: IO[str] | None = None
+        self._record_file: IO[str] | None = None
+        self._pose_file: IO[str] | None = None
+        # Recorded lines not yet written: callbacks append, the agent's loop writes.
+        self._records: list[str] = []
+        self._pose_records: list[str] = []
         self._pose_pub: Any = None
         self._status_pub: Any = None
 
@@ -130,10 +137,9 @@ class AgentRuntime:
             )
         )
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
-        if self.config.status_json is not None:
-            path = Path(self.config.status_json)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self._status_file = path.open("a", encoding="utf-8")
+        self._status_file = _open_append(self.config.status_json)
+        self._record_file = _open_append(self.config.record_sync)
+        self._pose_file = _open_append(self.config.record_pose)
         log.info(
             "agent %s (%s) up in federation %s", self.me, self.config.role, self.config.federation
         )
@@ -146,9 +152,11 @@ class AgentRuntime:
             except Exception as error:  # a session already closed by zenoh
                 log.debug("undeclare failed: %s", error)
         self._declared.clear()
-        if self._status_file is not None:
-            self._status_file.close()
-            self._status_file = None
+        self._flush_records()
+        for f in (self._status_file, self._record_file, self._pose_file):
+            if f is not None:
+                f.close()
+        self._status_file = self._record_file = self._pose_file = None
 
     def run(self, stop: threading.Event) -> None:
         """The agent's loop, until ``stop`` is set or the configured duration has passed."""
@@ -180,7 +188,7 @@ class AgentRuntime:
         if self.reference == self.me:
             return t_exec
         peer = self.peers.get(self.reference)
-        offset = peer.client.offset if peer else None
+        offset = peer.client.offset_at(t_exec) if peer else None
         return None if offset is None else t_exec + offset
 
     def step(self) -> None:
@@ -224,8 +232,11 @@ class AgentRuntime:
             for agent, peer in self.peers.items():
                 c = peer.client
                 last = c.last
+                drift = getattr(c.estimator, "drift", None)
                 peers[str(agent)] = PeerStatus(
-                    offset=c.offset,
+                    offset=c.offset_at(t_exec),
+                    bound=c.estimator.bound,
+                    drift_ppm=None if drift is None else drift * 1e6,
                     delay=c.delay,
                     error_bound=last.error_bound if last else None,
                     last_offset=last.offset if last else None,
@@ -255,7 +266,18 @@ class AgentRuntime:
         with self._count_lock:
             return dict(self.counters)
 
+    def _flush_records(self) -> None:
+        """Write recorded lines from the agent's loop, never from a callback."""
+        with self._lock:
+            records, self._records = self._records, []
+            poses, self._pose_records = self._pose_records, []
+        for f, lines in ((self._record_file, records), (self._pose_file, poses)):
+            if f is not None and lines:
+                f.write("".join(lines))
+                f.flush()
+
     def publish_status(self) -> None:
+        self._flush_records()
         line = self.status().model_dump_json()
         self._status_pub.put(line, encoding=zenoh.Encoding.APPLICATION_JSON)
         if self._status_file is not None:
@@ -273,7 +295,10 @@ class AgentRuntime:
                 self.count("sync_requests_malformed")
                 self.rejects("sync request", f"{query.key_expr}: {error}")
                 return
-            query.reply(query.key_expr, wire.encode_reply(t1, t2, self.pose))
+            reply = wire.encode_reply(t1, t2, self.pose)
+            # The send time rides in the attachment: the payload stays the paper's 64 bytes.
+            t2s = wire.encode_request(self.clock.now())
+            query.reply(query.key_expr, reply, attachment=t2s)
             self.count("sync_requests_served")
         except Exception:
             log.exception("sync query on %s failed", query.key_expr)
@@ -281,20 +306,33 @@ class AgentRuntime:
             query.drop()  # type: ignore[no-untyped-call]  # release now, or the querier waits
 
     def _on_sync_reply(self, peer: Peer, reply: zenoh.Reply) -> None:
-        t3 = self.clock.now()  # read on arrival: the paper's t3
+        t3, host = self.clock.read()  # read on arrival: the paper's t3
         try:
             if reply.ok is None:
                 self.count("sync_reply_errors")
                 return
+            t2s = None
+            if self.config.four_timestamps and reply.ok.attachment is not None:
+                try:
+                    t2s = wire.decode_request(reply.ok.attachment.to_bytes())
+                except wire.DecodeError:
+                    self.count("sync_attachment_malformed")
             with self._lock:
-                accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3)
+                accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3, t2s)
                 reason = peer.client.last_rejection
+                if accepted is not None and self._record_file is not None:
+                    self._records.append(
+                        f'{{"peer": "{peer.agent}", "t1": {accepted.t1!r}, "t2": {accepted.t2!r}, '
+                        f'"t3": {t3!r}, "t2s": {"null" if t2s is None else repr(t2s)}, '
+                        f'"host_monotonic": {host!r}}}\n'
+                    )
             if accepted is None:
                 self.rejects(f"sync reply ({reason})", f"from {peer.key}")
         except Exception:
             log.exception("sync reply from %s failed", peer.key)
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
+        t_recv, host = self.clock.read()
         try:
             parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
             try:
@@ -306,6 +344,13 @@ class AgentRuntime:
             self.count("pose_received")
             if parsed is not None:
                 self.latest_poses[parsed[0]] = decoded
+            if self._pose_file is not None:
+                line = (
+                    f'{{"agent": "{parsed[0] if parsed else ""}", "t": {decoded.t!r}, '
+                    f'"t_recv": {t_recv!r}, "host_monotonic": {host!r}}}\n'
+                )
+                with self._lock:
+                    self._pose_records.append(line)
         except Exception:
             log.exception("pose sample on %s failed", sample.key_expr)
 
@@ -321,7 +366,9 @@ class AgentRuntime:
                 if peer is None:
                     if not alive:
                         return
-                    peer = self.peers[agent] = Peer(self._new_client(), self.key(agent, "sync"))
+                    peer = self.peers[agent] = Peer(
+                        agent, self._new_client(), self.key(agent, "sync")
+                    )
                 elif alive and not peer.alive:
                     peer.client.reset()  # a restarted agent has a new clock
                 peer.alive = alive
@@ -331,10 +378,18 @@ class AgentRuntime:
 
     def _new_client(self) -> SyncClient:
         cfg = self.config
-        return SyncClient(PaperEstimator(cfg.estimator, cfg.sync_window), timeout=cfg.sync_timeout)
+        return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), timeout=cfg.sync_timeout)
 
 
 Agent = AgentRuntime
+
+
+def _open_append(path: Path | None) -> IO[str] | None:
+    if path is None:
+        return None
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path.open("a", encoding="utf-8")
 
 
 def _next_tick(previous: float, period: float, now: float) -> float:

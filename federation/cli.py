@@ -7,6 +7,7 @@ Every command that opens a Zenoh session takes Zenoh's usual flags
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import signal
 import sys
@@ -66,7 +67,7 @@ def _zenoh_flags(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
     data = {k: getattr(args, k) for k in ("mode", "connect", "listen", "config", "cfg")}
     return validate(ZenohOptions, data, "command line")
 
@@ -88,7 +89,7 @@ def _stop_on_signals() -> threading.Event:
 def cmd_router(args: argparse.Namespace) -> int:
     from federation.router import load_router_config, run_router
 
-    settings, conf = load_router_config(_zenoh_options(args), args.lab)
+    settings, conf = load_router_config(zenoh_options(args), args.lab)
     run_router(settings, conf, _stop_on_signals())
     return 0
 
@@ -105,12 +106,15 @@ _AGENT_FLAGS = (
     "sync_timeout",
     "sync_window",
     "estimator",
+    "four_timestamps",
     "pose_rate",
     "status_period",
     "clock_offset",
     "clock_drift_ppm",
     "duration",
     "status_json",
+    "record_sync",
+    "record_pose",
 )
 
 
@@ -136,7 +140,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     from federation.session import build_config
 
     config = agent_config(args)
-    conf = build_config(_zenoh_options(args), default_mode="client")
+    conf = build_config(zenoh_options(args), default_mode="client")
     stop = _stop_on_signals()
     session = _open_interruptible(zenoh.open, conf, stop)
     if session is None:
@@ -253,7 +257,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sync-timeout", type=float, metavar="S", help="sync reply timeout (0.5)")
     p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
     p.add_argument(
-        "--estimator", choices=["mean", "median"], help="statistic over the window (mean)"
+        "--estimator",
+        choices=["clockfilter", "mean", "median"],
+        help="offset estimator: clockfilter (offset and drift; default) or the paper's mean/median",
+    )
+    p.add_argument(
+        "--four-timestamps",
+        action="store_const",
+        const=True,
+        help="also use the server's send time (for servers with slow turnaround)",
     )
     p.add_argument("--pose-rate", type=float, metavar="HZ", help="pose samples per second (20)")
     p.add_argument("--status-period", type=float, metavar="S", help="seconds between status (1)")
@@ -261,6 +273,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clock-drift-ppm", type=float, metavar="PPM", help="clock rate error (ppm)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
+    p.add_argument(
+        "--record-sync", type=Path, metavar="FILE", help="append every sync exchange here (JSONL)"
+    )
+    p.add_argument(
+        "--record-pose",
+        type=Path,
+        metavar="FILE",
+        help="append the send and receive time of every pose received here (JSONL)",
+    )
     _zenoh_flags(p)
     p.set_defaults(func=cmd_agent)
 
@@ -283,7 +304,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--clock-offset", type=float, default=26.42, metavar="S", help="follower's clock skew"
     )
     p.set_defaults(func=cmd_demo)
+
+    for module in _COMMAND_MODULES:
+        importlib.import_module(module).register(sub, _Formatter, _zenoh_flags)
     return parser
+
+
+# Commands that live beside their library code: each module has
+# register(subparsers, formatter_class, add_zenoh_flags) and sets ``func``.
+_COMMAND_MODULES = ("federation.link", "federation.bench")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -40,12 +40,16 @@ class Fleet:
 
     def start(self, name: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
         """Run ``fedlab ARGS...`` with this interpreter; ``name`` must be unique while running."""
+        return self.spawn(name, [sys.executable, "-m", "federation", *args])
+
+    def spawn(self, name: str, argv: Sequence[str]) -> subprocess.Popen[bytes]:
+        """Run any command as a tracked child process."""
         if name in self.procs and self.procs[name].poll() is None:
             raise ValueError(f"process {name!r} is already running")
         log = self.log_path(name).open("ab")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         proc = subprocess.Popen(
-            [sys.executable, "-m", "federation", *args],
+            list(argv),
             stdin=subprocess.DEVNULL,
             stdout=log,
             stderr=subprocess.STDOUT,

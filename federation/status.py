@@ -12,10 +12,13 @@ between the two lines (a microsecond per second at 1 ppm), so pick nearby lines.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["last_status", "read_status", "true_offset"]
+import numpy as np
+
+__all__ = ["clock_line", "last_status", "read_status", "true_offset"]
 
 
 def read_status(path: str | Path) -> list[dict[str, Any]]:
@@ -43,3 +46,17 @@ def true_offset(server: dict[str, Any], client: dict[str, Any]) -> float:
         (server["t_exec"] - server["host_monotonic"])
         - (client["t_exec"] - client["host_monotonic"])
     )
+
+
+def clock_line(lines: Sequence[dict[str, Any]]) -> tuple[float, float]:
+    """(a, b) with ``t_exec = a + b * host_monotonic``, fitted to an agent's status lines.
+
+    An execution clock is exactly linear in host time (offset and drift), so two
+    lines determine it; more only average the float rounding.
+    """
+    if len(lines) < 2:
+        raise ValueError("need at least two status lines to recover a clock")
+    host = np.array([line["host_monotonic"] for line in lines])
+    t = np.array([line["t_exec"] for line in lines])
+    b, a = np.polyfit(host - host[0], t - t[0], 1)
+    return float(t[0] + a - b * host[0]), float(b)

@@ -48,21 +48,44 @@ DEFAULT_WINDOW = 10.0
 
 @dataclass(frozen=True, slots=True)
 class Exchange:
-    """The three timestamps of one query/reply, and what they give."""
+    """The timestamps of one query/reply, and what they give.
+
+    ``t2s`` is the optional fourth timestamp (server clock when the reply left).
+    With it, the server's turnaround ``t2s - t2`` is taken out of the delay and the
+    offset is SNTP's; without it, receive and send are one instant (the paper's).
+    """
 
     t1: float
     t2: float
     t3: float
+    t2s: float | None = None
+
+    @property
+    def turnaround(self) -> float:
+        """Server's time between receiving the request and sending the reply (s)."""
+        return 0.0 if self.t2s is None else self.t2s - self.t2
+
+    @property
+    def rtt(self) -> float:
+        """Round trip on the wire: client's elapsed time less the server's turnaround (s)."""
+        return (self.t3 - self.t1) - self.turnaround
 
     @property
     def delay(self) -> float:
-        """One-way delay, Eq. 3 (seconds)."""
-        return (self.t3 - self.t1) / 2.0
+        """One-way delay, Eq. 3 (s): ``(t3 - t1) / 2``, less half the turnaround if known."""
+        return self.rtt / 2.0
 
     @property
     def offset(self) -> float:
-        """Server clock minus client clock, Eq. 4 (seconds)."""
-        return self.t2 - (self.t1 + self.t3) / 2.0
+        """Server clock minus client clock, Eq. 4 (s): ``t2 - (t1 + t3) / 2``;
+        with four timestamps ``((t2 - t1) + (t2s - t3)) / 2``."""
+        t2s = self.t2 if self.t2s is None else self.t2s
+        return ((self.t2 - self.t1) + (t2s - self.t3)) / 2.0
+
+    @property
+    def t_mid(self) -> float:
+        """Client time the offset refers to: the middle of the exchange (s)."""
+        return (self.t1 + self.t3) / 2.0
 
     @property
     def error_bound(self) -> float:
@@ -71,12 +94,21 @@ class Exchange:
 
 
 class Estimator(Protocol):
-    """Turns accepted exchanges into a clock offset."""
+    """Turns accepted exchanges into a clock offset, a function of the client's time."""
 
     def add(self, exchange: Exchange) -> None: ...
 
     @property
-    def offset(self) -> float | None: ...
+    def offset(self) -> float | None:
+        """The offset at the latest exchange (s)."""
+
+    def offset_at(self, t: float) -> float | None:
+        """The offset at client time ``t`` (s); differs from ``offset`` if drift is modelled."""
+
+    @property
+    def bound(self) -> float | None:
+        """Half the mean round-trip excess over the minimum of the samples used (s):
+        the scale of error queueing leaves in the estimate."""
 
     @property
     def locked(self) -> bool: ...
@@ -106,6 +138,7 @@ class PaperEstimator:
 
     def reset(self) -> None:
         self._samples: list[float] = []
+        self._rtts: list[float] = []
         self._start: float | None = None
         self._held: float | None = None
 
@@ -118,6 +151,7 @@ class PaperEstimator:
             self._held = self._compute()
             return
         self._samples.append(exchange.offset)
+        self._rtts.append(exchange.rtt)
 
     def _compute(self) -> float | None:
         if not self._samples:
@@ -129,6 +163,16 @@ class PaperEstimator:
     @property
     def offset(self) -> float | None:
         return self._held if self._held is not None else self._compute()
+
+    def offset_at(self, t: float) -> float | None:
+        return self.offset
+
+    @property
+    def bound(self) -> float | None:
+        if not self._rtts:
+            return None
+        least = min(self._rtts)
+        return math.fsum(r - least for r in self._rtts) / len(self._rtts) / 2.0
 
     @property
     def locked(self) -> bool:
@@ -188,8 +232,12 @@ class SyncClient:
             self.timeouts += 1
             _remember(self._expired, t1)
 
-    def receive(self, payload: bytes | bytearray | memoryview, now: float) -> wire.SyncReply | None:
-        """Match a reply read at ``now`` (t3); on success feed the estimator."""
+    def receive(
+        self, payload: bytes | bytearray | memoryview, now: float, t2s: float | None = None
+    ) -> wire.SyncReply | None:
+        """Match a reply read at ``now`` (t3); on success feed the estimator.
+
+        ``t2s``, the server's send time, makes it a four-timestamp exchange."""
         try:
             reply = wire.decode_reply(payload)
         except wire.DecodeError:
@@ -214,7 +262,9 @@ class SyncClient:
             self._reject("unmatched")
             return None
         _remember(self._answered, t1)
-        exchange = Exchange(t1, reply.t2, now)
+        if t2s is not None and not (math.isfinite(t2s) and 0.0 <= t2s - reply.t2 <= now - t1):
+            t2s = None  # a send time the exchange cannot have had: use three timestamps
+        exchange = Exchange(t1, reply.t2, now, t2s)
         self.accepted += 1
         self.last = exchange
         self._delays.append(exchange.delay)
@@ -228,6 +278,9 @@ class SyncClient:
     @property
     def offset(self) -> float | None:
         return self.estimator.offset
+
+    def offset_at(self, t: float) -> float | None:
+        return self.estimator.offset_at(t)
 
     @property
     def delay(self) -> float | None:

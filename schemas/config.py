@@ -87,7 +87,14 @@ class AgentConfig(_Model):
         0.5, gt=0, le=10, description="seconds before a request is given up"
     )
     sync_window: float = Field(10.0, gt=0, description="seconds of reference time averaged (Eq. 6)")
-    estimator: Literal["mean", "median"] = Field("mean", description="statistic over the window")
+    estimator: Literal["clockfilter", "mean", "median"] = Field(
+        "clockfilter",
+        description="clockfilter: offset and drift by delay-weighted regression; "
+        "mean or median: the paper's Eq. 6 over the sync window",
+    )
+    four_timestamps: bool = Field(
+        False, description="use the server's send time (reply attachment) as a fourth timestamp"
+    )
     pose_rate: float = Field(20.0, gt=0, le=1000, description="pose samples per second (Hz)")
     status_period: float = Field(1.0, gt=0, le=60, description="seconds between status messages")
     clock_offset: float = Field(0.0, allow_inf_nan=False, description="seconds added to the clock")
@@ -96,6 +103,12 @@ class AgentConfig(_Model):
     )
     duration: float | None = Field(None, gt=0, description="seconds to run; none: until stopped")
     status_json: Path | None = Field(None, description="file to append status lines (JSON) to")
+    record_sync: Path | None = Field(
+        None, description="file to append every accepted sync exchange to (JSON lines)"
+    )
+    record_pose: Path | None = Field(
+        None, description="file to append every received pose sample's timing to (JSON lines)"
+    )
     platform: Literal["kinematic"] = Field("kinematic", description="pose source")
 
     @model_validator(mode="after")

@@ -15,11 +15,17 @@ class PeerStatus(BaseModel):
 
     model_config = ConfigDict(extra="allow")
 
-    offset: float | None = Field(description="clock offset estimate, peer minus self, s")
+    offset: float | None = Field(
+        description="clock offset estimate now, peer minus self, s (Eq. 4, filtered)"
+    )
     delay: float | None = Field(description="median one-way delay of recent exchanges, s")
     error_bound: float | None = Field(
         None, description="largest offset error path asymmetry can cause (last exchange), s"
     )
+    bound: float | None = Field(
+        None, description="half the mean round-trip excess of the samples used, s"
+    )
+    drift_ppm: float | None = Field(None, description="peer clock rate minus own, ppm")
     last_offset: float | None = Field(None, description="offset of the last exchange, s")
     last_delay: float | None = Field(None, description="delay of the last exchange, s")
     locked: bool = Field(False, description="the sync window has closed; offset held")

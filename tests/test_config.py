@@ -78,7 +78,7 @@ def test_load_minimal_toml_with_defaults(tmp_path: Path) -> None:
     assert config.sync_period == 0.1
     assert config.sync_timeout == 0.5
     assert config.sync_window == 10.0
-    assert config.estimator == "mean"
+    assert config.estimator == "clockfilter"
     assert config.pose_rate == 20.0
     assert config.clock_offset == 0.0
     assert config.duration is None

@@ -1,0 +1,244 @@
+"""``fedlab bench latency``: pose latency agent to agent across two lab routers,
+beside baselines measured in the same run.
+
+- ``fedlab pose``: a leader agent attached to router ``kiruna`` publishes pose at
+  ``--rate``; a follower attached to router ``rome`` records each arrival. One-way
+  latency = arrival minus sending, both on the host's monotonic clock (the
+  leader's clock is mapped to it exactly through its status lines).
+- ``bare zenoh``: a ping-pong through the same two routers with plain zenoh calls
+  and the same transport settings (no fedlab code); one way = round trip / 2.
+- ``raw udp``: a socket ping-pong on loopback; one way = round trip / 2.
+- ``sync turnaround``: the leader's time from reading ``t2`` to sending the reply
+  (the reply's four-timestamp attachment), over the follower's exchanges.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from federation.launch import Fleet, free_port, wait_for
+from federation.status import clock_line, read_status
+
+__all__ = ["run"]
+
+BASELINES = Path(__file__).with_name("baselines")
+
+
+def _stats(values_s: list[float]) -> dict[str, float]:
+    if not values_s:
+        raise RuntimeError("no sample was measured")
+    v = np.asarray(values_s) * 1e3
+    return {
+        "p50_ms": float(np.percentile(v, 50)),
+        "p99_ms": float(np.percentile(v, 99)),
+        "max_ms": float(v.max()),
+        "n": len(values_s),
+    }
+
+
+def _client_config(endpoint: str) -> zenoh.Config:
+    conf = zenoh.Config()
+    for key, value in (
+        ("mode", '"client"'),
+        ("connect/endpoints", f'["{endpoint}"]'),
+        ("scouting/multicast/enabled", "false"),
+        ("transport/unicast/lowlatency", "true"),
+        ("transport/unicast/qos/enabled", "false"),
+    ):
+        conf.insert_json5(key, value)
+    return conf
+
+
+def _wait_ready(fleet: Fleet, name: str, timeout: float = 15.0) -> None:
+    log = fleet.log_path(name)
+    if not wait_for(lambda: log.exists() and "ready" in log.read_text(), timeout):
+        raise RuntimeError(f"{name} did not start: {log.read_text() if log.exists() else ''}")
+
+
+def bare_zenoh(fleet: Fleet, ping_at: str, pong_at: str, count: int, rate: float) -> list[float]:
+    """One-way latencies (s) of a plain zenoh ping-pong through both routers."""
+    key = f"bench/{free_port()}"
+    fleet.spawn(
+        "zenoh-pong",
+        [sys.executable, str(BASELINES / "zenoh_pong.py"), pong_at, key, str(count / rate + 30)],
+    )
+    _wait_ready(fleet, "zenoh-pong")
+    sent: dict[int, int] = {}
+    oneway: list[float] = []
+    done = threading.Event()
+
+    def on_pong(sample: zenoh.Sample) -> None:
+        now = time.perf_counter_ns()
+        seq = int.from_bytes(sample.payload.to_bytes()[:8], "little")
+        if seq in sent:
+            oneway.append((now - sent.pop(seq)) / 2e9)
+            if len(oneway) >= count:
+                done.set()
+
+    with zenoh.open(_client_config(ping_at)) as session:
+        sub = session.declare_subscriber(
+            f"{key}/pong", zenoh.handlers.Callback(on_pong, indirect=False)
+        )
+        pub = session.declare_publisher(f"{key}/ping", express=True)
+        # Until the route exists pings are lost: warm up with a bounded number.
+        for seq in range(-200, 0):
+            if oneway:
+                break
+            sent[seq] = time.perf_counter_ns()
+            pub.put((seq % 2**63).to_bytes(8, "little") + bytes(48))
+            time.sleep(0.05)
+        oneway.clear()
+        sent.clear()
+        for seq in range(count):
+            sent[seq] = time.perf_counter_ns()
+            pub.put(seq.to_bytes(8, "little") + bytes(48))  # 56 bytes, a pose sample's size
+            time.sleep(1.0 / rate)
+        done.wait(5.0)
+        pub.undeclare()
+        sub.undeclare()
+    fleet.stop("zenoh-pong")
+    return list(oneway)
+
+
+def raw_udp(fleet: Fleet, count: int, rate: float) -> list[float]:
+    """One-way latencies (s) of a plain UDP ping-pong on loopback."""
+    port = free_port()
+    fleet.spawn(
+        "udp-pong",
+        [
+            sys.executable,
+            str(BASELINES / "udp_pong.py"),
+            "127.0.0.1",
+            str(port),
+            str(count / rate + 30),
+        ],
+    )
+    _wait_ready(fleet, "udp-pong")
+    oneway = []
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.settimeout(1.0)
+        for seq in range(count):
+            payload = seq.to_bytes(8, "little") + bytes(48)
+            start = time.perf_counter_ns()
+            sock.sendto(payload, ("127.0.0.1", port))
+            try:
+                while sock.recvfrom(2048)[0] != payload:
+                    pass
+            except TimeoutError:
+                continue
+            oneway.append((time.perf_counter_ns() - start) / 2e9)
+            time.sleep(1.0 / rate)
+    fleet.stop("udp-pong")
+    return oneway
+
+
+def fedlab_pose(
+    fleet: Fleet, kiruna: str, rome: str, seconds: float, rate: float, out: Path
+) -> tuple[list[float], list[float]]:
+    """(pose one-way latencies, sync turnarounds) in seconds, from real agents."""
+    leader, follower = out / "leader.jsonl", out / "follower.jsonl"
+    poses, syncs = out / "poses.jsonl", out / "sync.jsonl"
+    for f in (leader, follower, poses, syncs):
+        f.unlink(missing_ok=True)
+    common = ["--duration", f"{seconds}", "--status-period", "0.5"]
+    fleet.start(
+        "leader",
+        ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
+         "--pose-rate", f"{rate}", "--status-json", str(leader), *common],
+    )  # fmt: skip
+    fleet.start(
+        "follower",
+        ["agent", "--role", "follower", "--lab", "rome", "--name", "pinocchio", "-e", rome,
+         "--follow", "kiruna/knatte", "--four-timestamps", "--record-pose", str(poses),
+         "--record-sync", str(syncs), "--status-json", str(follower), *common],
+    )  # fmt: skip
+    wait_for(lambda: not fleet.alive("follower") and not fleet.alive("leader"), seconds + 30, 0.5)
+    a, b = clock_line(read_status(leader))
+    latencies = []
+    for line in poses.read_text(encoding="utf-8").splitlines():
+        r = json.loads(line)
+        sent_host = (r["t"] - a) / b
+        latencies.append(r["host_monotonic"] - sent_host)
+    turnarounds = []
+    for line in syncs.read_text(encoding="utf-8").splitlines():
+        r = json.loads(line)
+        if r["t2s"] is not None:
+            turnarounds.append(r["t2s"] - r["t2"])
+    # The first second holds route set-up; score the steady state.
+    skip = int(rate)
+    return latencies[skip:], turnarounds
+
+
+def run(seconds: float, rate: float, out: Path) -> dict[str, Any]:
+    out.mkdir(parents=True, exist_ok=True)
+    kiruna, rome = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    count = int(seconds * rate)
+    with Fleet(out / "logs") as fleet:
+        fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
+        fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", kiruna])
+        pose, turnaround = fedlab_pose(fleet, kiruna, rome, seconds, rate, out)
+        bare = bare_zenoh(fleet, kiruna, rome, count, rate)
+        udp = raw_udp(fleet, count, rate)
+    result: dict[str, Any] = {
+        "fedlab_pose": _stats(pose),
+        "bare_zenoh": _stats(bare),
+        "raw_udp": _stats(udp),
+        "sync_turnaround": _stats(turnaround),
+        "rate_hz": rate,
+        "seconds": seconds,
+    }
+    result["ratio_p50_fedlab_over_bare"] = (
+        result["fedlab_pose"]["p50_ms"] / result["bare_zenoh"]["p50_ms"]
+    )
+    result["ratio_p50_bare_over_udp"] = result["bare_zenoh"]["p50_ms"] / result["raw_udp"]["p50_ms"]
+    return result
+
+
+def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    p = sub.add_parser(
+        "latency",
+        help="pose latency across two routers, beside bare zenoh and raw UDP",
+        formatter_class=formatter,
+        description=(__doc__ or "").split("\n\n")[0],
+        epilog="Example: fedlab bench latency --seconds 30 --rate 100 --json",
+    )
+    p.add_argument("--seconds", type=float, default=20.0, metavar="S", help="seconds per path")
+    p.add_argument("--rate", type=float, default=100.0, metavar="HZ", help="samples per second")
+    p.add_argument("--out", type=Path, default=Path("runs/bench-latency"), metavar="DIR")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=cmd_latency)
+
+
+def cmd_latency(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    result = run(args.seconds, args.rate, args.out)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    table = Table(title=f"one-way latency, loopback, two routers ({args.rate:.0f} Hz)")
+    for col in ("path", "p50 (ms)", "p99 (ms)", "max (ms)", "samples"):
+        table.add_column(col, justify="left" if col == "path" else "right")
+    for name in ("fedlab_pose", "bare_zenoh", "raw_udp", "sync_turnaround"):
+        r = result[name]
+        table.add_row(
+            name, f"{r['p50_ms']:.3f}", f"{r['p99_ms']:.3f}", f"{r['max_ms']:.3f}", str(r["n"])
+        )
+    console = Console()
+    console.print(table)
+    console.print(
+        f"fedlab / bare zenoh p50: {result['ratio_p50_fedlab_over_bare']:.2f}x; "
+        f"bare zenoh / raw udp p50: {result['ratio_p50_bare_over_udp']:.1f}x"
+    )
+    return 0

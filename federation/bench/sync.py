@@ -1,0 +1,295 @@
+"""``fedlab bench sync``: how far each estimator's offset is from the truth.
+
+Live (default): two lab routers linked through ``fedlab link`` with the
+scenario's delay, jitter, asymmetry and bursts; a leader and a follower whose
+clock is 26.42 s off and drifts by the scenario's ppm. The follower records
+every sync exchange (``--record-sync``); both agents' status lines pair their
+clock with the host's monotonic clock, which gives each clock as an exact
+linear function of host time, hence the true offset at every exchange.
+
+Offline (``--offline``): the same exchanges drawn from the link model alone, no
+processes. Either way the recorded exchanges are replayed through every
+estimator, so one run compares them all on identical input; a live agent's own
+estimate is the same function of the same exchanges (tests check it).
+
+Scores: |estimate - truth| at each exchange after the sync phase (10 s), as
+p50, p95 and max in seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from federation.estimators import ESTIMATORS, make_estimator
+from federation.link import DirectionConfig, JitterDist, LinkModel
+from federation.status import clock_line, read_status
+from federation.sync import Exchange
+
+__all__ = [
+    "SCENARIOS",
+    "Recording",
+    "Scenario",
+    "load_recording",
+    "replay",
+    "run_live",
+    "simulate",
+]
+
+CLOCK_OFFSET = 26.42  # s, the paper's (section 4)
+SYNC_PHASE = 10.0  # s of exchanges before scoring starts (the paper's sync phase)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    delay_ms: float = 40.0
+    jitter_ms: float = 5.0
+    jitter_dist: JitterDist = "normal"
+    drift_ppm: float = 0.0
+    asymmetry_ms: float = 0.0
+    burst_every: float = 0.0  # s; 0: none
+    burst_duration: float = 0.0  # s
+    burst_extra_ms: float = 0.0
+    burst_jitter_factor: float = 1.0
+    about: str = ""
+
+    def direction(self) -> DirectionConfig:
+        return DirectionConfig(
+            delay=self.delay_ms / 1e3,
+            jitter=self.jitter_ms / 1e3,
+            jitter_dist=self.jitter_dist,
+            burst_every=self.burst_every,
+            burst_duration=self.burst_duration,
+            burst_extra=self.burst_extra_ms / 1e3,
+            burst_jitter_factor=self.burst_jitter_factor,
+        )
+
+    def link_args(self) -> list[str]:
+        args = [
+            "--delay-ms", f"{self.delay_ms}",
+            "--jitter-ms", f"{self.jitter_ms}",
+            "--jitter-dist", self.jitter_dist,
+            "--asymmetry-ms", f"{self.asymmetry_ms}",
+        ]  # fmt: skip
+        if self.burst_every > 0:
+            args += [
+                "--burst-every", f"{self.burst_every}",
+                "--burst-duration", f"{self.burst_duration}",
+                "--burst-extra-ms", f"{self.burst_extra_ms}",
+            ]  # fmt: skip
+        return args
+
+
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario("paper-like", about="40 ms one way, 5 ms half-normal jitter"),
+        Scenario("heavy-tail", jitter_dist="pareto", about="40 ms, Pareto jitter, mean 5 ms"),
+        Scenario("drift", jitter_ms=10.0, drift_ppm=50.0, about="40 ms, 10 ms jitter, 50 ppm"),
+        Scenario(
+            "bursts",
+            burst_every=60.0,
+            burst_duration=10.0,
+            burst_extra_ms=20.0,
+            burst_jitter_factor=4.0,
+            about="40 ms, 5 ms jitter; every 60 s, 10 s of +20 ms and 4x jitter",
+        ),
+        Scenario("asymmetry", asymmetry_ms=10.0, about="40 ms out, 50 ms back, 5 ms jitter"),
+    )
+}
+
+
+@dataclass
+class Recording:
+    """Exchanges as the client saw them, and the true offset at any client time."""
+
+    exchanges: list[Exchange]
+    truth: Callable[[float], float]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def replay(
+    recording: Recording, estimator: str, sync_phase: float = SYNC_PHASE
+) -> dict[str, float]:
+    """Feed the exchanges to a fresh estimator; score it after the sync phase."""
+    est = make_estimator(estimator)
+    if not recording.exchanges:
+        raise ValueError("the recording holds no exchange")
+    start = recording.exchanges[0].t3
+    errors = []
+    for ex in recording.exchanges:
+        est.add(ex)
+        if ex.t3 - start >= sync_phase:
+            offset = est.offset_at(ex.t3)
+            if offset is not None:
+                errors.append(abs(offset - recording.truth(ex.t3)))
+    if not errors:
+        raise ValueError(f"no exchange after the {sync_phase} s sync phase: run longer")
+    e = np.asarray(errors)
+    return {
+        "p50": float(np.percentile(e, 50)),
+        "p95": float(np.percentile(e, 95)),
+        "max": float(e.max()),
+        "n": len(errors),
+    }
+
+
+def simulate(scenario: Scenario, duration: float, seed: int = 1, period: float = 0.1) -> Recording:
+    """Exchanges drawn from the link model alone (true time = client clock)."""
+    link = LinkModel(
+        scenario.direction(), asymmetry=scenario.asymmetry_ms / 1e3, seed=seed, start=0.0
+    )
+    rate = 1.0 + scenario.drift_ppm * 1e-6
+
+    def server(t: float) -> float:
+        return CLOCK_OFFSET + t * rate
+
+    exchanges = []
+    for k in range(int(duration / period)):
+        t1 = k * period  # the client's clock is true time here
+        arrival = t1 + link.forward.delay(t1)  # the reply leaves on arrival
+        exchanges.append(Exchange(t1, server(arrival), arrival + link.backward.delay(arrival)))
+    return Recording(exchanges, lambda t: server(t) - t, {"mode": "offline", "seed": seed})
+
+
+def load_recording(record: Path, server_status: Path, client_status: Path) -> Recording:
+    """A live run's exchanges, with the truth recovered from both agents' status lines."""
+    a_s, b_s = clock_line(read_status(server_status))
+    a_c, b_c = clock_line(read_status(client_status))
+
+    def truth(t_client: float) -> float:
+        host = (t_client - a_c) / b_c
+        return a_s + b_s * host - t_client
+
+    exchanges = []
+    for line in record.read_text(encoding="utf-8").splitlines():
+        r = json.loads(line)
+        exchanges.append(Exchange(r["t1"], r["t2"], r["t3"], r.get("t2s")))
+    return Recording(exchanges, truth, {"mode": "live"})
+
+
+def run_live(scenario: Scenario, duration: float, out: Path, seed: int = 1) -> Recording:
+    """Routers, link emulator, leader and follower as processes; returns the recording."""
+    from federation.launch import Fleet, free_port, wait_for
+
+    out.mkdir(parents=True, exist_ok=True)
+    files = {n: out / f"{scenario.name}-{n}.jsonl" for n in ("leader", "follower", "record")}
+    for f in files.values():
+        f.unlink(missing_ok=True)
+    kiruna, link, rome = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+    with Fleet(out / f"{scenario.name}-logs") as fleet:
+        fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
+        fleet.start(
+            "link",
+            ["link", "--listen", link, "--to", kiruna, "--seed", str(seed), *scenario.link_args()],
+        )
+        fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", link])
+        common = ["--duration", f"{duration + 2}", "--status-period", "0.5"]
+        fleet.start(
+            "leader",
+            ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
+             "--status-json", str(files["leader"]), *common],
+        )  # fmt: skip
+        fleet.start(
+            "follower",
+            ["agent", "--role", "follower", "--lab", "rome", "--name", "pinocchio", "-e", rome,
+             "--follow", "kiruna/knatte", "--sync-with", "kiruna/knatte",
+             "--clock-offset", f"{CLOCK_OFFSET}", "--clock-drift-ppm", f"{scenario.drift_ppm}",
+             "--status-json", str(files["follower"]), "--record-sync", str(files["record"]),
+             *common],
+        )  # fmt: skip
+        wait_for(lambda: not fleet.alive("follower"), timeout=duration + 60, interval=0.5)
+    recording = load_recording(files["record"], files["leader"], files["follower"])
+    recording.meta.update({"mode": "live", "seed": seed})
+    return recording
+
+
+def run(
+    scenarios: Iterable[Scenario],
+    estimators: Sequence[str],
+    duration: float,
+    offline: bool,
+    out: Path,
+    seed: int,
+    progress: Callable[[str], None] = lambda s: None,
+) -> list[dict[str, Any]]:
+    results = []
+    for scenario in scenarios:
+        started = time.monotonic()
+        progress(f"{scenario.name}: {'simulating' if offline else 'running'} {duration:.0f} s")
+        if offline:
+            recording = simulate(scenario, duration, seed)
+        else:
+            recording = run_live(scenario, duration, out, seed)
+        for name in estimators:
+            score = replay(recording, name)
+            results.append(
+                {"scenario": scenario.name, "estimator": name, **score,
+                 "mode": recording.meta["mode"], "duration_s": duration}
+            )  # fmt: skip
+        progress(f"{scenario.name}: {len(recording.exchanges)} exchanges, "
+                 f"{time.monotonic() - started:.0f} s")  # fmt: skip
+    return results
+
+
+def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    p = sub.add_parser(
+        "sync",
+        help="offset error of each estimator under emulated internet paths",
+        formatter_class=formatter,
+        description=__doc__.split("\n\n")[1] if __doc__ else None,
+        epilog=(
+            "Examples:\n"
+            "  fedlab bench sync --duration 60 --scenario paper-like --scenario drift\n"
+            "  fedlab bench sync --offline --duration 600 --json"
+        ),
+    )
+    p.add_argument(
+        "--scenario", action="append", choices=sorted(SCENARIOS), metavar="NAME",
+        help=f"scenario to run (repeatable; default all: {', '.join(SCENARIOS)})",
+    )  # fmt: skip
+    p.add_argument(
+        "--estimator", action="append", choices=ESTIMATORS, metavar="NAME",
+        help=f"estimator to score (repeatable; default all: {', '.join(ESTIMATORS)})",
+    )  # fmt: skip
+    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds per scenario")
+    p.add_argument("--offline", action="store_true", help="draw exchanges from the link model")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the link emulator")
+    p.add_argument("--out", type=Path, default=Path("runs/bench-sync"), metavar="DIR")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=cmd_sync)
+
+
+def cmd_sync(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    if args.duration <= SYNC_PHASE:
+        raise SystemExit(f"--duration must exceed the {SYNC_PHASE:.0f} s sync phase")
+    console = Console(stderr=True)
+    scenarios = [SCENARIOS[n] for n in (args.scenario or SCENARIOS)]
+    results = run(
+        scenarios, args.estimator or ESTIMATORS, args.duration, args.offline, args.out,
+        args.seed, progress=lambda s: console.print(s),
+    )  # fmt: skip
+    if args.json:
+        print(json.dumps(results, indent=1))
+        return 0
+    table = Table(title="clock offset |error| after the sync phase (ms)")
+    for col in ("scenario", "estimator", "p50", "p95", "max", "samples"):
+        table.add_column(col, justify="left" if col in ("scenario", "estimator") else "right")
+    for r in results:
+        table.add_row(
+            r["scenario"], r["estimator"],
+            *(f"{r[k] * 1e3:.3f}" for k in ("p50", "p95", "max")), str(r["n"]),
+        )  # fmt: skip
+    Console().print(table)
+    return 0
