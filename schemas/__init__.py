@@ -3,12 +3,12 @@
 from schemas.config import (
     AgentConfig,
     ConfigError,
-    PlatformConfig,
     RouterConfig,
     ZenohOptions,
     load_model,
 )
 from schemas.messages import PeerStatus, Status
+from schemas.platform import PlatformConfig
 
 __all__ = [
     "AgentConfig",

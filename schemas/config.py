@@ -19,7 +19,6 @@ from federation.keys import DEFAULT_FEDERATION, AgentId, validate_name
 __all__ = [
     "AgentConfig",
     "ConfigError",
-    "PlatformConfig",
     "RouterConfig",
     "ZenohOptions",
     "format_validation_error",
@@ -132,17 +131,6 @@ class RouterConfig(_Model):
     listen: list[Endpoint] = Field(default_factory=list, description="endpoints to listen on")
     connect: list[Endpoint] = Field(
         default_factory=list, description="other labs' routers to dial (outbound only)"
-    )
-
-
-class PlatformConfig(_Model):
-    """Physical description of a platform (paper section 2)."""
-
-    name: Annotated[str, _name("platform name")]
-    mass: float = Field(gt=0, description="kg")
-    inertia: float = Field(gt=0, description="moment of inertia about the vertical axis, kg m^2")
-    max_rate: float = Field(
-        0.5, gt=0, description="largest heading rate the kinematic model follows, rad/s"
     )
 
 

@@ -12,11 +12,11 @@ from federation.keys import AgentId
 from schemas.config import (
     AgentConfig,
     ConfigError,
-    PlatformConfig,
     RouterConfig,
     ZenohOptions,
     load_model,
 )
+from schemas.platform import PlatformConfig
 
 LEADER_TOML = """\
 lab = "kiruna"
