@@ -201,6 +201,9 @@ class AgentRuntime:
             heading, rate = track_heading(received)
         self.pose = self.platform.step(t_exec, heading, rate)
         self._pose_pub.put(wire.encode_pose(t_exec, self.pose))
+        if self._pose_file is not None:
+            with self._lock:
+                self._pose_records.append(f'{{"sent": true, "t": {t_exec!r}}}\n')
 
     def sync_targets(self) -> list[AgentId]:
         if self.explicit_sync:

@@ -6,7 +6,7 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
-from federation.bench import latency, sync
+from federation.bench import latency, scale, sync
 
 __all__ = ["register"]
 
@@ -18,7 +18,7 @@ def register(
 ) -> None:
     p = sub.add_parser(
         "bench",
-        help="benchmarks: sync accuracy, latency",
+        help="benchmarks: sync accuracy, latency, scale",
         formatter_class=formatter,
         description="Benchmarks; each prints a table, or JSON with --json.",
         epilog="Example: fedlab bench sync --duration 60 --scenario drift",
@@ -26,3 +26,4 @@ def register(
     benches = p.add_subparsers(dest="bench", required=True, metavar="BENCH")
     sync.register(benches, formatter)
     latency.register(benches, formatter)
+    scale.register(benches, formatter)

@@ -167,6 +167,8 @@ def fedlab_pose(
     latencies = []
     for line in poses.read_text(encoding="utf-8").splitlines():
         r = json.loads(line)
+        if r.get("sent"):
+            continue
         sent_host = (r["t"] - a) / b
         latencies.append(r["host_monotonic"] - sent_host)
     turnarounds = []

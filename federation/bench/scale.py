@@ -1,0 +1,224 @@
+"""``fedlab bench scale``: N agents over 4 labs, pose at 20 Hz and sync at 10 Hz.
+
+Four lab routers in a star (``lab0`` listens, the others dial it, as labs behind
+firewalls would). Agent 0 (``lab0/a0``) leads; every other agent follows it,
+syncs with it at 10 Hz and publishes its own pose at 20 Hz. Agents share worker
+processes (one per lab), each agent with its own Zenoh session, since this
+machine has 2 cores.
+
+For each N: CPU of all processes (routers and workers, in cores), p50/p99
+one-way pose latency leader to followers (host monotonic clock on both ends;
+the leader's clock is mapped to it exactly through its status lines), loss
+(leader samples sent while a follower listened that it never received), and
+sync exchanges completed per second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from federation.launch import Fleet, free_port, wait_for
+from federation.status import clock_line, read_status
+
+__all__ = ["run", "run_one"]
+
+LABS = 4
+SETTLE = 3.0  # s after start before samples count (discovery, routes)
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc)."""
+    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _agents(n: int) -> list[tuple[int, str]]:
+    """(lab index, agent name) for n agents, round-robin over the labs."""
+    return [(i % LABS, f"lab{i % LABS}/a{i}") for i in range(n)]
+
+
+def run_one(n: int, seconds: float, out: Path) -> dict[str, Any]:
+    out = out / f"n{n}"
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("*.jsonl"):
+        old.unlink()
+    endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(LABS)]
+    agents = _agents(n)
+    with Fleet(out / "logs") as fleet:
+        for lab, ep in enumerate(endpoints):
+            args = ["router", "--lab", f"lab{lab}", "-l", ep]
+            if lab:
+                args += ["-e", endpoints[0]]
+            fleet.start(f"router-lab{lab}", args)
+        for lab in range(LABS):
+            mine = [name for (i, name) in agents if i == lab]
+            if not mine:
+                continue
+            fleet.spawn(
+                f"worker-lab{lab}",
+                [sys.executable, "-m", "federation.bench.scale", "worker", endpoints[lab],
+                 f"{seconds + SETTLE}", str(out), *mine],
+            )  # fmt: skip
+        time.sleep(SETTLE)
+        cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
+        t0 = time.monotonic()
+        time.sleep(max(1.0, seconds - 1.0))  # workers run seconds + SETTLE: still alive here
+        cpu = sum(_cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items())
+        wall = time.monotonic() - t0
+        workers = [name for name in fleet.procs if name.startswith("worker")]
+        wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
+    return {"n": n, **_score(out, agents, seconds), "cpu_cores": cpu / wall, "seconds": seconds}
+
+
+def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str, Any]:
+    leader = agents[0][1]
+    stem = leader.replace("/", "-")
+    a, b = clock_line(read_status(out / f"{stem}.status.jsonl"))
+    sent = []
+    for line in (out / f"{stem}.pose.jsonl").read_text().splitlines():
+        r = json.loads(line)
+        if r.get("sent"):
+            sent.append(r["t"])
+    sent_t = np.array(sent)
+    latencies: list[float] = []
+    lost = expected = 0
+    syncs = 0
+    for _, name in agents[1:]:
+        stem = name.replace("/", "-")
+        got = []
+        for line in (out / f"{stem}.pose.jsonl").read_text().splitlines():
+            r = json.loads(line)
+            if not r.get("sent") and r.get("agent") == leader:
+                got.append((r["t"], r["host_monotonic"]))
+        status = read_status(out / f"{stem}.status.jsonl")
+        if status:
+            syncs += status[-1]["peers"].get(leader, {}).get("samples", 0)
+        if not got:
+            expected += len(sent_t)
+            lost += len(sent_t)
+            continue
+        t_recv = np.array([g[0] for g in got])
+        first = t_recv.min() + SETTLE  # count from when routes had settled
+        window = sent_t[(sent_t >= first) & (sent_t <= t_recv.max())]
+        received = set(t_recv.tolist())
+        expected += len(window)
+        lost += sum(1 for t in window.tolist() if t not in received)
+        latencies += [h - (t - a) / b for t, h in got if t >= first]
+    lat = np.asarray(latencies) * 1e3 if latencies else np.asarray([np.nan])
+    return {
+        "p50_ms": float(np.percentile(lat, 50)),
+        "p99_ms": float(np.percentile(lat, 99)),
+        "loss": lost / expected if expected else float("nan"),
+        "samples": len(latencies),
+        "sync_per_s": syncs / (seconds + SETTLE),
+    }
+
+
+def run(ns: list[int], seconds: float, out: Path) -> list[dict[str, Any]]:
+    return [run_one(n, seconds, out) for n in ns]
+
+
+# -- worker: several agents in one process, each with its own session ----------------
+def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
+    import zenoh
+
+    from federation.agent import AgentRuntime
+    from federation.session import build_config
+    from schemas.config import AgentConfig, ZenohOptions
+
+    leader = "lab0/a0"
+    stop = threading.Event()
+    conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
+    sessions, runtimes, threads = [], [], []
+    try:
+        for name in names:
+            lab, agent = name.split("/")
+            stem = f"{lab}-{agent}"
+            role = "leader" if name == leader else "follower"
+            config = AgentConfig(
+                lab=lab,
+                name=agent,
+                role=role,
+                follow=None if role == "leader" else leader,
+                sync_with=[] if role == "leader" else [leader],
+                duration=seconds,
+                status_period=0.5,
+                status_json=out / f"{stem}.status.jsonl",
+                record_pose=out / f"{stem}.pose.jsonl",
+            )
+            session = zenoh.open(conf)
+            sessions.append(session)
+            runtime = AgentRuntime(config, session)
+            runtime.start()
+            runtimes.append(runtime)
+        for runtime in runtimes:
+            thread = threading.Thread(target=runtime.run, args=(stop,), daemon=True)
+            thread.start()
+            threads.append(thread)
+        for thread in threads:
+            thread.join(seconds + 30)
+    finally:
+        stop.set()
+        for runtime in runtimes:
+            runtime.close()
+        for session in sessions:
+            session.close()
+
+
+def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
+    p = sub.add_parser(
+        "scale",
+        help="N agents over 4 labs: CPU, latency and loss as N grows",
+        formatter_class=formatter,
+        description=(__doc__ or "").split("\n\n")[0],
+        epilog="Example: fedlab bench scale --agents 2 --agents 8 --seconds 20 --json",
+    )
+    p.add_argument(
+        "--agents", action="append", type=int, metavar="N",
+        help="agent counts to run (repeatable; default 2 8 16 32 64)",
+    )  # fmt: skip
+    p.add_argument("--seconds", type=float, default=20.0, metavar="S", help="seconds per N")
+    p.add_argument("--out", type=Path, default=Path("runs/bench-scale"), metavar="DIR")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=cmd_scale)
+
+
+def cmd_scale(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    ns = args.agents or [2, 8, 16, 32, 64]
+    if any(n < 2 for n in ns):
+        raise SystemExit("--agents must be at least 2 (a leader and a follower)")
+    console = Console(stderr=True)
+    results = []
+    for n in ns:
+        console.print(f"{n} agents: running {args.seconds:.0f} s")
+        results.append(run_one(n, args.seconds, args.out))
+    if args.json:
+        print(json.dumps(results, indent=1))
+        return 0
+    table = Table(title="N agents over 4 labs (pose 20 Hz, sync 10 Hz)")
+    for col in ("agents", "CPU (cores)", "p50 (ms)", "p99 (ms)", "loss", "sync/s"):
+        table.add_column(col, justify="right")
+    for r in results:
+        table.add_row(
+            str(r["n"]), f"{r['cpu_cores']:.2f}", f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}",
+            f"{r['loss']:.4f}", f"{r['sync_per_s']:.0f}",
+        )  # fmt: skip
+    Console().print(table)
+    return 0
+
+
+if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:
+    worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5:])

@@ -1,0 +1,48 @@
+"""Short forms of ``fedlab bench latency`` and ``fedlab bench scale`` (real processes)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.integration
+
+
+def bench(*args: str, timeout: float) -> object:
+    out = subprocess.run(
+        [sys.executable, "-m", "federation", "bench", *args, "--json"],
+        capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout)
+
+
+def test_latency_short(tmp_path: Path) -> None:
+    r = bench("latency", "--seconds", "4", "--rate", "50", "--out", str(tmp_path), timeout=120)
+    assert isinstance(r, dict)
+    for path in ("fedlab_pose", "bare_zenoh", "raw_udp", "sync_turnaround"):
+        assert 0 < r[path]["p50_ms"] <= r[path]["p99_ms"] <= r[path]["max_ms"], path
+    assert r["fedlab_pose"]["n"] >= 100 and r["bare_zenoh"]["n"] >= 150
+    # Orders of magnitude that hold on any machine: loopback UDP beats two routers,
+    # and answering a sync query takes well under a millisecond.
+    assert r["raw_udp"]["p50_ms"] < r["bare_zenoh"]["p50_ms"]
+    assert r["sync_turnaround"]["p50_ms"] < 1.0
+    assert r["ratio_p50_fedlab_over_bare"] == pytest.approx(
+        r["fedlab_pose"]["p50_ms"] / r["bare_zenoh"]["p50_ms"]
+    )
+
+
+def test_scale_short(tmp_path: Path) -> None:
+    rows = bench("scale", "--agents", "2", "--agents", "6", "--seconds", "5",
+                 "--out", str(tmp_path), timeout=180)  # fmt: skip
+    assert isinstance(rows, list) and [r["n"] for r in rows] == [2, 6]
+    for r in rows:
+        assert r["samples"] > 0 and r["p50_ms"] > 0
+        assert r["loss"] < 0.01, r
+        assert r["cpu_cores"] > 0
+    # Five followers sync with the leader at 10 Hz: about 50 exchanges a second.
+    assert rows[1]["sync_per_s"] > rows[0]["sync_per_s"] * 2
