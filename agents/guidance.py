@@ -44,8 +44,31 @@ class ReferenceManeuver:
         return heading, rate
 
 
-def track_heading(received: PoseSample | None) -> tuple[float, float]:
-    """Follower reference: the leader's received heading and rate (none yet: hold 0)."""
+def track_heading(
+    received: PoseSample | None,
+    now: float | None = None,
+    compensate: bool = True,
+    horizon: float = 1.0,
+) -> tuple[float, float]:
+    """Follower reference from the last received sample (none yet: hold 0).
+
+    With ``compensate`` (and ``now``, the present time on the *sender's* clock),
+    the sample is dead-reckoned from its timestamp to ``now`` with the rate it
+    carries, as DIS does, so the follower tracks where the leader is now rather
+    than where it was one delay ago:
+
+    .. math::
+
+        \\psi_{ref} = \\psi_s + \\omega_s\\,(t_{now} - t_s), \\qquad
+        0 \\le t_{now} - t_s \\le \\text{horizon}
+
+    The extrapolation is clamped to ``horizon`` seconds so a stale sample is not
+    flung far ahead.
+    """
     if received is None:
         return 0.0, 0.0
-    return received.pose.heading, received.pose.omega
+    heading, rate = received.pose.heading, received.pose.omega
+    if compensate and now is not None:
+        age = min(max(now - received.t, 0.0), horizon)
+        heading += rate * age
+    return heading, rate

@@ -1,7 +1,9 @@
 """Kinematic platform: the pose is the commanded trajectory.
 
-The stand-in pose source until simulated dynamics exist: it follows the
-commanded heading exactly (no inertia, no thrusters) at a fixed position.
+A pose source with no inertia and no thrusters: it follows the commanded
+heading exactly at a fixed position. Useful for protocol tests and for agents
+that only relay a trajectory; the simulated platforms (:mod:`agents.simulated`)
+fly real dynamics.
 """
 
 from __future__ import annotations
@@ -14,15 +16,39 @@ __all__ = ["KinematicPlatform", "Platform"]
 
 
 class Platform(Protocol):
-    """A pose source: advanced to time ``t`` with a heading command, returns its pose."""
+    """A pose source driven by a heading command.
+
+    The agent calls :meth:`step` ``rate`` times a second with its clock's time
+    and the guidance's heading and rate references; the returned pose is what it
+    publishes (for a simulated or real platform: its navigation estimate).
+    :meth:`hold` closes every valve until :meth:`release` (safe hold).
+    """
+
+    rate: float
 
     def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose: ...
 
+    def hold(self) -> None: ...
+
+    def release(self) -> None: ...
+
 
 class KinematicPlatform:
+    rate = 100.0
+
     def __init__(self, x: float = 0.0, y: float = 0.0):
         self.pose = Pose(x=x, y=y)
+        self.held = False
 
     def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
-        self.pose = self.pose._replace(heading=heading_ref, omega=rate_ref)
+        if self.held:
+            self.pose = self.pose._replace(omega=0.0)
+        else:
+            self.pose = self.pose._replace(heading=heading_ref, omega=rate_ref)
         return self.pose
+
+    def hold(self) -> None:
+        self.held = True
+
+    def release(self) -> None:
+        self.held = False

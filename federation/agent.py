@@ -1,38 +1,46 @@
-"""Agent runtime: the thin Zenoh layer around the sync client, the guidance and a platform.
+"""Agent runtime: the thin Zenoh layer around the sync client, guidance, run state and
+a platform.
 
 Threads and who owns what:
 
 - Zenoh's network thread runs the callbacks (``indirect=False``): the sync
   queryable reads ``t2`` and replies at once; a sync reply reads ``t3`` and is
-  matched under ``_lock``; pose and liveliness samples are decoded and stored.
-  Callbacks never raise and never block: a bad payload is logged and counted.
+  matched under ``_lock``; pose, liveliness and control samples are decoded and
+  stored. Callbacks never raise and never block: a bad payload is logged and
+  counted.
 - The agent's own loop (``run``) steps the platform, publishes pose and status
   and sends sync requests (``session.get`` with a callback returns at once).
+- A recorder thread writes the MCAP file (:mod:`federation.recorder`).
 """
 
 from __future__ import annotations
 
 import functools
 import logging
+import math
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
 import zenoh
+from pydantic import ValidationError
 
 from agents.guidance import ReferenceManeuver, track_heading
-from agents.kinematic import KinematicPlatform, Platform
+from agents.kinematic import Platform
+from agents.platforms import make_platform
 from federation import keys, wire
 from federation.clock import ExecClock
 from federation.estimators import make_estimator
 from federation.keys import AgentId
+from federation.recorder import Recorder
+from federation.runstate import Event, RunState
 from federation.sync import SyncClient
 from schemas.config import AgentConfig
-from schemas.messages import PeerStatus, Status
+from schemas.messages import Command, PeerStatus, Status
 
 __all__ = ["Agent", "AgentRuntime"]
 
@@ -78,27 +86,29 @@ class AgentRuntime:
         self.session = session
         self.me = config.agent
         self.clock = clock or ExecClock(config.clock_offset, config.clock_drift_ppm)
-        self.platform: Platform = platform or KinematicPlatform()
-        self.maneuver = maneuver or ReferenceManeuver(start=config.sync_window)
+        self.platform: Platform = platform or make_platform(config.platform, config.seed)
+        m = config.maneuver
+        self.maneuver = maneuver or ReferenceManeuver(
+            m.still, m.duration, math.radians(m.amplitude_deg)
+        )
         self.follow = AgentId.parse(config.follow) if config.follow else None
         self.reference = self.follow if config.role == "follower" and self.follow else self.me
         self.explicit_sync = {AgentId.parse(a) for a in config.sync_with}
         if self.explicit_sync and self.follow:
             self.explicit_sync.add(self.follow)
+        self.run_state = RunState(autostart=not config.wait_start)
         self.pose = wire.Pose()
+        self.guidance = (0.0, 0.0)  # last heading and rate references
         self.peers: dict[AgentId, Peer] = {}
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
         self.counters: Counter[str] = Counter()
-        self._count_lock = threading.Lock()
+        self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
+        self.recorder = Recorder(config.record, str(self.me)) if config.record else None
+        self._count_lock = threading.Lock()
         self._lock = threading.Lock()
         self._declared: list[Any] = []
         self._status_file: IO[str] | None = None
-        self._record_file: IO[str] | None = None
-        self._pose_file: IO[str] | None = None
-        # Recorded lines not yet written: callbacks append, the agent's loop writes.
-        self._records: list[str] = []
-        self._pose_records: list[str] = []
         self._pose_pub: Any = None
         self._status_pub: Any = None
 
@@ -107,14 +117,18 @@ class AgentRuntime:
         with self._count_lock:
             self.counters[name] += 1
 
-    # -- keys --------------------------------------------------------------
+    def record(self, topic: str, message: dict[str, Any]) -> None:
+        if self.recorder is not None:
+            self.recorder.record(topic, message)
+
     def key(self, agent: AgentId, topic: str | None = None) -> str:
         return keys.agent_key(self.config.federation, agent, topic)
 
-    # -- lifecycle ---------------------------------------------------------
+    # -- lifecycle -------------------------------------------------------------------
     def start(self) -> None:
         s = self.session
         callback = zenoh.handlers.Callback
+        fed = self.config.federation
         self._declared.append(
             s.declare_queryable(
                 self.key(self.me, "sync"), callback(self._on_sync_query, indirect=False)
@@ -130,48 +144,67 @@ class AgentRuntime:
                 )
             )
         self._declared.append(
+            s.declare_subscriber(keys.control_key(fed), callback(self._on_control, indirect=False))
+        )
+        self._declared.append(
             s.liveliness().declare_subscriber(
-                keys.all_agents(self.config.federation),
-                callback(self._on_liveliness, indirect=False),
-                history=True,
+                keys.all_agents(fed), callback(self._on_liveliness, indirect=False), history=True
             )
         )
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
-        self._status_file = _open_append(self.config.status_json)
-        self._record_file = _open_append(self.config.record_sync)
-        self._pose_file = _open_append(self.config.record_pose)
-        log.info(
-            "agent %s (%s) up in federation %s", self.me, self.config.role, self.config.federation
-        )
+        if self.config.status_json is not None:
+            path = Path(self.config.status_json)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._status_file = path.open("a", encoding="utf-8")
+        log.info("agent %s (%s) up in federation %s", self.me, self.config.role, fed)
 
     def close(self) -> None:
         """Undeclare everything (tokens and subscribers first); the caller closes the session."""
+        self.platform.hold()  # leave the platform with every valve closed
         for entity in reversed(self._declared):
             try:
                 entity.undeclare()
             except Exception as error:  # a session already closed by zenoh
                 log.debug("undeclare failed: %s", error)
         self._declared.clear()
-        self._flush_records()
-        for f in (self._status_file, self._record_file, self._pose_file):
-            if f is not None:
-                f.close()
-        self._status_file = self._record_file = self._pose_file = None
+        if self._status_file is not None:
+            self._status_file.close()
+            self._status_file = None
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
 
     def run(self, stop: threading.Event) -> None:
-        """The agent's loop, until ``stop`` is set or the configured duration has passed."""
+        """The agent's loop, until ``stop`` is set or the configured duration has passed.
+
+        Periodic tasks on one thread: the platform's control step (its ``rate``,
+        100 Hz for simulated platforms), pose publication (``pose_rate``), sync
+        requests (``sync_period``) and status (``status_period``). A missed tick is
+        skipped, not made up, and counted in ``loop_overruns``. An armed start is a
+        deadline of its own, so the run begins on time, not at the next tick.
+        """
         cfg = self.config
         t0 = time.monotonic()
-        deadline = t0 + cfg.duration if cfg.duration else float("inf")
+        deadline = t0 + cfg.duration if cfg.duration else math.inf
+        control_period = 1.0 / self.platform.rate
         pose_period = 1.0 / cfg.pose_rate
-        next_pose = next_sync = t0
+        next_control = next_pose = next_sync = t0
         next_status = t0 + cfg.status_period
         while not stop.is_set():
             now = time.monotonic()
             if now >= deadline:
                 break
+            start_due = self._start_due()
+            if now >= next_control or now >= start_due:
+                if now >= next_control:
+                    self.lateness.append(now - next_control)
+                    following = _next_tick(next_control, control_period, now)
+                    if following - next_control > 1.5 * control_period:
+                        self.count("loop_overruns")
+                    next_control = following
+                self.control_step()
             if now >= next_pose:
-                self.step()
+                self.publish_pose()
                 next_pose = _next_tick(next_pose, pose_period, now)
             if now >= next_sync:
                 self.send_sync_requests()
@@ -179,31 +212,104 @@ class AgentRuntime:
             if now >= next_status:
                 self.publish_status()
                 next_status = _next_tick(next_status, cfg.status_period, now)
-            stop.wait(max(0.0, min(next_pose, next_sync, next_status, deadline) - time.monotonic()))
+            wake = min(next_control, next_pose, next_sync, next_status, deadline, self._start_due())
+            stop.wait(max(0.0, wake - time.monotonic()))
         self.publish_status()
 
-    # -- the agent's own loop ----------------------------------------------
+    # -- time --------------------------------------------------------------------------
+    def reference_offset(self, t_exec: float) -> float | None:
+        """Reference clock minus own clock (0 on the reference itself)."""
+        if self.reference == self.me:
+            return 0.0
+        peer = self.peers.get(self.reference)
+        return peer.client.offset_at(t_exec) if peer else None
+
     def sim_time(self, t_exec: float) -> float | None:
         """Simulation time (Eq. 5): the reference agent's clock."""
-        if self.reference == self.me:
-            return t_exec
-        peer = self.peers.get(self.reference)
-        offset = peer.client.offset_at(t_exec) if peer else None
+        offset = self.reference_offset(t_exec)
         return None if offset is None else t_exec + offset
 
-    def step(self) -> None:
-        """Advance guidance and platform, publish the pose."""
-        t_exec = self.clock.now()
+    def _start_due(self) -> float:
+        """Host monotonic time at which an armed run starts (inf if none is armed)."""
+        start_at = self.run_state.start_at
+        if self.run_state.mode != "armed" or start_at is None:
+            return math.inf
+        t_exec, host = self.clock.read()
+        offset = self.reference_offset(t_exec)
+        if offset is None:
+            return math.inf
+        return host + (start_at - (t_exec + offset)) / self.clock.rate
+
+    # -- the agent's own loop ----------------------------------------------------------
+    def reference_heading(self, t_exec: float, run_time: float | None) -> tuple[float, float]:
+        """Guidance: the leader's maneuver on run time, or the followed heading."""
         if self.config.role == "leader":
-            heading, rate = self.maneuver(t_exec)
-        else:
-            received = self.latest_poses.get(self.follow) if self.follow else None
-            heading, rate = track_heading(received)
-        self.pose = self.platform.step(t_exec, heading, rate)
+            return (0.0, 0.0) if run_time is None else self.maneuver(run_time)
+        received = self.latest_poses.get(self.follow) if self.follow else None
+        # The followed agent's clock now: its samples are stamped on it.
+        peer = self.peers.get(self.follow) if self.follow else None
+        offset = peer.client.offset_at(t_exec) if peer else None
+        now = None if offset is None else t_exec + offset
+        return track_heading(received, now, self.config.latency_compensation)
+
+    def control_step(self) -> None:
+        """Run state, guidance and one platform step (the platform's own rate)."""
+        t_exec, host = self.clock.read()
+        t_sim = self.sim_time(t_exec)
+        with self._lock:
+            events = self.run_state.update(t_sim)
+            run_time = self.run_state.run_time(t_sim)
+        self._apply(events, t_exec, host)
+        self.guidance = self.reference_heading(t_exec, run_time)
+        self.pose = self.platform.step(t_exec, *self.guidance)
+
+    def publish_pose(self) -> None:
+        t_exec, host = self.clock.read()
         self._pose_pub.put(wire.encode_pose(t_exec, self.pose))
-        if self._pose_file is not None:
-            with self._lock:
-                self._pose_records.append(f'{{"sent": true, "t": {t_exec!r}}}\n')
+        if self.recorder is not None:
+            stamp = {"t_exec": t_exec, "host_monotonic": host}
+            self.record("/pose/sent", stamp | self.pose._asdict())
+            t_sim = self.sim_time(t_exec)
+            self.record(
+                "/reference",
+                stamp
+                | {
+                    "t_sim": t_sim,
+                    "run_time": self.run_state.run_time(t_sim),
+                    "heading_ref": self.guidance[0],
+                    "rate_ref": self.guidance[1],
+                    "mode": self.run_state.mode,
+                },
+            )
+            truth = getattr(self.platform, "truth", None)
+            if truth is not None:
+                self.record("/truth", stamp | truth._asdict())
+
+    def step(self) -> None:
+        """One control step, then publish the pose."""
+        self.control_step()
+        self.publish_pose()
+
+    def _apply(self, events: list[Event], t_exec: float, host: float) -> None:
+        """Act on run-state events: safe hold on abort; log and record each."""
+        for event in events:
+            if event.kind == "aborted":
+                self.platform.hold()
+            level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
+            log.log(level, "run %s at reference time %s %s", event.kind, event.t_sim, event.detail)
+            self.record(
+                "/control",
+                {
+                    "event": event.kind,
+                    "command": None,
+                    "at": self.run_state.start_at,
+                    "t_exec": t_exec,
+                    "t_sim": event.t_sim,
+                    "host_monotonic": host,
+                    "mode": self.run_state.mode,
+                    "detail": event.detail,
+                },
+            )
 
     def sync_targets(self) -> list[AgentId]:
         if self.explicit_sync:
@@ -228,6 +334,7 @@ class AgentRuntime:
             except Exception as error:  # session closing, or zenoh refusing the query
                 log.warning("sync request to %s failed: %s", agent, error)
 
+    # -- status ------------------------------------------------------------------------
     def status(self) -> Status:
         t_exec, host = self.clock.read()
         peers = {}
@@ -238,9 +345,9 @@ class AgentRuntime:
                 drift = getattr(c.estimator, "drift", None)
                 peers[str(agent)] = PeerStatus(
                     offset=c.offset_at(t_exec),
+                    delay=c.delay,
                     bound=c.estimator.bound,
                     drift_ppm=None if drift is None else drift * 1e6,
-                    delay=c.delay,
                     error_bound=last.error_bound if last else None,
                     last_offset=last.offset if last else None,
                     last_delay=last.delay if last else None,
@@ -252,6 +359,7 @@ class AgentRuntime:
                     rejected=sum(c.rejected.values()),
                     rejected_by_reason=dict(c.rejected),
                 )
+        t_sim = self.sim_time(t_exec)
         return Status(
             agent=str(self.me),
             federation=self.config.federation,
@@ -259,35 +367,42 @@ class AgentRuntime:
             reference=str(self.reference),
             t_exec=t_exec,
             host_monotonic=host,
-            t_sim=self.sim_time(t_exec),
+            t_sim=t_sim,
+            mode=self.run_state.mode,
+            run_time=self.run_state.run_time(t_sim),
+            platform=self.config.platform,
             pose=list(self.pose),
             peers=peers,
             counters=self.counter_snapshot(),
+            loop=self.loop_stats(),
         )
+
+    def loop_stats(self) -> dict[str, float]:
+        """Control loop timing: rate and lateness of the recent ticks (ms)."""
+        late = sorted(self.lateness)
+        stats = {"rate_hz": self.platform.rate, "ticks": float(len(late))}
+        if late:
+            stats |= {
+                "late_p50_ms": late[len(late) // 2] * 1e3,
+                "late_p99_ms": late[min(len(late) - 1, int(0.99 * len(late)))] * 1e3,
+                "late_max_ms": late[-1] * 1e3,
+            }
+        return stats
 
     def counter_snapshot(self) -> dict[str, int]:
         with self._count_lock:
             return dict(self.counters)
 
-    def _flush_records(self) -> None:
-        """Write recorded lines from the agent's loop, never from a callback."""
-        with self._lock:
-            records, self._records = self._records, []
-            poses, self._pose_records = self._pose_records, []
-        for f, lines in ((self._record_file, records), (self._pose_file, poses)):
-            if f is not None and lines:
-                f.write("".join(lines))
-                f.flush()
-
     def publish_status(self) -> None:
-        self._flush_records()
-        line = self.status().model_dump_json()
+        status = self.status()
+        line = status.model_dump_json()
         self._status_pub.put(line, encoding=zenoh.Encoding.APPLICATION_JSON)
         if self._status_file is not None:
             self._status_file.write(line + "\n")
             self._status_file.flush()
+        self.record("/status", status.model_dump())
 
-    # -- Zenoh callbacks: quick, and never raise -----------------------------
+    # -- Zenoh callbacks: quick, and never raise ---------------------------------------
     def _on_sync_query(self, query: zenoh.Query) -> None:
         t2 = self.clock.now()  # read on arrival: the paper's t2
         try:
@@ -323,14 +438,25 @@ class AgentRuntime:
             with self._lock:
                 accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3, t2s)
                 reason = peer.client.last_rejection
-                if accepted is not None and self._record_file is not None:
-                    self._records.append(
-                        f'{{"peer": "{peer.agent}", "t1": {accepted.t1!r}, "t2": {accepted.t2!r}, '
-                        f'"t3": {t3!r}, "t2s": {"null" if t2s is None else repr(t2s)}, '
-                        f'"host_monotonic": {host!r}}}\n'
-                    )
-            if accepted is None:
+                exchange = peer.client.last
+                estimate = peer.client.offset_at(t3)
+            if accepted is None or exchange is None:
                 self.rejects(f"sync reply ({reason})", f"from {peer.key}")
+                return
+            self.record(
+                "/sync/exchange",
+                {
+                    "peer": str(peer.agent),
+                    "t1": exchange.t1,
+                    "t2": exchange.t2,
+                    "t3": exchange.t3,
+                    "t2s": exchange.t2s,
+                    "offset": exchange.offset,
+                    "delay": exchange.delay,
+                    "estimate": estimate,
+                    "host_monotonic": host,
+                },
+            )
         except Exception:
             log.exception("sync reply from %s failed", peer.key)
 
@@ -347,15 +473,47 @@ class AgentRuntime:
             self.count("pose_received")
             if parsed is not None:
                 self.latest_poses[parsed[0]] = decoded
-            if self._pose_file is not None:
-                line = (
-                    f'{{"agent": "{parsed[0] if parsed else ""}", "t": {decoded.t!r}, '
-                    f'"t_recv": {t_recv!r}, "host_monotonic": {host!r}}}\n'
-                )
-                with self._lock:
-                    self._pose_records.append(line)
+            self.record(
+                "/pose/received",
+                {
+                    "agent": str(parsed[0]) if parsed else str(sample.key_expr),
+                    "t": decoded.t,
+                    "t_recv": t_recv,
+                    "host_monotonic": host,
+                    **decoded.pose._asdict(),
+                },
+            )
         except Exception:
             log.exception("pose sample on %s failed", sample.key_expr)
+
+    def _on_control(self, sample: zenoh.Sample) -> None:
+        t_exec, host = self.clock.read()
+        try:
+            try:
+                command = Command.model_validate_json(sample.payload.to_bytes())
+            except ValidationError as error:
+                self.count("control_malformed")
+                self.rejects("control command", f"{sample.key_expr}: {error.errors()[0]['msg']}")
+                return
+            self.count("control_received")
+            with self._lock:
+                events = self.run_state.command(command, self.sim_time(t_exec))
+            self.record(
+                "/control",
+                {
+                    "event": "command",
+                    "command": command.model_dump(),
+                    "at": command.at,
+                    "t_exec": t_exec,
+                    "t_sim": self.sim_time(t_exec),
+                    "host_monotonic": host,
+                    "mode": self.run_state.mode,
+                    "detail": "",
+                },
+            )
+            self._apply(events, t_exec, host)
+        except Exception:
+            log.exception("control sample on %s failed", sample.key_expr)
 
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         try:
@@ -385,14 +543,6 @@ class AgentRuntime:
 
 
 Agent = AgentRuntime
-
-
-def _open_append(path: Path | None) -> IO[str] | None:
-    if path is None:
-        return None
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path.open("a", encoding="utf-8")
 
 
 def _next_tick(previous: float, period: float, now: float) -> float:

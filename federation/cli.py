@@ -113,8 +113,11 @@ _AGENT_FLAGS = (
     "clock_drift_ppm",
     "duration",
     "status_json",
-    "record_sync",
-    "record_pose",
+    "record",
+    "wait_start",
+    "platform",
+    "seed",
+    "latency_compensation",
 )
 
 
@@ -271,16 +274,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--status-period", type=float, metavar="S", help="seconds between status (1)")
     p.add_argument("--clock-offset", type=float, metavar="S", help="skew this agent's clock (s)")
     p.add_argument("--clock-drift-ppm", type=float, metavar="PPM", help="clock rate error (ppm)")
+    p.add_argument(
+        "--platform",
+        metavar="SPEC",
+        help="pose source: kinematic (default), knatte, pinocchio, a platform TOML, serial:PORT",
+    )
+    p.add_argument("--seed", type=int, help="seed of a simulated platform's noise (0)")
+    p.add_argument(
+        "--no-latency-compensation",
+        dest="latency_compensation",
+        action="store_const",
+        const=False,
+        help="track the followed pose as received, without dead reckoning",
+    )
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
+    p.add_argument("--record", type=Path, metavar="FILE", help="record the run to an MCAP file")
     p.add_argument(
-        "--record-sync", type=Path, metavar="FILE", help="append every sync exchange here (JSONL)"
-    )
-    p.add_argument(
-        "--record-pose",
-        type=Path,
-        metavar="FILE",
-        help="append the send and receive time of every pose received here (JSONL)",
+        "--wait-start",
+        action="store_const",
+        const=True,
+        help="hold still until a start command (fedlab ctl start) instead of starting at once",
     )
     _zenoh_flags(p)
     p.set_defaults(func=cmd_agent)

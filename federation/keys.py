@@ -6,6 +6,7 @@ Every key fedlab uses is built here, so the layout is written down once::
     fedlab/<federation>/<lab>/<agent>/sync     three-timestamp sync (queryable)
     fedlab/<federation>/<lab>/<agent>/status   estimates and counters (put, JSON)
     fedlab/<federation>/<lab>/<agent>          liveliness token
+    fedlab/<federation>/control                execution control commands (put, JSON)
 
 Names are lowercase letters, digits, ``-`` and ``_`` (1 to 63 characters), so no name
 can smuggle a ``/``, ``*`` or ``$`` into a key expression.
@@ -23,6 +24,7 @@ __all__ = [
     "agent_key",
     "all_agents",
     "all_of",
+    "control_key",
     "parse_agent_key",
     "validate_name",
 ]
@@ -69,6 +71,11 @@ def agent_key(federation: str, agent: AgentId, topic: str | None = None) -> str:
     validate_name(federation, "federation name")
     key = f"{ROOT}/{federation}/{agent.lab}/{agent.name}"
     return f"{key}/{topic}" if topic else key
+
+
+def control_key(federation: str) -> str:
+    """Where execution control commands are published (JSON, see schemas.messages.Command)."""
+    return f"{ROOT}/{validate_name(federation, 'federation name')}/control"
 
 
 def all_agents(federation: str) -> str:

@@ -12,13 +12,22 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from federation.keys import DEFAULT_FEDERATION, AgentId, validate_name
 
 __all__ = [
     "AgentConfig",
     "ConfigError",
+    "ManeuverConfig",
     "RouterConfig",
     "ZenohOptions",
     "format_validation_error",
@@ -69,6 +78,14 @@ class ZenohOptions(_Model):
     )
 
 
+class ManeuverConfig(_Model):
+    """The leader's reference maneuver (paper section 5)."""
+
+    still: float = Field(10.0, ge=0, description="seconds held still after the start")
+    duration: float = Field(60.0, gt=0, description="seconds to rotate out and back")
+    amplitude_deg: float = Field(45.0, ge=-180, le=180, description="rotation, degrees")
+
+
 class AgentConfig(_Model):
     """One agent of a federation."""
 
@@ -102,13 +119,28 @@ class AgentConfig(_Model):
     )
     duration: float | None = Field(None, gt=0, description="seconds to run; none: until stopped")
     status_json: Path | None = Field(None, description="file to append status lines (JSON) to")
-    record_sync: Path | None = Field(
-        None, description="file to append every accepted sync exchange to (JSON lines)"
+    platform: str = Field(
+        "kinematic",
+        description="pose source: kinematic, a preset (knatte, pinocchio), a platform TOML "
+        "file, or serial:PORT",
     )
-    record_pose: Path | None = Field(
-        None, description="file to append every received pose sample's timing to (JSON lines)"
+    seed: int = Field(0, description="seed of the simulated platform's noise")
+    maneuver: ManeuverConfig = Field(default_factory=ManeuverConfig)
+    wait_start: bool = Field(
+        False,
+        description="wait for a start command (fedlab ctl start); else run from reference time 0",
     )
-    platform: Literal["kinematic"] = Field("kinematic", description="pose source")
+    record: Path | None = Field(None, description="MCAP file to record the run to")
+    latency_compensation: bool = Field(
+        True, description="dead-reckon the followed pose to the present synchronized time"
+    )
+
+    @field_validator("platform")
+    @classmethod
+    def _platform(cls, value: str) -> str:
+        from agents.platforms import validate_platform_spec
+
+        return validate_platform_spec(value)
 
     @model_validator(mode="after")
     def _roles(self) -> AgentConfig:

@@ -49,8 +49,33 @@ class Status(BaseModel):
     t_exec: float = Field(description="own execution clock, s")
     host_monotonic: float = Field(description="host monotonic clock read with t_exec, s")
     t_sim: float | None = Field(description="simulation (reference) time, Eq. 5, s")
+    mode: str = Field("armed", description="run mode: waiting, armed, running, frozen, aborted")
+    run_time: float | None = Field(None, description="experiment time since the start, s")
+    platform: str = Field("kinematic", description="pose source")
     pose: list[float] = Field(description="x, y, heading, vx, vy, omega (m, rad, m/s, rad/s)")
     peers: dict[str, PeerStatus]
+    loop: dict[str, float] = Field(
+        default_factory=dict,
+        description="control loop: rate_hz, ticks, late_p50_ms, late_p99_ms, late_max_ms",
+    )
     counters: dict[str, int] = Field(
         default_factory=dict, description="rejected inputs and served requests"
     )
+
+
+class Command(BaseModel):
+    """Execution control, published on ``fedlab/<federation>/control`` (JSON).
+
+    Modelled on SpaceFOM's run/freeze/shutdown modes. ``at`` is a reference
+    (simulation) time: every agent acts when its own synchronized clock reaches
+    it, so a start is simultaneous without a video call. Without ``at`` the
+    command takes effect on receipt. ``seq`` makes repeats idempotent.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    command: Literal["start", "freeze", "resume", "abort"]
+    at: float | None = Field(None, allow_inf_nan=False, description="reference time, s")
+    seq: int = Field(ge=0, description="command number; a repeat of a seen seq is ignored")
+    issuer: str = Field("ctl", max_length=200, description="who sent it")
+    experiment: str | None = Field(None, max_length=200, description="experiment name")

@@ -1,23 +1,226 @@
 """Platform descriptions (paper section 2): physical data, not code, so a lab adds
-its own platform with a file under deploy/platforms/."""
+its own platform with a file under deploy/platforms/.
+
+A preset is a TOML file; tables group the sensors, the controller and the table
+disturbance. Units are in every field's description. Defaults are KNATTE's where
+the paper gives a number, so the smallest valid file is ``name``, ``mass`` and
+``inertia``::
+
+    name = "knatte"
+    mass = 10.0        # kg
+    inertia = 0.160    # kg m^2
+    thrust = 0.20      # N, one thruster
+    torque = 0.032     # Nm, one thruster
+
+    [vision]
+    width = 3.0        # m
+    height = 1.7       # m
+
+Thruster geometry (see :mod:`agents.dynamics`): eight thrusters whose lines of
+action pass at ``torque / thrust`` metres from the centre; a pair of them gives a
+pure force (+/-x or +/-y, body frame, ``2 * thrust``) or a pure torque
+(``2 * torque``).
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from schemas.config import _Model, _name
+from schemas.config import ConfigError, _Model, _name, load_model
 
-__all__ = ["PlatformConfig"]
+__all__ = [
+    "PLATFORMS_DIR",
+    "ControlConfig",
+    "DisturbanceConfig",
+    "ImuConfig",
+    "NavigationConfig",
+    "PlatformConfig",
+    "VisionConfig",
+    "load_platform",
+]
+
+PLATFORMS_DIR = Path(__file__).resolve().parents[1] / "deploy" / "platforms"
+
+
+class ImuConfig(_Model):
+    """Inertial measurement unit: a gyro about the vertical axis, two body accelerometers."""
+
+    rate: float = Field(100.0, gt=0, le=10_000, description="samples per second, Hz")
+    gyro_noise: float = Field(
+        0.002, ge=0, description="gyro white noise per sample (1 sigma), rad/s"
+    )
+    gyro_bias: float = Field(
+        0.005, allow_inf_nan=False, description="constant gyro bias, rad/s (unknown to the filter)"
+    )
+    accel_noise: float = Field(
+        0.01, ge=0, description="accelerometer white noise per sample (1 sigma), m/s^2"
+    )
+    accel_bias: tuple[float, float] = Field(
+        (0.002, -0.001),
+        description="constant accelerometer bias along body x and y, m/s^2 (unknown to the filter)",
+    )
+
+
+class VisionConfig(_Model):
+    """External metrology (camera or Vicon): pose fixes inside a rectangle of the table."""
+
+    rate: float = Field(20.0, gt=0, le=1000, description="fixes per second, Hz")
+    position_noise: float = Field(0.005, ge=0, description="position noise (1 sigma), m")
+    heading_noise: float = Field(0.0087, ge=0, description="heading noise (1 sigma), rad")
+    width: float = Field(3.0, gt=0, description="coverage along lab x, m")
+    height: float = Field(1.7, gt=0, description="coverage along lab y, m")
+    origin: tuple[float, float] = Field(
+        (0.0, 0.0), description="centre of the coverage rectangle in the lab frame (x, y), m"
+    )
+
+
+class NavigationConfig(_Model):
+    """Kalman filter tuning beyond the sensor noise (process noise the sensors don't explain)."""
+
+    unmodelled_accel: float = Field(
+        0.003,
+        gt=0,
+        description="acceleration the accelerometers cannot see (table slope), 1 sigma, m/s^2",
+    )
+    gyro_bias_walk: float = Field(
+        1e-5, ge=0, description="gyro bias random walk, rad/s per sqrt(s)"
+    )
+    accel_bias_walk: float = Field(
+        1e-4, ge=0, description="accelerometer bias random walk, m/s^2 per sqrt(s)"
+    )
+
+
+class ControlConfig(_Model):
+    """Heading PID (Eq. 1 and 2), pulse-width modulation, optional position hold."""
+
+    rate: float = Field(100.0, gt=0, le=10_000, description="control steps per second, Hz")
+    kp: float = Field(0.23, ge=0, description="proportional gain, Nm/rad")
+    ki: float = Field(0.03, ge=0, description="integral gain, Nm/(rad s)")
+    kd: float = Field(0.35, ge=0, description="derivative gain, Nm s/rad")
+    integral_limit: float = Field(
+        0.01, ge=0, description="largest torque the integral term may contribute, Nm"
+    )
+    pwm_period: float = Field(0.1, gt=0, le=10, description="pulse-width modulation period, s")
+    min_on_time: float = Field(0.01, ge=0, description="shortest valve opening, s")
+    position_hold: bool = Field(False, description="hold the starting x, y with a PD on position")
+    kp_position: float = Field(2.5, ge=0, description="position-hold proportional gain, N/m")
+    kd_position: float = Field(9.0, ge=0, description="position-hold derivative gain, N s/m")
+
+    @model_validator(mode="after")
+    def _pwm(self) -> ControlConfig:
+        if self.min_on_time >= self.pwm_period:
+            raise ValueError(
+                f"min_on_time ({self.min_on_time} s) must be shorter than "
+                f"pwm_period ({self.pwm_period} s)"
+            )
+        if self.pwm_period * self.rate < 1.0 - 1e-9:
+            raise ValueError(
+                f"pwm_period ({self.pwm_period} s) is shorter than one control step "
+                f"(1/rate = {1.0 / self.rate} s)"
+            )
+        return self
+
+
+class DisturbanceConfig(_Model):
+    """The table's surface anomalies as a smooth height field of a few sinusoids."""
+
+    enabled: bool = Field(False, description="apply the slope force in simulation")
+    slope: float = Field(
+        1e-4, ge=0, le=0.01, description="peak slope of each sinusoid, rad (m of rise per m)"
+    )
+    wavelength: float = Field(1.5, gt=0, description="mean wavelength of the sinusoids, m")
+    components: int = Field(3, ge=1, le=32, description="number of sinusoids")
+    seed: int = Field(0, ge=0, description="seed of the field (the table's shape, not the noise)")
 
 
 class PlatformConfig(_Model):
-    """Physical description of a platform (paper section 2)."""
+    """Physical description of a platform (paper section 2) and its GNC settings."""
 
     name: Annotated[str, _name("platform name")]
-    mass: float = Field(gt=0, description="kg")
-    inertia: float = Field(gt=0, description="moment of inertia about the vertical axis, kg m^2")
+    mass: float = Field(gt=0, allow_inf_nan=False, description="kg")
+    inertia: float = Field(
+        gt=0, allow_inf_nan=False, description="moment of inertia about the vertical axis, kg m^2"
+    )
     max_rate: float = Field(
         0.5, gt=0, description="largest heading rate the kinematic model follows, rad/s"
     )
+    thrust: float = Field(
+        0.20, gt=0, allow_inf_nan=False, description="force of one thruster as operated, N"
+    )
+    max_thrust: float = Field(
+        0.64, gt=0, allow_inf_nan=False, description="largest force of one thruster, N"
+    )
+    torque: float = Field(
+        0.032,
+        gt=0,
+        allow_inf_nan=False,
+        description="torque of one thruster as operated, Nm (moment arm = torque / thrust)",
+    )
+    max_torque: float = Field(
+        0.102, gt=0, allow_inf_nan=False, description="largest torque of one thruster, Nm"
+    )
+    physics_rate: float = Field(
+        100.0, ge=100, le=100_000, description="simulation integration steps per second, Hz"
+    )
+    imu: ImuConfig = Field(default_factory=ImuConfig, description="IMU model")
+    vision: VisionConfig = Field(default_factory=VisionConfig, description="vision model")
+    navigation: NavigationConfig = Field(
+        default_factory=NavigationConfig, description="Kalman filter tuning"
+    )
+    control: ControlConfig = Field(default_factory=ControlConfig, description="PID and PWM")
+    disturbance: DisturbanceConfig = Field(
+        default_factory=DisturbanceConfig, description="table slope field"
+    )
+
+    @model_validator(mode="after")
+    def _limits(self) -> PlatformConfig:
+        if self.thrust > self.max_thrust:
+            raise ValueError(f"thrust {self.thrust} N exceeds max_thrust {self.max_thrust} N")
+        if self.torque > self.max_torque:
+            raise ValueError(f"torque {self.torque} Nm exceeds max_torque {self.max_torque} Nm")
+        return self
+
+    @property
+    def moment_arm(self) -> float:
+        """Distance from the centre to each thruster's line of action, m."""
+        return self.torque / self.thrust
+
+    @property
+    def pair_torque(self) -> float:
+        """Pure torque of one thruster pair: the controller's saturation, Nm."""
+        return 2.0 * self.torque
+
+    @property
+    def pair_force(self) -> float:
+        """Pure force of one thruster pair along a body axis, N."""
+        return 2.0 * self.thrust
+
+
+def load_platform(name_or_path: str | Path) -> PlatformConfig:
+    """A preset by name (``knatte``, ``pinocchio``: deploy/platforms/NAME.toml) or a file.
+
+    Raises
+    ------
+    ConfigError
+        Unknown name, unreadable file or a bad field; the message names the file and
+        the field.
+    """
+    text = str(name_or_path)
+    looks_like_path = (
+        isinstance(name_or_path, Path)
+        or "/" in text
+        or "\\" in text
+        or text.endswith((".toml", ".json"))
+    )
+    if looks_like_path:
+        return load_model(PlatformConfig, Path(name_or_path))
+    path = PLATFORMS_DIR / f"{text}.toml"
+    if not path.is_file():
+        known = sorted(p.stem for p in PLATFORMS_DIR.glob("*.toml"))
+        raise ConfigError(
+            f"unknown platform {text!r}: no {path}; presets: {', '.join(known) or 'none'}"
+        )
+    return load_model(PlatformConfig, path)

@@ -18,7 +18,6 @@ from federation.bench.sync import (
     simulate,
 )
 from federation.estimators import make_estimator
-from federation.status import read_status
 
 
 def test_offline_drift_scenario_clockfilter_beats_the_paper() -> None:
@@ -75,10 +74,10 @@ def test_live_run_matches_offline_replay_of_its_own_recording(tmp_path: Path) ->
     assert score["p95"] < 2e-3
     # The follower's status lines: its live estimate at each status instant is what
     # the replay of the same exchanges gives at that instant.
-    status = [
-        line for line in read_status(tmp_path / "paper-like-follower.jsonl")
-        if line["peers"].get("kiruna/knatte", {}).get("samples", 0) > 0
-    ]  # fmt: skip
+    from federation.recorder import read_messages
+
+    recorded = read_messages(tmp_path / "paper-like-follower.mcap", ["/status"])["/status"]
+    status = [s for s in recorded if s["peers"].get("kiruna/knatte", {}).get("samples", 0) > 0]
     assert status
     matched = 0
     for line in status:
@@ -96,17 +95,21 @@ def test_live_run_matches_offline_replay_of_its_own_recording(tmp_path: Path) ->
 
 
 def test_load_recording_recovers_drifting_clocks(tmp_path: Path) -> None:
-    """Truth from status lines: clocks as exact linear functions of host time."""
-    server, client, record = tmp_path / "s.jsonl", tmp_path / "c.jsonl", tmp_path / "r.jsonl"
+    """Truth from recorded status: clocks as exact linear functions of host time."""
+    from federation.recorder import Recorder
 
-    def line(t_exec: float, host: float) -> str:
-        return json.dumps({"t_exec": t_exec, "host_monotonic": host}) + "\n"
-
+    server, client = tmp_path / "s.mcap", tmp_path / "c.mcap"
     rate_s, rate_c = 1 + 50e-6, 1 - 20e-6
-    server.write_text("".join(line(3.0 + (h - 100) * rate_s, h) for h in (100, 150, 200)))
-    client.write_text("".join(line(-7.0 + (h - 100) * rate_c, h) for h in (100, 150, 200)))
-    record.write_text(json.dumps({"t1": 0.0, "t2": 10.0, "t3": 0.1, "t2s": None}) + "\n")
-    rec = load_recording(record, server, client)
+    for path, a, rate in ((server, 3.0, rate_s), (client, -7.0, rate_c)):
+        rec = Recorder(path, "x/y")
+        for h in (100.0, 150.0, 200.0):
+            rec.record("/status", {"t_exec": a + (h - 100) * rate, "host_monotonic": h})
+        if path == client:
+            exchange = {"peer": "kiruna/knatte", "t1": 0.0, "t2": 10.0, "t3": 0.1, "t2s": None}
+            rec.record("/sync/exchange", exchange)
+            rec.record("/sync/exchange", exchange | {"peer": "rome/other"})
+        rec.close()
+    rec_ = load_recording(client, server)
     t_client = -7.0 + 50 * rate_c  # host 150
-    assert rec.truth(t_client) == pytest.approx((3.0 + 50 * rate_s) - t_client, abs=1e-9)
-    assert len(rec.exchanges) == 1
+    assert rec_.truth(t_client) == pytest.approx((3.0 + 50 * rate_s) - t_client, abs=1e-9)
+    assert len(rec_.exchanges) == 1  # only the exchanges with the named peer

@@ -27,7 +27,7 @@ import numpy as np
 import zenoh
 
 from federation.launch import Fleet, free_port, wait_for
-from federation.status import clock_line, read_status
+from federation.status import clock_line
 
 __all__ = ["run"]
 
@@ -146,39 +146,27 @@ def fedlab_pose(
     fleet: Fleet, kiruna: str, rome: str, seconds: float, rate: float, out: Path
 ) -> tuple[list[float], list[float]]:
     """(pose one-way latencies, sync turnarounds) in seconds, from real agents."""
-    leader, follower = out / "leader.jsonl", out / "follower.jsonl"
-    poses, syncs = out / "poses.jsonl", out / "sync.jsonl"
-    for f in (leader, follower, poses, syncs):
-        f.unlink(missing_ok=True)
+    from federation.recorder import read_messages
+
+    leader, follower = out / "leader.mcap", out / "follower.mcap"
     common = ["--duration", f"{seconds}", "--status-period", "0.5"]
     fleet.start(
         "leader",
         ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
-         "--pose-rate", f"{rate}", "--status-json", str(leader), *common],
+         "--pose-rate", f"{rate}", "--record", str(leader), *common],
     )  # fmt: skip
     fleet.start(
         "follower",
         ["agent", "--role", "follower", "--lab", "rome", "--name", "pinocchio", "-e", rome,
-         "--follow", "kiruna/knatte", "--four-timestamps", "--record-pose", str(poses),
-         "--record-sync", str(syncs), "--status-json", str(follower), *common],
+         "--follow", "kiruna/knatte", "--four-timestamps", "--record", str(follower), *common],
     )  # fmt: skip
     wait_for(lambda: not fleet.alive("follower") and not fleet.alive("leader"), seconds + 30, 0.5)
-    a, b = clock_line(read_status(leader))
-    latencies = []
-    for line in poses.read_text(encoding="utf-8").splitlines():
-        r = json.loads(line)
-        if r.get("sent"):
-            continue
-        sent_host = (r["t"] - a) / b
-        latencies.append(r["host_monotonic"] - sent_host)
-    turnarounds = []
-    for line in syncs.read_text(encoding="utf-8").splitlines():
-        r = json.loads(line)
-        if r["t2s"] is not None:
-            turnarounds.append(r["t2s"] - r["t2"])
+    a, b = clock_line(read_messages(leader, ["/status"])["/status"])
+    got = read_messages(follower, ["/pose/received", "/sync/exchange"])
+    latencies = [r["host_monotonic"] - (r["t"] - a) / b for r in got["/pose/received"]]
+    turnarounds = [r["t2s"] - r["t2"] for r in got["/sync/exchange"] if r["t2s"] is not None]
     # The first second holds route set-up; score the steady state.
-    skip = int(rate)
-    return latencies[skip:], turnarounds
+    return latencies[int(rate) :], turnarounds
 
 
 def run(seconds: float, rate: float, out: Path) -> dict[str, Any]:

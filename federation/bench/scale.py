@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from federation.launch import Fleet, free_port, wait_for
-from federation.status import clock_line, read_status
+from federation.status import clock_line
 
 __all__ = ["run", "run_one"]
 
@@ -50,7 +50,7 @@ def _agents(n: int) -> list[tuple[int, str]]:
 def run_one(n: int, seconds: float, out: Path) -> dict[str, Any]:
     out = out / f"n{n}"
     out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob("*.jsonl"):
+    for old in out.glob("*.mcap"):
         old.unlink()
     endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(LABS)]
     agents = _agents(n)
@@ -81,28 +81,22 @@ def run_one(n: int, seconds: float, out: Path) -> dict[str, Any]:
 
 
 def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str, Any]:
+    from federation.recorder import read_messages
+
     leader = agents[0][1]
-    stem = leader.replace("/", "-")
-    a, b = clock_line(read_status(out / f"{stem}.status.jsonl"))
-    sent = []
-    for line in (out / f"{stem}.pose.jsonl").read_text().splitlines():
-        r = json.loads(line)
-        if r.get("sent"):
-            sent.append(r["t"])
-    sent_t = np.array(sent)
+    lead = read_messages(out / f"{leader.replace('/', '-')}.mcap", ["/status", "/pose/sent"])
+    a, b = clock_line(lead["/status"])
+    sent_t = np.array([r["t_exec"] for r in lead["/pose/sent"]])
     latencies: list[float] = []
     lost = expected = 0
     syncs = 0
     for _, name in agents[1:]:
-        stem = name.replace("/", "-")
-        got = []
-        for line in (out / f"{stem}.pose.jsonl").read_text().splitlines():
-            r = json.loads(line)
-            if not r.get("sent") and r.get("agent") == leader:
-                got.append((r["t"], r["host_monotonic"]))
-        status = read_status(out / f"{stem}.status.jsonl")
-        if status:
-            syncs += status[-1]["peers"].get(leader, {}).get("samples", 0)
+        mine = read_messages(out / f"{name.replace('/', '-')}.mcap", ["/status", "/pose/received"])
+        got = [
+            (r["t"], r["host_monotonic"]) for r in mine["/pose/received"] if r["agent"] == leader
+        ]
+        if mine["/status"]:
+            syncs += mine["/status"][-1]["peers"].get(leader, {}).get("samples", 0)
         if not got:
             expected += len(sent_t)
             lost += len(sent_t)
@@ -153,8 +147,7 @@ def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
                 sync_with=[] if role == "leader" else [leader],
                 duration=seconds,
                 status_period=0.5,
-                status_json=out / f"{stem}.status.jsonl",
-                record_pose=out / f"{stem}.pose.jsonl",
+                record=out / f"{stem}.mcap",
             )
             session = zenoh.open(conf)
             sessions.append(session)

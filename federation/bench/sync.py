@@ -3,7 +3,7 @@
 Live (default): two lab routers linked through ``fedlab link`` with the
 scenario's delay, jitter, asymmetry and bursts; a leader and a follower whose
 clock is 26.42 s off and drifts by the scenario's ppm. The follower records
-every sync exchange (``--record-sync``); both agents' status lines pair their
+every sync exchange (``--record``, MCAP); both agents' status messages pair their
 clock with the host's monotonic clock, which gives each clock as an exact
 linear function of host time, hence the true offset at every exchange.
 
@@ -30,7 +30,7 @@ import numpy as np
 
 from federation.estimators import ESTIMATORS, make_estimator
 from federation.link import DirectionConfig, JitterDist, LinkModel
-from federation.status import clock_line, read_status
+from federation.status import clock_line
 from federation.sync import Exchange
 
 __all__ = [
@@ -160,19 +160,24 @@ def simulate(scenario: Scenario, duration: float, seed: int = 1, period: float =
     return Recording(exchanges, lambda t: server(t) - t, {"mode": "offline", "seed": seed})
 
 
-def load_recording(record: Path, server_status: Path, client_status: Path) -> Recording:
-    """A live run's exchanges, with the truth recovered from both agents' status lines."""
-    a_s, b_s = clock_line(read_status(server_status))
-    a_c, b_c = clock_line(read_status(client_status))
+def load_recording(client: Path, server: Path, peer: str = "kiruna/knatte") -> Recording:
+    """A live run's exchanges with ``peer`` from the client's MCAP recording, with the
+    truth recovered from both agents' recorded status messages."""
+    from federation.recorder import read_messages
+
+    a_s, b_s = clock_line(read_messages(server, ["/status"])["/status"])
+    client_messages = read_messages(client, ["/status", "/sync/exchange"])
+    a_c, b_c = clock_line(client_messages["/status"])
 
     def truth(t_client: float) -> float:
         host = (t_client - a_c) / b_c
         return a_s + b_s * host - t_client
 
-    exchanges = []
-    for line in record.read_text(encoding="utf-8").splitlines():
-        r = json.loads(line)
-        exchanges.append(Exchange(r["t1"], r["t2"], r["t3"], r.get("t2s")))
+    exchanges = [
+        Exchange(r["t1"], r["t2"], r["t3"], r["t2s"])
+        for r in client_messages["/sync/exchange"]
+        if r["peer"] == peer
+    ]
     return Recording(exchanges, truth, {"mode": "live"})
 
 
@@ -181,9 +186,7 @@ def run_live(scenario: Scenario, duration: float, out: Path, seed: int = 1) -> R
     from federation.launch import Fleet, free_port, wait_for
 
     out.mkdir(parents=True, exist_ok=True)
-    files = {n: out / f"{scenario.name}-{n}.jsonl" for n in ("leader", "follower", "record")}
-    for f in files.values():
-        f.unlink(missing_ok=True)
+    leader, follower = out / f"{scenario.name}-leader.mcap", out / f"{scenario.name}-follower.mcap"
     kiruna, link, rome = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
     with Fleet(out / f"{scenario.name}-logs") as fleet:
         fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
@@ -196,18 +199,18 @@ def run_live(scenario: Scenario, duration: float, out: Path, seed: int = 1) -> R
         fleet.start(
             "leader",
             ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
-             "--status-json", str(files["leader"]), *common],
+             "--record", str(leader), *common],
         )  # fmt: skip
         fleet.start(
             "follower",
             ["agent", "--role", "follower", "--lab", "rome", "--name", "pinocchio", "-e", rome,
              "--follow", "kiruna/knatte", "--sync-with", "kiruna/knatte",
              "--clock-offset", f"{CLOCK_OFFSET}", "--clock-drift-ppm", f"{scenario.drift_ppm}",
-             "--status-json", str(files["follower"]), "--record-sync", str(files["record"]),
-             *common],
+             "--record", str(follower), *common],
         )  # fmt: skip
         wait_for(lambda: not fleet.alive("follower"), timeout=duration + 60, interval=0.5)
-    recording = load_recording(files["record"], files["leader"], files["follower"])
+        wait_for(lambda: not fleet.alive("leader"), timeout=10, interval=0.2)
+    recording = load_recording(follower, leader)
     recording.meta.update({"mode": "live", "seed": seed})
     return recording
 
