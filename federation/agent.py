@@ -39,7 +39,7 @@ from federation.keys import AgentId
 from federation.recorder import Recorder
 from federation.runstate import Event, RunState
 from federation.sync import SyncClient
-from schemas.config import AgentConfig
+from schemas.config import AgentConfig, ManeuverConfig
 from schemas.messages import Command, PeerStatus, Status
 
 __all__ = ["Agent", "AgentRuntime"]
@@ -87,10 +87,7 @@ class AgentRuntime:
         self.me = config.agent
         self.clock = clock or ExecClock(config.clock_offset, config.clock_drift_ppm)
         self.platform: Platform = platform or make_platform(config.platform, config.seed)
-        m = config.maneuver
-        self.maneuver = maneuver or ReferenceManeuver(
-            m.still, m.duration, math.radians(m.amplitude_deg)
-        )
+        self.maneuver = maneuver or _maneuver(config.maneuver)
         self.follow = AgentId.parse(config.follow) if config.follow else None
         self.reference = self.follow if config.role == "follower" and self.follow else self.me
         self.explicit_sync = {AgentId.parse(a) for a in config.sync_with}
@@ -279,6 +276,7 @@ class AgentRuntime:
                     "heading_ref": self.guidance[0],
                     "rate_ref": self.guidance[1],
                     "mode": self.run_state.mode,
+                    "valves_open": sum(getattr(self.platform, "valves", ())),
                 },
             )
             truth = getattr(self.platform, "truth", None)
@@ -360,6 +358,16 @@ class AgentRuntime:
                     rejected_by_reason=dict(c.rejected),
                 )
         t_sim = self.sim_time(t_exec)
+        received = self.latest_poses.get(self.follow) if self.follow else None
+        follow_offset = (
+            self.peers[self.follow].client.offset_at(t_exec)
+            if (self.follow in self.peers)
+            else None
+        )
+        pose_age = (
+            None if received is None or follow_offset is None
+            else t_exec + follow_offset - received.t
+        )  # fmt: skip
         return Status(
             agent=str(self.me),
             federation=self.config.federation,
@@ -371,6 +379,8 @@ class AgentRuntime:
             mode=self.run_state.mode,
             run_time=self.run_state.run_time(t_sim),
             platform=self.config.platform,
+            follow=None if self.follow is None else str(self.follow),
+            pose_age=pose_age,
             pose=list(self.pose),
             peers=peers,
             counters=self.counter_snapshot(),
@@ -498,6 +508,8 @@ class AgentRuntime:
             self.count("control_received")
             with self._lock:
                 events = self.run_state.command(command, self.sim_time(t_exec))
+                if command.maneuver is not None and any(e.kind == "armed" for e in events):
+                    self.maneuver = _maneuver(command.maneuver)
             self.record(
                 "/control",
                 {
@@ -543,6 +555,10 @@ class AgentRuntime:
 
 
 Agent = AgentRuntime
+
+
+def _maneuver(m: ManeuverConfig) -> ReferenceManeuver:
+    return ReferenceManeuver(m.still, m.duration, math.radians(m.amplitude_deg))
 
 
 def _next_tick(previous: float, period: float, now: float) -> float:

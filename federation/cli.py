@@ -122,18 +122,47 @@ _AGENT_FLAGS = (
 
 
 def agent_config(args: argparse.Namespace) -> AgentConfig:
-    """The agent's file (if any) overlaid with the flags given on the command line."""
+    """The agent's file (if any), then its part in an experiment (if any), overlaid
+    with the flags given on the command line."""
     data: dict[str, Any] = {}
-    source = "command line"
+    sources = []
     if args.agent_config is not None:
         base = load_model(AgentConfig, args.agent_config)
         data = base.model_dump(exclude_unset=True)
-        source = f"{args.agent_config} + command line"
+        sources.append(str(args.agent_config))
+    if args.experiment is not None:
+        data |= _experiment_part(args)
+        sources.append(str(args.experiment))
+    source = " + ".join([*sources, "command line"])
     for name in _AGENT_FLAGS:
         value = getattr(args, name)
         if value is not None and value != []:
             data[name] = value
     return validate(AgentConfig, data, source)
+
+
+def _experiment_part(args: argparse.Namespace) -> dict[str, Any]:
+    """This agent's settings from an experiment file: role, platform, maneuver, ..."""
+    from federation.keys import AgentId
+    from schemas.experiment import load_experiment
+
+    experiment = load_experiment(args.experiment)
+    if not (args.lab and args.name):
+        raise ConfigError(f"{args.experiment}: give --lab and --name to pick this agent's part")
+    me = AgentId(args.lab, args.name)
+    part = experiment.participant(me)
+    if part is None:
+        names = ", ".join(p.agent for p in experiment.participants)
+        raise ConfigError(f"{args.experiment}: {me} does not take part (participants: {names})")
+    return {
+        "federation": experiment.federation,
+        "role": part.role,
+        "platform": part.platform,
+        "follow": part.follow,
+        "latency_compensation": part.latency_compensation,
+        "maneuver": experiment.maneuver.model_dump(),
+        "wait_start": True,
+    }
 
 
 def cmd_agent(args: argparse.Namespace) -> int:
@@ -242,6 +271,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--agent-config", type=Path, metavar="FILE", help="agent settings (TOML or JSON)"
     )
+    p.add_argument(
+        "--experiment",
+        type=Path,
+        metavar="FILE",
+        help="take role, platform and maneuver from an experiment file; wait for ctl start",
+    )
     p.add_argument("--federation", help="federation name (default: default)")
     p.add_argument("--lab", help="this agent's lab")
     p.add_argument("--name", help="this agent's name")
@@ -326,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Commands that live beside their library code: each module has
 # register(subparsers, formatter_class, add_zenoh_flags) and sets ``func``.
-_COMMAND_MODULES = ("federation.link", "federation.bench")
+_COMMAND_MODULES = ("federation.ctl", "federation.link", "federation.bench")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -48,6 +48,7 @@ CHANNELS: dict[str, list[str]] = {
     ],
     "/reference": [
         "t_exec", "host_monotonic", "t_sim", "run_time", "heading_ref", "rate_ref", "mode",
+        "valves_open",
     ],
     "/truth": ["t_exec", "host_monotonic", *_POSE],
     "/control": ["event", "command", "at", "t_exec", "t_sim", "host_monotonic", "mode", "detail"],

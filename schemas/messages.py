@@ -7,6 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from schemas.config import ManeuverConfig
+
 __all__ = ["PeerStatus", "Status"]
 
 
@@ -52,6 +54,10 @@ class Status(BaseModel):
     mode: str = Field("armed", description="run mode: waiting, armed, running, frozen, aborted")
     run_time: float | None = Field(None, description="experiment time since the start, s")
     platform: str = Field("kinematic", description="pose source")
+    follow: str | None = Field(None, description="LAB/NAME of the agent followed")
+    pose_age: float | None = Field(
+        None, description="age of the last pose received from the followed agent, s"
+    )
     pose: list[float] = Field(description="x, y, heading, vx, vy, omega (m, rad, m/s, rad/s)")
     peers: dict[str, PeerStatus]
     loop: dict[str, float] = Field(
@@ -77,5 +83,9 @@ class Command(BaseModel):
     command: Literal["start", "freeze", "resume", "abort"]
     at: float | None = Field(None, allow_inf_nan=False, description="reference time, s")
     seq: int = Field(ge=0, description="command number; a repeat of a seen seq is ignored")
+    issued_at: float | None = Field(
+        None, allow_inf_nan=False, description="reference time when the issuer sent it, s"
+    )
     issuer: str = Field("ctl", max_length=200, description="who sent it")
     experiment: str | None = Field(None, max_length=200, description="experiment name")
+    maneuver: ManeuverConfig | None = Field(None, description="the leader's maneuver for this run")
