@@ -24,7 +24,7 @@ from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import zenoh
 from pydantic import ValidationError
@@ -41,6 +41,10 @@ from federation.runstate import Event, RunState
 from federation.sync import SyncClient
 from schemas.config import AgentConfig, ManeuverConfig
 from schemas.messages import Command, PeerStatus, Status
+from schemas.platform import PlatformConfig
+
+if TYPE_CHECKING:
+    from agents.analysis import Margins  # imports python-control: only for a physical platform
 
 __all__ = ["Agent", "AgentRuntime"]
 
@@ -102,6 +106,8 @@ class AgentRuntime:
         self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
         self.recorder = Recorder(config.record, str(self.me)) if config.record else None
+        self.margins = _margins(self.platform)
+        self._delay_warned = False
         self._count_lock = threading.Lock()
         self._lock = threading.Lock()
         self._declared: list[Any] = []
@@ -403,8 +409,21 @@ class AgentRuntime:
         with self._count_lock:
             return dict(self.counters)
 
+    def check_delay_margin(self, status: Status) -> None:
+        """Warn once when the followed link's delay exceeds a quarter of the loop's delay
+        margin (``fedlab analyze``); again if it recovers and crosses once more."""
+        if self.margins is None or self.follow is None:
+            return
+        view = status.peers.get(str(self.follow))
+        delay = None if view is None else view.delay
+        warning = None if delay is None else self.margins.warn(delay)
+        if warning and not self._delay_warned:
+            log.warning("%s", warning)
+        self._delay_warned = warning is not None
+
     def publish_status(self) -> None:
         status = self.status()
+        self.check_delay_margin(status)
         line = status.model_dump_json()
         self._status_pub.put(line, encoding=zenoh.Encoding.APPLICATION_JSON)
         if self._status_file is not None:
@@ -555,6 +574,20 @@ class AgentRuntime:
 
 
 Agent = AgentRuntime
+
+
+def _margins(platform: Platform) -> Margins | None:
+    """Heading-loop margins of a platform that has a physical description."""
+    config = getattr(platform, "config", None)
+    if not isinstance(config, PlatformConfig):
+        return None
+    from agents.analysis import heading_margins
+
+    try:
+        return heading_margins(config)
+    except ValueError as error:
+        log.warning("no delay margin for %s: %s", config.name, error)
+        return None
 
 
 def _maneuver(m: ManeuverConfig) -> ReferenceManeuver:
