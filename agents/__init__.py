@@ -1,5 +1,9 @@
-"""Platforms, dynamics and GNC. Nothing here does I/O or reads a clock:
-time comes in as an argument."""
+"""Platforms, dynamics and GNC.
+
+The models (dynamics, sensors, navigation, control, guidance, the serial codec)
+do no I/O and read no clock: time comes in as an argument. The serial platform
+and the device emulator are the only modules here that touch a port.
+"""
 
 from agents.guidance import ReferenceManeuver, track_heading
 from agents.kinematic import KinematicPlatform, Platform

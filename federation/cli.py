@@ -373,6 +373,7 @@ _COMMAND_MODULES = (
     "federation.link",
     "federation.analyze",
     "federation.bench",
+    "agents.device_emulator",
 )
 
 
