@@ -12,7 +12,11 @@ from typing import Protocol
 
 from federation.wire import Pose
 
-__all__ = ["KinematicPlatform", "Platform"]
+__all__ = ["KinematicPlatform", "Platform", "PlatformError"]
+
+
+class PlatformError(RuntimeError):
+    """The platform cannot be driven (a serial port vanished, say); valves are closed."""
 
 
 class Platform(Protocol):

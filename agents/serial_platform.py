@@ -38,6 +38,7 @@ from types import TracebackType
 
 import serial
 
+from agents.kinematic import PlatformError
 from agents.serial_protocol import (
     DEVICE_TO_HOST,
     N_VALVES,
@@ -75,10 +76,6 @@ NEGATIVE_TORQUE: tuple[bool, ...] = (True, False, False, True, False, False, Fal
 _U32 = 1 << 32
 _READ_CHUNK = 4096
 _MAX_READS = 64  # per step: bounds the time spent on a device that never stops talking
-
-
-class PlatformError(RuntimeError):
-    """The platform cannot be driven (its serial port vanished or was closed)."""
 
 
 def _wrap(angle: float) -> float:

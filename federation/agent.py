@@ -164,6 +164,12 @@ class AgentRuntime:
     def close(self) -> None:
         """Undeclare everything (tokens and subscribers first); the caller closes the session."""
         self.platform.hold()  # leave the platform with every valve closed
+        closer = getattr(self.platform, "close", None)
+        if callable(closer):
+            try:
+                closer()  # a serial platform sends all-closed and releases its port
+            except Exception as error:
+                log.warning("closing the platform failed: %s", error)
         for entity in reversed(self._declared):
             try:
                 entity.undeclare()

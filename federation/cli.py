@@ -168,6 +168,7 @@ def _experiment_part(args: argparse.Namespace) -> dict[str, Any]:
 def cmd_agent(args: argparse.Namespace) -> int:
     import zenoh
 
+    from agents.kinematic import PlatformError
     from federation.agent import AgentRuntime
     from federation.session import build_config
 
@@ -178,10 +179,17 @@ def cmd_agent(args: argparse.Namespace) -> int:
     if session is None:
         return 0
     with session:
-        runtime = AgentRuntime(config, session)
+        try:
+            runtime = AgentRuntime(config, session)
+        except PlatformError as error:
+            print(f"fedlab agent: error: {error}", file=sys.stderr)
+            return 1
         try:
             runtime.start()
             runtime.run(stop)
+        except PlatformError as error:
+            print(f"fedlab agent: error: {error}; all valves closed", file=sys.stderr)
+            return 1
         finally:
             runtime.close()
     log.info("agent %s stopped", config.agent)
