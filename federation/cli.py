@@ -378,6 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
 # register(subparsers, formatter_class, add_zenoh_flags) and sets ``func``.
 _COMMAND_MODULES = (
     "federation.ctl",
+    "federation.monitor",
     "federation.link",
     "federation.analyze",
     "federation.bench",

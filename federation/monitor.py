@@ -38,6 +38,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -47,7 +48,9 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
 from pydantic import ValidationError
+from rich import box
 from rich.console import Console
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
@@ -56,10 +59,13 @@ from federation.keys import AgentId
 from schemas.messages import Status
 
 __all__ = [
+    "COLUMNS",
     "DEFAULT_STALE_AFTER",
     "MAX_STATUS_BYTES",
+    "OPTIONAL_COLUMNS",
     "MonitorModel",
     "Row",
+    "fit",
     "main",
     "register",
     "render",
@@ -74,6 +80,7 @@ DEFAULT_STALE_AFTER = 3.0
 """Seconds without a status after which a row is stale (agents publish once a second)."""
 MAX_STATUS_BYTES = 1 << 20
 """A status larger than this is malformed without being parsed."""
+_PIPE_WIDTH = 140
 
 State = Literal["ok", "stale", "left", "waiting"]
 
@@ -265,54 +272,85 @@ def _int(value: int | None) -> str:
     return _DASH if value is None else str(value)
 
 
+def _offset(row: Row) -> Text:
+    if row.is_reference:
+        return Text("ref", style="cyan")
+    return Text(_num(row.offset_s, fmt="+.6f"))
+
+
+def _rejected(row: Row) -> Text:
+    return Text(_int(row.rejected), style="red" if row.rejected else "")
+
+
+# (header, right-aligned, cell); in display order.
+_COLUMNS: dict[str, tuple[str, bool, Callable[[Row], str | Text]]] = {
+    "lab": ("lab", False, lambda r: r.lab),
+    "name": ("name", False, lambda r: r.name),
+    "role": ("role", False, lambda r: r.role or _DASH),
+    "mode": ("mode", False, lambda r: r.mode or _DASH),
+    "platform": ("platform", False, lambda r: r.platform or _DASH),
+    "offset": ("offset\ns", True, _offset),
+    "delay": ("delay\nms", True, lambda r: _num(r.delay_s, 1e3)),
+    "pose_age": ("pose age\nms", True, lambda r: _num(r.pose_age_s, 1e3, ".1f")),
+    "samples": ("samples", True, lambda r: _int(r.samples)),
+    "rejected": ("rejected", True, _rejected),
+    "late_p99": ("late p99\nms", True, lambda r: _num(r.late_p99_ms)),
+    "since": ("last\nstatus", True, lambda r: _since(r)),
+}
+COLUMNS = tuple(_COLUMNS)
+"""Column ids, in display order."""
+OPTIONAL_COLUMNS = ("platform", "late_p99", "samples", "pose_age", "mode")
+"""Columns :func:`fit` leaves out, first to last, when a terminal is too narrow."""
+
+
 def render(
     rows: Sequence[Row],
     *,
     federation: str = keys.DEFAULT_FEDERATION,
     malformed: int = 0,
     last_error: str | None = None,
+    columns: Sequence[str] = COLUMNS,
 ) -> Table:
-    """The monitor's table: one line per agent, malformed statuses in the caption."""
+    """The monitor's table: one line per agent, malformed statuses in the caption.
+
+    Stale rows and rows of agents that left are dimmed.
+    """
     table = Table(
         title=f"fedlab monitor · federation {federation}",
         caption=_footer(rows, malformed, last_error),
         caption_justify="left",
         header_style="bold",
+        box=box.SIMPLE_HEAD,
+        pad_edge=False,
+        collapse_padding=True,
         expand=False,
     )
-    table.add_column("lab")
-    table.add_column("name")
-    table.add_column("role")
-    table.add_column("mode")
-    table.add_column("platform")
-    table.add_column("offset s", justify="right")
-    table.add_column("delay ms", justify="right")
-    table.add_column("pose age ms", justify="right")
-    table.add_column("samples", justify="right")
-    table.add_column("rejected", justify="right")
-    table.add_column("late p99 ms", justify="right")
-    table.add_column("last status", justify="right")
+    shown = [c for c in COLUMNS if c in columns]
+    for column in shown:
+        header, right, _ = _COLUMNS[column]
+        # Who a row is about stays readable on a narrow terminal: the numbers shrink first.
+        width = None
+        if column in ("lab", "name"):
+            width = max((len(getattr(r, column)) for r in rows), default=0) or None
+        table.add_column(header, justify="right" if right else "left", min_width=width)
     for row in rows:
-        if row.is_reference:
-            offset = Text("ref", style="cyan")
-        else:
-            offset = Text(_num(row.offset_s, fmt="+.6f"))
-        rejected = Text(_int(row.rejected), style="red" if row.rejected else "")
         table.add_row(
-            row.lab,
-            row.name,
-            row.role or _DASH,
-            row.mode or _DASH,
-            row.platform or _DASH,
-            offset,
-            _num(row.delay_s, 1e3),
-            _num(row.pose_age_s, 1e3, ".1f"),
-            _int(row.samples),
-            rejected,
-            _num(row.late_p99_ms),
-            _since(row),
+            *(_COLUMNS[c][2](row) for c in shown),
             style="dim" if row.state in ("stale", "left") else None,
         )
+    return table
+
+
+def fit(console: Console, rows: Sequence[Row], **kwargs: Any) -> Table:
+    """:func:`render` with the optional columns left out, in order, until it fits ``console``."""
+    columns = list(COLUMNS)
+    table = render(rows, columns=columns, **kwargs)
+    unbounded = console.options.update_width(1 << 16)  # a measurement is clamped to its width
+    for column in OPTIONAL_COLUMNS:
+        if Measurement.get(console, unbounded, table).maximum <= console.width:
+            break
+        columns.remove(column)
+        table = render(rows, columns=columns, **kwargs)
     return table
 
 
@@ -320,7 +358,7 @@ def _since(row: Row) -> Text:
     if row.state == "left":
         return Text("left", style="red")
     if row.since_status_s is None:
-        return Text("no status yet", style="yellow")
+        return Text("waiting", style="yellow")
     text = f"{row.since_status_s:.1f} s"
     return Text(text, style="yellow" if row.state == "stale" else "")
 
@@ -362,15 +400,30 @@ def subscribe(
     callback = zenoh.handlers.Callback
     declared: list[Any] = []
     fed = model.federation
-    declared.append(
-        session.declare_subscriber(keys.all_of(fed, "status"), callback(on_status, indirect=False))
-    )
-    declared.append(
-        session.liveliness().declare_subscriber(
-            keys.all_agents(fed), callback(on_liveliness, indirect=False), history=True
+    try:
+        declared.append(
+            session.declare_subscriber(
+                keys.all_of(fed, "status"), callback(on_status, indirect=False)
+            )
         )
-    )
+        declared.append(
+            session.liveliness().declare_subscriber(
+                keys.all_agents(fed), callback(on_liveliness, indirect=False), history=True
+            )
+        )
+    except Exception:
+        _undeclare(declared)
+        raise
     return declared
+
+
+def _undeclare(declared: list[Any]) -> None:
+    for entity in reversed(declared):
+        try:
+            entity.undeclare()
+        except Exception as error:  # a session already closed by zenoh
+            log.debug("undeclare failed: %s", error)
+    declared.clear()
 
 
 def run_monitor(
@@ -389,7 +442,10 @@ def run_monitor(
     ``once``, print one snapshot after ``wait`` seconds. Returns the exit code."""
     from rich.live import Live
 
-    console = console or Console()
+    if console is None:
+        console = Console()
+        if not console.is_terminal and "COLUMNS" not in os.environ:
+            console = Console(width=_PIPE_WIDTH)  # a file or pipe: the full table, not 80 columns
     clock = time.monotonic
     model = MonitorModel(federation, stale_after)
     lock = threading.Lock()
@@ -398,7 +454,7 @@ def run_monitor(
         with lock:
             rows = model.rows(clock())
             malformed, last_error = model.malformed, model.last_error
-        return render(rows, federation=federation, malformed=malformed, last_error=last_error)
+        return fit(console, rows, federation=federation, malformed=malformed, last_error=last_error)
 
     declared = subscribe(session, model, lock, clock)
     try:
@@ -424,11 +480,7 @@ def run_monitor(
                 live.update(table(), refresh=True)
         return 0
     finally:
-        for entity in reversed(declared):
-            try:
-                entity.undeclare()
-            except Exception as error:  # a session already closed by zenoh
-                log.debug("undeclare failed: %s", error)
+        _undeclare(declared)
 
 
 # -- command line ------------------------------------------------------------------
@@ -537,7 +589,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     register(sub, _Formatter, _zenoh_flags)
     args = parser.parse_args(["monitor", *args_in])
     logging.basicConfig(
-        level=logging.WARNING,
+        level=logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
