@@ -6,7 +6,9 @@ beside baselines measured in the same run.
   latency = arrival minus sending, both on the host's monotonic clock (the
   leader's clock is mapped to it exactly through its status lines).
 - ``bare zenoh``: a ping-pong through the same two routers with plain zenoh calls
-  and the same transport settings (no fedlab code); one way = round trip / 2.
+  and the same transport settings (no fedlab code). One way is measured the same
+  way as fedlab's (both ends read the host's monotonic clock); round trip / 2 is
+  reported beside it.
 - ``raw udp``: a socket ping-pong on loopback; one way = round trip / 2.
 - ``sync turnaround``: the leader's time from reading ``t2`` to sending the reply
   (the reply's four-timestamp attachment), over the follower's exchanges.
@@ -65,8 +67,11 @@ def _wait_ready(fleet: Fleet, name: str, timeout: float = 15.0) -> None:
         raise RuntimeError(f"{name} did not start: {log.read_text() if log.exists() else ''}")
 
 
-def bare_zenoh(fleet: Fleet, ping_at: str, pong_at: str, count: int, rate: float) -> list[float]:
-    """One-way latencies (s) of a plain zenoh ping-pong through both routers."""
+def bare_zenoh(
+    fleet: Fleet, ping_at: str, pong_at: str, count: int, rate: float
+) -> tuple[list[float], list[float]]:
+    """(one-way, round trip / 2) latencies (s) of a plain zenoh ping-pong through both
+    routers; one way from the pong's arrival stamp (same host, same monotonic clock)."""
     key = f"bench/{free_port()}"
     fleet.spawn(
         "zenoh-pong",
@@ -75,13 +80,18 @@ def bare_zenoh(fleet: Fleet, ping_at: str, pong_at: str, count: int, rate: float
     _wait_ready(fleet, "zenoh-pong")
     sent: dict[int, int] = {}
     oneway: list[float] = []
+    half_rtt: list[float] = []
     done = threading.Event()
 
     def on_pong(sample: zenoh.Sample) -> None:
-        now = time.perf_counter_ns()
-        seq = int.from_bytes(sample.payload.to_bytes()[:8], "little")
+        now = time.monotonic_ns()
+        data = sample.payload.to_bytes()
+        seq = int.from_bytes(data[:8], "little")
+        arrived = int.from_bytes(data[-8:], "little")
         if seq in sent:
-            oneway.append((now - sent.pop(seq)) / 2e9)
+            start = sent.pop(seq)
+            oneway.append((arrived - start) / 1e9)
+            half_rtt.append((now - start) / 2e9)
             if len(oneway) >= count:
                 done.set()
 
@@ -91,23 +101,24 @@ def bare_zenoh(fleet: Fleet, ping_at: str, pong_at: str, count: int, rate: float
         )
         pub = session.declare_publisher(f"{key}/ping", express=True)
         # Until the route exists pings are lost: warm up with a bounded number.
-        for seq in range(-200, 0):
+        for seq in range(2**62, 2**62 + 200):
             if oneway:
                 break
-            sent[seq] = time.perf_counter_ns()
-            pub.put((seq % 2**63).to_bytes(8, "little") + bytes(48))
+            sent[seq] = time.monotonic_ns()
+            pub.put(seq.to_bytes(8, "little") + bytes(48))
             time.sleep(0.05)
         oneway.clear()
+        half_rtt.clear()
         sent.clear()
         for seq in range(count):
-            sent[seq] = time.perf_counter_ns()
+            sent[seq] = time.monotonic_ns()
             pub.put(seq.to_bytes(8, "little") + bytes(48))  # 56 bytes, a pose sample's size
             time.sleep(1.0 / rate)
         done.wait(5.0)
         pub.undeclare()
         sub.undeclare()
     fleet.stop("zenoh-pong")
-    return list(oneway)
+    return list(oneway), list(half_rtt)
 
 
 def raw_udp(fleet: Fleet, count: int, rate: float) -> list[float]:
@@ -177,11 +188,12 @@ def run(seconds: float, rate: float, out: Path) -> dict[str, Any]:
         fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
         fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", kiruna])
         pose, turnaround = fedlab_pose(fleet, kiruna, rome, seconds, rate, out)
-        bare = bare_zenoh(fleet, kiruna, rome, count, rate)
+        bare, bare_half_rtt = bare_zenoh(fleet, kiruna, rome, count, rate)
         udp = raw_udp(fleet, count, rate)
     result: dict[str, Any] = {
         "fedlab_pose": _stats(pose),
         "bare_zenoh": _stats(bare),
+        "bare_zenoh_half_rtt": _stats(bare_half_rtt),
         "raw_udp": _stats(udp),
         "sync_turnaround": _stats(turnaround),
         "rate_hz": rate,
@@ -220,7 +232,7 @@ def cmd_latency(args: argparse.Namespace) -> int:
     table = Table(title=f"one-way latency, loopback, two routers ({args.rate:.0f} Hz)")
     for col in ("path", "p50 (ms)", "p99 (ms)", "max (ms)", "samples"):
         table.add_column(col, justify="left" if col == "path" else "right")
-    for name in ("fedlab_pose", "bare_zenoh", "raw_udp", "sync_turnaround"):
+    for name in ("fedlab_pose", "bare_zenoh", "bare_zenoh_half_rtt", "raw_udp", "sync_turnaround"):
         r = result[name]
         table.add_row(
             name, f"{r['p50_ms']:.3f}", f"{r['p99_ms']:.3f}", f"{r['max_ms']:.3f}", str(r["n"])

@@ -1,4 +1,6 @@
-"""Bare Zenoh pong: echo every sample on KEY/ping back on KEY/pong. No fedlab imports.
+"""Bare Zenoh pong: echo every sample on KEY/ping back on KEY/pong, with the arrival
+time (CLOCK_MONOTONIC, ns, 8 bytes little-endian) appended, so the pinger on the same
+host measures the one-way latency as well as the round trip. No fedlab imports.
 
 Usage: python zenoh_pong.py ENDPOINT KEY SECONDS
 """
@@ -21,7 +23,8 @@ def main() -> None:
         pub = session.declare_publisher(f"{key}/pong", express=True)
 
         def echo(sample: zenoh.Sample) -> None:
-            pub.put(sample.payload)
+            arrived = time.monotonic_ns()
+            pub.put(sample.payload.to_bytes() + arrived.to_bytes(8, "little"))
 
         sub = session.declare_subscriber(
             f"{key}/ping", zenoh.handlers.Callback(echo, indirect=False)
