@@ -100,6 +100,8 @@ class AgentRuntime:
         self.run_state = RunState(autostart=not config.wait_start)
         self.pose = wire.Pose()
         self.guidance = (0.0, 0.0)  # last heading and rate references
+        # When they were computed: t_exec, host monotonic, t_sim, run time.
+        self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
         self.peers: dict[AgentId, Peer] = {}
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
         self.counters: Counter[str] = Counter()
@@ -270,6 +272,7 @@ class AgentRuntime:
             run_time = self.run_state.run_time(t_sim)
         self._apply(events, t_exec, host)
         self.guidance = self.reference_heading(t_exec, run_time)
+        self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance)
 
     def publish_pose(self) -> None:
@@ -278,13 +281,15 @@ class AgentRuntime:
         if self.recorder is not None:
             stamp = {"t_exec": t_exec, "host_monotonic": host}
             self.record("/pose/sent", stamp | self.pose._asdict())
-            t_sim = self.sim_time(t_exec)
+            # The reference as computed at the last control step, stamped with that step's time.
+            g_exec, g_host, g_sim, g_run = self.guidance_at
             self.record(
                 "/reference",
-                stamp
-                | {
-                    "t_sim": t_sim,
-                    "run_time": self.run_state.run_time(t_sim),
+                {
+                    "t_exec": g_exec,
+                    "host_monotonic": g_host,
+                    "t_sim": g_sim,
+                    "run_time": g_run,
                     "heading_ref": self.guidance[0],
                     "rate_ref": self.guidance[1],
                     "mode": self.run_state.mode,

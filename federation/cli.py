@@ -381,6 +381,7 @@ _COMMAND_MODULES = (
     "federation.monitor",
     "federation.link",
     "federation.analyze",
+    "federation.report",
     "federation.bench",
     "agents.device_emulator",
 )

@@ -1,17 +1,21 @@
-"""``fedlab demo``: the paper's two-lab setup on this machine.
+"""``fedlab demo``: the paper's experiment, end to end, on this machine.
 
-Two lab routers as separate processes (``kiruna`` listens, ``rome`` dials it, as
-a lab behind a firewall would), a leader ``kiruna/knatte`` and a follower
-``rome/pinocchio`` whose clock is ``clock_offset`` seconds ahead. Every agent
-writes status lines; the truth of the offset comes from the host clock they share
-(:mod:`federation.status`), so the run reports how far off the estimate is.
+Two lab routers as separate processes (``kiruna`` listens, ``rome`` dials it
+through the link emulator, which gives the lab link the paper's ~40 ms one-way
+delay), a simulated KNATTE leading in ``kiruna`` and a simulated PINOCCHIO
+following in ``rome`` with its clock 26.42 s off. A second PINOCCHIO
+(``rome/pinocchio-raw``) follows without latency compensation, so the report
+shows both. Once the followers are synchronized the demo starts the run the way
+``fedlab ctl start`` does (a common reference instant), shows progress, stops
+everything (also on Ctrl-C), writes the report and sets this run beside the
+paper's numbers.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import statistics
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -20,158 +24,223 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from federation.launch import Fleet, free_port
-from federation.status import last_status, read_status, true_offset
+from federation.launch import Fleet, free_port, wait_for
+from federation.status import last_status
 
-__all__ = ["run_demo", "summarize"]
+__all__ = ["run_demo"]
 
-LEADER, FOLLOWER = "kiruna/knatte", "rome/pinocchio"
-
-# The paper's figures (section 4, 600 s validation over the internet; NOTES.md).
-PAPER = {
-    "offset_std_s": 0.005,
-    "delay_median_s": 0.040,
-    "delay_std_s": 0.005,
-}
+LEADER, FOLLOWER, RAW = "kiruna/knatte", "rome/pinocchio", "rome/pinocchio-raw"
+START_IN = 2.0  # s between the start command and the common start instant
 
 
-def _agent_args(role: str, agent: str, endpoint: str, status: Path, duration: float) -> list[str]:
-    lab, name = agent.split("/")
-    return [
-        "agent",
-        "--role",
-        role,
-        "--lab",
-        lab,
-        "--name",
-        name,
-        "-e",
-        endpoint,
-        "--duration",
-        f"{duration}",
-        "--status-json",
-        str(status),
-    ]
-
-
-def summarize(leader_file: Path, follower_file: Path) -> dict[str, Any]:
-    """The follower's view of the leader's clock, against the truth, from status lines."""
-    leader_lines = read_status(leader_file)
-    follower_lines = read_status(follower_file)
-    if not leader_lines or not follower_lines:
-        return {}
-    truth = true_offset(leader_lines[-1], follower_lines[-1])
-    # Per-exchange figures (the last exchange at each status line), as in the paper's plots.
-    offsets, delays = [], []
-    for line in follower_lines:
-        peer = line["peers"].get(LEADER)
-        if peer and peer["last_offset"] is not None:
-            offsets.append(peer["last_offset"])
-            delays.append(peer["last_delay"])
-    if not offsets:
-        return {"true_offset_s": truth}
-    final = follower_lines[-1]["peers"][LEADER]
+def experiment(duration: float) -> dict[str, Any]:
     return {
-        "true_offset_s": truth,
-        "offset_estimate_s": final["offset"],
-        "offset_error_s": final["offset"] - truth,
-        "offset_std_s": statistics.pstdev(offsets),
-        "delay_median_s": statistics.median(delays),
-        "delay_std_s": statistics.pstdev(delays),
-        "sync_samples": final["samples"],
-        "sync_rejected": final["rejected"],
-        "locked": final["locked"],
-    }
+        "name": "attitude-tracking-demo",
+        "duration": duration,
+        "start_delay": START_IN,
+        "maneuver": {"still": 10.0, "duration": 60.0, "amplitude_deg": 45.0},
+        "participants": [
+            {"agent": LEADER, "role": "leader", "platform": "knatte"},
+            {"agent": FOLLOWER, "role": "follower", "platform": "pinocchio", "follow": LEADER},
+            {"agent": RAW, "role": "follower", "platform": "pinocchio", "follow": LEADER,
+             "latency_compensation": False},
+        ],
+    }  # fmt: skip
 
 
-def _progress(elapsed: float, duration: float, leader: Path, follower: Path) -> Table:
-    table = Table(title=f"fedlab demo: {elapsed:4.1f} / {duration:.0f} s")
-    for column in ("agent", "t_exec (s)", "t_sim (s)", "heading (deg)", "offset (s)", "delay (ms)"):
+def _stem(agent: str) -> str:
+    return agent.replace("/", "-")
+
+
+def _progress(run: Path, elapsed: float, total: float, phase: str) -> Table:
+    table = Table(title=f"fedlab demo: {phase} {elapsed:5.1f} / {total:.0f} s")
+    for column in ("agent", "mode", "run time (s)", "heading (deg)", "offset (s)", "delay (ms)"):
         table.add_column(column, justify="right")
-    for agent, path in ((LEADER, leader), (FOLLOWER, follower)):
-        line = last_status(path)
+    for agent in (LEADER, FOLLOWER, RAW):
+        line = last_status(run / f"{_stem(agent)}.jsonl")
         if line is None:
             table.add_row(agent, "starting", "", "", "", "")
             continue
-        peer = next(iter(line["peers"].values()), None)
-        offset = peer["offset"] if peer else None
-        delay = peer["delay"] if peer else None
+        peer = line["peers"].get(LEADER) if agent != LEADER else None
+        offset = None if peer is None else peer["offset"]
+        delay = None if peer is None else peer["delay"]
         table.add_row(
             agent,
-            f"{line['t_exec']:.2f}",
-            "-" if line["t_sim"] is None else f"{line['t_sim']:.2f}",
+            line.get("mode", "?"),
+            "-" if line.get("run_time") is None else f"{line['run_time']:.1f}",
             f"{math.degrees(line['pose'][2]):6.2f}",
-            "-" if offset is None else f"{offset:+.4f}",
+            "ref" if agent == LEADER else "-" if offset is None else f"{offset:+.4f}",
             "-" if delay is None else f"{delay * 1e3:.2f}",
         )
     return table
 
 
-def run_demo(duration: float, out: Path, clock_offset: float = 26.42) -> int:
+def _start_run(endpoint: str, seconds_ahead: float) -> float:
+    """Announce the start as ``fedlab ctl start`` does; returns the reference start time."""
+    import zenoh
+
+    from federation import keys
+    from federation.clock import ExecClock
+    from federation.ctl import reference_now
+    from federation.keys import AgentId
+    from federation.session import build_config
+    from schemas.config import ManeuverConfig, ZenohOptions
+    from schemas.messages import Command
+
+    conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
+    with zenoh.open(conf) as session:
+        clock = ExecClock()
+        at = reference_now(session, "default", AgentId.parse(LEADER), clock) + seconds_ahead
+        command = Command(
+            command="start", at=at, seq=time.time_ns() // 1_000_000, issuer="demo",
+            experiment="attitude-tracking-demo",
+            maneuver=ManeuverConfig(still=10.0, duration=60.0, amplitude_deg=45.0),
+        )  # fmt: skip
+        for _ in range(3):
+            session.put(keys.control_key("default"), command.model_dump_json())
+            time.sleep(0.05)
+    return at
+
+
+def run_demo(
+    duration: float, out: Path, delay_ms: float = 40.0, clock_offset: float = 26.42
+) -> int:
+    """Run the demo; ``duration`` is seconds of run time after the common start."""
     console = Console()
     out.mkdir(parents=True, exist_ok=True)
-    leader_file, follower_file = out / "kiruna-knatte.jsonl", out / "rome-pinocchio.jsonl"
-    for path in (leader_file, follower_file):
-        path.unlink(missing_ok=True)
-    kiruna = f"tcp/127.0.0.1:{free_port()}"
-    rome = f"tcp/127.0.0.1:{free_port()}"
+    for old in [*out.glob("*.mcap"), *out.glob("*.jsonl"), *out.glob("*.png")]:
+        old.unlink()
+    spec = experiment(duration)
+    (out / "experiment.json").write_text(json.dumps(spec, indent=1) + "\n")
+    kiruna, link, rome = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+    jitter_ms = 2.0
+    agents = {
+        LEADER: {"endpoint": kiruna, "clock_offset": 0.0},
+        FOLLOWER: {"endpoint": rome, "clock_offset": clock_offset},
+        RAW: {"endpoint": rome, "clock_offset": clock_offset + 3.1},
+    }
     started = time.monotonic()
     interrupted = False
     with Fleet(out / "logs") as fleet:
         fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
-        fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", kiruna])
-        fleet.start("kiruna-knatte", _agent_args("leader", LEADER, kiruna, leader_file, duration))
-        follower = _agent_args("follower", FOLLOWER, rome, follower_file, duration)
-        follower += ["--follow", LEADER, "--clock-offset", f"{clock_offset}"]
-        fleet.start("rome-pinocchio", follower)
+        fleet.start(
+            "link",
+            ["link", "--listen", link, "--to", kiruna, "--delay-ms", f"{delay_ms}",
+             "--jitter-ms", f"{jitter_ms}", "--seed", "1"],
+        )  # fmt: skip
+        fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", link])
+        for agent, a in agents.items():
+            lab, name = agent.split("/")
+            fleet.start(
+                _stem(agent),
+                ["agent", "--experiment", str(out / "experiment.json"), "--lab", lab,
+                 "--name", name, "-e", str(a["endpoint"]), "--clock-offset", f"{a['clock_offset']}",
+                 "--status-json", str(out / f"{_stem(agent)}.jsonl"),
+                 "--record", str(out / f"{_stem(agent)}.mcap"),
+                 # Followers query the leader; the leader queries everyone (the paper's
+                 # two channels).
+                 *(["--sync-with", LEADER] if agent != LEADER else [])],
+            )  # fmt: skip
+        total = duration + START_IN
         try:
             with Live(
                 console=console, refresh_per_second=2, transient=not console.is_terminal
             ) as live:
-                while fleet.alive("kiruna-knatte") or fleet.alive("rome-pinocchio"):
-                    elapsed = time.monotonic() - started
-                    live.update(_progress(elapsed, duration, leader_file, follower_file))
-                    if elapsed > duration + 30:  # agents stop themselves; this bounds the wait
-                        console.print("[red]agents did not stop in time; stopping them[/red]")
+
+                def synced() -> bool:
+                    live.update(_progress(out, time.monotonic() - started, total, "syncing"))
+                    lines = [last_status(out / f"{_stem(a)}.jsonl") for a in (FOLLOWER, RAW)]
+                    return all(line is not None and line["t_sim"] is not None for line in lines)
+
+                if not wait_for(synced, timeout=30, interval=0.5):
+                    console.print(
+                        f"[red]the followers never synchronized; see {out / 'logs'}[/red]"
+                    )
+                    return 1
+                _start_run(kiruna, START_IN)
+                t0 = time.monotonic()
+                while (elapsed := time.monotonic() - t0) < total:
+                    live.update(_progress(out, elapsed, total, "running"))
+                    if not all(fleet.alive(_stem(a)) for a in agents):
+                        console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
                         break
                     time.sleep(0.5)
         except KeyboardInterrupt:
             interrupted = True
-            console.print("interrupted: stopping routers and agents")
-    summary = summarize(leader_file, follower_file)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    _print_summary(console, summary, out)
+            console.print("interrupted: stopping agents, link and routers")
+        codes = fleet.stop_all()
+    run = {
+        "leader": LEADER,
+        "agents": {
+            p["agent"]: {
+                "role": p["role"],
+                "platform": p["platform"],
+                "follow": p.get("follow"),
+                "latency_compensation": p.get("latency_compensation", True),
+                "clock_offset": agents[p["agent"]]["clock_offset"],
+                "clock_drift_ppm": 0.0,
+            }
+            for p in spec["participants"]
+        },
+        "link": {"delay_ms": delay_ms, "jitter_ms": jitter_ms, "jitter_dist": "normal"},
+        "duration_s": duration,
+        "exit_codes": codes,
+        "command": " ".join(["fedlab", *sys.argv[1:]]) if sys.argv else "fedlab demo",
+    }
+    (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
+    from federation.report import write_report
+
+    summary = write_report(out, out)
+    console.print(paper_table(summary))
+    console.print(f"report.md, summary.json, figures and recordings in {out}")
     if interrupted:
         return 130
-    return 0 if "offset_error_s" in summary else 1
+    return 0
 
 
-def _print_summary(console: Console, summary: dict[str, Any], out: Path) -> None:
-    if "offset_error_s" not in summary:
-        console.print(f"[red]no sync estimate was made; see the logs in {out / 'logs'}[/red]")
-        return
-    table = Table(title="rome/pinocchio's estimate of kiruna/knatte's clock")
+def _find(rows: list[dict[str, Any]], **match: str) -> dict[str, Any]:
+    return next((r for r in rows if all(r.get(k) == v for k, v in match.items())), {})
+
+
+def paper_table(summary: dict[str, Any]) -> Table:
+    """This run beside the paper (NOTES.md), for the compensated follower's view."""
+    pair = _find(summary.get("sync", []), client=FOLLOWER, peer=LEADER)
+    comp = _find(summary.get("followers", []), follower=FOLLOWER)
+    raw = _find(summary.get("followers", []), follower=RAW)
+    agents = summary.get("agents", {})
+
+    def ms(value: Any, digits: int = 2) -> str:
+        return "-" if value is None else f"{value * 1e3:.{digits}f}"
+
+    def s(value: Any) -> str:
+        return "-" if value is None else f"{value:.2f}"
+
+    def deg(agent: str) -> str:
+        value = agents.get(agent, {}).get("heading_rms_error_deg")
+        return "-" if value is None else f"{value:.2f}"
+
+    table = Table(title=f"{FOLLOWER} and {LEADER}: this run beside the paper")
     table.add_column("figure")
     table.add_column("this run", justify="right")
-    table.add_column("paper (internet, 600 s)", justify="right")
-    table.add_row("true offset (s)", f"{summary['true_offset_s']:.6f}", "26.420 (median)")
-    table.add_row("estimated offset (s)", f"{summary['offset_estimate_s']:.6f}", "")
-    table.add_row(
-        "offset error (ms)", f"{summary['offset_error_s'] * 1e3:+.3f}", "unknown (no truth)"
-    )
-    table.add_row(
-        "offset std (ms)",
-        f"{summary['offset_std_s'] * 1e3:.3f}",
-        f"{PAPER['offset_std_s'] * 1e3:.0f}",
-    )
-    table.add_row(
-        "delay median (ms)",
-        f"{summary['delay_median_s'] * 1e3:.3f}",
-        f"{PAPER['delay_median_s'] * 1e3:.1f}",
-    )
-    table.add_row(
-        "delay std (ms)", f"{summary['delay_std_s'] * 1e3:.3f}", f"{PAPER['delay_std_s'] * 1e3:.0f}"
-    )
-    table.add_row("sync exchanges", str(summary["sync_samples"]), "")
-    console.print(table)
-    console.print(f"status lines, logs and summary.json in {out}")
+    table.add_column("paper (Kiruna-Rome, internet)", justify="right")
+    rows = [
+        ("offset error vs truth, median (ms)", ms(pair.get("estimate_error_median_abs_s"), 3),
+         "unknown (no truth)"),
+        ("offset error vs truth, p95 (ms)", ms(pair.get("estimate_error_p95_abs_s"), 3), ""),
+        ("offset per exchange, std (ms)", ms(pair.get("offset_std_s")), "5 to 9"),
+        ("one-way delay, median (ms)", ms(pair.get("delay_median_s")), "39.5 to 40"),
+        ("  emulated (ms)", ms(pair.get("emulated_delay_s")), ""),
+        ("one-way delay, std (ms)", ms(pair.get("delay_std_s")), "5 to 11"),
+        ("received heading behind sent (ms)", ms(raw.get("received_separation_s"), 1),
+         "60 to 100"),
+        ("tracked reference behind sent, raw (ms)", ms(raw.get("reference_separation_s"), 1),
+         ""),
+        ("  with latency compensation (ms)", ms(comp.get("reference_separation_s"), 1), ""),
+        ("follower lag (s), compensated / raw", f"{s(comp.get('lag_s'))} / {s(raw.get('lag_s'))}",
+         "4 to 5"),
+        ("heading RMS error (deg): leader", deg(LEADER), ""),
+        ("  follower, compensated / raw", f"{deg(FOLLOWER)} / {deg(RAW)}", ""),
+    ]  # fmt: skip
+    for row in rows:
+        table.add_row(*row)
+    return table

@@ -66,7 +66,8 @@ class Recorder:
         self.written = 0
         self._queue: queue.Queue[Any] = queue.Queue(capacity)
         self._file = self.path.open("wb")
-        self._writer = Writer(self._file)
+        # Small chunks: an agent killed mid-run loses at most the last chunk.
+        self._writer = Writer(self._file, chunk_size=256 * 1024)
         self._writer.start(profile="", library="fedlab")
         self._channels: dict[str, int] = {}
         for topic, fields in CHANNELS.items():
