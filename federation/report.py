@@ -843,6 +843,7 @@ def plot_sync(
             color="black",
             label="truth (shared host clock)",
         )
+    _robust_ylim(ax_o, (pair.offset - base) * 1e3, "exchanges")
     ax_o.set_ylabel(f"offset {'−' if base >= 0 else '+'} {abs(base):.3f} s (ms)")
     ax_o.set_title(
         f"Clock offset ({pair.peer} minus {pair.client}) and one-way delay, {len(t)} exchanges",
@@ -868,10 +869,29 @@ def plot_sync(
             lw=1.2,
             label=f"emulated {emulated_delay_s * 1e3:.1f} ms",
         )
+    _robust_ylim(ax_d, pair.delay * 1e3, "exchanges")
     ax_d.set_ylabel("one-way delay (ms)")
     ax_d.set_xlabel(f"time since the first exchange, {pair.client}'s clock (s)")
     ax_d.legend(loc="upper right", fontsize=8, framealpha=0.9)
     fig.savefig(path, dpi=DPI)
+
+
+def _robust_ylim(ax: Any, values: Array, what: str) -> None:
+    """Scale to the bulk (0.5th to 99.5th percentile) so one outlier does not flatten the
+    plot; say how many points fall outside."""
+    finite = values[np.isfinite(values)]
+    if finite.size < 20:
+        return
+    lo, hi = np.percentile(finite, [0.5, 99.5])
+    pad = max(0.25 * float(hi - lo), 0.5)
+    lo, hi = float(lo) - pad, float(hi) + pad
+    outside = int(np.sum((finite < lo) | (finite > hi)))
+    ax.set_ylim(lo, hi)
+    if outside:
+        ax.text(
+            0.01, 0.02, f"{outside} {what} outside the axis", transform=ax.transAxes, fontsize=8,
+            color="0.4",
+        )  # fmt: skip
 
 
 _COLORS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:brown", "tab:olive"]
