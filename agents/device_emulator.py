@@ -69,11 +69,10 @@ import os
 import random
 import select
 import signal
-import sys
 import threading
 import time
 import tty
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -99,7 +98,6 @@ __all__ = [
     "EmulatedDevice",
     "SensorNoise",
     "dynamics",
-    "main",
     "register",
     "rk4_step",
     "run_emulator",
@@ -676,33 +674,3 @@ def register(
         "--record", type=Path, metavar="FILE", help="append valve and failsafe events (JSONL)"
     )
     p.set_defaults(func=cmd_emulate_device)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``fedlab emulate-device`` on its own (``emulate-device`` in ``argv`` optional)."""
-    args_in = list(sys.argv[1:] if argv is None else argv)
-    if args_in[:1] == ["emulate-device"]:
-        args_in = args_in[1:]
-
-    class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-        pass
-
-    parser = argparse.ArgumentParser(prog="fedlab", formatter_class=_Formatter)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    register(sub, _Formatter, lambda _parser: None)
-    args = parser.parse_args(["emulate-device", *args_in])
-    logging.basicConfig(
-        level=logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
-    try:
-        code: int = args.func(args)
-    except (OSError, ValueError) as error:
-        print(f"fedlab emulate-device: error: {error}", file=sys.stderr)
-        return 2
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

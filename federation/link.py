@@ -86,9 +86,8 @@ import secrets
 import selectors
 import signal
 import socket
-import sys
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -114,7 +113,6 @@ __all__ = [
     "LinkOptions",
     "LinkStats",
     "StreamScheduler",
-    "main",
     "options_from_args",
     "parse_endpoint",
     "register",
@@ -1377,33 +1375,3 @@ def register(
         "--udp-idle", type=float, default=60.0, metavar="S", help="forget idle UDP clients"
     )
     p.set_defaults(func=cmd_link)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``fedlab link`` on its own: ``argv`` holds the link's flags (``link`` optional)."""
-    args_in = list(sys.argv[1:] if argv is None else argv)
-    if args_in[:1] == ["link"]:
-        args_in = args_in[1:]
-
-    class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-        pass
-
-    parser = argparse.ArgumentParser(prog="fedlab", formatter_class=_Formatter)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    register(sub, _Formatter, lambda _parser: None)
-    args = parser.parse_args(["link", *args_in])
-    logging.basicConfig(
-        level=logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
-    try:
-        code: int = args.func(args)
-    except ConfigError as error:
-        print(f"fedlab link: error: {error}", file=sys.stderr)
-        return 2
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

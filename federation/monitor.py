@@ -66,7 +66,6 @@ __all__ = [
     "MonitorModel",
     "Row",
     "fit",
-    "main",
     "register",
     "render",
     "row_json",
@@ -573,33 +572,3 @@ def register(
     p.add_argument("--json", action="store_true", help="with --once: print the rows as JSON")
     add_zenoh_flags(p)
     p.set_defaults(func=cmd_monitor)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``fedlab monitor`` on its own: ``argv`` holds its flags (``monitor`` optional)."""
-    from federation.cli import _Formatter, _zenoh_flags
-    from federation.session import ZenohConfigError
-    from schemas.config import ConfigError
-
-    args_in = list(sys.argv[1:] if argv is None else argv)
-    if args_in[:1] == ["monitor"]:
-        args_in = args_in[1:]
-    parser = argparse.ArgumentParser(prog="fedlab", formatter_class=_Formatter)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    register(sub, _Formatter, _zenoh_flags)
-    args = parser.parse_args(["monitor", *args_in])
-    logging.basicConfig(
-        level=logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
-    try:
-        code: int = args.func(args)
-    except (ConfigError, ZenohConfigError) as error:
-        print(f"fedlab monitor: error: {error}", file=sys.stderr)
-        return 2
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

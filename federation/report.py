@@ -50,7 +50,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,7 +75,6 @@ __all__ = [
     "fit_clock",
     "heading_rms_deg",
     "load_run",
-    "main",
     "register",
     "summarize",
     "summary_table",
@@ -1192,21 +1190,3 @@ def cmd_report(args: argparse.Namespace) -> int:
         console.print(f"[yellow]note:[/] {note}", highlight=False)
     console.print(f"wrote to {out}: {', '.join(summary['files'])}", highlight=False)
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``fedlab report`` on its own (until the main command line registers this module)."""
-    parser = argparse.ArgumentParser(prog="fedlab")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    register(sub, argparse.RawDescriptionHelpFormatter, lambda p: None)
-    args = parser.parse_args(argv)
-    try:
-        code: int = args.func(args)
-    except ConfigError as error:
-        print(f"fedlab {args.command}: error: {error}", file=sys.stderr)
-        return 2
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -39,7 +39,6 @@ from federation.link import (
     LinkEndpoint,
     LinkModel,
     StreamScheduler,
-    main,
     options_from_args,
     parse_endpoint,
     register,
@@ -49,16 +48,12 @@ from schemas.config import ConfigError
 
 N = 20_000
 
-# Until federation.cli lists federation.link, run the module's own main().
-LINK_CMD = (
-    [sys.executable, "-m", "federation", "link"]
-    if "federation.link" in cli._COMMAND_MODULES
-    else [
-        sys.executable,
-        "-c",
-        "import sys; from federation.link import main; sys.exit(main(sys.argv[1:]))",
-    ]
-)
+LINK_CMD = [sys.executable, "-m", "federation", "link"]
+
+
+def main(args: list[str]) -> int:
+    """``fedlab link ARGS`` in this process."""
+    return cli.main(["link", *args])
 
 
 def direction(**kw: Any) -> DirectionModel:

@@ -14,13 +14,19 @@ from typing import Any
 import pytest
 from rich.console import Console
 
+from federation import cli
 from federation.launch import Fleet, wait_for
-from federation.monitor import COLUMNS, MonitorModel, Row, fit, main, render, row_json
+from federation.monitor import COLUMNS, MonitorModel, Row, fit, render, row_json
 from federation.status import last_status
 from schemas.messages import PeerStatus, Status
 
 LEADER = "kiruna/knatte"
 FOLLOWER = "rome/pinocchio"
+
+
+def main(args: list[str]) -> int:
+    """``fedlab monitor ARGS`` in this process."""
+    return cli.main(["monitor", *args])
 
 
 def key(agent: str, topic: str | None = None, federation: str = "default") -> str:
@@ -374,8 +380,7 @@ def test_monitor_shows_a_leader_and_a_follower(
         args += ["--status-period", "0.5", "--status-json", str(files[agent]), *extra]
         fleet.start(f"{lab}-{name}", args)
     # The live view, as a user runs it: stopped by SIGTERM with exit code 0.
-    live = [sys.executable, "-c", "import sys; from federation.monitor import main; "
-            "sys.exit(main(sys.argv[1:]))", "-e", router]  # fmt: skip
+    live = [sys.executable, "-m", "federation", "monitor", "-e", router]
     fleet.spawn("monitor-live", live)
     assert wait_for(lambda: synced(files[FOLLOWER], LEADER), timeout=15), "follower never synced"
     assert wait_for(lambda: synced(files[LEADER], FOLLOWER), timeout=5), "leader never synced"

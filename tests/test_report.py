@@ -30,7 +30,7 @@ import pytest
 from matplotlib import image
 
 from agents.guidance import ReferenceManeuver
-from federation import report
+from federation import cli, report
 from federation.recorder import Recorder
 
 LEADER, FOLLOWER, RAW = "kiruna/knatte", "rome/pinocchio", "rome/pinocchio-raw"
@@ -446,7 +446,7 @@ def test_damaged_recordings_are_recovered_or_skipped_with_a_note(
 def test_cli_writes_into_out_and_prints_the_table(
     run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert report.main(["report", str(run_dir), "--out", str(tmp_path)]) == 0
+    assert cli.main(["report", str(run_dir), "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "delay median (ms)" in printed and "40.0" in printed
     assert str(tmp_path) in printed
@@ -459,13 +459,13 @@ def test_cli_without_recordings_fails_naming_the_directory(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], make: Any
 ) -> None:
     directory = make(tmp_path)
-    assert report.main(["report", str(directory)]) == 2
+    assert cli.main(["report", str(directory)]) == 2
     err = capsys.readouterr().err
     assert str(directory) in err and "error" in err
 
 
 def test_help_has_an_example(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
-        report.main(["report", "--help"])
+        cli.main(["report", "--help"])
     out = capsys.readouterr().out
     assert "Example:" in out and "fedlab report runs/" in out and "--out DIR" in out

@@ -30,7 +30,6 @@ from agents.device_emulator import (
     BodyParams,
     EmulatedDevice,
     SensorNoise,
-    main,
     register,
     thruster_wrench,
 )
@@ -59,15 +58,17 @@ from agents.serial_protocol import (
     encode_status,
     encode_valves,
 )
+from federation import cli
 from federation.launch import Fleet, wait_for
 from federation.wire import Pose
 
-EMULATOR = [
-    sys.executable,
-    "-c",
-    "import sys; from agents.device_emulator import main; sys.exit(main(sys.argv[1:]))",
-]
+EMULATOR = [sys.executable, "-m", "federation", "emulate-device"]
 QUIET = SensorNoise().scaled(0.0)
+
+
+def main(args: list[str]) -> int:
+    """``fedlab emulate-device ARGS`` in this process."""
+    return cli.main(["emulate-device", *args])
 
 
 def f32(x: float) -> float:
