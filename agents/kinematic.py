@@ -38,9 +38,12 @@ class Platform(Protocol):
 
 
 class KinematicPlatform:
-    rate = 100.0
+    """``rate``: steps per second; with no dynamics, the pose rate is enough."""
 
-    def __init__(self, x: float = 0.0, y: float = 0.0):
+    def __init__(self, x: float = 0.0, y: float = 0.0, rate: float = 20.0):
+        if not rate > 0:
+            raise ValueError(f"rate must be positive Hz, not {rate!r}")
+        self.rate = rate
         self.pose = Pose(x=x, y=y)
         self.held = False
 

@@ -24,10 +24,10 @@ def validate_platform_spec(spec: str) -> str:
     return spec
 
 
-def make_platform(spec: str, seed: int = 0) -> Platform:
-    """The pose source named by ``spec``."""
+def make_platform(spec: str, seed: int = 0, rate: float = 20.0) -> Platform:
+    """The pose source named by ``spec``; ``rate`` (Hz) for a kinematic one."""
     if spec == "kinematic":
-        return KinematicPlatform()
+        return KinematicPlatform(rate=rate)
     if spec.startswith("serial:"):
         from agents.serial_platform import SerialPlatform
 

@@ -73,6 +73,8 @@ class Peer:
     client: SyncClient
     key: str
     alive: bool = True
+    querier: Any = None  # zenoh.Querier on the peer's sync key, declared on first use
+    on_reply: Any = None  # its reply handler, made once
 
 
 class AgentRuntime:
@@ -90,7 +92,9 @@ class AgentRuntime:
         self.session = session
         self.me = config.agent
         self.clock = clock or ExecClock(config.clock_offset, config.clock_drift_ppm)
-        self.platform: Platform = platform or make_platform(config.platform, config.seed)
+        self.platform: Platform = platform or make_platform(
+            config.platform, config.seed, rate=config.pose_rate
+        )
         self.maneuver = maneuver or _maneuver(config.maneuver)
         self.follow = AgentId.parse(config.follow) if config.follow else None
         self.reference = self.follow if config.role == "follower" and self.follow else self.me
@@ -107,7 +111,9 @@ class AgentRuntime:
         self.counters: Counter[str] = Counter()
         self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
-        self.recorder = Recorder(config.record, str(self.me)) if config.record else None
+        self.recorder = (
+            Recorder(config.record, str(self.me), config.record_channels) if config.record else None
+        )
         self.margins = _margins(self.platform)
         self._delay_warned = False
         self._count_lock = threading.Lock()
@@ -334,18 +340,22 @@ class AgentRuntime:
     def send_sync_requests(self) -> None:
         for agent in self.sync_targets():
             peer = self.peers[agent]
-            with self._lock:
-                payload = peer.client.request(self.clock.now())
-            on_reply = functools.partial(self._on_sync_reply, peer)
             try:
-                self.session.get(
-                    peer.key,
-                    zenoh.handlers.Callback(on_reply, indirect=False),
-                    payload=payload,
-                    timeout=self.config.sync_timeout,
-                    consolidation=zenoh.ConsolidationMode.NONE,
-                    express=True,
-                )
+                if peer.querier is None:
+                    # One querier and one handler per peer: a query costs a single call.
+                    peer.querier = self.session.declare_querier(
+                        peer.key,
+                        consolidation=zenoh.ConsolidationMode.NONE,
+                        timeout=self.config.sync_timeout,
+                        express=True,
+                    )
+                    self._declared.append(peer.querier)
+                    peer.on_reply = zenoh.handlers.Callback(
+                        functools.partial(self._on_sync_reply, peer), indirect=False
+                    )
+                with self._lock:
+                    payload = peer.client.request(self.clock.now())
+                peer.querier.get(peer.on_reply, payload=payload)
             except Exception as error:  # session closing, or zenoh refusing the query
                 log.warning("sync request to %s failed: %s", agent, error)
 

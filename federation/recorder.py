@@ -59,7 +59,17 @@ _STOP = object()
 
 
 class Recorder:
-    def __init__(self, path: str | Path, agent: str, capacity: int = 200_000):
+    def __init__(
+        self,
+        path: str | Path,
+        agent: str,
+        channels: list[str] | None = None,
+        capacity: int = 200_000,
+    ):
+        unknown = set(channels or ()) - set(CHANNELS)
+        if unknown:
+            raise ValueError(f"unknown channels {sorted(unknown)}: choose from {list(CHANNELS)}")
+        self.channels = set(channels or CHANNELS)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.dropped = 0
@@ -89,6 +99,8 @@ class Recorder:
 
     def record(self, topic: str, message: dict[str, Any]) -> None:
         """Queue one message; never blocks (a full queue drops and counts it)."""
+        if topic not in self.channels:
+            return
         try:
             self._queue.put_nowait((topic, time.time_ns(), message))
         except queue.Full:

@@ -131,6 +131,9 @@ class AgentConfig(_Model):
         description="wait for a start command (fedlab ctl start); else run from reference time 0",
     )
     record: Path | None = Field(None, description="MCAP file to record the run to")
+    record_channels: list[str] | None = Field(
+        None, description="channels to record (e.g. /pose/sent); none: all"
+    )
     latency_compensation: bool = Field(
         True, description="dead-reckon the followed pose to the present synchronized time"
     )

@@ -122,8 +122,12 @@ def run(ns: list[int], seconds: float, out: Path) -> list[dict[str, Any]]:
     return [run_one(n, seconds, out) for n in ns]
 
 
-# -- worker: several agents in one process, each with its own session ----------------
-def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
+# -- worker: several agents in one process ------------------------------------------
+def worker(
+    endpoint: str, seconds: float, out: Path, names: list[str], shared_session: bool = True
+) -> None:
+    """Run ``names`` as agents in this process: one session for all (the default, as a
+    lab's gateway process would) or one each."""
     import zenoh
 
     from federation.agent import AgentRuntime
@@ -148,10 +152,12 @@ def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
                 duration=seconds,
                 status_period=0.5,
                 record=out / f"{stem}.mcap",
+                # Only what the scores need: recording is work too.
+                record_channels=["/status", "/pose/sent" if role == "leader" else "/pose/received"],
             )
-            session = zenoh.open(conf)
-            sessions.append(session)
-            runtime = AgentRuntime(config, session)
+            if not sessions or not shared_session:
+                sessions.append(zenoh.open(conf))
+            runtime = AgentRuntime(config, sessions[-1])
             runtime.start()
             runtimes.append(runtime)
         for runtime in runtimes:
