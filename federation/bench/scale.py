@@ -137,7 +137,9 @@ def worker(
     leader = "lab0/a0"
     stop = threading.Event()
     conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
-    sessions, runtimes, threads = [], [], []
+    sessions: list[zenoh.Session] = []
+    runtimes: list[AgentRuntime] = []
+    threads: list[threading.Thread] = []
     try:
         for name in names:
             lab, agent = name.split("/")
