@@ -108,6 +108,10 @@ class AgentRuntime:
         self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
         self.peers: dict[AgentId, Peer] = {}
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
+        self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
+        self.hold_reason: str | None = None  # "stale" or "aborted" while valves are held
+        self._stale_since: float | None = None
+        self._clock_stepped = False
         self.counters: Counter[str] = Counter()
         self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
@@ -270,16 +274,66 @@ class AgentRuntime:
         return track_heading(received, now, self.config.latency_compensation)
 
     def control_step(self) -> None:
-        """Run state, guidance and one platform step (the platform's own rate)."""
+        """Run state, link watch, guidance and one platform step (the platform's rate)."""
+        self._rehearse_clock_step()
         t_exec, host = self.clock.read()
         t_sim = self.sim_time(t_exec)
         with self._lock:
             events = self.run_state.update(t_sim)
             run_time = self.run_state.run_time(t_sim)
         self._apply(events, t_exec, host)
+        self._watch_link(t_exec, host)
         self.guidance = self.reference_heading(t_exec, run_time)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance)
+
+    def _watch_link(self, t_exec: float, host: float) -> None:
+        """Safe hold while the followed pose is stale; resume once it flows again and a
+        sync exchange has completed since (re-synchronized)."""
+        if self.follow is None or self.hold_reason == "aborted":
+            return
+        received = self.pose_received_at.get(self.follow)
+        if received is None:
+            return  # nothing followed yet: nothing went stale
+        stale = t_exec - received > self.config.stale_after
+        if stale and self.hold_reason is None:
+            self.hold_reason, self._stale_since = "stale", t_exec
+            self.platform.hold()
+            self.count("stale_holds")
+            log.warning(
+                "no pose from %s for %.0f ms: safe hold", self.follow, (t_exec - received) * 1e3
+            )
+            self._event("stale_hold", t_exec, host, f"last pose {t_exec - received:.3f} s ago")
+        elif not stale and self.hold_reason == "stale":
+            peer = self.peers.get(self.follow)
+            last = peer.client.last if peer else None
+            if last is not None and self._stale_since is not None and last.t3 > self._stale_since:
+                self.hold_reason = None
+                self.platform.release()
+                log.info("pose from %s flows again and sync resumed: released", self.follow)
+                self._event("link_resumed", t_exec, host, "")
+
+    def _rehearse_clock_step(self) -> None:
+        step = self.config.clock_step
+        if step is not None and not self._clock_stepped and self.clock.now() >= step[0]:
+            self._clock_stepped = True
+            self.clock.step(step[1])
+            log.warning("rehearsal: the execution clock jumps %+.3f s", step[1])
+
+    def _event(self, kind: str, t_exec: float, host: float, detail: str) -> None:
+        self.record(
+            "/control",
+            {
+                "event": kind,
+                "command": None,
+                "at": None,
+                "t_exec": t_exec,
+                "t_sim": self.sim_time(t_exec),
+                "host_monotonic": host,
+                "mode": self.run_state.mode,
+                "detail": detail,
+            },
+        )
 
     def publish_pose(self) -> None:
         t_exec, host = self.clock.read()
@@ -315,6 +369,7 @@ class AgentRuntime:
         """Act on run-state events: safe hold on abort; log and record each."""
         for event in events:
             if event.kind == "aborted":
+                self.hold_reason = "aborted"
                 self.platform.hold()
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(level, "run %s at reference time %s %s", event.kind, event.t_sim, event.detail)
@@ -383,6 +438,7 @@ class AgentRuntime:
                     timeouts=c.timeouts,
                     rejected=sum(c.rejected.values()),
                     rejected_by_reason=dict(c.rejected),
+                    clock_steps=c.steps,
                 )
         t_sim = self.sim_time(t_exec)
         received = self.latest_poses.get(self.follow) if self.follow else None
@@ -407,6 +463,7 @@ class AgentRuntime:
             run_time=self.run_state.run_time(t_sim),
             platform=self.config.platform,
             follow=None if self.follow is None else str(self.follow),
+            hold=self.hold_reason,
             pose_age=pose_age,
             pose=list(self.pose),
             peers=peers,
@@ -486,10 +543,22 @@ class AgentRuntime:
                 except wire.DecodeError:
                     self.count("sync_attachment_malformed")
             with self._lock:
+                steps = peer.client.steps
                 accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3, t2s)
                 reason = peer.client.last_rejection
                 exchange = peer.client.last
                 estimate = peer.client.offset_at(t3)
+                stepped = peer.client.steps > steps
+            if stepped:
+                self.count("clock_steps")
+                jump = peer.client.last_step or 0.0
+                log.warning(
+                    "clock step of %+.3f s between %s and %s: estimate reset",
+                    jump,
+                    self.me,
+                    peer.agent,
+                )
+                self._event("clock_step", t3, host, f"{peer.agent}: {jump:+.6f} s")
             if accepted is None or exchange is None:
                 self.rejects(f"sync reply ({reason})", f"from {peer.key}")
                 return
@@ -523,6 +592,7 @@ class AgentRuntime:
             self.count("pose_received")
             if parsed is not None:
                 self.latest_poses[parsed[0]] = decoded
+                self.pose_received_at[parsed[0]] = t_recv
             self.record(
                 "/pose/received",
                 {

@@ -111,6 +111,8 @@ _AGENT_FLAGS = (
     "status_period",
     "clock_offset",
     "clock_drift_ppm",
+    "clock_step",
+    "stale_after",
     "duration",
     "status_json",
     "record",
@@ -194,6 +196,18 @@ def cmd_agent(args: argparse.Namespace) -> int:
             runtime.close()
     log.info("agent %s stopped", config.agent)
     return 0
+
+
+def _clock_step(text: str) -> tuple[float, float]:
+    at, sep, jump = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(at), float(jump)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected AT:SECONDS, e.g. 20:0.5, not {text!r}"
+        ) from None
 
 
 def _open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.Event) -> Any:
@@ -331,6 +345,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_const",
         const=False,
         help="track the followed pose as received, without dead reckoning",
+    )
+    p.add_argument(
+        "--clock-step",
+        type=_clock_step,
+        metavar="AT:S",
+        help="rehearse a clock step: jump S seconds when the clock reads AT",
+    )
+    p.add_argument(
+        "--stale-after",
+        type=float,
+        metavar="S",
+        help="seconds without the followed pose before safe hold (0.15)",
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")

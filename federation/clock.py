@@ -40,6 +40,10 @@ class ExecClock:
         """Execution time at a given reading of the host source."""
         return self.offset + (host - self.start) * self.rate
 
+    def step(self, seconds: float) -> None:
+        """Jump the clock by ``seconds`` (rehearsing a clock that steps)."""
+        self.offset += seconds
+
     def read(self) -> tuple[float, float]:
         """(execution time, host source reading) taken at the same instant."""
         host = self.source()

@@ -147,7 +147,12 @@ class DirectionConfig(BaseModel):
         0.0, ge=0, allow_inf_nan=False, description="jitter scale J, s (meaning per jitter_dist)"
     )
     jitter_dist: JitterDist = Field("normal", description="jitter distribution")
-    loss: float = Field(0.0, ge=0, le=1, description="datagram loss probability")
+    loss: float = Field(
+        0.0, ge=0, le=1, description="loss probability (a stream: retransmitted after rto)"
+    )
+    rto: float = Field(
+        0.2, ge=0, allow_inf_nan=False, description="retransmission timeout of a stream, s"
+    )
     reorder: float = Field(0.0, ge=0, le=1, description="probability a datagram is held back")
     reorder_extra: float = Field(
         0.010, ge=0, allow_inf_nan=False, description="extra delay of a held-back datagram, s"
@@ -283,8 +288,17 @@ class StreamScheduler:
         self.last = -math.inf
 
     def deliver_at(self, now: float) -> float:
-        """When a chunk read at ``now`` is to be written out."""
-        self.last = stream_deliver_at(now, self.model.delay(now), self.last)
+        """When a chunk read at ``now`` is to be written out.
+
+        On a stream, ``loss`` is a lost segment that TCP recovers: the chunk comes one
+        retransmission timeout (``rto``) late, and the ones behind it wait for it."""
+        model = self.model
+        delay = model.delay(now)
+        model.sent += 1
+        if model.config.loss > 0 and model.rng.random() < model.config.loss:
+            model.lost += 1
+            delay += model.config.rto
+        self.last = stream_deliver_at(now, delay, self.last)
         return self.last
 
 
@@ -404,7 +418,10 @@ class LinkOptions(BaseModel):
     jitter_ms: _NonNeg = Field(0.0, description="jitter scale, both directions, ms")
     jitter_dist: JitterDist = "normal"
     asymmetry_ms: _NonNeg = Field(0.0, description="extra delay of the backward direction, ms")
-    loss: _Prob = Field(0.0, description="datagram loss probability (udp)")
+    loss: _Prob = Field(
+        0.0, description="loss probability (udp: dropped; tcp: retransmitted after rto_ms)"
+    )
+    rto_ms: float = Field(200.0, ge=0, allow_inf_nan=False, description="tcp retransmission, ms")
     reorder: _Prob = Field(0.0, description="datagram reorder probability (udp)")
     reorder_extra_ms: _NonNeg = Field(10.0, description="extra delay of a reordered datagram, ms")
     burst_every: _NonNeg = Field(0.0, description="seconds between bursts; 0: none")
@@ -431,17 +448,11 @@ class LinkOptions(BaseModel):
             )
         if to.port == 0:
             raise ValueError(f"--to {self.to}: port 0 cannot be dialled")
-        if self.proto == "tcp":
-            for flag, value in (
-                ("--loss", self.loss),
-                ("--reorder", self.reorder),
-                ("--backward-loss", self.backward_loss),
-            ):
-                if value:
-                    raise ValueError(
-                        f"{flag}: a TCP stream never loses or reorders bytes; "
-                        "use --protocol udp (or udp/ endpoints)"
-                    )
+        if self.proto == "tcp" and self.reorder:
+            raise ValueError(
+                "--reorder: a TCP stream never reorders bytes; "
+                "use --protocol udp (or udp/ endpoints)"
+            )
         if self.burst_every == 0:
             for flag, value in (
                 ("--burst-duration", self.burst_duration),
@@ -485,6 +496,7 @@ class LinkOptions(BaseModel):
             jitter=jitter / 1e3,
             jitter_dist=self.jitter_dist,
             loss=loss,
+            rto=self.rto_ms / 1e3,
             reorder=self.reorder,
             reorder_extra=self.reorder_extra_ms / 1e3,
             burst_every=self.burst_every,
@@ -1277,7 +1289,8 @@ def register(
         description=(
             "Relay traffic from --listen to --to, delayed and jittered per direction like\n"
             "netem. forward: from clients of --listen towards --to; backward: the replies.\n"
-            "TCP (Zenoh router links) gets delay, jitter and bursts, never loss or reordering;\n"
+            "TCP (Zenoh router links) gets delay, jitter, bursts and loss as retransmission\n"
+            "delay (--rto-ms), never reordering;\n"
             "UDP also gets loss and reordering. --asymmetry-ms slows the backward direction\n"
             "only: an offset estimate is then off by half of it, and cannot tell."
         ),
@@ -1323,7 +1336,16 @@ def register(
     g.add_argument(
         "--asymmetry-ms", type=float, default=0.0, metavar="A", help="added to backward only"
     )
-    g.add_argument("--loss", type=float, default=0.0, metavar="P", help="datagram loss (udp)")
+    g.add_argument(
+        "--loss",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="loss: udp drops the datagram; tcp delivers it one --rto-ms late (retransmission)",
+    )
+    g.add_argument(
+        "--rto-ms", type=float, default=200.0, metavar="MS", help="tcp retransmission timeout"
+    )
     g.add_argument("--reorder", type=float, default=0.0, metavar="P", help="reorder (udp)")
     g.add_argument(
         "--reorder-extra-ms",

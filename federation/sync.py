@@ -194,8 +194,15 @@ class SyncClient:
     """
 
     _HISTORY = 256  # answered and expired t1 values remembered to classify rejects
+    STEP_CONFIRM = 3  # inconsistent exchanges in a row that make a clock step
 
-    def __init__(self, estimator: Estimator, timeout: float = 0.5, delay_window: int = 50):
+    def __init__(
+        self,
+        estimator: Estimator,
+        timeout: float = 0.5,
+        delay_window: int = 50,
+        step_margin: float = 0.002,
+    ):
         if not timeout > 0:
             raise ValueError(f"timeout must be positive seconds, not {timeout!r}")
         if delay_window < 1:
@@ -208,6 +215,11 @@ class SyncClient:
         self.rejected: Counter[str] = Counter()
         self.last: Exchange | None = None
         self.last_rejection: str | None = None
+        self.steps = 0  # clock steps detected
+        self.last_step: float | None = None  # size of the last one (s)
+        self.step_margin = step_margin
+        self._suspects: list[Exchange] = []
+        self._recent: deque[tuple[float, float]] = deque(maxlen=8)  # (offset, error bound)
         self._delays: deque[float] = deque(maxlen=delay_window)
         self._pending: OrderedDict[float, None] = OrderedDict()
         self._answered: OrderedDict[float, None] = OrderedDict()
@@ -262,14 +274,57 @@ class SyncClient:
             self._reject("unmatched")
             return None
         _remember(self._answered, t1)
+        if now < t1:  # our own clock went back while the request was out
+            self._reject("clock_step")
+            return None
         if t2s is not None and not (math.isfinite(t2s) and 0.0 <= t2s - reply.t2 <= now - t1):
             t2s = None  # a send time the exchange cannot have had: use three timestamps
         exchange = Exchange(t1, reply.t2, now, t2s)
+        if not self._consistent(exchange):
+            return None
         self.accepted += 1
         self.last = exchange
         self._delays.append(exchange.delay)
         self.estimator.add(exchange)
         return reply
+
+    def _consistent(self, exchange: Exchange) -> bool:
+        """Clock-step detection, independent of the estimator. An exchange's offset is
+        within its error bound (half its round trip) of the true offset, and so is each
+        recent one; an exchange further from the recent ones' median than both bounds
+        and a margin together means a clock jumped. ``STEP_CONFIRM`` such exchanges in
+        a row are a step: the estimate is reset and starts again from them; fewer are
+        rejected as ``inconsistent``."""
+        if len(self._recent) >= 3:
+            offsets = sorted(o for o, _ in self._recent)
+            bounds = sorted(b for _, b in self._recent)
+            median, bound = offsets[len(offsets) // 2], bounds[len(bounds) // 2]
+            allowed = exchange.error_bound + bound + self.step_margin
+            if abs(exchange.offset - median) > allowed:
+                self._suspects.append(exchange)
+                if len(self._suspects) < self.STEP_CONFIRM:
+                    self._reject("inconsistent")
+                    return False
+                self._restart(exchange.offset - median)
+                return True
+        self._suspects.clear()
+        self._recent.append((exchange.offset, exchange.error_bound))
+        return True
+
+    def _restart(self, jump: float) -> None:
+        """A clock step: forget the estimate, start again from the suspect exchanges."""
+        self.steps += 1
+        self.last_step = jump
+        suspects, self._suspects = self._suspects, []
+        self.estimator.reset()
+        self._delays.clear()
+        self._recent.clear()
+        for ex in suspects:
+            self._recent.append((ex.offset, ex.error_bound))
+        for ex in suspects[:-1]:  # the caller feeds the last one
+            self.accepted += 1
+            self._delays.append(ex.delay)
+            self.estimator.add(ex)
 
     def _reject(self, reason: str) -> None:
         self.rejected[reason] += 1
@@ -296,6 +351,8 @@ class SyncClient:
         self.estimator.reset()
         self._delays.clear()
         self._pending.clear()
+        self._recent.clear()
+        self._suspects.clear()
         self.last = None
 
 

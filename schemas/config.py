@@ -117,6 +117,12 @@ class AgentConfig(_Model):
     clock_drift_ppm: float = Field(
         0.0, gt=-1e5, lt=1e5, allow_inf_nan=False, description="clock rate error (ppm)"
     )
+    clock_step: tuple[float, float] | None = Field(
+        None, description="rehearse a clock step: (at own clock time s, jump s)"
+    )
+    stale_after: float = Field(
+        0.15, gt=0, le=10, description="seconds without the followed pose before safe hold"
+    )
     duration: float | None = Field(None, gt=0, description="seconds to run; none: until stopped")
     status_json: Path | None = Field(None, description="file to append status lines (JSON) to")
     platform: str = Field(

@@ -37,6 +37,7 @@ class PeerStatus(BaseModel):
     timeouts: int = Field(0, description="requests that got no reply in time")
     rejected: int = Field(description="rejected replies (all reasons)")
     rejected_by_reason: dict[str, int] = Field(default_factory=dict)
+    clock_steps: int = Field(0, description="clock steps detected (estimate reset each time)")
 
 
 class Status(BaseModel):
@@ -55,6 +56,9 @@ class Status(BaseModel):
     run_time: float | None = Field(None, description="experiment time since the start, s")
     platform: str = Field("kinematic", description="pose source")
     follow: str | None = Field(None, description="LAB/NAME of the agent followed")
+    hold: str | None = Field(
+        None, description="why every valve is held closed: stale (link lost) or aborted"
+    )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"
     )

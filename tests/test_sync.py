@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import random
 import statistics
 from dataclasses import dataclass, field
 
@@ -17,8 +18,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from federation import wire
+from federation.clockfilter import ClockFilter
 from federation.sync import DEFAULT_WINDOW, Exchange, PaperEstimator, SyncClient
-from federation.wire import Pose
+from federation.wire import Pose, encode_reply
 
 PAPER_OFFSET = 26.420  # s, validation run (figures 8 and 9)
 PAPER_DELAY = 0.0395  # s, one way, median on KNATTE
@@ -713,3 +715,55 @@ def test_client_recovers_any_offset_with_symmetric_delay(
 def test_sync_client_needs_a_delay_window() -> None:
     with pytest.raises(ValueError, match="delay_window"):
         SyncClient(PaperEstimator(), delay_window=0)
+
+
+def _exchanges(offset: float, start: float, n: int, delay: float = 0.02) -> list[Exchange]:
+    return [
+        Exchange(t, t + delay + offset, t + 2 * delay) for t in (start + 0.1 * k for k in range(n))
+    ]
+
+
+def _feed(client: SyncClient, exchanges: list[Exchange]) -> None:
+    for ex in exchanges:
+        client.request(ex.t1)
+        client.receive(encode_reply(ex.t1, ex.t2, Pose()), ex.t3)
+
+
+def test_clock_step_is_detected_and_the_estimate_restarts() -> None:
+    client = SyncClient(ClockFilter(), timeout=1.0)
+    _feed(client, _exchanges(26.42, 0.0, 50))
+    assert client.offset_at(5.0) == pytest.approx(26.42, abs=1e-9)
+    _feed(client, _exchanges(26.92, 5.0, 2))  # the server's clock jumped 0.5 s
+    assert client.steps == 0 and client.rejected["inconsistent"] == 2
+    _feed(client, _exchanges(26.92, 5.2, 1))  # the third in a row confirms it
+    assert client.steps == 1 and client.last_step == pytest.approx(0.5)
+    _feed(client, _exchanges(26.92, 5.3, 20))
+    assert client.offset_at(7.0) == pytest.approx(26.92, abs=1e-9)
+
+
+def test_a_single_impossible_exchange_is_rejected_not_a_step() -> None:
+    client = SyncClient(ClockFilter(), timeout=1.0)
+    _feed(client, _exchanges(1.0, 0.0, 30))
+    _feed(client, _exchanges(1.3, 3.0, 1))
+    _feed(client, _exchanges(1.0, 3.1, 10))
+    assert client.steps == 0 and client.rejected["inconsistent"] == 1
+    assert client.offset_at(4.0) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_jitter_within_the_error_bounds_is_no_step() -> None:
+    client = SyncClient(ClockFilter(), timeout=1.0)
+    rng = random.Random(3)
+    for k in range(300):
+        t1 = 0.1 * k
+        out, back = 0.04 + rng.expovariate(1 / 0.01), 0.04 + rng.expovariate(1 / 0.01)
+        client.request(t1)
+        client.receive(encode_reply(t1, t1 + out + 5.0, Pose()), t1 + out + back)
+    assert client.steps == 0 and client.rejected["inconsistent"] == 0
+
+
+def test_own_clock_going_back_rejects_the_reply() -> None:
+    client = SyncClient(ClockFilter(), timeout=1.0)
+    payload = client.request(10.0)
+    assert payload
+    assert client.receive(encode_reply(10.0, 12.0, Pose()), 9.0) is None
+    assert client.rejected["clock_step"] == 1
