@@ -4,5 +4,17 @@ from federation.keys import AgentId
 from federation.sync import Exchange, PaperEstimator, SyncClient
 from federation.wire import Pose, PoseSample
 
-__all__ = ["AgentId", "Exchange", "PaperEstimator", "Pose", "PoseSample", "SyncClient"]
+__all__ = ["Agent", "AgentId", "Exchange", "PaperEstimator", "Pose", "PoseSample", "SyncClient"]
+
+
+def __getattr__(name: str) -> object:
+    # The SDK opens Zenoh sessions: import it only when asked for (``from federation
+    # import Agent``), so the command line and the pure modules stay light.
+    if name == "Agent":
+        from federation.sdk import Agent
+
+        return Agent
+    raise AttributeError(f"module 'federation' has no attribute {name!r}")
+
+
 __version__ = "0.1.0"

@@ -46,9 +46,13 @@ from schemas.platform import PlatformConfig
 if TYPE_CHECKING:
     from agents.analysis import Margins  # imports python-control: only for a physical platform
 
-__all__ = ["Agent", "AgentRuntime"]
+__all__ = ["Agent", "AgentRuntime", "NameTaken"]
 
 log = logging.getLogger("fedlab.agent")
+
+
+class NameTaken(ValueError):
+    """Another agent already uses this lab/name in the federation."""
 
 
 class RateLimitedLog:
@@ -97,7 +101,12 @@ class AgentRuntime:
         )
         self.maneuver = maneuver or _maneuver(config.maneuver)
         self.follow = AgentId.parse(config.follow) if config.follow else None
-        self.reference = self.follow if config.role == "follower" and self.follow else self.me
+        if config.reference is not None:
+            self.reference = AgentId.parse(config.reference)
+        elif config.role == "follower" and self.follow is not None:
+            self.reference = self.follow
+        else:
+            self.reference = self.me
         self.explicit_sync = {AgentId.parse(a) for a in config.sync_with}
         if self.explicit_sync and self.follow:
             self.explicit_sync.add(self.follow)
@@ -141,9 +150,11 @@ class AgentRuntime:
 
     # -- lifecycle -------------------------------------------------------------------
     def start(self) -> None:
+        """Declare everything; refuse (NameTaken) if the name is already in the federation."""
         s = self.session
         callback = zenoh.handlers.Callback
         fed = self.config.federation
+        self._refuse_taken_name()
         self._declared.append(
             s.declare_queryable(
                 self.key(self.me, "sync"), callback(self._on_sync_query, indirect=False)
@@ -152,11 +163,12 @@ class AgentRuntime:
         self._pose_pub = s.declare_publisher(self.key(self.me, "pose"), express=True)
         self._status_pub = s.declare_publisher(self.key(self.me, "status"))
         self._declared += [self._pose_pub, self._status_pub]
-        if self.follow is not None:
+        watched = keys.all_of(fed, "pose") if self.config.watch_all else None
+        if watched is None and self.follow is not None:
+            watched = self.key(self.follow, "pose")
+        if watched is not None:
             self._declared.append(
-                s.declare_subscriber(
-                    self.key(self.follow, "pose"), callback(self._on_pose, indirect=False)
-                )
+                s.declare_subscriber(watched, callback(self._on_pose, indirect=False))
             )
         self._declared.append(
             s.declare_subscriber(keys.control_key(fed), callback(self._on_control, indirect=False))
@@ -172,6 +184,30 @@ class AgentRuntime:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._status_file = path.open("a", encoding="utf-8")
         log.info("agent %s (%s) up in federation %s", self.me, self.config.role, fed)
+
+    def _refuse_taken_name(self) -> None:
+        """Two agents may not share a name: ask liveliness whether ours is alive."""
+        replies = self.session.liveliness().get(self.key(self.me), timeout=1.0)
+        for reply in replies:
+            if reply.ok is not None:
+                raise NameTaken(
+                    f"agent {self.me} is already in federation {self.config.federation}: "
+                    "stop it first or choose another --name"
+                )
+
+    def others(self) -> dict[str, tuple[float, wire.Pose]]:
+        """Every other agent's latest pose, stamped on simulation (reference) time:
+        its own clock mapped through this agent's offset estimates (Eq. 5)."""
+        out = {}
+        t_exec = self.clock.now()
+        for agent, sample in list(self.latest_poses.items()):
+            peer = self.peers.get(agent)
+            to_sender = peer.client.offset_at(t_exec) if peer else None
+            to_reference = self.reference_offset(t_exec)
+            if to_sender is None or to_reference is None:
+                continue
+            out[str(agent)] = (sample.t - to_sender + to_reference, sample.pose)
+        return out
 
     def close(self) -> None:
         """Undeclare everything (tokens and subscribers first); the caller closes the session."""
@@ -266,6 +302,8 @@ class AgentRuntime:
         """Guidance: the leader's maneuver on run time, or the followed heading."""
         if self.config.role == "leader":
             return (0.0, 0.0) if run_time is None else self.maneuver(run_time)
+        if self.config.role == "member":
+            return 0.0, 0.0  # its pose source decides where it goes
         received = self.latest_poses.get(self.follow) if self.follow else None
         # The followed agent's clock now: its samples are stamped on it.
         peer = self.peers.get(self.follow) if self.follow else None

@@ -171,7 +171,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     import zenoh
 
     from agents.kinematic import PlatformError
-    from federation.agent import AgentRuntime
+    from federation.agent import AgentRuntime, NameTaken
     from federation.session import build_config
 
     config = agent_config(args)
@@ -188,6 +188,11 @@ def cmd_agent(args: argparse.Namespace) -> int:
             return 1
         try:
             runtime.start()
+        except NameTaken as error:
+            runtime.close()
+            print(f"fedlab agent: error: {error}", file=sys.stderr)
+            return 2
+        try:
             runtime.run(stop)
         except PlatformError as error:
             print(f"fedlab agent: error: {error}; all valves closed", file=sys.stderr)
@@ -304,7 +309,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--federation", help="federation name (default: default)")
     p.add_argument("--lab", help="this agent's lab")
     p.add_argument("--name", help="this agent's name")
-    p.add_argument("--role", choices=["leader", "follower"], help="leader runs the maneuver")
+    p.add_argument(
+        "--role",
+        choices=["leader", "follower", "member"],
+        help="leader runs the maneuver; follower tracks --follow; member only takes part",
+    )
     p.add_argument("--follow", metavar="LAB/NAME", help="agent whose heading a follower tracks")
     p.add_argument(
         "--sync-with",

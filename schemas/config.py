@@ -92,8 +92,13 @@ class AgentConfig(_Model):
     federation: Annotated[str, _name("federation name")] = DEFAULT_FEDERATION
     lab: Annotated[str, _name("lab name")]
     name: Annotated[str, _name("agent name")]
-    role: Literal["leader", "follower"]
+    role: Literal["leader", "follower", "member"]
     follow: AgentRef | None = Field(None, description="LAB/NAME of the agent a follower tracks")
+    reference: AgentRef | None = Field(
+        None,
+        description="LAB/NAME whose clock is simulation time; default: the followed agent "
+        "for a follower, the agent itself otherwise",
+    )
     sync_with: list[AgentRef] = Field(
         default_factory=list,
         description="LAB/NAME of the agents to query for sync; empty: every agent seen alive",
@@ -135,6 +140,9 @@ class AgentConfig(_Model):
     wait_start: bool = Field(
         False,
         description="wait for a start command (fedlab ctl start); else run from reference time 0",
+    )
+    watch_all: bool = Field(
+        False, description="subscribe to every agent's pose, not only the followed one's"
     )
     record: Path | None = Field(None, description="MCAP file to record the run to")
     record_channels: list[str] | None = Field(

@@ -47,7 +47,7 @@ class Status(BaseModel):
 
     agent: str = Field(description="LAB/NAME")
     federation: str
-    role: Literal["leader", "follower"]
+    role: Literal["leader", "follower", "member"]
     reference: str = Field(description="LAB/NAME whose clock is the simulation time")
     t_exec: float = Field(description="own execution clock, s")
     host_monotonic: float = Field(description="host monotonic clock read with t_exec, s")
