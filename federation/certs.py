@@ -422,7 +422,7 @@ def register(
     q.add_argument(
         "--host",
         action="append",
-        default=None,
+        default=argparse.SUPPRESS,
         metavar="NAME",
         help=f"host name or address (repeatable; default: {', '.join(DEFAULT_HOSTS)})",
     )
@@ -463,7 +463,7 @@ def _cmd_init(args: argparse.Namespace) -> int:
 
 
 def _cmd_issue(args: argparse.Namespace) -> int:
-    hosts = args.host or DEFAULT_HOSTS
+    hosts = getattr(args, "host", None) or DEFAULT_HOSTS
     return _run(lambda: issue_lab(args.dir, args.lab, hosts, force=args.force, days=args.days))
 
 

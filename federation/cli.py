@@ -416,6 +416,7 @@ _COMMAND_MODULES = (
     "federation.monitor",
     "federation.link",
     "federation.analyze",
+    "federation.certs",
     "federation.report",
     "federation.bench",
     "agents.device_emulator",

@@ -169,7 +169,7 @@ def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
         text=True,
     )
     try:
-        time.sleep(2.5)
+        time.sleep(4.5)  # start-up, then 2 s of waiting before the first note
         assert proc.poll() is None, "an agent keeps waiting for its router"
         os.kill(proc.pid, sig)
         out, _ = proc.communicate(timeout=10)
