@@ -30,6 +30,8 @@ request to ``--peer`` before anything is expected, so a stateful firewall in fro
 the bridge opens the flow for the legacy agent's packets; the requests every
 ``--sync-period`` are the keepalive that holds it open. One socket carries both
 directions: 8-byte datagrams are the legacy agent's requests, 64-byte ones its replies.
+Requests are answered to their source, so a legacy agent may use one port or two (the
+paper's two channels).
 
 A datagram of another size, holding NaN or infinity, or (for requests) from a host
 other than ``--peer``'s, is dropped, logged (rate-limited) and counted in status.
@@ -54,7 +56,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Literal, NamedTuple
 
@@ -69,7 +71,15 @@ from federation.sync import DEFAULT_WINDOW, SyncClient
 from schemas.config import ConfigError
 from schemas.messages import PeerStatus, Status
 
-__all__ = ["BridgeConfig", "BridgeCore", "Outcome", "UdpBridge", "parse_address", "register"]
+__all__ = [
+    "BridgeConfig",
+    "BridgeCore",
+    "Outcome",
+    "UdpBridge",
+    "bind_udp",
+    "parse_address",
+    "register",
+]
 
 log = logging.getLogger("fedlab.bridge")
 
@@ -143,7 +153,6 @@ class _Link:
     client: SyncClient
     alive: bool = False
     last_seen: float = -math.inf  # bridge clock of the last accepted exchange
-    counters: Counter[str] = field(default_factory=Counter)
 
 
 class BridgeCore:
@@ -313,11 +322,12 @@ class BridgeCore:
             self.followed_pose = sample
             self.counters["pose_received"] += 1
 
-    def set_reference(self, agent: AgentId) -> None:
-        """Sync with ``agent`` from now on (found by its status, or rejoined)."""
+    def set_reference(self, agent: AgentId, alive: bool) -> None:
+        """Sync with ``agent`` afresh from now on (found by its status, or rejoined with a
+        new clock); ``alive``: its liveliness token is present."""
         with self._lock:
             self.reference_id = agent
-            self.reference = _Link(self._client())
+            self.reference = _Link(self._client(), alive)
             self.followed_pose = None
 
     # -- status ------------------------------------------------------------------------
@@ -393,13 +403,19 @@ class UdpBridge:
     declares or undeclares the liveliness token as the legacy agent comes and goes.
     """
 
-    def __init__(self, config: BridgeConfig, session: Any, clock: ExecClock | None = None):
+    def __init__(
+        self,
+        config: BridgeConfig,
+        session: Any,
+        sock: socket.socket | None = None,
+        clock: ExecClock | None = None,
+    ):
         self.config = config
         self.session = session
         self.clock = clock or ExecClock()
         self.core = BridgeCore(config)
         self.rejects = RateLimitedLog(log)
-        self.sock = _bind(config.listen)
+        self.sock = sock if sock is not None else bind_udp(config.listen)
         self.peer_addr = _resolve(config.peer, self.sock.family)
         self.me = config.agent
         self._declared: list[Any] = []
@@ -417,6 +433,7 @@ class UdpBridge:
         self._leader_warned = False
         self._unsynced_noted = False
         self._receiver: threading.Thread | None = None
+        self._stop = threading.Event()
         self._status_file: IO[str] | None = None
 
     @property
@@ -471,6 +488,7 @@ class UdpBridge:
             except Exception as error:  # a session already closed by zenoh
                 log.debug("undeclare failed: %s", error)
         self._declared.clear()
+        self._stop.set()  # the receiver thread, if run() did not end normally
         if self._receiver is not None:
             self._receiver.join(2.0)
         self.sock.close()
@@ -482,15 +500,21 @@ class UdpBridge:
         """Until ``stop`` is set (or ``duration`` has passed): requests to the legacy agent
         and to the reference every ``sync_period``, status every ``status_period``."""
         cfg = self.config
+        self._stop = stop
+        # The first packet goes out before any is expected: a stateful firewall in front
+        # of the bridge then lets the legacy agent's packets in. The requests that follow
+        # every sync_period are the keepalive.
+        log.info("opening the UDP flow to %s", cfg.peer_text)
+        self._send_legacy_request()
         self._receiver = threading.Thread(
             target=self._receive_loop, args=(stop,), name="bridge-udp", daemon=True
         )
         self._receiver.start()
         t0 = time.monotonic()
         deadline = t0 + cfg.duration if cfg.duration else math.inf
-        next_sync, next_status = t0, t0 + cfg.status_period
-        # The first packet goes out now, before any is expected: it opens the flow.
-        log.info("opening the UDP flow to %s", cfg.peer_text)
+        self._maintain()
+        self._send_reference_request()
+        next_sync, next_status = t0 + cfg.sync_period, t0 + cfg.status_period
         while not stop.is_set():
             now = time.monotonic()
             if now >= deadline:
@@ -540,14 +564,15 @@ class UdpBridge:
             current_alive = current is not None and current in self._alive
         if rejoined and current is not None:
             log.info("reference %s rejoined: forgetting its old clock", current)
-            self.core.set_reference(current)
+            with self._state_lock:
+                self.core.set_reference(current, current in self._alive)
         if cfg.follow is not None or current_alive or not leaders:
             return
         if current is not None and current in leaders:
             return  # its status still arrives: its token is on its way
         if len(leaders) > 1 and not self._leader_warned:
-            log.warning("several leaders (%s): following %s", ", ".join(map(str, leaders)),
-                        leaders[0])  # fmt: skip
+            names = ", ".join(map(str, leaders))
+            log.warning("several leaders (%s): following %s", names, leaders[0])
             self._leader_warned = True
         self._use_reference(leaders[0])
 
@@ -561,9 +586,8 @@ class UdpBridge:
         )
         self._declared.append(self._querier)
         self._on_reply = zenoh.handlers.Callback(self._on_reference_reply, indirect=False)
-        self.core.set_reference(agent)
         with self._state_lock:
-            self.core.reference_presence(agent, agent in self._alive)
+            self.core.set_reference(agent, agent in self._alive)
         self._subscribe_pose(agent)
         log.info("reference time: %s's clock; legacy agent receives its pose", agent)
 
@@ -728,7 +752,8 @@ class UdpBridge:
             log.exception("liveliness sample on %s failed", sample.key_expr)
 
 
-def _bind(address: tuple[str, int]) -> socket.socket:
+def bind_udp(address: tuple[str, int]) -> socket.socket:
+    """The bridge's one UDP socket, bound to ``--listen``; ConfigError if it cannot be."""
     host, port = address
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM, flags=socket.AI_PASSIVE)
@@ -793,12 +818,22 @@ def cmd_bridge_udp(args: argparse.Namespace) -> int:
 
     config = bridge_config(args)
     conf = build_config(zenoh_options(args), default_mode="client")
+    sock = bind_udp(config.listen)  # a port in use fails now, not after the router answers
     stop = _stop_on_signals()
-    session = _open_interruptible(zenoh.open, conf, stop)
+    try:
+        session = _open_interruptible(zenoh.open, conf, stop)
+    except BaseException:
+        sock.close()
+        raise
     if session is None:
+        sock.close()
         return 0
     with session:
-        bridge = UdpBridge(config, session)
+        try:
+            bridge = UdpBridge(config, session, sock)
+        except BaseException:  # e.g. --peer does not resolve
+            sock.close()
+            raise
         try:
             bridge.start()
             bridge.run(stop)

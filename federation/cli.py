@@ -413,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
 # register(subparsers, formatter_class, add_zenoh_flags) and sets ``func``.
 _COMMAND_MODULES = (
     "federation.ctl",
+    "federation.bridge",
     "federation.monitor",
     "federation.link",
     "federation.analyze",

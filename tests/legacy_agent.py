@@ -12,7 +12,7 @@
   keeps the median of the last 50.
 - Once a second it prints a JSON line: its clock and the host's monotonic clock read
   together, the median offset and delay, the number of samples, the requests it
-  served, the last pose it received.
+  served, the addresses they came from, the last pose it received.
 - Stops after DURATION seconds, or on SIGTERM, with exit code 0.
 """
 
@@ -58,6 +58,7 @@ def main(argv):
     pending = {}  # t1 -> None, requests not yet answered
     offsets, delays = [], []
     samples = served = malformed = 0
+    sources = set()  # host:port of every request received
     received_pose = None
     end = time.monotonic() + duration
     next_request = time.monotonic()
@@ -81,6 +82,7 @@ def main(argv):
                 "served": served,
                 "malformed": malformed,
                 "pose": received_pose,
+                "request_sources": sorted(sources),
             }
             print(json.dumps(line), flush=True)
             next_print += 1.0
@@ -95,6 +97,7 @@ def main(argv):
             if math.isfinite(t1):
                 sock.sendto(REPLY.pack(t1, t_arrival, *POSE), addr)
                 served += 1
+                sources.add(f"{addr[0]}:{addr[1]}")
             else:
                 malformed += 1
         elif len(data) == REPLY.size:

@@ -278,7 +278,8 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         fleet,
         ["--as", LEGACY, "--listen", f"127.0.0.1:{bridge_port}",
          "--peer", f"127.0.0.1:{legacy_port}", "-e", kiruna,
-         "--status-json", str(bridge_status), "--status-period", "0.5"],
+         "--status-json", str(bridge_status), "--status-period", "0.5",
+         "--legacy-timeout", "1.0"],
     )  # fmt: skip
     # The leader writes status once its session is up: then the router is too.
     assert wait_for(lambda: last_status(leader_status) is not None, timeout=10)
@@ -300,6 +301,9 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         error_legacy = legacy["offset"] - truth
         assert abs(error_legacy) < 0.002, (legacy, truth)
         assert legacy["pose"] is not None and len(legacy["pose"]) == 6  # the leader's pose
+        # The bridge's requests leave from its --listen socket: the flow a firewall opens.
+        assert legacy["request_sources"] == [f"127.0.0.1:{bridge_port}"]
+        assert legacy["served"] > 0
 
         # The leader synced with the legacy agent through the bridge.
         view = leader_view()
@@ -346,6 +350,35 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         assert fleet.alive("bridge")
         log = fleet.log_path("bridge").read_text()
         assert "rejected udp datagram (malformed)" in log and "got 7" in log
+
+        # The legacy agent goes silent: after --legacy-timeout its token goes, the bridge stays.
+        assert fleet.stop("legacy") == 0
+        assert wait_for(lambda: not (leader_view() or {"alive": True})["alive"], timeout=5)
+
+        def bridge_saw_it_go() -> bool:
+            line = last_status(bridge_status)
+            return line is not None and not line["legacy"]["alive"]
+
+        assert wait_for(bridge_saw_it_go, timeout=5), last_status(bridge_status)
+        status = last_status(bridge_status)
+        assert status is not None
+        assert status["clock"] == "bridge" and status["counters"]["legacy_lost"] == 1
+        assert fleet.alive("bridge")
+
+        # It comes back with another clock: the federation syncs with the new one.
+        fleet.spawn(
+            "legacy-again",
+            [sys.executable, str(LEGACY_AGENT), str(legacy_port), f"127.0.0.1:{bridge_port}",
+             "-5.0", "60"],
+        )  # fmt: skip
+
+        def resynced() -> bool:
+            view, line = leader_view(), last_status(leader_status)
+            if view is None or line is None or not view["alive"] or view["offset"] is None:
+                return False
+            return abs(view["offset"] - (-5.0 - (line["t_exec"] - line["host_monotonic"]))) < 0.002
+
+        assert wait_for(resynced, timeout=10), leader_view()
 
         # SIGTERM: clean exit; the token goes first, so the leader sees the agent leave.
         assert fleet.stop("bridge") == 0
