@@ -46,7 +46,7 @@ from schemas.platform import PlatformConfig
 if TYPE_CHECKING:
     from agents.analysis import Margins  # imports python-control: only for a physical platform
 
-__all__ = ["Agent", "AgentRuntime", "NameTaken"]
+__all__ = ["Agent", "AgentRuntime", "NameTaken", "peer_status"]
 
 log = logging.getLogger("fedlab.agent")
 
@@ -458,26 +458,7 @@ class AgentRuntime:
         peers = {}
         with self._lock:
             for agent, peer in self.peers.items():
-                c = peer.client
-                last = c.last
-                drift = getattr(c.estimator, "drift", None)
-                peers[str(agent)] = PeerStatus(
-                    offset=c.offset_at(t_exec),
-                    delay=c.delay,
-                    bound=c.estimator.bound,
-                    drift_ppm=None if drift is None else drift * 1e6,
-                    error_bound=last.error_bound if last else None,
-                    last_offset=last.offset if last else None,
-                    last_delay=last.delay if last else None,
-                    locked=c.estimator.locked,
-                    alive=peer.alive,
-                    samples=c.accepted,
-                    sent=c.sent,
-                    timeouts=c.timeouts,
-                    rejected=sum(c.rejected.values()),
-                    rejected_by_reason=dict(c.rejected),
-                    clock_steps=c.steps,
-                )
+                peers[str(agent)] = peer_status(peer.client, t_exec, peer.alive)
         t_sim = self.sim_time(t_exec)
         received = self.latest_poses.get(self.follow) if self.follow else None
         follow_offset = (
@@ -703,6 +684,31 @@ class AgentRuntime:
 
 
 Agent = AgentRuntime
+
+
+def peer_status(client: SyncClient, t: float, alive: bool, base: float = 0.0) -> PeerStatus:
+    """What a sync client knows of its peer, as status reports it; ``base`` is
+    subtracted from offsets (to report them against another clock than ``t``'s)."""
+    offset = client.offset_at(t)
+    drift = getattr(client.estimator, "drift", None)
+    last = client.last
+    return PeerStatus(
+        offset=None if offset is None else offset - base,
+        delay=client.delay,
+        bound=client.estimator.bound,
+        drift_ppm=None if drift is None else drift * 1e6,
+        error_bound=last.error_bound if last else None,
+        last_offset=None if last is None else last.offset - base,
+        last_delay=last.delay if last else None,
+        locked=client.estimator.locked,
+        alive=alive,
+        samples=client.accepted,
+        sent=client.sent,
+        timeouts=client.timeouts,
+        rejected=sum(client.rejected.values()),
+        rejected_by_reason=dict(client.rejected),
+        clock_steps=client.steps,
+    )
 
 
 def _margins(platform: Platform) -> Margins | None:

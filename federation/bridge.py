@@ -63,7 +63,7 @@ from typing import IO, Any, Literal, NamedTuple
 import zenoh
 
 from federation import keys, wire
-from federation.agent import RateLimitedLog
+from federation.agent import RateLimitedLog, peer_status
 from federation.clock import ExecClock
 from federation.estimators import DEFAULT_ESTIMATOR, ESTIMATORS, make_estimator
 from federation.keys import AgentId
@@ -372,26 +372,7 @@ class BridgeCore:
 def _peer_status(link: _Link, now: float, base: float) -> PeerStatus:
     """A link's view as in every agent's status; ``base``: the status clock minus the
     bridge's, so the offset is relative to the clock ``t_exec`` is on."""
-    c = link.client
-    offset = c.offset_at(now)
-    drift = getattr(c.estimator, "drift", None)
-    last = c.last
-    return PeerStatus(
-        offset=None if offset is None else offset - base,
-        delay=c.delay,
-        bound=c.estimator.bound,
-        drift_ppm=None if drift is None else drift * 1e6,
-        error_bound=last.error_bound if last else None,
-        last_offset=None if last is None else last.offset - base,
-        last_delay=last.delay if last else None,
-        locked=c.estimator.locked,
-        alive=link.alive,
-        samples=c.accepted,
-        sent=c.sent,
-        timeouts=c.timeouts,
-        rejected=sum(c.rejected.values()),
-        rejected_by_reason=dict(c.rejected),
-    )
+    return peer_status(link.client, now, link.alive, base)
 
 
 class UdpBridge:
