@@ -903,6 +903,6 @@ def register(
 
 _EXAMPLE = (
     "Example:\n"
-    "  fedlab bridge udp --as rome/pinocchio --listen 0.0.0.0:9000 --peer 10.0.0.7:9001 \\\n"
+    "  fedlab bridge udp --as rome/pinocchio --listen 0.0.0.0:9000 --peer 192.0.2.7:9001 \\\n"
     "      --follow kiruna/knatte -e tcp/127.0.0.1:7448"
 )

@@ -73,10 +73,10 @@ def test_certs_init_issue_and_refuse_to_overwrite(tmp_path: Path) -> None:
     assert cert.issuer == _load(d / "ca.pem").subject
     with pytest.raises(certs.CertError, match="--force"):
         certs.issue_lab(d, "kiruna")
-    other = certs.issue_lab(d, "rome", ["rome.example.org", "10.0.0.7"])
+    other = certs.issue_lab(d, "rome", ["rome.example.org", "192.0.2.7"])
     sans = _load(other.cert).extensions.get_extension_for_class(x509.SubjectAlternativeName).value
     assert sans.get_values_for_type(x509.DNSName) == ["rome.example.org"]
-    assert [str(v) for v in sans.get_values_for_type(x509.IPAddress)] == ["10.0.0.7"]
+    assert [str(v) for v in sans.get_values_for_type(x509.IPAddress)] == ["192.0.2.7"]
 
     agent = certs.issue_agent(d, "kiruna", "knatte")
     cert = _load(agent.cert)
