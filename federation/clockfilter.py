@@ -40,6 +40,7 @@ estimate may carry it unseen (up to half the minimum round trip).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -76,6 +77,9 @@ class ClockFilter:
     lock_after
         Seconds after the first exchange after which the estimate counts as
         locked (the paper's 10 s sync phase).
+    refit
+        Seconds of client time between fits once the window holds 50 exchanges;
+        the fit's drift carries the estimate between them.
     """
 
     def __init__(
@@ -84,6 +88,7 @@ class ClockFilter:
         min_span: float = 20.0,
         drift_sigmas: float = 2.0,
         lock_after: float = 10.0,
+        refit: float = 1.0,
     ):
         if not horizon > 0:
             raise ValueError(f"horizon must be positive seconds, not {horizon!r}")
@@ -93,6 +98,7 @@ class ClockFilter:
         self.min_span = min_span
         self.drift_sigmas = drift_sigmas
         self.lock_after = lock_after
+        self.refit = refit
         self.reset()
 
     def reset(self) -> None:
@@ -100,6 +106,7 @@ class ClockFilter:
         self._first: float | None = None
         self._fit: Fit | None = None
         self._stale = False
+        self._fitted_at = -math.inf  # t_mid of the newest exchange in the last fit
 
     def add(self, exchange: Exchange) -> None:
         t = exchange.t_mid
@@ -108,12 +115,18 @@ class ClockFilter:
         self._window.append((t, exchange.offset, exchange.rtt))
         while self._window and t - self._window[0][0] > self.horizon:
             self._window.popleft()
-        self._stale = True
+        # Refit on the data's own clock, not on demand: once a second of client time
+        # (always while the window is young). Live agents and offline replays thus
+        # compute identical fits, and a leader with 60 peers is not refitting 600
+        # windows a second.
+        if len(self._window) < 50 or t - self._fitted_at >= self.refit:
+            self._stale = True
 
     @property
     def fit(self) -> Fit | None:
         if self._stale:
             self._fit = self._compute()
+            self._fitted_at = self._window[-1][0] if self._window else -math.inf
             self._stale = False
         return self._fit
 

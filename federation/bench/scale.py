@@ -152,7 +152,7 @@ def worker(
                 follow=None if role == "leader" else leader,
                 sync_with=[] if role == "leader" else [leader],
                 duration=seconds,
-                status_period=0.5,
+                status_period=1.0,
                 record=out / f"{stem}.mcap",
                 # Only what the scores need: recording is work too.
                 record_channels=["/status", "/pose/sent" if role == "leader" else "/pose/received"],
@@ -166,6 +166,9 @@ def worker(
             thread = threading.Thread(target=runtime.run, args=(stop,), daemon=True)
             thread.start()
             threads.append(thread)
+            # Stagger the agents' 20 Hz ticks over one period: co-hosted agents that
+            # wake together fight for the interpreter lock all at once.
+            time.sleep(0.05 / len(runtimes))
         for thread in threads:
             thread.join(seconds + 30)
     finally:
