@@ -105,7 +105,6 @@ class ClockFilter:
         self._window: deque[tuple[float, float, float]] = deque()  # (t_mid, offset, rtt)
         self._first: float | None = None
         self._fit: Fit | None = None
-        self._stale = False
         self._fitted_at = -math.inf  # t_mid of the newest exchange in the last fit
 
     def add(self, exchange: Exchange) -> None:
@@ -120,14 +119,12 @@ class ClockFilter:
         # compute identical fits, and a leader with 60 peers is not refitting 600
         # windows a second.
         if len(self._window) < 50 or t - self._fitted_at >= self.refit:
-            self._stale = True
+            self._fit = self._compute()
+            self._fitted_at = t
 
     @property
     def fit(self) -> Fit | None:
-        if self._stale:
-            self._fit = self._compute()
-            self._fitted_at = self._window[-1][0] if self._window else -math.inf
-            self._stale = False
+        """The fit as of the last refit (computed in :meth:`add`)."""
         return self._fit
 
     def _compute(self) -> Fit | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import struct
 import time
 from collections.abc import Callable
@@ -144,7 +145,7 @@ def test_clock_step_is_detected_and_estimates_reset(
     print(f"clock step detected; offset error after it {(view['offset'] - truth) * 1e3:+.3f} ms")
     assert abs(view["offset"] - truth) < 0.002
     log = fleet.log_path("rome-pinocchio").read_text()
-    assert "clock step of +0.500 s" in log
+    assert re.search(r"clock step of \+0\.(49\d|50\d) s", log), log[-2000:]
     back = (last_status(leader) or {})["peers"][FOLLOWER]
     assert back["clock_steps"] >= 1  # the leader sees its follower jump the other way
 
