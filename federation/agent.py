@@ -141,6 +141,10 @@ class AgentRuntime:
         with self._count_lock:
             self.counters[name] += 1
 
+    def recording(self, topic: str) -> bool:
+        """Whether ``topic`` is recorded: callbacks build no message otherwise."""
+        return self.recorder is not None and topic in self.recorder.channels
+
     def record(self, topic: str, message: dict[str, Any]) -> None:
         if self.recorder is not None:
             self.recorder.record(topic, message)
@@ -566,7 +570,8 @@ class AgentRuntime:
                 accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3, t2s)
                 reason = peer.client.last_rejection
                 exchange = peer.client.last
-                estimate = peer.client.offset_at(t3)
+                recorded = self.recording("/sync/exchange")
+                estimate = peer.client.offset_at(t3) if recorded else None
                 stepped = peer.client.steps > steps
             if stepped:
                 self.count("clock_steps")
@@ -580,6 +585,8 @@ class AgentRuntime:
                 self._event("clock_step", t3, host, f"{peer.agent}: {jump:+.6f} s")
             if accepted is None or exchange is None:
                 self.rejects(f"sync reply ({reason})", f"from {peer.key}")
+                return
+            if not recorded:
                 return
             self.record(
                 "/sync/exchange",
@@ -612,6 +619,8 @@ class AgentRuntime:
             if parsed is not None:
                 self.latest_poses[parsed[0]] = decoded
                 self.pose_received_at[parsed[0]] = t_recv
+            if not self.recording("/pose/received"):
+                return
             self.record(
                 "/pose/received",
                 {

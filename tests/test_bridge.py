@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from federation import cli, wire
+from federation import wire
 from federation.bridge import BridgeConfig, BridgeCore, parse_address
 from federation.keys import AgentId
 from federation.launch import Fleet, wait_for
@@ -36,18 +36,6 @@ LEGACY = "rome/legacy"
 LEGACY_OFFSET = 26.42  # the legacy agent's clock minus the host's monotonic clock
 LEGACY_POSE = (1.25, -0.5, 0.3, 0.0, 0.0, 0.0)  # tests/legacy_agent.py
 LEGACY_AGENT = Path(__file__).with_name("legacy_agent.py")
-
-# Until federation.bridge is in cli._COMMAND_MODULES: the same parser, built here.
-_BRIDGE_MAIN = """
-import argparse, logging, sys
-from federation import bridge, cli
-parser = argparse.ArgumentParser(prog="fedlab")
-sub = parser.add_subparsers(dest="command", required=True)
-bridge.register(sub, cli._Formatter, cli._zenoh_flags)
-args = parser.parse_args(sys.argv[1:])
-logging.basicConfig(level="INFO", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-sys.exit(args.func(args))
-"""
 
 
 # -- the protocol logic, time passed in --------------------------------------------------
@@ -206,20 +194,12 @@ def free_udp_port() -> int:
 
 
 def start_bridge(fleet: Fleet, args: list[str]) -> None:
-    if "federation.bridge" in cli._COMMAND_MODULES:
-        fleet.start("bridge", ["bridge", "udp", *args])
-    else:
-        fleet.spawn("bridge", [sys.executable, "-c", _BRIDGE_MAIN, "bridge", "udp", *args])
+    fleet.start("bridge", ["bridge", "udp", *args])
 
 
 def legacy_lines(fleet: Fleet) -> list[dict[str, Any]]:
-    lines = []
-    for text in fleet.log_path("legacy").read_text().splitlines():
-        try:
-            lines.append(json.loads(text))
-        except json.JSONDecodeError:
-            continue
-    return lines
+    """The legacy agent's JSON lines from its log (other lines skipped)."""
+    return read_status(fleet.log_path("legacy"))
 
 
 def legacy_samples(fleet: Fleet) -> int:

@@ -6,7 +6,6 @@ fedlab leader run as processes on loopback (bounded waits, stopped by pid).
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -25,13 +24,8 @@ RAW_AGENT = Path(__file__).with_name("third_party_agent.py")
 
 
 def raw_lines(fleet: Fleet) -> list[dict[str, Any]]:
-    lines = []
-    for text in fleet.log_path("raw").read_text().splitlines():
-        try:
-            lines.append(json.loads(text))
-        except json.JSONDecodeError:
-            continue
-    return lines
+    """The raw agent's JSON lines from its log (other lines skipped)."""
+    return read_status(fleet.log_path("raw"))
 
 
 def test_raw_zenoh_agent_joins_answers_sync_and_gets_synced(
