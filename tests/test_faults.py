@@ -91,7 +91,8 @@ def test_sync_converges_over_a_lossy_link(
     )
     leader = agent(fleet, tmp_path, LEADER, kiruna)
     follower = agent(fleet, tmp_path, FOLLOWER, rome, "--clock-offset", "26.42")
-    assert wait_for(lambda: samples(follower, LEADER) >= 80, timeout=40)
+    # Few exchanges get through unstalled: give the filter 15 s of them.
+    assert wait_for(lambda: samples(follower, LEADER) >= 150, timeout=60)
     view = (last_status(follower) or {})["peers"][LEADER]
     truth = true_offset(read_status(leader)[-1], read_status(follower)[-1])
     error = view["offset"] - truth
