@@ -79,6 +79,7 @@ class Peer:
     alive: bool = True
     querier: Any = None  # zenoh.Querier on the peer's sync key, declared on first use
     on_reply: Any = None  # its reply handler, made once
+    next_sync: float = 0.0  # host monotonic time of its next sync request
 
 
 class AgentRuntime:
@@ -110,6 +111,11 @@ class AgentRuntime:
         self.explicit_sync = {AgentId.parse(a) for a in config.sync_with}
         if self.explicit_sync and self.follow:
             self.explicit_sync.add(self.follow)
+        # Queried every sync_period; every other agent alive only every
+        # sync_others_period, so a leader's load does not grow tenfold with N.
+        self.close_sync = self.explicit_sync or {
+            a for a in (self.reference, self.follow) if a is not None and a != self.me
+        }
         self.run_state = RunState(autostart=not config.wait_start)
         self.pose = wire.Pose()
         self.guidance = (0.0, 0.0)  # last heading and rate references
@@ -268,7 +274,7 @@ class AgentRuntime:
                 self.publish_pose()
                 next_pose = _next_tick(next_pose, pose_period, now)
             if now >= next_sync:
-                self.send_sync_requests()
+                self.send_sync_requests(now)
                 next_sync = _next_tick(next_sync, cfg.sync_period, now)
             if now >= next_status:
                 self.publish_status()
@@ -429,13 +435,29 @@ class AgentRuntime:
                 },
             )
 
-    def sync_targets(self) -> list[AgentId]:
-        if self.explicit_sync:
-            return [a for a in self.explicit_sync if a in self.peers and self.peers[a].alive]
-        return [a for a, p in self.peers.items() if p.alive]
+    def due_for_sync(self, now: float) -> list[AgentId]:
+        """The agents due for a sync request at host monotonic time ``now``, each
+        scheduled for its next one: those in ``sync_with`` (or, when it is empty, the
+        reference and the followed agent) every ``sync_period``; with an empty
+        ``sync_with``, every other agent alive every ``sync_others_period`` on its own
+        phase."""
+        cfg = self.config
+        due = []
+        for agent, peer in list(self.peers.items()):  # liveliness may add one meanwhile
+            if not peer.alive or (self.explicit_sync and agent not in self.explicit_sync):
+                continue
+            if peer.next_sync > now:
+                continue
+            if agent in self.close_sync:
+                peer.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
+            else:
+                peer.next_sync = _next_tick(peer.next_sync, cfg.sync_others_period, now)
+            due.append(agent)
+        return due
 
-    def send_sync_requests(self) -> None:
-        for agent in self.sync_targets():
+    def send_sync_requests(self, now: float | None = None) -> None:
+        """Query every agent due at host monotonic ``now`` (default: the present)."""
+        for agent in self.due_for_sync(time.monotonic() if now is None else now):
             peer = self.peers[agent]
             try:
                 if peer.querier is None:
@@ -670,22 +692,35 @@ class AgentRuntime:
             parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
             if parsed is None or parsed[1] is not None or parsed[0] == self.me:
                 return
-            agent = parsed[0]
-            alive = sample.kind == zenoh.SampleKind.PUT
-            with self._lock:
-                peer = self.peers.get(agent)
-                if peer is None:
-                    if not alive:
-                        return
-                    peer = self.peers[agent] = Peer(
-                        agent, self._new_client(), self.key(agent, "sync")
-                    )
-                elif alive and not peer.alive:
-                    peer.client.reset()  # a restarted agent has a new clock
-                peer.alive = alive
-            log.info("agent %s %s", agent, "joined" if alive else "left")
+            self.peer_seen(parsed[0], sample.kind == zenoh.SampleKind.PUT)
         except Exception:
             log.exception("liveliness sample on %s failed", sample.key_expr)
+
+    def peer_seen(self, agent: AgentId, alive: bool) -> None:
+        """Liveliness news of another agent: joined (``alive``) or left."""
+        with self._lock:
+            peer = self.peers.get(agent)
+            if peer is None:
+                if not alive:
+                    return
+                peer = self.peers[agent] = Peer(
+                    agent, self._new_client(), self.key(agent, "sync"),
+                    next_sync=self._first_sync(agent, len(self.peers)),
+                )  # fmt: skip
+            elif alive and not peer.alive:
+                peer.client.reset()  # a restarted agent has a new clock
+                peer.next_sync = self._first_sync(agent, len(self.peers))
+            peer.alive = alive
+        log.info("agent %s %s", agent, "joined" if alive else "left")
+
+    def _first_sync(self, agent: AgentId, index: int) -> float:
+        """When the ``index``-th peer seen gets its first request: at once for the ones
+        synced every period, else spread over ``sync_others_period`` (golden-ratio
+        phases, so no tick carries a burst however many agents join)."""
+        if agent in self.close_sync:
+            return 0.0
+        phase = (index * 0.6180339887498949) % 1.0
+        return time.monotonic() + phase * self.config.sync_others_period
 
     def _new_client(self) -> SyncClient:
         cfg = self.config

@@ -103,6 +103,7 @@ _AGENT_FLAGS = (
     "follow",
     "sync_with",
     "sync_period",
+    "sync_others_period",
     "sync_timeout",
     "sync_window",
     "estimator",
@@ -320,11 +321,16 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="LAB/NAME",
-        help="sync only with these agents (default: every agent alive)",
+        help="sync only with these agents (default: the reference and the followed agent "
+        "every --sync-period, every other agent alive every --sync-others-period)",
     )
     p.add_argument(
         "--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)"
     )
+    p.add_argument(
+        "--sync-others-period", type=float, metavar="S",
+        help="seconds between sync requests to agents neither followed nor the reference (1)",
+    )  # fmt: skip
     p.add_argument("--sync-timeout", type=float, metavar="S", help="sync reply timeout (0.5)")
     p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
     p.add_argument(

@@ -101,9 +101,18 @@ class AgentConfig(_Model):
     )
     sync_with: list[AgentRef] = Field(
         default_factory=list,
-        description="LAB/NAME of the agents to query for sync; empty: every agent seen alive",
+        description="LAB/NAME of the agents to query for sync every sync_period; empty: the "
+        "reference and the followed agent every sync_period, every other agent seen alive "
+        "every sync_others_period",
     )
     sync_period: float = Field(0.1, gt=0, le=10, description="seconds between sync requests")
+    sync_others_period: float = Field(
+        1.0,
+        gt=0,
+        le=60,
+        description="seconds between sync requests to an agent that is neither the reference "
+        "nor the followed one (spread over the period; with an empty sync_with)",
+    )
     sync_timeout: float = Field(
         0.5, gt=0, le=10, description="seconds before a request is given up"
     )

@@ -243,8 +243,10 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
     leader_status = tmp_path / "leader.jsonl"
     fleet.start(
         "kiruna-knatte",
+        # The leader queries the bridged agent every 0.1 s, not once a second.
         ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
-         "--status-json", str(leader_status), "--status-period", "0.5"],
+         "--status-json", str(leader_status), "--status-period", "0.5",
+         "--sync-others-period", "0.1"],
     )  # fmt: skip
     bridge_port, legacy_port = free_udp_port(), free_udp_port()
     fleet.spawn(

@@ -43,7 +43,7 @@ def test_sdk_example_joins_and_sees_the_leader(
     assert "kiruna/knatte" in last["others"]  # the leader's pose, on simulation time
     # The leader synced with the ghost and saw it leave when the example ended.
     view = (last_status(leader) or {})["peers"]["lab3/ghost"]
-    assert view["samples"] > 10 and view["offset"] is not None
+    assert view["samples"] >= 3 and view["offset"] is not None  # 1 Hz: not its reference
     assert wait_for(
         lambda: not (last_status(leader) or {})["peers"]["lab3/ghost"]["alive"], timeout=5
     )

@@ -47,7 +47,8 @@ def test_raw_zenoh_agent_joins_answers_sync_and_gets_synced(
         line = last_status(leader_status)
         return None if line is None else line["peers"].get(RAW)
 
-    assert wait_for(lambda: (view() or {}).get("samples", 0) >= 30, timeout=15), (
+    # The leader queries an agent it does not follow once a second.
+    assert wait_for(lambda: (view() or {}).get("samples", 0) >= 8, timeout=15), (
         last_status(leader_status),
         fleet.log_path("raw").read_text()[-2000:],
     )

@@ -225,4 +225,6 @@ def cmd_scale(args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:
+    if os.environ.get("SWI"):
+        sys.setswitchinterval(float(os.environ["SWI"]))
     worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5:])
