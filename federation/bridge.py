@@ -809,6 +809,8 @@ def cmd_bridge_udp(args: argparse.Namespace) -> int:
     if session is None:
         sock.close()
         return 0
+    from federation.heap import freeze_startup_heap
+
     with session:
         try:
             bridge = UdpBridge(config, session, sock)
@@ -817,6 +819,7 @@ def cmd_bridge_udp(args: argparse.Namespace) -> int:
             raise
         try:
             bridge.start()
+            freeze_startup_heap()
             bridge.run(stop)
         finally:
             bridge.close()

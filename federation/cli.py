@@ -173,6 +173,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
 
     from agents.kinematic import PlatformError
     from federation.agent import AgentRuntime, NameTaken
+    from federation.heap import freeze_startup_heap
     from federation.session import build_config
 
     config = agent_config(args)
@@ -193,6 +194,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
             runtime.close()
             print(f"fedlab agent: error: {error}", file=sys.stderr)
             return 2
+        freeze_startup_heap()
         try:
             runtime.run(stop)
         except PlatformError as error:

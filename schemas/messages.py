@@ -63,7 +63,10 @@ class Status(BaseModel):
         None, description="age of the last pose received from the followed agent, s"
     )
     pose: list[float] = Field(description="x, y, heading, vx, vy, omega (m, rad, m/s, rad/s)")
-    peers: dict[str, PeerStatus]
+    peers: dict[str, PeerStatus] = Field(
+        description="LAB/NAME -> what this agent knows of that agent's clock, for every "
+        "agent it has sent a sync request to"
+    )
     loop: dict[str, float] = Field(
         default_factory=dict,
         description="control loop: rate_hz, ticks, late_p50_ms, late_p99_ms, late_max_ms",

@@ -14,6 +14,7 @@ from federation.bench.sync import (
     SCENARIOS,
     load_recording,
     replay,
+    replay_trials,
     run_live,
     simulate,
 )
@@ -41,6 +42,34 @@ def test_offline_is_reproducible_and_seeded() -> None:
     b = replay(simulate(SCENARIOS["heavy-tail"], 30, seed=1), "mean")
     c = replay(simulate(SCENARIOS["heavy-tail"], 30, seed=2), "mean")
     assert a == b and a != c
+
+
+def test_restarts_score_fresh_estimators_over_the_recording() -> None:
+    rec = simulate(SCENARIOS["paper-like"], duration=120, seed=3)
+    span = rec.exchanges[-1].t3 - rec.exchanges[0].t3
+    one = replay_trials(rec, "mean", length=60.0, every=10.0)
+    assert one["trials"] == int((span - 60.0) // 10.0) + 1 == 6
+    # Each start scores its own 50 s after its sync phase: 500 exchanges.
+    assert one["n"] == pytest.approx(6 * 500, abs=6)
+    # The paper's mean holds one draw per start: six different values, not one.
+    single = replay(rec, "mean")
+    assert single["p50"] == pytest.approx(single["max"]) and one["p50"] < 0.5 * one["max"]
+    # A recording without noise scores zero for every start.
+    clean = simulate(SCENARIOS["paper-like"], duration=80, seed=3)
+    exact = type(clean)(
+        [type(e)(e.t1, e.t1 + CLOCK_OFFSET + 0.02, e.t1 + 0.04) for e in clean.exchanges],
+        lambda t: CLOCK_OFFSET,
+    )
+    assert replay_trials(exact, "clockfilter", length=30.0)["max"] == pytest.approx(0, abs=1e-9)
+    with pytest.raises(ValueError, match="longer recording"):
+        replay_trials(rec, "mean", length=200.0)
+
+
+def test_offline_restarts_clockfilter_no_worse_than_the_paper_without_drift() -> None:
+    for name in ("paper-like", "heavy-tail", "bursts"):
+        rec = simulate(SCENARIOS[name], duration=120, seed=1)
+        ours, paper = replay_trials(rec, "clockfilter"), replay_trials(rec, "mean")
+        assert ours["p95"] <= paper["p95"], (name, ours, paper)
 
 
 def test_replay_needs_time_after_the_sync_phase() -> None:

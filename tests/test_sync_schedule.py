@@ -58,3 +58,15 @@ def test_sync_with_names_the_only_agents_queried_every_tick() -> None:
     member.peer_seen(AgentId("lab2", "c"), alive=True)
     queried = ticks(member, 2.0)
     assert all(tick == [AgentId("lab1", "b")] for tick in queried)
+
+
+def test_status_lists_only_the_agents_queried() -> None:
+    follower = runtime(role="follower", follow="lab0/leader")
+    follower.peer_seen(AgentId("lab0", "leader"), alive=True)
+    follower.peer_seen(AgentId("lab1", "other"), alive=True)
+    assert follower.status().peers == {}
+    t0 = time.monotonic()
+    for agent in follower.due_for_sync(t0):
+        if agent == AgentId("lab0", "leader"):
+            follower.peers[agent].client.request(t0)  # what send_sync_requests does
+    assert set(follower.status().peers) == {"lab0/leader"}

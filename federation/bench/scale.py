@@ -2,9 +2,12 @@
 
 Four lab routers in a star (``lab0`` listens, the others dial it, as labs behind
 firewalls would). Agent 0 (``lab0/a0``) leads; every other agent follows it,
-syncs with it at 10 Hz and publishes its own pose at 20 Hz. Agents share worker
-processes (one per lab), each agent with its own Zenoh session, since this
-machine has 2 cores.
+syncs with it at 10 Hz and publishes its own pose at 20 Hz; the leader queries
+each of them once a second (the default for agents it does not follow). Each lab
+runs its agents in one worker process on one Zenoh session (this machine has 2
+cores), as a lab's gateway process would: one shared pose subscription per key
+(:class:`federation.fanout.Fanout`), the start-up heap frozen
+(:mod:`federation.heap`), each agent on its own thread.
 
 For each N: CPU of all processes (routers and workers, in cores), p50/p99
 one-way pose latency leader to followers (host monotonic clock on both ends;
@@ -131,6 +134,8 @@ def worker(
     import zenoh
 
     from federation.agent import AgentRuntime
+    from federation.fanout import Fanout
+    from federation.heap import freeze_startup_heap
     from federation.session import build_config
     from schemas.config import AgentConfig, ZenohOptions
 
@@ -138,6 +143,7 @@ def worker(
     stop = threading.Event()
     conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
     sessions: list[zenoh.Session] = []
+    fanouts: list[Fanout] = []
     runtimes: list[AgentRuntime] = []
     threads: list[threading.Thread] = []
     try:
@@ -159,9 +165,11 @@ def worker(
             )
             if not sessions or not shared_session:
                 sessions.append(zenoh.open(conf))
-            runtime = AgentRuntime(config, sessions[-1])
+                fanouts.append(Fanout(sessions[-1]))
+            runtime = AgentRuntime(config, sessions[-1], fanout=fanouts[-1])
             runtime.start()
             runtimes.append(runtime)
+        freeze_startup_heap()
         for runtime in runtimes:
             thread = threading.Thread(target=runtime.run, args=(stop,), daemon=True)
             thread.start()
@@ -225,6 +233,4 @@ def cmd_scale(args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:
-    if os.environ.get("SWI"):
-        sys.setswitchinterval(float(os.environ["SWI"]))
     worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5:])
