@@ -48,8 +48,14 @@ Burst windows are ``[k E, k E + D)`` seconds after the model's ``start`` for
 
 Datagrams (:meth:`DirectionModel.sample`) are also lost with probability ``loss``
 and, with probability ``reorder``, held ``reorder_extra`` seconds longer so the ones
-sent after them overtake them. Byte streams (:class:`StreamScheduler`) are never
-lost or reordered: a chunk is delivered at ``max(now + d, previous delivery)``.
+sent after them overtake them. Otherwise a direction delivers datagrams in the
+order they came (:func:`datagram_deliver_at`): jitter stretches the gaps between
+them but never swaps two, as netem's FIFO queue does. Reordering is thus only
+what ``--reorder`` asks for; Zenoh's UDP links do not reorder, and a declaration
+overtaken by what it declares is dropped (routers linked through a jittery
+reordering relay exchanged almost nothing). Byte streams
+(:class:`StreamScheduler`) are never lost or reordered: a chunk is delivered at
+``max(now + d, previous delivery)``.
 
 I/O
 ---
@@ -113,6 +119,7 @@ __all__ = [
     "LinkOptions",
     "LinkStats",
     "StreamScheduler",
+    "datagram_deliver_at",
     "options_from_args",
     "parse_endpoint",
     "register",
@@ -224,6 +231,7 @@ class DirectionModel:
         self.sent = 0
         self.lost = 0
         self.reordered = 0
+        self.held = False  # whether the last datagram sampled was held back (reordered)
         self._jitter_draw = _jitter_sampler(config.jitter_dist, rng)
         self._j = config.jitter
         self._burst_j = config.jitter * config.burst_jitter_factor
@@ -260,9 +268,10 @@ class DirectionModel:
 
         A held-back (reordered) datagram gets ``reorder_extra`` more, so datagrams
         sent within that time after it arrive first. Counts ``sent``, ``lost`` and
-        ``reordered``.
+        ``reordered``; ``held`` tells whether this datagram was held back.
         """
         self.sent += 1
+        self.held = False
         config = self.config
         if config.loss > 0 and self._random() < config.loss:
             self.lost += 1
@@ -270,8 +279,16 @@ class DirectionModel:
         d = self.delay(now)
         if config.reorder > 0 and self._random() < config.reorder:
             self.reordered += 1
+            self.held = True
             d += config.reorder_extra
         return d
+
+
+def datagram_deliver_at(now: float, delay: float, held: bool, last: float) -> float:
+    """Delivery time of a datagram: in order (``max(now + delay, last)``, ``last``
+    the latest delivery time of its direction so far) unless it was ``held`` back
+    to be overtaken."""
+    return now + delay if held else max(now + delay, last)
 
 
 def stream_deliver_at(now: float, delay: float, last: float) -> float:
@@ -936,7 +953,8 @@ class _UdpSession:
 
 
 class _DatagramQueue:
-    """One direction's datagrams by delivery time (a heap: reordering allowed)."""
+    """One direction's datagrams by delivery time: a heap, in arrival order except
+    for the ones the model held back (``--reorder``)."""
 
     def __init__(
         self,
@@ -954,6 +972,7 @@ class _DatagramQueue:
         self.pause = pause
         self.heap: list[tuple[float, int, _UdpSession, bytes]] = []
         self.seq = 0
+        self.last_at = -math.inf  # delivery time of the latest datagram not held back
         self.timer: asyncio.TimerHandle | None = None
         self.timer_at = math.inf
         self.full = False
@@ -965,8 +984,10 @@ class _DatagramQueue:
         delay = self.model.sample(now)
         if delay is None:
             return
-        at = now + delay
-        if at <= now + _EARLY:
+        at = datagram_deliver_at(now, delay, self.model.held, self.last_at)
+        if not self.model.held:
+            self.last_at = at
+        if not self.heap and at <= now + _EARLY:
             self._send(session, data)
             return
         heapq.heappush(self.heap, (at, self.seq, session, data))

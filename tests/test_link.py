@@ -39,6 +39,7 @@ from federation.link import (
     LinkEndpoint,
     LinkModel,
     StreamScheduler,
+    datagram_deliver_at,
     options_from_args,
     parse_endpoint,
     register,
@@ -120,6 +121,25 @@ def test_reordered_datagrams_are_overtaken() -> None:
         overtaken += a > later_min
         later_min = min(later_min, a)
     assert overtaken == model.reordered
+
+
+def test_jitter_alone_never_swaps_datagrams() -> None:
+    """In order unless held back: jitter larger than the gaps stretches them only."""
+    model = direction(delay=0.020, jitter=0.002, reorder=0.02, reorder_extra=0.010)
+    last, arrivals, held = -math.inf, [], []
+    for k in range(N):
+        t = k * 1e-4  # 0.1 ms apart: 2 ms of jitter would swap most of them
+        d = model.sample(t)
+        assert d is not None
+        at = datagram_deliver_at(t, d, model.held, last)
+        if not model.held:
+            last = at
+        arrivals.append(at)
+        held.append(model.held)
+    assert sum(held) == model.reordered and binomial_ok(model.reordered, N, 0.02)
+    in_order = [a for a, h in zip(arrivals, held, strict=True) if not h]
+    assert all(b >= a for a, b in itertools.pairwise(in_order))
+    assert statistics.median(b - a for a, b in itertools.pairwise(in_order)) < 2e-3
 
 
 def test_asymmetry_is_added_to_backward_only() -> None:
@@ -627,6 +647,66 @@ def test_zenoh_routers_linked_through_the_emulator(
     assert min(latencies) >= delay
     assert statistics.median(latencies) < delay + 0.015
     assert link.stats()["forward"]["bytes"] > 0
+
+
+def test_zenoh_routers_linked_over_udp_through_a_jittery_link(
+    start_link: Callable[..., LinkProcess],
+) -> None:
+    """Two routers on a UDP link through the emulator with jitter larger than the
+    gaps between datagrams: declarations, samples, queries and replies all cross
+    (a reordering relay lost the declarations, and with them everything)."""
+    zenoh = pytest.importorskip("zenoh")
+    from federation.session import build_config
+    from schemas.config import ZenohOptions
+
+    def conf(mode: str, listen: list[str], connect: list[str]) -> Any:
+        extra = {"connect/timeout_ms": 5000, "connect/exit_on_failure": True}
+        options = ZenohOptions(mode=mode, listen=listen, connect=connect)
+        return build_config(options, default_mode=mode, extra=extra if mode == "client" else None)
+
+    tcp_a, udp_a, tcp_b = free_port(), free_port(), free_port()
+    got: list[float] = []
+    replies = 0
+    with ExitStack() as stack:
+        stack.enter_context(
+            zenoh.open(conf("router", [f"tcp/127.0.0.1:{tcp_a}", f"udp/127.0.0.1:{udp_a}"], []))
+        )
+        link = start_link(
+            "udp/127.0.0.1:0", f"udp/127.0.0.1:{udp_a}", "--delay-ms 20 --jitter-ms 2 --seed 2"
+        )
+        stack.enter_context(
+            zenoh.open(conf("router", [f"tcp/127.0.0.1:{tcp_b}"], [str(link.endpoint)]))
+        )
+        near = stack.enter_context(zenoh.open(conf("client", [], [f"tcp/127.0.0.1:{tcp_a}"])))
+        far = stack.enter_context(zenoh.open(conf("client", [], [f"tcp/127.0.0.1:{tcp_b}"])))
+
+        def on_sample(sample: Any) -> None:
+            got.append(time.monotonic() - struct.unpack("d", sample.payload.to_bytes())[0])
+
+        def on_query(query: Any) -> None:
+            with query:
+                query.reply(query.key_expr, b"pong")
+
+        subscriber = near.declare_subscriber("fedlab/test/udp/pose", on_sample)
+        queryable = near.declare_queryable("fedlab/test/udp/sync", on_query)
+        publisher = far.declare_publisher("fedlab/test/udp/pose", express=True)
+        try:
+            deadline = time.monotonic() + 15.0
+            while len(got) < 50 and time.monotonic() < deadline:  # routes come up first
+                publisher.put(struct.pack("d", time.monotonic()))
+                time.sleep(0.01)
+            for _ in range(20):
+                replies += sum(r.ok is not None for r in far.get("fedlab/test/udp/sync", timeout=2))
+        finally:
+            publisher.undeclare()
+            queryable.undeclare()
+            subscriber.undeclare()
+    assert link.stop() == 0
+    assert len(got) >= 50, "no samples crossed the UDP link"
+    assert min(got) >= 0.020 and statistics.median(got) < 0.035
+    assert replies == 20
+    stats = link.stats()
+    assert stats["forward"]["reordered"] == stats["backward"]["reordered"] == 0
 
 
 def test_stream_loss_is_a_retransmission_delay_in_order() -> None:
