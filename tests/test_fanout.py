@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -67,3 +68,36 @@ def test_the_start_up_heap_is_frozen() -> None:
         assert gc.get_freeze_count() > before
     finally:
         gc.unfreeze()  # the test process keeps collecting as before
+
+
+def test_agents_run_together_on_one_thread(session: zenoh.Session) -> None:
+    """Two agents on one session, one thread, one shared pose subscription: each
+    ticks at its rate, the follower gets the leader's pose, both stop on time."""
+    from federation.agent import AgentRuntime, run_together
+    from schemas.config import AgentConfig
+
+    fanout = Fanout(session)
+    leader = AgentRuntime(
+        AgentConfig(lab="lab0", name="lead", role="leader", duration=1.0), session, fanout=fanout
+    )
+    follower = AgentRuntime(
+        AgentConfig(lab="lab1", name="f", role="follower", follow="lab0/lead", duration=1.0),
+        session,
+        fanout=fanout,
+    )
+    for agent in (leader, follower):
+        agent.start()
+    started = time.monotonic()
+    try:
+        run_together([leader, follower], threading.Event(), spread=0.05)
+        took = time.monotonic() - started
+        assert list(fanout._subscribers) == ["fedlab/default/lab0/lead/pose"]  # shared
+    finally:
+        for agent in (leader, follower):
+            agent.close()
+    assert 1.0 <= took < 3.0
+    for agent in (leader, follower):
+        assert 15 <= len(agent.lateness) <= 25  # 20 Hz for 1 s
+    assert follower.counters["pose_received"] >= 10
+    assert "lab0/lead" in follower.status().peers  # it synced with its leader
+    assert fanout._subscribers == {}  # closed: the last one out undeclared it

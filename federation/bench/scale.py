@@ -7,7 +7,8 @@ each of them once a second (the default for agents it does not follow). Each lab
 runs its agents in one worker process on one Zenoh session (this machine has 2
 cores), as a lab's gateway process would: one shared pose subscription per key
 (:class:`federation.fanout.Fanout`), the start-up heap frozen
-(:mod:`federation.heap`), each agent on its own thread.
+(:mod:`federation.heap`), all agents' loops on one thread
+(:func:`federation.agent.run_together`).
 
 For each N: CPU of all processes (routers and workers, in cores), p50/p99
 one-way pose latency leader to followers (host monotonic clock on both ends;
@@ -133,7 +134,7 @@ def worker(
     lab's gateway process would) or one each."""
     import zenoh
 
-    from federation.agent import AgentRuntime
+    from federation.agent import AgentRuntime, run_together
     from federation.fanout import Fanout
     from federation.heap import freeze_startup_heap
     from federation.session import build_config
@@ -145,7 +146,6 @@ def worker(
     sessions: list[zenoh.Session] = []
     fanouts: list[Fanout] = []
     runtimes: list[AgentRuntime] = []
-    threads: list[threading.Thread] = []
     try:
         for name in names:
             lab, agent = name.split("/")
@@ -170,15 +170,14 @@ def worker(
             runtime.start()
             runtimes.append(runtime)
         freeze_startup_heap()
-        for runtime in runtimes:
-            thread = threading.Thread(target=runtime.run, args=(stop,), daemon=True)
-            thread.start()
-            threads.append(thread)
-            # Stagger the agents' 20 Hz ticks over one period: co-hosted agents that
-            # wake together fight for the interpreter lock all at once.
-            time.sleep(0.05 / len(runtimes))
-        for thread in threads:
-            thread.join(seconds + 30)
+        # One thread for all of them, their ticks spread over a pose period: agents
+        # that wake together fight for the interpreter lock all at once.
+        timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
+        timer.start()
+        try:
+            run_together(runtimes, stop, spread=0.05)
+        finally:
+            timer.cancel()
     finally:
         stop.set()
         for runtime in runtimes:
