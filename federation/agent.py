@@ -10,6 +10,7 @@ Threads and who owns what:
   counted.
 - The agent's own loop (``run``) steps the platform, publishes pose and status
   and sends sync requests (``session.get`` with a callback returns at once).
+  Agents hosted in one process may share that thread (:func:`run_together`).
 - A recorder thread writes the MCAP file (:mod:`federation.recorder`).
 """
 
@@ -258,10 +259,6 @@ class AgentRuntime:
         deadline of its own, so the run begins on time, not at the next tick.
         """
         run_together([self], stop)
-
-    def schedule(self, t0: float) -> Schedule:
-        """The loop's timetable from host monotonic time ``t0`` (see :meth:`run`)."""
-        return Schedule(self, t0)
 
     # -- time --------------------------------------------------------------------------
     def reference_offset(self, t_exec: float) -> float | None:
@@ -765,7 +762,7 @@ def run_together(agents: list[AgentRuntime], stop: threading.Event, spread: floa
     """
     t0 = time.monotonic()
     step = spread / len(agents) if agents else 0.0
-    wakes = [(t0 + i * step, i, agent.schedule(t0 + i * step)) for i, agent in enumerate(agents)]
+    wakes = [(t0 + i * step, i, Schedule(agent, t0 + i * step)) for i, agent in enumerate(agents)]
     heapq.heapify(wakes)
     while wakes and not stop.is_set():
         at, i, schedule = wakes[0]
