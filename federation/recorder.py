@@ -18,10 +18,11 @@ channel                message
 =====================  ============================================================
 
 Recording never blocks the agent and wakes no thread: :meth:`Recorder.record`
-appends the message to a bounded buffer (dropping and counting when full) and a
-writer thread encodes and writes what has gathered every ``flush_period``
-seconds. Waking the writer per message cost each callback an interpreter-lock
-handover; with 16 agents in a process that was most of the pose latency's tail.
+appends the message to a bounded buffer (dropping and counting when full), and
+one writer thread per process encodes and writes what has gathered in every open
+recorder every ``FLUSH_PERIOD`` seconds. Waking a writer per message cost each
+callback an interpreter-lock handover (most of the pose latency's tail), and a
+writer per recorder meant 16 more threads waking in a process of 16 agents.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ from mcap.writer import Writer
 __all__ = ["CHANNELS", "Recorder", "read_messages"]
 
 log = logging.getLogger("fedlab.recorder")
+
+FLUSH_PERIOD = 0.05  # s between writes of the buffered messages
 
 _POSE = ["x", "y", "heading", "vx", "vy", "omega"]
 CHANNELS: dict[str, list[str]] = {
@@ -65,7 +68,6 @@ class Recorder:
         agent: str,
         channels: list[str] | None = None,
         capacity: int = 200_000,
-        flush_period: float = 0.05,
     ):
         unknown = set(channels or ()) - set(CHANNELS)
         if unknown:
@@ -76,9 +78,9 @@ class Recorder:
         self.dropped = 0
         self.written = 0
         self.capacity = capacity
-        self.flush_period = flush_period
         self._pending: deque[tuple[str, int, dict[str, Any]]] = deque()
-        self._stop = threading.Event()
+        self._write_lock = threading.Lock()  # the writer thread or close(), not both
+        self._closed = False
         self._file = self.path.open("wb")
         # Small chunks: an agent killed mid-run loses at most the last chunk.
         self._writer = Writer(self._file, chunk_size=256 * 1024)
@@ -98,8 +100,7 @@ class Recorder:
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id, metadata={"agent": agent}
             )
-        self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
-        self._thread.start()
+        _WRITER.add(self)
 
     def record(self, topic: str, message: dict[str, Any]) -> None:
         """Buffer one message; never blocks (a full buffer drops and counts it)."""
@@ -110,10 +111,11 @@ class Recorder:
             return
         self._pending.append((topic, time.time_ns(), message))  # atomic: no lock, no wakeup
 
-    def _drain(self) -> None:
-        while not self._stop.wait(self.flush_period):
-            self._write_pending()
-        self._write_pending()
+    def flush(self) -> None:
+        """Encode and write the buffered messages (the writer thread calls it)."""
+        with self._write_lock:
+            if not self._closed:
+                self._write_pending()
 
     def _write_pending(self) -> None:
         pending, channels, add = self._pending, self._channels, self._writer.add_message
@@ -124,14 +126,56 @@ class Recorder:
 
     def close(self) -> None:
         """Write what is buffered, then finish the file (summary and index)."""
-        self._stop.set()
-        self._thread.join(30)
-        try:
-            self._writer.finish()  # type: ignore[no-untyped-call]
-        finally:
-            self._file.close()
+        _WRITER.remove(self)
+        with self._write_lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._write_pending()
+                self._writer.finish()  # type: ignore[no-untyped-call]
+            finally:
+                self._file.close()
         if self.dropped:
             log.warning("recorder dropped %d messages (queue full)", self.dropped)
+
+
+class _WriterThread:
+    """The process's one writer: flushes every open recorder each ``FLUSH_PERIOD``;
+    started by the first recorder, gone once none is open."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._recorders: set[Recorder] = set()
+        self._running = False
+
+    def add(self, recorder: Recorder) -> None:
+        with self._lock:
+            self._recorders.add(recorder)
+            if not self._running:
+                self._running = True
+                threading.Thread(target=self._run, name="recorder", daemon=True).start()
+
+    def remove(self, recorder: Recorder) -> None:
+        with self._lock:
+            self._recorders.discard(recorder)
+
+    def _run(self) -> None:
+        while True:
+            time.sleep(FLUSH_PERIOD)
+            with self._lock:
+                recorders = list(self._recorders)
+                if not recorders:
+                    self._running = False
+                    return
+            for recorder in recorders:
+                try:
+                    recorder.flush()
+                except Exception:  # a full disk: keep writing the others
+                    log.exception("writing %s failed", recorder.path)
+
+
+_WRITER = _WriterThread()
 
 
 def read_messages(
