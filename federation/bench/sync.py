@@ -120,23 +120,23 @@ class Recording:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def replay(
-    recording: Recording, estimator: str, sync_phase: float = SYNC_PHASE
-) -> dict[str, float]:
-    """Feed the exchanges to a fresh estimator; score it after the sync phase."""
+def _errors(
+    exchanges: Sequence[Exchange], truth: Callable[[float], float], estimator: str,
+    sync_phase: float, start: float | None = None,
+) -> list[float]:  # fmt: skip
+    """|estimate - truth| at each exchange ``sync_phase`` seconds after ``start``
+    (default: the first exchange), from a fresh estimator fed ``exchanges`` in order."""
     est = make_estimator(estimator)
-    if not recording.exchanges:
-        raise ValueError("the recording holds no exchange")
-    start = recording.exchanges[0].t3
+    start = exchanges[0].t3 if start is None else start
     errors = []
-    for ex in recording.exchanges:
+    for ex in exchanges:
         est.add(ex)
-        if ex.t3 - start >= sync_phase:
-            offset = est.offset_at(ex.t3)
-            if offset is not None:
-                errors.append(abs(offset - recording.truth(ex.t3)))
-    if not errors:
-        raise ValueError(f"no exchange after the {sync_phase} s sync phase: run longer")
+        if ex.t3 - start >= sync_phase and (offset := est.offset_at(ex.t3)) is not None:
+            errors.append(abs(offset - truth(ex.t3)))
+    return errors
+
+
+def _score(errors: list[float]) -> dict[str, float]:
     e = np.asarray(errors)
     return {
         "p50": float(np.percentile(e, 50)),
@@ -144,6 +144,18 @@ def replay(
         "max": float(e.max()),
         "n": len(errors),
     }
+
+
+def replay(
+    recording: Recording, estimator: str, sync_phase: float = SYNC_PHASE
+) -> dict[str, float]:
+    """Feed the exchanges to a fresh estimator; score it after the sync phase."""
+    if not recording.exchanges:
+        raise ValueError("the recording holds no exchange")
+    errors = _errors(recording.exchanges, recording.truth, estimator, sync_phase)
+    if not errors:
+        raise ValueError(f"no exchange after the {sync_phase} s sync phase: run longer")
+    return _score(errors)
 
 
 def replay_trials(
@@ -169,29 +181,14 @@ def replay_trials(
         raise ValueError(
             f"a {length} s trial needs a longer recording than {t_last - t_first:.0f} s"
         )
-    errors, trials, start = [], 0, t_first
+    errors: list[float] = []
+    trials, start = 0, t_first
     while start + length <= t_last + 1e-9:
-        est = make_estimator(estimator)
-        for ex in exchanges:
-            if ex.t3 < start:
-                continue
-            if ex.t3 >= start + length:
-                break
-            est.add(ex)
-            if ex.t3 - start >= sync_phase and (offset := est.offset_at(ex.t3)) is not None:
-                errors.append(abs(offset - recording.truth(ex.t3)))
+        stretch = [ex for ex in exchanges if start <= ex.t3 < start + length]
+        errors += _errors(stretch, recording.truth, estimator, sync_phase, start)
         trials += 1
         start += every
-    e = np.asarray(errors)
-    return {
-        "p50": float(np.percentile(e, 50)),
-        "p95": float(np.percentile(e, 95)),
-        "max": float(e.max()),
-        "n": len(errors),
-        "trials": trials,
-        "length_s": length,
-        "every_s": every,
-    }
+    return {**_score(errors), "trials": trials, "length_s": length, "every_s": every}
 
 
 def simulate(scenario: Scenario, duration: float, seed: int = 1, period: float = 0.1) -> Recording:
