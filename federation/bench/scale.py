@@ -127,11 +127,9 @@ def run(ns: list[int], seconds: float, out: Path) -> list[dict[str, Any]]:
 
 
 # -- worker: several agents in one process ------------------------------------------
-def worker(
-    endpoint: str, seconds: float, out: Path, names: list[str], shared_session: bool = True
-) -> None:
-    """Run ``names`` as agents in this process: one session for all (the default, as a
-    lab's gateway process would) or one each."""
+def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
+    """Run ``names`` as agents in this process on one session, as a lab's gateway
+    process would."""
     import zenoh
 
     from federation.agent import AgentRuntime, run_together
@@ -143,47 +141,43 @@ def worker(
     leader = "lab0/a0"
     stop = threading.Event()
     conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
-    sessions: list[zenoh.Session] = []
-    fanouts: list[Fanout] = []
     runtimes: list[AgentRuntime] = []
-    try:
-        for name in names:
-            lab, agent = name.split("/")
-            stem = f"{lab}-{agent}"
-            role = "leader" if name == leader else "follower"
-            config = AgentConfig(
-                lab=lab,
-                name=agent,
-                role=role,
-                follow=None if role == "leader" else leader,
-                sync_with=[] if role == "leader" else [leader],
-                duration=seconds,
-                status_period=1.0,
-                record=out / f"{stem}.mcap",
-                # Only what the scores need: recording is work too.
-                record_channels=["/status", "/pose/sent" if role == "leader" else "/pose/received"],
-            )
-            if not sessions or not shared_session:
-                sessions.append(zenoh.open(conf))
-                fanouts.append(Fanout(sessions[-1]))
-            runtime = AgentRuntime(config, sessions[-1], fanout=fanouts[-1])
-            runtime.start()
-            runtimes.append(runtime)
-        freeze_startup_heap()
-        # One thread for all of them, their ticks spread over a pose period: agents
-        # that wake together fight for the interpreter lock all at once.
-        timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
-        timer.start()
+    with zenoh.open(conf) as session:
+        fanout = Fanout(session)
         try:
-            run_together(runtimes, stop, spread=0.05)
+            for name in names:
+                lab, agent = name.split("/")
+                role = "leader" if name == leader else "follower"
+                config = AgentConfig(
+                    lab=lab,
+                    name=agent,
+                    role=role,
+                    follow=None if role == "leader" else leader,
+                    sync_with=[] if role == "leader" else [leader],
+                    duration=seconds,
+                    status_period=1.0,
+                    record=out / f"{lab}-{agent}.mcap",
+                    # Only what the scores need: recording is work too.
+                    record_channels=[
+                        "/status", "/pose/sent" if role == "leader" else "/pose/received"
+                    ],
+                )  # fmt: skip
+                runtime = AgentRuntime(config, session, fanout=fanout)
+                runtime.start()
+                runtimes.append(runtime)
+            freeze_startup_heap()
+            # One thread for all of them, their ticks spread over a pose period: agents
+            # that wake together fight for the interpreter lock all at once.
+            timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
+            timer.start()
+            try:
+                run_together(runtimes, stop, spread=0.05)
+            finally:
+                timer.cancel()
         finally:
-            timer.cancel()
-    finally:
-        stop.set()
-        for runtime in runtimes:
-            runtime.close()
-        for session in sessions:
-            session.close()
+            stop.set()
+            for runtime in runtimes:
+                runtime.close()
 
 
 def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
