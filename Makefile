@@ -1,5 +1,5 @@
 # Two entry points: `make demo` (set up, run the main job) and `make test`
-# (set up, lint, type-check, run the test suite). Both create .venv on first use.
+# (set up, lint, check the import layers, type-check, run the test suite). Both create .venv on first use.
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
@@ -21,6 +21,7 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 
 typecheck: $(STAMP)
 	$(BIN)/mypy

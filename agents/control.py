@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from agents.dynamics import PAIRS, THRUSTERS
 from agents.sensors import wrap_angle
-from federation.wire import Pose
+from federation.core.wire import Pose
 
 __all__ = ["HeadingPid", "PositionHold", "PulseWidthModulator", "allocate"]
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from federation.wire import PoseSample
+from federation.core.wire import PoseSample
 
 __all__ = ["ReferenceManeuver", "track_heading"]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from federation.wire import Pose
+from federation.core.wire import Pose
 
 __all__ = ["KinematicPlatform", "Platform", "PlatformError"]
 

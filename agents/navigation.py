@@ -38,7 +38,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from agents.sensors import ImuSample, wrap_angle
-from federation.wire import Pose
+from federation.core.wire import Pose
 
 __all__ = ["NavigationFilter"]
 

@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from federation.wire import Pose
+from federation.core.wire import Pose
 
 __all__ = ["Coverage", "Imu", "ImuSample", "Sampler", "Vision", "wrap_angle"]
 

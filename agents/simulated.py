@@ -28,7 +28,7 @@ from agents.control import HeadingPid, PositionHold, PulseWidthModulator, alloca
 from agents.dynamics import THRUSTERS, BodyParams, SlopeField, step, wrench
 from agents.navigation import NavigationFilter
 from agents.sensors import Coverage, Imu, ImuSample, Vision
-from federation.wire import Pose
+from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
 __all__ = ["Plant", "SimulatedPlatform"]
@@ -116,7 +116,7 @@ class Plant:
 
     @property
     def pose(self) -> Pose:
-        """The true state as a :class:`~federation.wire.Pose`."""
+        """The true state as a :class:`~federation.core.wire.Pose`."""
         return Pose(*self.state.tolist())
 
     def imu(self) -> ImuSample:

@@ -22,7 +22,7 @@ from pydantic import (
     model_validator,
 )
 
-from federation.keys import DEFAULT_FEDERATION, AgentId, validate_name
+from federation.core.keys import DEFAULT_FEDERATION, AgentId, validate_name
 
 __all__ = [
     "AgentConfig",
@@ -164,7 +164,7 @@ class AgentConfig(_Model):
     @field_validator("platform")
     @classmethod
     def _platform(cls, value: str) -> str:
-        from agents.platforms import validate_platform_spec
+        from agents.platform import validate_platform_spec
 
         return validate_platform_spec(value)
 

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from federation.keys import DEFAULT_FEDERATION, AgentId
+from federation.core.keys import DEFAULT_FEDERATION, AgentId
 from schemas.config import AgentRef, ManeuverConfig, _Model, _name, load_model
 
 __all__ = ["ExperimentConfig", "Participant", "load_experiment"]

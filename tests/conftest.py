@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from federation.launch import Fleet, free_port
+from federation.fleet.launch import Fleet, free_port
 
 
 @pytest.fixture

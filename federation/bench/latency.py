@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from federation.launch import Fleet, free_port, wait_for
-from federation.status import clock_line
+from federation.fleet.launch import Fleet, free_port, wait_for
+from federation.report.status import clock_line
 
 __all__ = ["run"]
 
@@ -157,7 +157,7 @@ def fedlab_pose(
     fleet: Fleet, kiruna: str, rome: str, seconds: float, rate: float, out: Path
 ) -> tuple[list[float], list[float]]:
     """(pose one-way latencies, sync turnarounds) in seconds, from real agents."""
-    from federation.recorder import read_messages
+    from federation.runtime.recorder import read_messages
 
     leader, follower = out / "leader.mcap", out / "follower.mcap"
     common = ["--duration", f"{seconds}", "--status-period", "0.5"]

@@ -6,9 +6,9 @@ syncs with it at 10 Hz and publishes its own pose at 20 Hz; the leader queries
 each of them once a second (the default for agents it does not follow). Each lab
 runs its agents in one worker process on one Zenoh session (this machine has 2
 cores), as a lab's gateway process would: one shared pose subscription per key
-(:class:`federation.fanout.Fanout`), the start-up heap frozen
-(:mod:`federation.heap`), all agents' loops on one thread
-(:func:`federation.agent.run_together`).
+(:class:`federation.runtime.fanout.Fanout`), the start-up heap frozen
+(:mod:`federation.runtime.heap`), all agents' loops on one thread
+(:func:`federation.runtime.agent.run_together`).
 
 For each N: CPU of all processes (routers and workers, in cores), p50/p99
 one-way pose latency leader to followers (host monotonic clock on both ends;
@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from federation.launch import Fleet, free_port, wait_for
-from federation.status import clock_line
+from federation.fleet.launch import Fleet, free_port, wait_for
+from federation.report.status import clock_line
 
 __all__ = ["run", "run_one"]
 
@@ -85,7 +85,7 @@ def run_one(n: int, seconds: float, out: Path) -> dict[str, Any]:
 
 
 def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str, Any]:
-    from federation.recorder import read_messages
+    from federation.runtime.recorder import read_messages
 
     leader = agents[0][1]
     lead = read_messages(out / f"{leader.replace('/', '-')}.mcap", ["/status", "/pose/sent"])
@@ -132,10 +132,10 @@ def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
     process would."""
     import zenoh
 
-    from federation.agent import AgentRuntime, run_together
-    from federation.fanout import Fanout
-    from federation.heap import freeze_startup_heap
-    from federation.session import build_config
+    from federation.runtime.agent import AgentRuntime, run_together
+    from federation.runtime.fanout import Fanout
+    from federation.runtime.heap import freeze_startup_heap
+    from federation.runtime.session import build_config
     from schemas.config import AgentConfig, ZenohOptions
 
     leader = "lab0/a0"

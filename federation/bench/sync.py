@@ -31,10 +31,10 @@ from typing import Any
 
 import numpy as np
 
-from federation.estimators import ESTIMATORS, make_estimator
-from federation.link import DirectionConfig, JitterDist, LinkModel
-from federation.status import clock_line
-from federation.sync import Exchange
+from federation.core.estimators import ESTIMATORS, make_estimator
+from federation.core.sync import Exchange
+from federation.link.emulator import DirectionConfig, JitterDist, LinkModel
+from federation.report.status import clock_line
 
 __all__ = [
     "SCENARIOS",
@@ -212,7 +212,7 @@ def simulate(scenario: Scenario, duration: float, seed: int = 1, period: float =
 def load_recording(client: Path, server: Path, peer: str = "kiruna/knatte") -> Recording:
     """A live run's exchanges with ``peer`` from the client's MCAP recording, with the
     truth recovered from both agents' recorded status messages."""
-    from federation.recorder import read_messages
+    from federation.runtime.recorder import read_messages
 
     a_s, b_s = clock_line(read_messages(server, ["/status"])["/status"])
     client_messages = read_messages(client, ["/status", "/sync/exchange"])
@@ -232,7 +232,7 @@ def load_recording(client: Path, server: Path, peer: str = "kiruna/knatte") -> R
 
 def run_live(scenario: Scenario, duration: float, out: Path, seed: int = 1) -> Recording:
     """Routers, link emulator, leader and follower as processes; returns the recording."""
-    from federation.launch import Fleet, free_port, wait_for
+    from federation.fleet.launch import Fleet, free_port, wait_for
 
     out.mkdir(parents=True, exist_ok=True)
     leader, follower = out / f"{scenario.name}-leader.mcap", out / f"{scenario.name}-follower.mcap"

@@ -1,0 +1,362 @@
+"""Three-timestamp clock synchronization (paper section 3.1), free of I/O.
+
+One exchange between a client and a server::
+
+    t1  client clock, request sent
+    t2  server clock, request received and reply sent (one instant)
+    t3  client clock, reply received
+
+.. math::
+
+    \\text{delay} = (t_3 - t_1) / 2                     \\quad\\text{(Eq. 3)}
+
+    \\text{offset} = t_2 - (t_1 + t_3) / 2              \\quad\\text{(Eq. 4)}
+
+``offset`` is server clock minus client clock, so the server's time is
+``t_client + offset`` (Eq. 5). If the outbound and return trips differ, the
+offset is wrong by half their difference; no application-layer method can see
+that, so :attr:`Exchange.error_bound` reports the worst case instead.
+
+:class:`SyncClient` matches replies to requests by the echoed ``t1`` and rejects
+late, duplicate, unmatched and malformed ones; an estimator turns accepted
+exchanges into one offset. Time is always passed in (``now``): nothing here
+reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import Counter, OrderedDict, deque
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+from federation.core import wire
+
+__all__ = [
+    "DEFAULT_WINDOW",
+    "Estimator",
+    "Exchange",
+    "PaperEstimator",
+    "Rejection",
+    "SyncClient",
+]
+
+DEFAULT_WINDOW = 10.0
+"""Seconds of reference time over which the paper averages the offset (Eq. 6)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Exchange:
+    """The timestamps of one query/reply, and what they give.
+
+    ``t2s`` is the optional fourth timestamp (server clock when the reply left).
+    With it, the server's turnaround ``t2s - t2`` is taken out of the delay and the
+    offset is SNTP's; without it, receive and send are one instant (the paper's).
+    """
+
+    t1: float
+    t2: float
+    t3: float
+    t2s: float | None = None
+
+    @property
+    def turnaround(self) -> float:
+        """Server's time between receiving the request and sending the reply (s)."""
+        return 0.0 if self.t2s is None else self.t2s - self.t2
+
+    @property
+    def rtt(self) -> float:
+        """Round trip on the wire: client's elapsed time less the server's turnaround (s)."""
+        return (self.t3 - self.t1) - self.turnaround
+
+    @property
+    def delay(self) -> float:
+        """One-way delay, Eq. 3 (s): ``(t3 - t1) / 2``, less half the turnaround if known."""
+        return self.rtt / 2.0
+
+    @property
+    def offset(self) -> float:
+        """Server clock minus client clock, Eq. 4 (s): ``t2 - (t1 + t3) / 2``;
+        with four timestamps ``((t2 - t1) + (t2s - t3)) / 2``."""
+        t2s = self.t2 if self.t2s is None else self.t2s
+        return ((self.t2 - self.t1) + (t2s - self.t3)) / 2.0
+
+    @property
+    def t_mid(self) -> float:
+        """Client time the offset refers to: the middle of the exchange (s)."""
+        return (self.t1 + self.t3) / 2.0
+
+    @property
+    def error_bound(self) -> float:
+        """Largest offset error any path asymmetry can cause: half the round trip."""
+        return self.delay
+
+
+class Estimator(Protocol):
+    """Turns accepted exchanges into a clock offset, a function of the client's time."""
+
+    def add(self, exchange: Exchange) -> None: ...
+
+    @property
+    def offset(self) -> float | None:
+        """The offset at the latest exchange (s)."""
+
+    def offset_at(self, t: float) -> float | None:
+        """The offset at client time ``t`` (s); differs from ``offset`` if drift is modelled."""
+
+    @property
+    def bound(self) -> float | None:
+        """Half the mean round-trip excess over the minimum of the samples used (s):
+        the scale of error queueing leaves in the estimate."""
+
+    @property
+    def locked(self) -> bool: ...
+
+    def reset(self) -> None: ...
+
+
+class PaperEstimator:
+    """The paper's estimate (Eq. 6): the mean (or median) of the offsets measured
+    during the first ``window`` seconds of reference time, held constant afterwards.
+
+    The window is measured on the server's clock (``t2``) from the first accepted
+    exchange: the server is the reference. Until the window closes, the estimate is
+    the statistic of the samples so far, so an agent has a usable offset at once.
+    """
+
+    def __init__(
+        self, statistic: Literal["mean", "median"] = "mean", window: float = DEFAULT_WINDOW
+    ):
+        if statistic not in ("mean", "median"):
+            raise ValueError(f"statistic must be 'mean' or 'median', not {statistic!r}")
+        if not window > 0:
+            raise ValueError(f"window must be positive seconds, not {window!r}")
+        self.statistic = statistic
+        self.window = window
+        self.reset()
+
+    def reset(self) -> None:
+        self._samples: list[float] = []
+        self._rtts: list[float] = []
+        self._start: float | None = None
+        self._held: float | None = None
+
+    def add(self, exchange: Exchange) -> None:
+        if self._held is not None:
+            return
+        if self._start is None:
+            self._start = exchange.t2
+        if exchange.t2 - self._start > self.window:
+            self._held = self._compute()
+            return
+        self._samples.append(exchange.offset)
+        self._rtts.append(exchange.rtt)
+
+    def _compute(self) -> float | None:
+        if not self._samples:
+            return None
+        if self.statistic == "median":
+            return statistics.median(self._samples)
+        return math.fsum(self._samples) / len(self._samples)
+
+    @property
+    def offset(self) -> float | None:
+        return self._held if self._held is not None else self._compute()
+
+    def offset_at(self, t: float) -> float | None:
+        return self.offset
+
+    @property
+    def bound(self) -> float | None:
+        if not self._rtts:
+            return None
+        least = min(self._rtts)
+        return math.fsum(r - least for r in self._rtts) / len(self._rtts) / 2.0
+
+    @property
+    def locked(self) -> bool:
+        """True once the window has closed and the offset is held."""
+        return self._held is not None
+
+
+Rejection = Literal["malformed", "unmatched", "duplicate", "late"]
+
+
+class SyncClient:
+    """Client side of the exchange with one server.
+
+    ``request(now)`` gives the payload to send; ``receive(payload, now)`` takes a
+    reply and returns the decoded reply once the exchange is accepted, or ``None`` if
+    it was rejected (``rejected`` counts why). Pending requests older than ``timeout``
+    are expired by ``expire(now)`` (also called by ``request``) and counted in
+    ``timeouts``; a reply to one is late.
+    """
+
+    _HISTORY = 256  # answered and expired t1 values remembered to classify rejects
+    STEP_CONFIRM = 3  # inconsistent exchanges in a row that make a clock step
+
+    def __init__(
+        self,
+        estimator: Estimator,
+        timeout: float = 0.5,
+        delay_window: int = 50,
+        step_margin: float = 0.002,
+    ):
+        if not timeout > 0:
+            raise ValueError(f"timeout must be positive seconds, not {timeout!r}")
+        if delay_window < 1:
+            raise ValueError(f"delay_window must be at least 1 exchange, not {delay_window!r}")
+        self.estimator = estimator
+        self.timeout = timeout
+        self.sent = 0
+        self.timeouts = 0
+        self.accepted = 0
+        self.rejected: Counter[str] = Counter()
+        self.last: Exchange | None = None
+        self.last_rejection: str | None = None
+        self.steps = 0  # clock steps detected
+        self.last_step: float | None = None  # size of the last one (s)
+        self.step_margin = step_margin
+        self._suspects: list[Exchange] = []
+        self._recent: deque[tuple[float, float]] = deque(maxlen=8)  # (offset, error bound)
+        self._delays: deque[float] = deque(maxlen=delay_window)
+        self._pending: OrderedDict[float, None] = OrderedDict()
+        self._answered: OrderedDict[float, None] = OrderedDict()
+        self._expired: OrderedDict[float, None] = OrderedDict()
+        self._last_t1 = -math.inf
+
+    def request(self, now: float) -> bytes:
+        self.expire(now)
+        # t1 is the request's identity: keep it unique even if the clock repeats.
+        t1 = now if now > self._last_t1 else math.nextafter(self._last_t1, math.inf)
+        self._last_t1 = t1
+        self._pending[t1] = None
+        self.sent += 1
+        return wire.encode_request(t1)
+
+    def expire(self, now: float) -> None:
+        while self._pending:
+            t1 = next(iter(self._pending))
+            if now - t1 <= self.timeout:
+                break
+            del self._pending[t1]
+            self.timeouts += 1
+            _remember(self._expired, t1)
+
+    def receive(
+        self, payload: bytes | bytearray | memoryview, now: float, t2s: float | None = None
+    ) -> wire.SyncReply | None:
+        """Match a reply read at ``now`` (t3); on success feed the estimator.
+
+        ``t2s``, the server's send time, makes it a four-timestamp exchange."""
+        try:
+            reply = wire.decode_reply(payload)
+        except wire.DecodeError:
+            self._reject("malformed")
+            return None
+        t1 = reply.t1
+        if t1 in self._pending:
+            if now - t1 > self.timeout:  # expired, though expire() has not run yet
+                del self._pending[t1]
+                _remember(self._expired, t1)
+                self.timeouts += 1
+                self._reject("late")
+                return None
+            del self._pending[t1]
+        elif t1 in self._answered:
+            self._reject("duplicate")
+            return None
+        elif t1 in self._expired:
+            self._reject("late")
+            return None
+        else:
+            self._reject("unmatched")
+            return None
+        _remember(self._answered, t1)
+        if now < t1:  # our own clock went back while the request was out
+            self._reject("clock_step")
+            return None
+        if t2s is not None and not (math.isfinite(t2s) and 0.0 <= t2s - reply.t2 <= now - t1):
+            t2s = None  # a send time the exchange cannot have had: use three timestamps
+        exchange = Exchange(t1, reply.t2, now, t2s)
+        if not self._consistent(exchange):
+            return None
+        self.accepted += 1
+        self.last = exchange
+        self._delays.append(exchange.delay)
+        self.estimator.add(exchange)
+        return reply
+
+    def _consistent(self, exchange: Exchange) -> bool:
+        """Clock-step detection, independent of the estimator. An exchange's offset is
+        within its error bound (half its round trip) of the true offset, and so is each
+        recent one; an exchange further from the recent ones' median than both bounds
+        and a margin together means a clock jumped. ``STEP_CONFIRM`` such exchanges in
+        a row are a step: the estimate is reset and starts again from them; fewer are
+        rejected as ``inconsistent``."""
+        if len(self._recent) >= 3:
+            offsets = sorted(o for o, _ in self._recent)
+            bounds = sorted(b for _, b in self._recent)
+            median, bound = offsets[len(offsets) // 2], bounds[len(bounds) // 2]
+            allowed = exchange.error_bound + bound + self.step_margin
+            if abs(exchange.offset - median) > allowed:
+                self._suspects.append(exchange)
+                if len(self._suspects) < self.STEP_CONFIRM:
+                    self._reject("inconsistent")
+                    return False
+                self._restart(exchange.offset - median)
+                return True
+        self._suspects.clear()
+        self._recent.append((exchange.offset, exchange.error_bound))
+        return True
+
+    def _restart(self, jump: float) -> None:
+        """A clock step: forget the estimate, start again from the suspect exchanges."""
+        self.steps += 1
+        self.last_step = jump
+        suspects, self._suspects = self._suspects, []
+        self.estimator.reset()
+        self._delays.clear()
+        self._recent.clear()
+        for ex in suspects:
+            self._recent.append((ex.offset, ex.error_bound))
+        for ex in suspects[:-1]:  # the caller feeds the last one
+            self.accepted += 1
+            self._delays.append(ex.delay)
+            self.estimator.add(ex)
+
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] += 1
+        self.last_rejection = reason
+
+    @property
+    def offset(self) -> float | None:
+        return self.estimator.offset
+
+    def offset_at(self, t: float) -> float | None:
+        return self.estimator.offset_at(t)
+
+    @property
+    def delay(self) -> float | None:
+        """Median one-way delay of the recent exchanges (seconds)."""
+        return statistics.median(self._delays) if self._delays else None
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def reset(self) -> None:
+        """Forget all estimates (after a clock step); counters are kept."""
+        self.estimator.reset()
+        self._delays.clear()
+        self._pending.clear()
+        self._recent.clear()
+        self._suspects.clear()
+        self.last = None
+
+
+def _remember(history: OrderedDict[float, None], t1: float) -> None:
+    history[t1] = None
+    if len(history) > SyncClient._HISTORY:
+        history.popitem(last=False)

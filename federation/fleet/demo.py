@@ -1,0 +1,246 @@
+"""``fedlab demo``: the paper's experiment, end to end, on this machine.
+
+Two lab routers as separate processes (``kiruna`` listens, ``rome`` dials it
+through the link emulator, which gives the lab link the paper's ~40 ms one-way
+delay), a simulated KNATTE leading in ``kiruna`` and a simulated PINOCCHIO
+following in ``rome`` with its clock 26.42 s off. A second PINOCCHIO
+(``rome/pinocchio-raw``) follows without latency compensation, so the report
+shows both. Once the followers are synchronized the demo starts the run the way
+``fedlab ctl start`` does (a common reference instant), shows progress, stops
+everything (also on Ctrl-C), writes the report and sets this run beside the
+paper's numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from federation.fleet.launch import Fleet, free_port, wait_for
+from federation.report.status import last_status
+
+__all__ = ["run_demo"]
+
+LEADER, FOLLOWER, RAW = "kiruna/knatte", "rome/pinocchio", "rome/pinocchio-raw"
+START_IN = 2.0  # s between the start command and the common start instant
+
+
+def experiment(duration: float) -> dict[str, Any]:
+    return {
+        "name": "attitude-tracking-demo",
+        "duration": duration,
+        "start_delay": START_IN,
+        "maneuver": {"still": 10.0, "duration": 60.0, "amplitude_deg": 45.0},
+        "participants": [
+            {"agent": LEADER, "role": "leader", "platform": "knatte"},
+            {"agent": FOLLOWER, "role": "follower", "platform": "pinocchio", "follow": LEADER},
+            {"agent": RAW, "role": "follower", "platform": "pinocchio", "follow": LEADER,
+             "latency_compensation": False},
+        ],
+    }  # fmt: skip
+
+
+def _stem(agent: str) -> str:
+    return agent.replace("/", "-")
+
+
+def _progress(run: Path, elapsed: float, total: float, phase: str) -> Table:
+    table = Table(title=f"fedlab demo: {phase} {elapsed:5.1f} / {total:.0f} s")
+    for column in ("agent", "mode", "run time (s)", "heading (deg)", "offset (s)", "delay (ms)"):
+        table.add_column(column, justify="right")
+    for agent in (LEADER, FOLLOWER, RAW):
+        line = last_status(run / f"{_stem(agent)}.jsonl")
+        if line is None:
+            table.add_row(agent, "starting", "", "", "", "")
+            continue
+        peer = line["peers"].get(LEADER) if agent != LEADER else None
+        offset = None if peer is None else peer["offset"]
+        delay = None if peer is None else peer["delay"]
+        table.add_row(
+            agent,
+            line.get("mode", "?"),
+            "-" if line.get("run_time") is None else f"{line['run_time']:.1f}",
+            f"{math.degrees(line['pose'][2]):6.2f}",
+            "ref" if agent == LEADER else "-" if offset is None else f"{offset:+.4f}",
+            "-" if delay is None else f"{delay * 1e3:.2f}",
+        )
+    return table
+
+
+def _start_run(endpoint: str, seconds_ahead: float) -> float:
+    """Announce the start as ``fedlab ctl start`` does; returns the reference start time."""
+    import zenoh
+
+    from federation.core import keys
+    from federation.core.keys import AgentId
+    from federation.runtime.clock import ExecClock
+    from federation.runtime.control import reference_now
+    from federation.runtime.session import build_config
+    from schemas.config import ManeuverConfig, ZenohOptions
+    from schemas.messages import Command
+
+    conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
+    with zenoh.open(conf) as session:
+        clock = ExecClock()
+        at = reference_now(session, "default", AgentId.parse(LEADER), clock) + seconds_ahead
+        command = Command(
+            command="start", at=at, seq=time.time_ns() // 1_000_000, issuer="demo",
+            experiment="attitude-tracking-demo",
+            maneuver=ManeuverConfig(still=10.0, duration=60.0, amplitude_deg=45.0),
+        )  # fmt: skip
+        for _ in range(3):
+            session.put(keys.control_key("default"), command.model_dump_json())
+            time.sleep(0.05)
+    return at
+
+
+def run_demo(
+    duration: float, out: Path, delay_ms: float = 40.0, clock_offset: float = 26.42
+) -> int:
+    """Run the demo; ``duration`` is seconds of run time after the common start."""
+    console = Console()
+    out.mkdir(parents=True, exist_ok=True)
+    for old in [*out.glob("*.mcap"), *out.glob("*.jsonl"), *out.glob("*.png")]:
+        old.unlink()
+    spec = experiment(duration)
+    (out / "experiment.json").write_text(json.dumps(spec, indent=1) + "\n")
+    kiruna, link, rome = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+    jitter_ms = 2.0
+    agents = {
+        LEADER: {"endpoint": kiruna, "clock_offset": 0.0},
+        FOLLOWER: {"endpoint": rome, "clock_offset": clock_offset},
+        RAW: {"endpoint": rome, "clock_offset": clock_offset + 3.1},
+    }
+    started = time.monotonic()
+    interrupted = False
+    with Fleet(out / "logs") as fleet:
+        fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
+        fleet.start(
+            "link",
+            ["link", "--listen", link, "--to", kiruna, "--delay-ms", f"{delay_ms}",
+             "--jitter-ms", f"{jitter_ms}", "--seed", "1"],
+        )  # fmt: skip
+        fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", link])
+        for agent, a in agents.items():
+            lab, name = agent.split("/")
+            fleet.start(
+                _stem(agent),
+                ["agent", "--experiment", str(out / "experiment.json"), "--lab", lab,
+                 "--name", name, "-e", str(a["endpoint"]), "--clock-offset", f"{a['clock_offset']}",
+                 "--status-json", str(out / f"{_stem(agent)}.jsonl"),
+                 "--record", str(out / f"{_stem(agent)}.mcap"),
+                 # Followers query the leader; the leader queries everyone (the paper's
+                 # two channels).
+                 *(["--sync-with", LEADER] if agent != LEADER else [])],
+            )  # fmt: skip
+        total = duration + START_IN
+        try:
+            with Live(
+                console=console, refresh_per_second=2, transient=not console.is_terminal
+            ) as live:
+
+                def synced() -> bool:
+                    live.update(_progress(out, time.monotonic() - started, total, "syncing"))
+                    lines = [last_status(out / f"{_stem(a)}.jsonl") for a in (FOLLOWER, RAW)]
+                    return all(line is not None and line["t_sim"] is not None for line in lines)
+
+                if not wait_for(synced, timeout=30, interval=0.5):
+                    console.print(
+                        f"[red]the followers never synchronized; see {out / 'logs'}[/red]"
+                    )
+                    return 1
+                _start_run(kiruna, START_IN)
+                t0 = time.monotonic()
+                while (elapsed := time.monotonic() - t0) < total:
+                    live.update(_progress(out, elapsed, total, "running"))
+                    if not all(fleet.alive(_stem(a)) for a in agents):
+                        console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
+                        break
+                    time.sleep(0.5)
+        except KeyboardInterrupt:
+            interrupted = True
+            console.print("interrupted: stopping agents, link and routers")
+        codes = fleet.stop_all()
+    run = {
+        "leader": LEADER,
+        "agents": {
+            p["agent"]: {
+                "role": p["role"],
+                "platform": p["platform"],
+                "follow": p.get("follow"),
+                "latency_compensation": p.get("latency_compensation", True),
+                "clock_offset": agents[p["agent"]]["clock_offset"],
+                "clock_drift_ppm": 0.0,
+            }
+            for p in spec["participants"]
+        },
+        "link": {"delay_ms": delay_ms, "jitter_ms": jitter_ms, "jitter_dist": "normal"},
+        "duration_s": duration,
+        "exit_codes": codes,
+        "command": " ".join(["fedlab", *sys.argv[1:]]) if sys.argv else "fedlab demo",
+    }
+    (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
+    from federation.report.report import write_report
+
+    summary = write_report(out, out)
+    console.print(paper_table(summary))
+    console.print(f"report.md, summary.json, figures and recordings in {out}")
+    if interrupted:
+        return 130
+    return 0
+
+
+def _find(rows: list[dict[str, Any]], **match: str) -> dict[str, Any]:
+    return next((r for r in rows if all(r.get(k) == v for k, v in match.items())), {})
+
+
+def paper_table(summary: dict[str, Any]) -> Table:
+    """This run beside the paper (NOTES.md), for the compensated follower's view."""
+    pair = _find(summary.get("sync", []), client=FOLLOWER, peer=LEADER)
+    comp = _find(summary.get("followers", []), follower=FOLLOWER)
+    raw = _find(summary.get("followers", []), follower=RAW)
+    agents = summary.get("agents", {})
+
+    def ms(value: Any, digits: int = 2) -> str:
+        return "-" if value is None else f"{value * 1e3:.{digits}f}"
+
+    def s(value: Any) -> str:
+        return "-" if value is None else f"{value:.2f}"
+
+    def deg(agent: str) -> str:
+        value = agents.get(agent, {}).get("heading_rms_error_deg")
+        return "-" if value is None else f"{value:.2f}"
+
+    table = Table(title=f"{FOLLOWER} and {LEADER}: this run beside the paper")
+    table.add_column("figure")
+    table.add_column("this run", justify="right")
+    table.add_column("paper (Kiruna-Rome, internet)", justify="right")
+    rows = [
+        ("offset error vs truth, median (ms)", ms(pair.get("estimate_error_median_abs_s"), 3),
+         "unknown (no truth)"),
+        ("offset error vs truth, p95 (ms)", ms(pair.get("estimate_error_p95_abs_s"), 3), ""),
+        ("offset per exchange, std (ms)", ms(pair.get("offset_std_s")), "5 to 9"),
+        ("one-way delay, median (ms)", ms(pair.get("delay_median_s")), "39.5 to 40"),
+        ("  emulated (ms)", ms(pair.get("emulated_delay_s")), ""),
+        ("one-way delay, std (ms)", ms(pair.get("delay_std_s")), "5 to 11"),
+        ("received heading behind sent (ms)", ms(raw.get("received_separation_s"), 1),
+         "60 to 100"),
+        ("tracked reference behind sent, raw (ms)", ms(raw.get("reference_separation_s"), 1),
+         ""),
+        ("  with latency compensation (ms)", ms(comp.get("reference_separation_s"), 1), ""),
+        ("follower lag (s), compensated / raw", f"{s(comp.get('lag_s'))} / {s(raw.get('lag_s'))}",
+         "4 to 5"),
+        ("heading RMS error (deg): leader", deg(LEADER), ""),
+        ("  follower, compensated / raw", f"{deg(FOLLOWER)} / {deg(RAW)}", ""),
+    ]  # fmt: skip
+    for row in rows:
+        table.add_row(*row)
+    return table

@@ -1,0 +1,574 @@
+"""``fedlab monitor``: a live terminal view of every agent in a federation.
+
+Three layers, so the part that decides what is shown is tested without Zenoh:
+
+- :class:`MonitorModel` (no I/O, no clock): status payloads and liveliness changes
+  go in with the time they arrived (``now``, any monotonic seconds), :class:`Row`
+  objects come out of :meth:`MonitorModel.rows`. Nothing it receives can make it
+  raise: a status that is not JSON, does not validate as
+  :class:`schemas.messages.Status`, or names another agent than its key says is
+  counted as malformed and shown in the footer.
+- :func:`render`: rows to a ``rich.table.Table``.
+- The Zenoh layer (:func:`subscribe`, :func:`run_monitor`): subscribers on
+  ``fedlab/<federation>/*/*/status`` and on liveliness ``fedlab/<federation>/*/*``
+  (with history, so agents already present show up at once) hand each sample to
+  the model under a lock; the display refreshes once a second.
+
+What a row shows
+----------------
+An agent's *sync peers* are its reference (``status.reference``) or, for the
+reference itself, every peer it syncs with.
+
+==============  ==================================================================
+offset          ``peers[reference].offset`` (s); ``ref`` on the reference itself
+delay           ``peers[reference].delay``; on the reference, the largest delay to
+                any alive peer (its farthest agent)
+pose age        ``status.pose_age`` (followers; how old the followed pose is)
+samples         accepted sync exchanges with the sync peers
+rejected        rejected sync replies (all peers) + every counter ending ``_malformed``
+late p99        control loop lateness, 99th percentile (``status.loop.late_p99_ms``)
+last status     seconds since its last valid status; ``left`` once its liveliness
+                token is gone (the row is kept, dimmed); dimmed when stale
+==============  ==================================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from typing import Any, Literal
+
+from pydantic import ValidationError
+from rich import box
+from rich.console import Console
+from rich.measure import Measurement
+from rich.table import Table
+from rich.text import Text
+
+from federation.core import keys
+from federation.core.keys import AgentId
+from schemas.messages import Status
+
+__all__ = [
+    "COLUMNS",
+    "DEFAULT_STALE_AFTER",
+    "MAX_STATUS_BYTES",
+    "OPTIONAL_COLUMNS",
+    "MonitorModel",
+    "Row",
+    "fit",
+    "register",
+    "render",
+    "row_json",
+    "run_monitor",
+    "subscribe",
+]
+
+log = logging.getLogger("fedlab.monitor")
+
+DEFAULT_STALE_AFTER = 3.0
+"""Seconds without a status after which a row is stale (agents publish once a second)."""
+MAX_STATUS_BYTES = 1 << 20
+"""A status larger than this is malformed without being parsed."""
+_PIPE_WIDTH = 140
+
+State = Literal["ok", "stale", "left", "waiting"]
+
+
+@dataclass(frozen=True)
+class Row:
+    """One agent as the monitor shows it; ``None`` where nothing is known yet."""
+
+    agent: str  # LAB/NAME
+    lab: str
+    name: str
+    state: State  # waiting: no valid status yet; stale: none for stale_after s; left: token gone
+    alive: bool  # liveliness token present (or not yet seen either way)
+    role: str | None = None
+    mode: str | None = None
+    platform: str | None = None
+    reference: str | None = None
+    is_reference: bool = False
+    offset_s: float | None = None  # peers[reference].offset; None on the reference itself
+    delay_s: float | None = None
+    pose_age_s: float | None = None
+    samples: int | None = None
+    rejected: int | None = None
+    late_p99_ms: float | None = None
+    since_status_s: float | None = None
+
+
+@dataclass
+class _Agent:
+    id: AgentId
+    alive: bool = True
+    status: Status | None = None
+    status_at: float | None = None
+    changed_at: float | None = None  # last liveliness change
+
+
+class MonitorModel:
+    """What the monitor knows: the last valid status and the liveliness of every agent.
+
+    Not thread-safe: the Zenoh layer calls it under one lock.
+    """
+
+    def __init__(
+        self, federation: str = keys.DEFAULT_FEDERATION, stale_after: float = DEFAULT_STALE_AFTER
+    ) -> None:
+        self.federation = keys.validate_name(federation, "federation name")
+        self.stale_after = stale_after
+        self.malformed = 0
+        self.last_error: str | None = None
+        self._agents: dict[AgentId, _Agent] = {}
+
+    def _agent(self, agent: AgentId) -> _Agent:
+        entry = self._agents.get(agent)
+        if entry is None:
+            entry = self._agents[agent] = _Agent(agent)
+        return entry
+
+    def _reject(self, key: str, reason: str) -> None:
+        self.malformed += 1
+        self.last_error = f"{key}: {reason}"
+        if self.malformed <= 5 or self.malformed % 100 == 0:
+            log.warning("malformed status #%d on %s: %s", self.malformed, key, reason)
+
+    def on_status(self, key: str, payload: bytes, now: float) -> None:
+        """A status sample published on ``key``; a malformed one is counted, never raised."""
+        key = str(key)
+        parsed = keys.parse_agent_key(self.federation, key)
+        if parsed is None or parsed[1] != "status":
+            self._reject(key, "not a status key of this federation")
+            return
+        agent = parsed[0]
+        if len(payload) > MAX_STATUS_BYTES:
+            self._reject(key, f"{len(payload)} bytes, more than {MAX_STATUS_BYTES}")
+            return
+        try:
+            status = Status.model_validate_json(payload)
+        except ValidationError as error:
+            self._reject(key, _first_error(error))
+            return
+        except Exception as error:  # anything else a broken payload may raise
+            self._reject(key, f"{type(error).__name__}: {error}")
+            return
+        if status.agent != str(agent):
+            self._reject(key, f"agent {status.agent!r} does not match the key")
+            return
+        if status.federation != self.federation:
+            self._reject(key, f"federation {status.federation!r} does not match the key")
+            return
+        entry = self._agent(agent)
+        entry.status = status
+        entry.status_at = now
+
+    def on_liveliness(self, key: str, alive: bool, now: float) -> None:
+        """A liveliness token appeared (``alive``) or went away; other keys are ignored."""
+        parsed = keys.parse_agent_key(self.federation, str(key))
+        if parsed is None or parsed[1] is not None:
+            return
+        entry = self._agent(parsed[0])
+        entry.alive = alive
+        entry.changed_at = now
+
+    def rows(self, now: float) -> list[Row]:
+        """Every agent seen, sorted by lab and name."""
+        return [self._row(self._agents[a], now) for a in sorted(self._agents)]
+
+    def _row(self, entry: _Agent, now: float) -> Row:
+        since = None if entry.status_at is None else max(0.0, now - entry.status_at)
+        state: State
+        if not entry.alive:
+            state = "left"
+        elif since is None:
+            state = "waiting"
+        elif since > self.stale_after:
+            state = "stale"
+        else:
+            state = "ok"
+        base = Row(
+            agent=str(entry.id),
+            lab=entry.id.lab,
+            name=entry.id.name,
+            state=state,
+            alive=entry.alive,
+            since_status_s=since,
+        )
+        status = entry.status
+        if status is None:
+            return base
+        is_reference = status.reference == status.agent
+        if is_reference:
+            sync_peers = list(status.peers.values())
+            delays = [_finite(p.delay) for p in sync_peers if p.alive]
+            known = [d for d in delays if d is not None]
+            offset = None
+            delay = max(known) if known else None
+        else:
+            ref = status.peers.get(status.reference)
+            sync_peers = [] if ref is None else [ref]
+            offset = None if ref is None else _finite(ref.offset)
+            delay = None if ref is None else _finite(ref.delay)
+        rejected = sum(p.rejected for p in status.peers.values()) + sum(
+            v for k, v in status.counters.items() if k.endswith("_malformed")
+        )
+        return replace(
+            base,
+            role=status.role,
+            mode=status.mode,
+            platform=status.platform,
+            reference=status.reference,
+            is_reference=is_reference,
+            offset_s=offset,
+            delay_s=delay,
+            pose_age_s=_finite(status.pose_age),
+            samples=sum(p.samples for p in sync_peers) if sync_peers else None,
+            rejected=rejected,
+            late_p99_ms=_finite(status.loop.get("late_p99_ms")),
+        )
+
+
+def _first_error(error: ValidationError) -> str:
+    """The first problem pydantic found, as ``field.path: message``."""
+    details = error.errors()
+    if not details:
+        return str(error)
+    where = ".".join(str(part) for part in details[0]["loc"]) or "payload"
+    return f"{where}: {details[0]['msg']}"
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def row_json(row: Row) -> dict[str, Any]:
+    """A row as JSON-ready values; the reference's ``offset_s`` is ``"ref"``."""
+    data = asdict(row)
+    if row.is_reference:
+        data["offset_s"] = "ref"
+    return data
+
+
+# -- rendering ---------------------------------------------------------------------
+_DASH = "-"
+
+
+def _num(value: float | None, scale: float = 1.0, fmt: str = ".2f") -> str:
+    return _DASH if value is None else format(value * scale, fmt)
+
+
+def _int(value: int | None) -> str:
+    return _DASH if value is None else str(value)
+
+
+def _offset(row: Row) -> Text:
+    if row.is_reference:
+        return Text("ref", style="cyan")
+    return Text(_num(row.offset_s, fmt="+.6f"))
+
+
+def _rejected(row: Row) -> Text:
+    return Text(_int(row.rejected), style="red" if row.rejected else "")
+
+
+# (header, right-aligned, cell); in display order.
+_COLUMNS: dict[str, tuple[str, bool, Callable[[Row], str | Text]]] = {
+    "lab": ("lab", False, lambda r: r.lab),
+    "name": ("name", False, lambda r: r.name),
+    "role": ("role", False, lambda r: r.role or _DASH),
+    "mode": ("mode", False, lambda r: r.mode or _DASH),
+    "platform": ("platform", False, lambda r: r.platform or _DASH),
+    "offset": ("offset\ns", True, _offset),
+    "delay": ("delay\nms", True, lambda r: _num(r.delay_s, 1e3)),
+    "pose_age": ("pose age\nms", True, lambda r: _num(r.pose_age_s, 1e3, ".1f")),
+    "samples": ("samples", True, lambda r: _int(r.samples)),
+    "rejected": ("rejected", True, _rejected),
+    "late_p99": ("late p99\nms", True, lambda r: _num(r.late_p99_ms)),
+    "since": ("last\nstatus", True, lambda r: _since(r)),
+}
+COLUMNS = tuple(_COLUMNS)
+"""Column ids, in display order."""
+OPTIONAL_COLUMNS = ("platform", "late_p99", "samples", "pose_age", "mode")
+"""Columns :func:`fit` leaves out, first to last, when a terminal is too narrow."""
+
+
+def render(
+    rows: Sequence[Row],
+    *,
+    federation: str = keys.DEFAULT_FEDERATION,
+    malformed: int = 0,
+    last_error: str | None = None,
+    columns: Sequence[str] = COLUMNS,
+) -> Table:
+    """The monitor's table: one line per agent, malformed statuses in the caption.
+
+    Stale rows and rows of agents that left are dimmed.
+    """
+    table = Table(
+        title=f"fedlab monitor · federation {federation}",
+        caption=_footer(rows, malformed, last_error),
+        caption_justify="left",
+        header_style="bold",
+        box=box.SIMPLE_HEAD,
+        pad_edge=False,
+        collapse_padding=True,
+        expand=False,
+    )
+    shown = [c for c in COLUMNS if c in columns]
+    for column in shown:
+        header, right, _ = _COLUMNS[column]
+        # Who a row is about stays readable on a narrow terminal: the numbers shrink first.
+        width = None
+        if column in ("lab", "name"):
+            width = max((len(getattr(r, column)) for r in rows), default=0) or None
+        table.add_column(header, justify="right" if right else "left", min_width=width)
+    for row in rows:
+        table.add_row(
+            *(_COLUMNS[c][2](row) for c in shown),
+            style="dim" if row.state in ("stale", "left") else None,
+        )
+    return table
+
+
+def fit(console: Console, rows: Sequence[Row], **kwargs: Any) -> Table:
+    """:func:`render` with the optional columns left out, in order, until it fits ``console``."""
+    columns = list(COLUMNS)
+    table = render(rows, columns=columns, **kwargs)
+    unbounded = console.options.update_width(1 << 16)  # a measurement is clamped to its width
+    for column in OPTIONAL_COLUMNS:
+        if Measurement.get(console, unbounded, table).maximum <= console.width:
+            break
+        columns.remove(column)
+        table = render(rows, columns=columns, **kwargs)
+    return table
+
+
+def _since(row: Row) -> Text:
+    if row.state == "left":
+        return Text("left", style="red")
+    if row.since_status_s is None:
+        return Text("waiting", style="yellow")
+    text = f"{row.since_status_s:.1f} s"
+    return Text(text, style="yellow" if row.state == "stale" else "")
+
+
+def _footer(rows: Sequence[Row], malformed: int, last_error: str | None) -> Text:
+    present = sum(1 for r in rows if r.state != "left")
+    text = Text(f"{len(rows)} agents, {present} present · malformed status: {malformed}")
+    if malformed:
+        text.stylize("red", text.plain.rindex("malformed"))
+        if last_error:
+            text.append(f" (last: {last_error[:200]})", style="red")
+    return text
+
+
+# -- Zenoh -------------------------------------------------------------------------
+def subscribe(
+    session: Any, model: MonitorModel, lock: threading.Lock, clock: Callable[[], float]
+) -> list[Any]:
+    """Declare the status and liveliness subscribers feeding ``model``; undeclare them all
+    (in reverse order) before closing ``session``."""
+    import zenoh
+
+    def on_status(sample: zenoh.Sample) -> None:
+        try:
+            payload = sample.payload.to_bytes()
+            with lock:
+                model.on_status(str(sample.key_expr), payload, clock())
+        except Exception:  # a callback on Zenoh's thread must never raise
+            log.exception("status sample on %s failed", sample.key_expr)
+
+    def on_liveliness(sample: zenoh.Sample) -> None:
+        try:
+            alive = sample.kind == zenoh.SampleKind.PUT
+            with lock:
+                model.on_liveliness(str(sample.key_expr), alive, clock())
+        except Exception:
+            log.exception("liveliness sample on %s failed", sample.key_expr)
+
+    callback = zenoh.handlers.Callback
+    declared: list[Any] = []
+    fed = model.federation
+    try:
+        declared.append(
+            session.declare_subscriber(
+                keys.all_of(fed, "status"), callback(on_status, indirect=False)
+            )
+        )
+        declared.append(
+            session.liveliness().declare_subscriber(
+                keys.all_agents(fed), callback(on_liveliness, indirect=False), history=True
+            )
+        )
+    except Exception:
+        _undeclare(declared)
+        raise
+    return declared
+
+
+def _undeclare(declared: list[Any]) -> None:
+    for entity in reversed(declared):
+        try:
+            entity.undeclare()
+        except Exception as error:  # a session already closed by zenoh
+            log.debug("undeclare failed: %s", error)
+    declared.clear()
+
+
+def run_monitor(
+    session: Any,
+    federation: str,
+    stop: threading.Event,
+    *,
+    once: bool = False,
+    wait: float = 3.0,
+    duration: float | None = None,
+    as_json: bool = False,
+    console: Console | None = None,
+    stale_after: float = DEFAULT_STALE_AFTER,
+) -> int:
+    """Watch ``federation`` on an open session until ``stop``, ``duration`` or, with
+    ``once``, print one snapshot after ``wait`` seconds. Returns the exit code."""
+    from rich.live import Live
+
+    if console is None:
+        console = Console()
+        if not console.is_terminal and "COLUMNS" not in os.environ:
+            console = Console(width=_PIPE_WIDTH)  # a file or pipe: the full table, not 80 columns
+    clock = time.monotonic
+    model = MonitorModel(federation, stale_after)
+    lock = threading.Lock()
+
+    def table() -> Table:
+        with lock:
+            rows = model.rows(clock())
+            malformed, last_error = model.malformed, model.last_error
+        return fit(console, rows, federation=federation, malformed=malformed, last_error=last_error)
+
+    declared = subscribe(session, model, lock, clock)
+    try:
+        if once:
+            stop.wait(max(0.0, wait))
+            if as_json:
+                with lock:
+                    snapshot = {
+                        "federation": federation,
+                        "rows": [row_json(r) for r in model.rows(clock())],
+                        "malformed": model.malformed,
+                        "last_error": model.last_error,
+                    }
+                # print, not console.print: scripts want the bare JSON, unwrapped.
+                print(json.dumps(snapshot, indent=2), file=console.file, flush=True)
+            else:
+                console.print(table())
+            return 0
+        deadline = math.inf if duration is None else clock() + duration
+        with Live(table(), console=console, auto_refresh=False) as live:
+            while not stop.is_set() and clock() < deadline:
+                stop.wait(min(1.0, max(0.0, deadline - clock())))
+                live.update(table(), refresh=True)
+        return 0
+    finally:
+        _undeclare(declared)
+
+
+# -- command line ------------------------------------------------------------------
+def cmd_monitor(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from federation.cli import _open_interruptible, _stop_on_signals, zenoh_options
+    from federation.runtime.session import build_config
+
+    if args.json and not args.once:
+        print("fedlab monitor: error: --json needs --once", file=sys.stderr)
+        return 2
+    federation = args.federation
+    conf = build_config(zenoh_options(args), default_mode="client")
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop = _stop_on_signals()
+    try:
+        session = _open_interruptible(zenoh.open, conf, stop)
+        if session is None:
+            return 0
+        with session:
+            return run_monitor(
+                session,
+                federation,
+                stop,
+                once=args.once,
+                wait=args.wait,
+                duration=args.duration,
+                as_json=args.json,
+            )
+    finally:
+        # Put the caller's handlers back (main() may run inside another program or a test).
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _federation(text: str) -> str:
+    try:
+        return keys.validate_name(text, "federation name")
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected seconds >= 0")
+    return value
+
+
+def register(
+    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
+    formatter_class: type[argparse.HelpFormatter],
+    add_zenoh_flags: Callable[[argparse.ArgumentParser], None],
+) -> None:
+    """Add the ``monitor`` command (with Zenoh's usual flags)."""
+    p = subparsers.add_parser(
+        "monitor",
+        help="live view of every agent in a federation",
+        formatter_class=formatter_class,
+        description=(
+            "Show every agent of a federation, refreshed once a second: role, mode, platform,\n"
+            "clock offset to its reference and delay, pose age, sync samples, rejected inputs,\n"
+            "control loop lateness and the age of its last status. Stale rows are dimmed;\n"
+            "agents whose liveliness token is gone are shown as 'left'."
+        ),
+        epilog=(
+            "Examples:\n"
+            "  fedlab monitor -e tcp/127.0.0.1:7447\n"
+            "  fedlab monitor --federation demo -e tcp/kiruna.example.org:7447\n"
+            "  fedlab monitor -e tcp/127.0.0.1:7447 --once --wait 3 --json"
+        ),
+    )
+    p.add_argument(
+        "--federation",
+        type=_federation,
+        default=keys.DEFAULT_FEDERATION,
+        metavar="NAME",
+        help="federation name",
+    )
+    p.add_argument(
+        "--duration", type=_positive, default=None, metavar="S", help="stop after S seconds"
+    )
+    p.add_argument(
+        "--once", action="store_true", help="print one snapshot after --wait seconds and exit"
+    )
+    p.add_argument(
+        "--wait", type=_positive, default=3.0, metavar="S", help="with --once: seconds to listen"
+    )
+    p.add_argument("--json", action="store_true", help="with --once: print the rows as JSON")
+    add_zenoh_flags(p)
+    p.set_defaults(func=cmd_monitor)

@@ -1,0 +1,86 @@
+"""A lab router, run from Python (zenohd is not installable here).
+
+One lab's router listens; the other labs' routers dial it (``connect``), so a
+dialling lab opens no inbound port: its one outbound link carries traffic both
+ways. Routers retry a configured endpoint forever and re-form the link after it
+drops, so either side can restart.
+
+Router files under deploy/routers/ are plain zenohd json5 configs; the lab's
+name is kept in ``metadata.lab`` so the same file works with the official binary.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+import zenoh
+
+from federation.runtime.session import ZenohConfigError, build_config, config_value
+from schemas.config import ConfigError, RouterConfig, ZenohOptions, validate
+
+__all__ = ["load_router_config", "run_router"]
+
+log = logging.getLogger("fedlab.router")
+
+_ROUTER_DEFAULTS: dict[str, Any] = {
+    # A router keeps dialling the other lab forever and never gives up at start.
+    "connect/timeout_ms": -1,
+    "connect/exit_on_failure": False,
+}
+
+
+def load_router_config(options: ZenohOptions, lab: str | None) -> tuple[RouterConfig, zenoh.Config]:
+    """Validated router settings and the Zenoh config that realises them."""
+    source = str(options.config) if options.config else "command line"
+    conf = build_config(options, default_mode="router", extra=_ROUTER_DEFAULTS)
+    mode = config_value(conf, "mode")
+    if mode not in (None, "router"):
+        raise ConfigError(
+            f"{source}: field 'mode': a lab router must have mode 'router', not {mode!r}"
+        )
+    metadata = config_value(conf, "metadata") or {}
+    lab = lab or (metadata.get("lab") if isinstance(metadata, dict) else None)
+    if lab is None:
+        raise ConfigError(
+            f"{source}: field 'metadata.lab': missing; give --lab LAB or set it in the file"
+        )
+    data = {
+        "lab": lab,
+        "listen": _endpoints(config_value(conf, "listen/endpoints")),
+        "connect": _endpoints(config_value(conf, "connect/endpoints")),
+    }
+    settings = validate(RouterConfig, data, source)
+    if not settings.listen and not settings.connect:
+        raise ConfigError(
+            f"{source}: field 'listen': a router needs at least one listen or connect endpoint"
+        )
+    # Keep the lab name in the config so it shows in Zenoh's admin space.
+    conf.insert_json5("metadata", f'{{"lab": "{settings.lab}"}}')
+    return settings, conf
+
+
+def _endpoints(value: Any) -> list[str]:
+    # zenohd allows per-mode endpoint maps ({router: [...], peer: [...]}).
+    if isinstance(value, dict):
+        value = value.get("router", [])
+    return list(value or [])
+
+
+def run_router(settings: RouterConfig, conf: zenoh.Config, stop: threading.Event) -> None:
+    """Run until ``stop`` is set."""
+    try:
+        session = zenoh.open(conf)
+    except Exception as error:
+        raise ZenohConfigError(f"router {settings.lab}: cannot start: {error}") from None
+    with session:
+        log.info(
+            "router %s up (zid %s), listening on %s, dialling %s",
+            settings.lab,
+            session.zid(),
+            ", ".join(settings.listen) or "nothing",
+            ", ".join(settings.connect) or "nothing",
+        )
+        stop.wait()
+        log.info("router %s stopping", settings.lab)

@@ -1,0 +1,142 @@
+"""The SDK: a third-party virtual agent in a few lines.
+
+::
+
+    from federation import Agent, Pose
+
+    def where(t: float) -> Pose:          # t: simulation time (s)
+        return Pose(x=0.5 * t, heading=0.1 * t)
+
+    with Agent("lab3/ghost", where, connect=["tcp/127.0.0.1:7447"]) as ghost:
+        time.sleep(10)
+        print(ghost.others())             # {"kiruna/knatte": (t_sim, Pose(...)), ...}
+
+The agent joins by name, answers sync queries, syncs with every agent alive,
+publishes its pose at ``rate`` Hz and status once a second, exactly like
+``fedlab agent``; it runs in a background thread until the ``with`` block ends.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol, cast
+
+import zenoh
+
+from federation.core.wire import Pose
+from federation.runtime.agent import AgentRuntime
+from federation.runtime.session import build_config
+from schemas.config import AgentConfig, ZenohOptions, validate
+
+__all__ = ["Agent", "PoseSource"]
+
+
+class _HasPose(Protocol):
+    def pose(self, t: float) -> Pose: ...
+
+
+PoseSource = Callable[[float], Pose] | _HasPose
+"""A function of simulation time giving the pose, or an object with ``pose(t)``."""
+
+
+class _SourcePlatform:
+    """A pose source as a platform: guidance is ignored, the source decides."""
+
+    def __init__(self, source: PoseSource, rate: float, clock: Callable[[float], float | None]):
+        method = getattr(source, "pose", None)
+        self.source = cast(Callable[[float], Pose], method if callable(method) else source)
+        self.rate = rate
+        self.sim_time = clock
+        self.held = False
+        self.last = Pose()
+
+    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
+        if not self.held:
+            t_sim = self.sim_time(t)
+            self.last = Pose(*self.source(t if t_sim is None else t_sim))
+        return self.last
+
+    def hold(self) -> None:
+        self.held = True
+
+    def release(self) -> None:
+        self.held = False
+
+
+class Agent:
+    """A virtual agent. ``name`` is ``"lab/name"``; ``pose`` its pose source.
+
+    ``reference``: the agent whose clock is simulation time (default: the agent's
+    own). Further keyword arguments are :class:`schemas.config.AgentConfig` fields.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        pose: PoseSource,
+        connect: Sequence[str] = ("tcp/127.0.0.1:7447",),
+        federation: str = "default",
+        reference: str | None = None,
+        rate: float = 20.0,
+        **settings: Any,
+    ):
+        lab, _, agent = name.partition("/")
+        data: dict[str, Any] = {
+            "federation": federation, "lab": lab, "name": agent, "role": "member"
+        }  # fmt: skip
+        data |= {"reference": reference, "pose_rate": rate, "watch_all": True, **settings}
+        self.config = validate(AgentConfig, data, f"Agent({name!r})")
+        self.options = validate(ZenohOptions, {"connect": list(connect)}, f"Agent({name!r})")
+        self._source = pose
+        self._stop = threading.Event()
+        self._session: zenoh.Session | None = None
+        self._thread: threading.Thread | None = None
+        self.runtime: AgentRuntime | None = None
+
+    def __enter__(self) -> Agent:
+        self._session = zenoh.open(build_config(self.options, default_mode="client"))
+        runtime = AgentRuntime(self.config, self._session, platform=None)
+        runtime.platform = _SourcePlatform(self._source, self.config.pose_rate, runtime.sim_time)
+        try:
+            runtime.start()
+        except Exception:
+            runtime.close()
+            self._session.close()
+            raise
+        self.runtime = runtime
+        self._thread = threading.Thread(target=runtime.run, args=(self._stop,), daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(10)
+        if self.runtime is not None:
+            self.runtime.close()
+        if self._session is not None:
+            self._session.close()
+
+    def _running(self) -> AgentRuntime:
+        if self.runtime is None:
+            raise RuntimeError("use the agent inside `with Agent(...) as agent:`")
+        return self.runtime
+
+    def others(self) -> dict[str, tuple[float, Pose]]:
+        """Every other agent's latest pose on simulation time: {"lab/name": (t, Pose)}."""
+        return self._running().others()
+
+    def offset(self, agent: str) -> float | None:
+        """Estimated clock offset of ``agent`` minus this agent's clock (s)."""
+        runtime = self._running()
+        for peer_id, peer in runtime.peers.items():
+            if str(peer_id) == agent:
+                return peer.client.offset_at(runtime.clock.now())
+        return None
+
+    @property
+    def time(self) -> float | None:
+        """Simulation time now (s); None until synchronized with the reference."""
+        runtime = self._running()
+        return runtime.sim_time(runtime.clock.now())
