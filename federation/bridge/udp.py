@@ -794,15 +794,15 @@ def bridge_config(args: argparse.Namespace) -> BridgeConfig:
 
 
 def cmd_bridge_udp(args: argparse.Namespace) -> int:
-    from federation.cli import _open_interruptible, _stop_on_signals, zenoh_options
+    from federation.cli.common import open_interruptible, stop_on_signals, zenoh_options
     from federation.runtime.session import build_config
 
     config = bridge_config(args)
     conf = build_config(zenoh_options(args), default_mode="client")
     sock = bind_udp(config.listen)  # a port in use fails now, not after the router answers
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     try:
-        session = _open_interruptible(zenoh.open, conf, stop)
+        session = open_interruptible(zenoh.open, conf, stop)
     except BaseException:
         sock.close()
         raise

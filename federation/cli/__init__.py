@@ -9,18 +9,21 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
-import signal
 import sys
-import threading
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
+from federation.cli.common import (
+    Formatter,
+    add_zenoh_flags,
+    open_interruptible,
+    stop_on_signals,
+    zenoh_options,
+)
 from federation.runtime.session import ZenohConfigError
-from schemas.config import AgentConfig, ConfigError, ZenohOptions, load_model, validate
+from schemas.config import AgentConfig, ConfigError, load_model, validate
 
 __all__ = ["main"]
 
@@ -34,63 +37,12 @@ def _version() -> str:
         return "unknown"
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    pass
-
-
-def _zenoh_flags(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("zenoh")
-    group.add_argument("-m", "--mode", choices=["client", "peer", "router"], help="session mode")
-    group.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to dial, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
-    group.add_argument(
-        "-l",
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to listen on (repeatable)",
-    )
-    group.add_argument("-c", "--config", type=Path, metavar="FILE", help="Zenoh json5 config file")
-    group.add_argument(
-        "--cfg",
-        action="append",
-        default=[],
-        metavar="KEY:VALUE",
-        help="extra Zenoh setting, VALUE as json5 (repeatable)",
-    )
-
-
-def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
-    data = {k: getattr(args, k) for k in ("mode", "connect", "listen", "config", "cfg")}
-    return validate(ZenohOptions, data, "command line")
-
-
-def _stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM: both stop cleanly with exit code 0."""
-    stop = threading.Event()
-
-    def handler(signum: int, frame: FrameType | None) -> None:
-        log.info("received %s, stopping", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    return stop
-
-
 # -- router --------------------------------------------------------------------
 def cmd_router(args: argparse.Namespace) -> int:
     from federation.runtime.router import load_router_config, run_router
 
     settings, conf = load_router_config(zenoh_options(args), args.lab)
-    run_router(settings, conf, _stop_on_signals())
+    run_router(settings, conf, stop_on_signals())
     return 0
 
 
@@ -178,8 +130,8 @@ def cmd_agent(args: argparse.Namespace) -> int:
 
     config = agent_config(args)
     conf = build_config(zenoh_options(args), default_mode="client")
-    stop = _stop_on_signals()
-    session = _open_interruptible(zenoh.open, conf, stop)
+    stop = stop_on_signals()
+    session = open_interruptible(zenoh.open, conf, stop)
     if session is None:
         return 0
     with session:
@@ -218,34 +170,6 @@ def _clock_step(text: str) -> tuple[float, float]:
         ) from None
 
 
-def _open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.Event) -> Any:
-    """Open a session in a helper thread, so a signal can stop an agent still waiting for its
-    router (zenoh.open retries a missing router forever and does not return to Python)."""
-    result: dict[str, Any] = {}
-
-    def target() -> None:
-        try:
-            result["session"] = opener(conf)
-        except Exception as error:
-            result["error"] = error
-
-    thread = threading.Thread(target=target, name="zenoh-open", daemon=True)
-    thread.start()
-    started = time.monotonic()
-    next_note = started + 2.0
-    while thread.is_alive() and not stop.is_set():
-        thread.join(0.1)
-        if time.monotonic() >= next_note:
-            log.info("waiting for the router (%.0f s)...", time.monotonic() - started)
-            next_note += 10.0
-    if "error" in result:
-        raise ZenohConfigError(f"cannot open a Zenoh session: {result['error']}")
-    if stop.is_set() and "session" not in result:
-        log.info("stopped before the router was reached")
-        return None
-    return result["session"]
-
-
 # -- demo ------------------------------------------------------------------------
 def cmd_demo(args: argparse.Namespace) -> int:
     from federation.fleet.demo import run_demo
@@ -260,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fedlab",
         description="One experiment across several remote labs' floating platforms, over Zenoh.",
-        formatter_class=_Formatter,
+        formatter_class=Formatter,
         epilog="Example: fedlab demo --duration 30",
     )
     parser.add_argument("--version", action="version", version=f"fedlab {_version()}")
@@ -275,7 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "router",
         help="run a lab's Zenoh router",
-        formatter_class=_Formatter,
+        formatter_class=Formatter,
         description="Run a lab's Zenoh router: the only fedlab process that crosses the firewall.",
         epilog=(
             "Examples:\n"
@@ -285,13 +209,13 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     p.add_argument("--lab", help="lab name (else metadata.lab in the config file)")
-    _zenoh_flags(p)
+    add_zenoh_flags(p)
     p.set_defaults(func=cmd_router)
 
     p = sub.add_parser(
         "agent",
         help="run an agent (a platform in the federation)",
-        formatter_class=_Formatter,
+        formatter_class=Formatter,
         description="Run an agent: serve sync queries, sync with peers, publish pose and status.",
         epilog=(
             "Examples:\n"
@@ -384,13 +308,13 @@ def build_parser() -> argparse.ArgumentParser:
         const=True,
         help="hold still until a start command (fedlab ctl start) instead of starting at once",
     )
-    _zenoh_flags(p)
+    add_zenoh_flags(p)
     p.set_defaults(func=cmd_agent)
 
     p = sub.add_parser(
         "demo",
         help="the paper's experiment on this machine: two labs, a 40 ms link, report",
-        formatter_class=_Formatter,
+        formatter_class=Formatter,
         description=(
             "Two lab routers (kiruna listening, rome dialling it through a link emulator with\n"
             "the paper's ~40 ms one-way delay), a simulated KNATTE leading and a simulated\n"
@@ -413,12 +337,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     for module in _COMMAND_MODULES:
-        importlib.import_module(module).register(sub, _Formatter, _zenoh_flags)
+        importlib.import_module(module).register(sub, Formatter, add_zenoh_flags)
     return parser
 
 
 # Commands that live beside their library code: each module has
-# register(subparsers, formatter_class, add_zenoh_flags) and sets ``func``.
+# register(subparsers, formatter_class, addadd_zenoh_flags) and sets ``func``.
 _COMMAND_MODULES = (
     "federation.runtime.control",
     "federation.bridge.udp",

@@ -132,7 +132,7 @@ def cmd_ctl(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from federation.cli import _open_interruptible, _stop_on_signals, zenoh_options
+    from federation.cli.common import open_interruptible, stop_on_signals, zenoh_options
     from federation.runtime.session import build_config
     from schemas.experiment import load_experiment
 
@@ -141,7 +141,7 @@ def cmd_ctl(args: argparse.Namespace) -> int:
     federation = experiment.federation if experiment else args.federation
     keys.validate_name(federation, "federation name")
     conf = build_config(zenoh_options(args), default_mode="client")
-    session = _open_interruptible(zenoh.open, conf, _stop_on_signals())
+    session = open_interruptible(zenoh.open, conf, stop_on_signals())
     if session is None:
         return 0
     with session:

@@ -486,7 +486,7 @@ def run_monitor(
 def cmd_monitor(args: argparse.Namespace) -> int:
     import zenoh
 
-    from federation.cli import _open_interruptible, _stop_on_signals, zenoh_options
+    from federation.cli.common import open_interruptible, stop_on_signals, zenoh_options
     from federation.runtime.session import build_config
 
     if args.json and not args.once:
@@ -495,9 +495,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     federation = args.federation
     conf = build_config(zenoh_options(args), default_mode="client")
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     try:
-        session = _open_interruptible(zenoh.open, conf, stop)
+        session = open_interruptible(zenoh.open, conf, stop)
         if session is None:
             return 0
         with session:

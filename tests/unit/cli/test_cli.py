@@ -16,7 +16,7 @@ from federation.fleet.launch import free_port
 from federation.runtime.router import load_router_config
 from schemas.config import ConfigError, ZenohOptions
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 COMMANDS = sorted(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
 
 

@@ -48,7 +48,7 @@ def test_pinocchio_is_the_papers() -> None:
 
 
 def test_presets_dir_is_in_the_repository() -> None:
-    repository = Path(__file__).resolve().parents[2]
+    repository = Path(__file__).resolve().parents[3]
     assert repository / "deploy" / "platforms" == PLATFORMS_DIR
     assert {p.stem for p in PLATFORMS_DIR.glob("*.toml")} >= {"knatte", "pinocchio"}
 

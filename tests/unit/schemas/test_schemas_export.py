@@ -11,7 +11,7 @@ import pytest
 
 from schemas import export
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 PROTOCOL = ROOT / "docs" / "protocol.md"
 
 
