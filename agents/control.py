@@ -13,7 +13,7 @@ import math
 from collections.abc import Sequence
 
 from agents.dynamics import PAIRS, THRUSTERS
-from agents.sensors import wrap_angle
+from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
 
 __all__ = ["HeadingPid", "PositionHold", "PulseWidthModulator", "allocate"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from federation.core import paper
 from federation.core.wire import PoseSample
 
 __all__ = ["ReferenceManeuver", "track_heading"]
@@ -25,9 +26,9 @@ __all__ = ["ReferenceManeuver", "track_heading"]
 
 @dataclass(frozen=True)
 class ReferenceManeuver:
-    start: float = 10.0  # s of reference time held still (the sync phase)
-    duration: float = 60.0  # s for the rotation out and back
-    amplitude: float = math.radians(45.0)  # rad
+    start: float = paper.MANEUVER_STILL  # s of reference time held still (the sync phase)
+    duration: float = paper.MANEUVER_DURATION  # s for the rotation out and back
+    amplitude: float = math.radians(paper.MANEUVER_AMPLITUDE_DEG)  # rad
 
     def __post_init__(self) -> None:
         if not self.duration > 0:

@@ -8,37 +8,20 @@ fly real dynamics.
 
 from __future__ import annotations
 
-from typing import Protocol
-
+from agents.interface import Platform, PlatformError
 from federation.core.wire import Pose
+from schemas.platform import PlatformConfig
 
+# Platform and PlatformError live in agents.interface (import them from agents.platform);
+# they stay importable from here for older callers.
 __all__ = ["KinematicPlatform", "Platform", "PlatformError"]
-
-
-class PlatformError(RuntimeError):
-    """The platform cannot be driven (a serial port vanished, say); valves are closed."""
-
-
-class Platform(Protocol):
-    """A pose source driven by a heading command.
-
-    The agent calls :meth:`step` ``rate`` times a second with its clock's time
-    and the guidance's heading and rate references; the returned pose is what it
-    publishes (for a simulated or real platform: its navigation estimate).
-    :meth:`hold` closes every valve until :meth:`release` (safe hold).
-    """
-
-    rate: float
-
-    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose: ...
-
-    def hold(self) -> None: ...
-
-    def release(self) -> None: ...
 
 
 class KinematicPlatform:
     """``rate``: steps per second; with no dynamics, the pose rate is enough."""
+
+    config: PlatformConfig | None = None
+    """No physical description: nothing to analyse."""
 
     def __init__(self, x: float = 0.0, y: float = 0.0, rate: float = 20.0):
         if not rate > 0:
@@ -59,3 +42,7 @@ class KinematicPlatform:
 
     def release(self) -> None:
         self.held = False
+
+    def close(self) -> None:
+        """Nothing to release."""
+        self.held = True

@@ -37,7 +37,8 @@ import math
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from agents.sensors import ImuSample, wrap_angle
+from agents.sensors import ImuSample
+from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
 
 __all__ = ["NavigationFilter"]

@@ -25,15 +25,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
 
+# wrap_angle is federation.core.angles's, the one wrap; re-exported for older callers.
 __all__ = ["Coverage", "Imu", "ImuSample", "Sampler", "Vision", "wrap_angle"]
-
-
-def wrap_angle(angle: float) -> float:
-    """``angle`` (rad) wrapped to :math:`(-\\pi, \\pi]`."""
-    wrapped = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 class ImuSample(NamedTuple):

@@ -1,19 +1,20 @@
 """Simulated platforms: truth dynamics and sensors (:class:`Plant`) under the paper's
-GNC chain (:class:`SimulatedPlatform`, section 2.3).
+GNC chain (:class:`SimulatedPlatform` = :class:`Plant` + :class:`~agents.gnc.GncChain`).
 
 One control step of :class:`SimulatedPlatform`, every ``1 / control.rate`` seconds:
 
 1. the plant integrates the truth over the step with the valves held
    (RK4 sub-steps at ``physics_rate``);
 2. the IMU (and, when due, the vision system) sample the truth;
-3. the Kalman filter predicts with the IMU and corrects with a vision fix;
-4. the PID (Eq. 1 and 2) turns the estimated heading error into a torque demand,
-   the optional position hold into force demands, and the PWM and the thruster
-   allocation into the eight valve states for the next step.
+3. the GNC chain (:mod:`agents.gnc`, section 2.3) takes the samples and gives the eight
+   valve states for the next step: Kalman filter, PID (Eq. 1 and 2), position hold,
+   PWM and thruster allocation.
 
 The agent publishes the filter's estimate; the truth stays here for evaluation.
 Time comes in through :meth:`SimulatedPlatform.step`, so a test runs it in
 simulated time as fast as the CPU allows and an agent runs it in real time.
+:class:`Plant` is also the physics of the emulated device behind ``fedlab
+emulate-device`` (:mod:`agents.serial.emulator`): one model, one integrator.
 """
 
 from __future__ import annotations
@@ -24,16 +25,14 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from agents.control import HeadingPid, PositionHold, PulseWidthModulator, allocate
 from agents.dynamics import THRUSTERS, BodyParams, SlopeField, step, wrench
+from agents.gnc import CLOSED, GncChain
 from agents.navigation import NavigationFilter
 from agents.sensors import Coverage, Imu, ImuSample, Vision
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
 __all__ = ["Plant", "SimulatedPlatform"]
-
-_CLOSED = (False,) * len(THRUSTERS)
 
 
 class Plant:
@@ -85,7 +84,7 @@ class Plant:
         )
         self.t = 0.0  # s of simulated time advanced so far
         self._substep = 1.0 / config.physics_rate
-        self._valves: tuple[bool, ...] = _CLOSED
+        self._valves: tuple[bool, ...] = CLOSED
         self._specific_force = (0.0, 0.0)
 
     def advance(self, dt: float, valves: Sequence[bool]) -> None:
@@ -131,7 +130,8 @@ class Plant:
 
 
 class SimulatedPlatform:
-    """A physically simulated platform under PID + PWM with Kalman navigation.
+    """A physically simulated platform under the GNC chain: a :class:`Plant` and a
+    :class:`~agents.gnc.GncChain`.
 
     Parameters
     ----------
@@ -142,7 +142,7 @@ class SimulatedPlatform:
     disturbance : bool, optional
         Table slope force; None: ``config.disturbance.enabled``.
     position_hold : bool, optional
-        Hold the starting x, y; None: ``config.control.position_hold``.
+        Hold the position of the first fix; None: ``config.control.position_hold``.
     x, y, heading : float
         Starting pose, m and rad (the filter learns it from the first vision fix).
     """
@@ -159,42 +159,14 @@ class SimulatedPlatform:
         heading: float = 0.0,
     ):
         self.config = config
-        c = config.control
-        self.rate: float = c.rate
-        self._tick = 1.0 / c.rate
+        self.rate: float = config.control.rate
+        self._tick = 1.0 / self.rate
         if disturbance is None:
             disturbance = config.disturbance.enabled
-        if position_hold is None:
-            position_hold = c.position_hold
         self.plant = Plant(config, seed, disturbance, x, y, heading)
-        v, i, n = config.vision, config.imu, config.navigation
-        self.filter = NavigationFilter(
-            gyro_noise=i.gyro_noise,
-            accel_noise=i.accel_noise,
-            position_noise=v.position_noise,
-            heading_noise=v.heading_noise,
-            unmodelled_accel=n.unmodelled_accel,
-            gyro_bias_walk=n.gyro_bias_walk,
-            accel_bias_walk=n.accel_bias_walk,
-        )
-        self.pid = HeadingPid(c.kp, c.ki, c.kd, config.pair_torque, c.integral_limit)
-        # Channels: body x force, body y force, torque. The torque pairs share valves
-        # with the x pairs, so x pulses sit at the end of the period, torque at the start.
-        self.pwm = PulseWidthModulator(
-            c.pwm_period, c.min_on_time, self._tick, channels=3, right_aligned=(True, False, False)
-        )
-        self.position_hold: PositionHold | None = (
-            PositionHold(c.kp_position, c.kd_position, config.pair_force, (x, y))
-            if position_hold
-            else None
-        )
-        self._force_scale = 1.0 / config.pair_force
-        self._torque_scale = 1.0 / config.pair_torque
-        self._valves: tuple[bool, ...] = _CLOSED
-        self._held = False
+        self.chain = GncChain(config, position_hold=position_hold)
         self._t0: float | None = None
         self._k = 0
-        self._imu = ImuSample(0.0, 0.0, 0.0)
 
     # ------------------------------------------------------------------ interface
 
@@ -208,35 +180,33 @@ class SimulatedPlatform:
         """
         if self._t0 is None:
             self._t0 = t
-            self._sense(t)
-            self._control(t, heading_ref, rate_ref)
-            return self.filter.estimate
+            self._tick_at(t, heading_ref, rate_ref)
+            return self.chain.estimate
         tick, t0 = self._tick, self._t0
         while True:
             now = t0 + (self._k + 1) * tick
             if now > t + 1e-9:
                 break
-            self.plant.advance(tick, self._valves)
+            self.plant.advance(tick, self.chain.valves)
             self._k += 1
-            self._sense(now)
-            self._control(now, heading_ref, rate_ref)
-        return self.filter.estimate
+            self._tick_at(now, heading_ref, rate_ref)
+        return self.chain.estimate
 
     def hold(self) -> None:
         """Safe hold: every valve closed from now until :meth:`release`."""
-        self._held = True
-        self._valves = _CLOSED
+        self.chain.hold()
 
     def release(self) -> None:
         """Resume control from a clean start (integral and PWM period reset)."""
-        if self._held:
-            self._held = False
-            self.pid.reset()
-            self.pwm.reset()
+        self.chain.release()
+
+    def close(self) -> None:
+        """Every valve closed; nothing else to release."""
+        self.chain.hold()
 
     @property
     def held(self) -> bool:
-        return self._held
+        return self.chain.held
 
     @property
     def truth(self) -> Pose:
@@ -246,35 +216,23 @@ class SimulatedPlatform:
     @property
     def estimate(self) -> Pose:
         """The filter's current estimate (what :meth:`step` returned last)."""
-        return self.filter.estimate
+        return self.chain.estimate
+
+    @property
+    def filter(self) -> NavigationFilter:
+        """The chain's navigation filter."""
+        return self.chain.filter
 
     @property
     def valves(self) -> tuple[bool, ...]:
         """The eight current valve states."""
-        return self._valves
+        return self.chain.valves
 
     # ------------------------------------------------------------------ one step
 
-    def _sense(self, now: float) -> None:
+    def _tick_at(self, now: float, heading_ref: float, rate_ref: float) -> None:
+        """Sample the sensors that are due, then one step of the chain."""
         plant = self.plant
-        if plant.imu_sensor.sampler.due(now):
-            self._imu = plant.imu()
-        self.filter.predict(now, self._imu)
-        if plant.vision_sensor.sampler.due(now):
-            fix = plant.vision()
-            if fix is not None:
-                self.filter.correct(now, fix)
-
-    def _control(self, now: float, heading_ref: float, rate_ref: float) -> None:
-        if self._held:
-            self._valves = _CLOSED
-            return
-        est = self.filter.estimate
-        torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
-        fx = fy = 0.0
-        if self.position_hold is not None:
-            fx, fy = self.position_hold.update(est)
-        signs = self.pwm.update(
-            now, (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)
-        )
-        self._valves = allocate(*signs)
+        imu = plant.imu() if plant.imu_sensor.sampler.due(now) else None
+        fix = plant.vision() if plant.vision_sensor.sampler.due(now) else None
+        self.chain.update(now, heading_ref, rate_ref, imu=imu, fix=fix)

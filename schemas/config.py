@@ -7,22 +7,20 @@ A bad value fails at load with the file, the field and the reason::
 
 from __future__ import annotations
 
-import json
-import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Literal
 
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    field_validator,
-    model_validator,
-)
+from pydantic import AfterValidator, Field, field_validator, model_validator
 
-from federation.core.keys import DEFAULT_FEDERATION, AgentId, validate_name
+from federation.core.channels import Channel
+from federation.core.estimators import DEFAULT_ESTIMATOR, EstimatorName
+from federation.core.keys import DEFAULT_FEDERATION, AgentId
+from schemas import base
+from schemas.base import ConfigError as ConfigError
+from schemas.base import format_validation_error as format_validation_error
+from schemas.base import load_model as load_model
+from schemas.base import validate as validate
+from schemas.platform import load_platform, validate_platform_spec
 
 __all__ = [
     "AgentConfig",
@@ -35,12 +33,12 @@ __all__ = [
 ]
 
 
-class ConfigError(ValueError):
-    """A configuration that cannot be used; the message names where and why."""
+class _Model(base.Model):
+    """The base of this module's models (:class:`schemas.base.Model`, which
+    schemas.platform builds on too): frozen, unknown fields refused."""
 
 
-def _name(what: str) -> AfterValidator:
-    return AfterValidator(lambda v: validate_name(v, what))
+_name = base.name
 
 
 def _agent_id(value: str) -> str:
@@ -60,10 +58,6 @@ def _endpoint(value: str) -> str:
 Name = Annotated[str, _name("name")]
 AgentRef = Annotated[str, AfterValidator(_agent_id)]
 Endpoint = Annotated[str, AfterValidator(_endpoint)]
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class ZenohOptions(_Model):
@@ -117,8 +111,8 @@ class AgentConfig(_Model):
         0.5, gt=0, le=10, description="seconds before a request is given up"
     )
     sync_window: float = Field(10.0, gt=0, description="seconds of reference time averaged (Eq. 6)")
-    estimator: Literal["clockfilter", "mean", "median"] = Field(
-        "clockfilter",
+    estimator: EstimatorName = Field(
+        DEFAULT_ESTIMATOR,
         description="clockfilter: offset and drift by delay-weighted regression; "
         "mean or median: the paper's Eq. 6 over the sync window",
     )
@@ -144,6 +138,12 @@ class AgentConfig(_Model):
         description="pose source: kinematic, a preset (knatte, pinocchio), a platform TOML "
         "file, or serial:PORT",
     )
+    platform_preset: str | None = Field(
+        None,
+        description="GNC preset of a serial:PORT platform, a preset name (knatte, pinocchio) "
+        "or a platform file: the mass, inertia, thrusters, sensors and gains its navigation "
+        "and control are built for; none: knatte",
+    )
     seed: int = Field(0, description="seed of the simulated platform's noise")
     maneuver: ManeuverConfig = Field(default_factory=ManeuverConfig)
     wait_start: bool = Field(
@@ -154,7 +154,7 @@ class AgentConfig(_Model):
         False, description="subscribe to every agent's pose, not only the followed one's"
     )
     record: Path | None = Field(None, description="MCAP file to record the run to")
-    record_channels: list[str] | None = Field(
+    record_channels: list[Channel] | None = Field(
         None, description="channels to record (e.g. /pose/sent); none: all"
     )
     latency_compensation: bool = Field(
@@ -164,9 +164,17 @@ class AgentConfig(_Model):
     @field_validator("platform")
     @classmethod
     def _platform(cls, value: str) -> str:
-        from agents.platform import validate_platform_spec
-
         return validate_platform_spec(value)
+
+    @field_validator("platform_preset")
+    @classmethod
+    def _platform_preset(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        if value == "kinematic" or value.startswith("serial:"):
+            raise ValueError(f"{value!r} is not a preset: give a preset name or a platform file")
+        load_platform(value)  # a ConfigError (a ValueError) naming the file and the field
+        return value
 
     @model_validator(mode="after")
     def _roles(self) -> AgentConfig:
@@ -175,6 +183,11 @@ class AgentConfig(_Model):
             raise ValueError("a follower needs 'follow' (LAB/NAME of the agent to track)")
         if self.follow == me:
             raise ValueError(f"agent {me} cannot follow itself")
+        if self.platform_preset is not None and not self.platform.startswith("serial:"):
+            raise ValueError(
+                "platform_preset applies to a serial:PORT platform only; a simulated "
+                f"platform's preset is its platform ({self.platform!r})"
+            )
         return self
 
     @property
@@ -190,46 +203,3 @@ class RouterConfig(_Model):
     connect: list[Endpoint] = Field(
         default_factory=list, description="other labs' routers to dial (outbound only)"
     )
-
-
-M = TypeVar("M", bound=BaseModel)
-
-
-def format_validation_error(source: str, error: ValidationError) -> str:
-    """One line per problem: ``source: field 'a.b': reason``."""
-    lines = []
-    for item in error.errors():
-        where = ".".join(str(p) for p in item["loc"]) or "(top level)"
-        reason = item["msg"]
-        if item["type"] == "extra_forbidden":
-            reason = "unknown field"
-        lines.append(f"{source}: field '{where}': {reason}")
-    return "\n".join(lines)
-
-
-def validate(model: type[M], data: dict[str, Any], source: str) -> M:
-    """Build ``model`` from ``data``; a ConfigError names ``source`` and the field."""
-    try:
-        return model.model_validate(data)
-    except ValidationError as error:
-        raise ConfigError(format_validation_error(source, error)) from None
-
-
-def load_model(model: type[M], path: str | Path) -> M:
-    """Load a TOML or JSON file into ``model``."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read: {error.strerror}") from None
-    except UnicodeDecodeError as error:
-        raise ConfigError(f"{path}: not UTF-8 text (byte {error.start}): {error.reason}") from None
-    try:
-        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
-    except (ValueError, tomllib.TOMLDecodeError) as error:
-        raise ConfigError(
-            f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}"
-        ) from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a table of fields at the top level")
-    return validate(model, data, str(path))

@@ -6,14 +6,14 @@ another language can validate what it publishes and reads without Python::
 
     python -m schemas.export            # (re)write schemas/json/
     python -m schemas.export --check    # exit 1 if the files on disk differ from the models
+    fedlab schemas [--check]            # the same, from the fedlab command
 
-The files are committed; ``tests/test_schemas_export.py`` fails when a model changes
-and the files were not regenerated.
+The files are committed; ``tests/unit/schemas/test_schemas_export.py`` fails when a
+model changes and the files were not regenerated.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections.abc import Sequence
@@ -78,30 +78,43 @@ def check(out_dir: Path = DEFAULT_DIR) -> list[str]:
     return stale
 
 
+_USAGE = "usage: python -m schemas.export [--check] [--out DIR]  (or: fedlab schemas)"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m schemas.export",
-        description="Write the JSON Schemas of fedlab's messages and config files.",
-        epilog="Example: python -m schemas.export --check",
-    )
-    parser.add_argument(
-        "--out", type=Path, default=DEFAULT_DIR, metavar="DIR", help="where to write the files"
-    )
-    parser.add_argument(
-        "--check", action="store_true", help="write nothing; exit 1 if the files are stale"
-    )
-    args = parser.parse_args(argv)
-    if args.check:
-        stale = check(args.out)
+    """``python -m schemas.export [--check] [--out DIR]``: write the files, or with
+    ``--check`` write nothing and return 1 if they are stale.
+
+    Its two flags are read by hand: argparse lives in :mod:`federation.cli`, which
+    schemas may not import (``fedlab schemas`` is the same with full help).
+    """
+    out, check_only = DEFAULT_DIR, False
+    args = iter(sys.argv[1:] if argv is None else argv)
+    for arg in args:
+        if arg == "--check":
+            check_only = True
+        elif arg == "--out" or arg.startswith("--out="):
+            value = arg.partition("=")[2] or next(args, "")
+            if not value:
+                print(f"{_USAGE}\nerror: --out needs a directory", file=sys.stderr)
+                return 2
+            out = Path(value)
+        elif arg in ("-h", "--help"):
+            print(f"{_USAGE}\n\n{(__doc__ or '').strip()}")
+            return 0
+        else:
+            print(f"{_USAGE}\nerror: unexpected argument {arg!r}", file=sys.stderr)
+            return 2
+    if check_only:
+        stale = check(out)
         if stale:
             print(
-                f"stale JSON Schemas in {args.out}: {', '.join(stale)}; "
-                "run: python -m schemas.export",
+                f"stale JSON Schemas in {out}: {', '.join(stale)}; run: python -m schemas.export",
                 file=sys.stderr,
             )
             return 1
         return 0
-    for path in export(args.out):
+    for path in export(out):
         print(path)
     return 0
 

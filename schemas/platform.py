@@ -29,7 +29,9 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from schemas.config import ConfigError, _Model, _name, load_model
+from schemas.base import ConfigError, load_model
+from schemas.base import Model as _Model
+from schemas.base import name as _name
 
 __all__ = [
     "PLATFORMS_DIR",
@@ -40,6 +42,7 @@ __all__ = [
     "PlatformConfig",
     "VisionConfig",
     "load_platform",
+    "validate_platform_spec",
 ]
 
 PLATFORMS_DIR = Path(__file__).resolve().parents[1] / "deploy" / "platforms"
@@ -108,6 +111,12 @@ class ControlConfig(_Model):
     position_hold: bool = Field(False, description="hold the starting x, y with a PD on position")
     kp_position: float = Field(2.5, ge=0, description="position-hold proportional gain, N/m")
     kd_position: float = Field(9.0, ge=0, description="position-hold derivative gain, N s/m")
+    fix_timeout: float = Field(
+        0.5,
+        gt=0,
+        le=10,
+        description="seconds without a metrology (vision) fix after which every valve closes",
+    )
 
     @model_validator(mode="after")
     def _pwm(self) -> ControlConfig:
@@ -181,6 +190,11 @@ class PlatformConfig(_Model):
             raise ValueError(f"thrust {self.thrust} N exceeds max_thrust {self.max_thrust} N")
         if self.torque > self.max_torque:
             raise ValueError(f"torque {self.torque} Nm exceeds max_torque {self.max_torque} Nm")
+        if self.control.fix_timeout * self.vision.rate < 1.0:
+            raise ValueError(
+                f"control.fix_timeout ({self.control.fix_timeout} s) is shorter than one vision "
+                f"period (1/vision.rate = {1.0 / self.vision.rate} s): no valve would ever open"
+            )
         return self
 
     @property
@@ -224,3 +238,26 @@ def load_platform(name_or_path: str | Path) -> PlatformConfig:
             f"unknown platform {text!r}: no {path}; presets: {', '.join(known) or 'none'}"
         )
     return load_model(PlatformConfig, path)
+
+
+def validate_platform_spec(spec: str) -> str:
+    """Check an agent's pose source at config load: ``kinematic``, ``serial:PORT``, a
+    preset name or a platform file (a missing preset or port fails here).
+
+    Raises
+    ------
+    ValueError
+        No port after ``serial:``, or a preset that :func:`load_platform` cannot load
+        (the message names the file and the field, and the other choices).
+    """
+    if spec == "kinematic":
+        return spec
+    if spec.startswith("serial:"):
+        if not spec[len("serial:") :]:
+            raise ValueError("serial platform needs a port: serial:/dev/ttyUSB0")
+        return spec
+    try:
+        load_platform(spec)  # a ConfigError (a ValueError) naming the file and the field
+    except ValueError as error:
+        raise ValueError(f"{error} (other choices: kinematic, serial:PORT)") from None
+    return spec

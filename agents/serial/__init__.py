@@ -1,6 +1,8 @@
-"""A real platform over a serial link: the frame codec, the host side
-(:class:`~agents.serial.platform.SerialPlatform`) and an emulated device behind a
-pseudo-terminal for rehearsals and tests.
+"""A real platform over a serial link: the frame codec (:mod:`~agents.serial.protocol`),
+the host side (:class:`~agents.serial.platform.SerialPlatform`, flown by
+:mod:`agents.gnc`), an emulated device (:mod:`~agents.serial.emulator`, the simulated
+plant behind the protocol) and its pseudo-terminal loop (:mod:`~agents.serial.pty`)
+for rehearsals and tests.
 
 Rule: as the rest of :mod:`agents`: imports only :mod:`federation.core`,
 :mod:`schemas` and :mod:`agents`.

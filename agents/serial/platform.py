@@ -1,44 +1,38 @@
-"""A real platform over a serial port (pyserial), speaking ``docs/serial-protocol.md``.
+"""A real platform over a serial port (pyserial), speaking ``docs/serial-protocol.md``,
+flown by the same GNC chain as a simulated platform (:mod:`agents.gnc`).
 
-Each :meth:`SerialPlatform.step` (100 Hz) reads every byte waiting, decodes it
-(:class:`~agents.serial.protocol.FrameDecoder`), keeps the device's latest
-POSE, IMU and STATUS, runs the heading controller and sends a HEARTBEAT and a
-VALVES frame. It never blocks on a read; a write waits at most ``write_timeout``.
+Each :meth:`SerialPlatform.step` (``control.rate``, 100 Hz) reads every byte waiting,
+decodes it (:class:`~agents.serial.protocol.FrameDecoder`), hands the device's latest
+IMU sample and POSE (a metrology fix) to the :class:`~agents.gnc.GncChain` built from
+the platform's preset, and sends a HEARTBEAT and the chain's VALVES. It returns the
+chain's navigation estimate, which the agent publishes. It never blocks on a read; a
+write waits at most ``write_timeout``.
 
 Safety
 ------
 - No valve opens before the device has sent a POSE, nor while its latest POSE is
-  older than ``pose_timeout`` seconds of the agent's time.
+  older than ``pose_timeout`` seconds of the agent's time (the chain fails closed:
+  ``reason`` ``no_fix`` or ``stale_fix``, counted in :attr:`SerialPlatform.counters`).
 - :meth:`~SerialPlatform.hold` closes every valve now and keeps them closed
   until :meth:`~SerialPlatform.release`; :meth:`~SerialPlatform.close` closes
   them and the port.
 - A port that vanishes (unplugged cable, emulator gone: ``SerialException`` or
   ``OSError``) marks every valve closed and raises :class:`PlatformError`
   naming the port; the device's own heartbeat failsafe then closes its valves.
-- A controller that raises gets an all-closed command sent before the error
-  propagates.
-
-Fallback controller
--------------------
-:class:`BangBangPD` is a stand-in until ``agents/control.py`` (PID + PWM) is
-done: a PD torque demand on the heading error (paper Eq. 1 and 2 without the
-integral term) mapped bang-bang, with a dead band, onto the torque couples of
-the thruster layout in ``agents/device_emulator.py`` (valves 1 and 2: +torque,
-0 and 3: -torque, as ``agents.dynamics.PAIRS``). Pass ``controller=`` to use anything else.
+- A chain that raises gets an all-closed command sent before the error propagates.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import os
-from collections.abc import Callable
-from dataclasses import dataclass
 from types import TracebackType
 
 import serial
 
-from agents.kinematic import PlatformError
+from agents.gnc import CLOSED, GncChain
+from agents.interface import PlatformError
+from agents.sensors import ImuSample
 from agents.serial.protocol import (
     DEVICE_TO_HOST,
     N_VALVES,
@@ -50,95 +44,41 @@ from agents.serial.protocol import (
     encode_valves,
 )
 from federation.core.wire import Pose
+from schemas.platform import PlatformConfig, load_platform
 
-__all__ = [
-    "CLOSED",
-    "NEGATIVE_TORQUE",
-    "POSITIVE_TORQUE",
-    "BangBangPD",
-    "PlatformError",
-    "SerialPlatform",
-    "ValveController",
-]
+__all__ = ["CLOSED", "PlatformError", "SerialPlatform"]
 
 log = logging.getLogger("fedlab.serial")
-
-ValveController = Callable[[float, float, float, Pose], tuple[bool, ...]]
-"""``(t, heading_ref, rate_ref, pose) -> eight valve states``."""
-
-CLOSED: tuple[bool, ...] = (False,) * N_VALVES
-"""Every valve closed."""
-POSITIVE_TORQUE: tuple[bool, ...] = (False, True, True, False, False, False, False, False)
-"""Valves 1 and 2: the +torque couple (counter-clockwise), no net force."""
-NEGATIVE_TORQUE: tuple[bool, ...] = (True, False, False, True, False, False, False, False)
-"""Valves 0 and 3: the -torque couple, no net force."""
 
 _U32 = 1 << 32
 _READ_CHUNK = 4096
 _MAX_READS = 64  # per step: bounds the time spent on a device that never stops talking
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-@dataclass
-class BangBangPD:
-    """Fallback heading controller: PD torque demand, fired bang-bang on the torque couples.
-
-    .. math::
-
-        e = \\mathrm{wrap}(\\psi - \\psi_{ref}), \\qquad
-        u = -\\left(K_p e + K_d (\\omega - \\omega_{ref})\\right)
-
-    Valves 1 and 2 open when ``u > deadband`` (+torque), 0 and 3 when
-    ``u < -deadband``, none otherwise. ``Kd / Kp`` (1.5 s) is the slope of the
-    switching line; with KNATTE's 0.032 Nm couple it settles a 0.3 rad step to
-    within 0.02 rad in about 4.5 s, without overshoot.
-    To be replaced by ``agents/control.py`` (PID + PWM).
-    """
-
-    kp: float = 0.4  # Nm/rad
-    kd: float = 0.6  # Nm s/rad
-    deadband: float = 0.004  # Nm: 0.01 rad of heading error at rest
-
-    def demand(self, heading_ref: float, rate_ref: float, pose: Pose) -> float:
-        """Torque demand ``u``, Nm."""
-        e = _wrap(pose.heading - heading_ref)  # paper Eq. 1
-        return -(self.kp * e + self.kd * (pose.omega - rate_ref))
-
-    def __call__(
-        self, t: float, heading_ref: float, rate_ref: float, pose: Pose
-    ) -> tuple[bool, ...]:
-        u = self.demand(heading_ref, rate_ref, pose)
-        if u > self.deadband:
-            return POSITIVE_TORQUE
-        if u < -self.deadband:
-            return NEGATIVE_TORQUE
-        return CLOSED
-
-
 class SerialPlatform:
-    """A platform whose avionics are on a serial port; a ``Platform`` for the agent runtime.
+    """A platform whose avionics are on a serial port, under the GNC chain; a
+    :class:`~agents.platform.Platform` for the agent runtime.
 
     Parameters
     ----------
     port : str
         Device path, e.g. ``/dev/ttyUSB0`` or an emulator's ``/dev/pts/7``.
+    config : PlatformConfig, optional
+        The platform's preset: what the chain's filter, PID, PWM and allocation are
+        built for; None: ``knatte``.
     baudrate : int
         Line rate, bit/s (ignored by pseudo-terminals). 115200 leaves about 3x
         headroom over the protocol's ~3.8 kB/s downstream (docs/serial-protocol.md).
-    controller : ValveController, optional
-        ``(t, heading_ref, rate_ref, pose) -> 8 valve states``; default :class:`BangBangPD`.
-    pose_timeout : float
-        Agent seconds without a new POSE after which valves stay closed.
+    pose_timeout : float, optional
+        Agent seconds without a new POSE after which valves stay closed; None:
+        ``config.control.fix_timeout``.
     write_timeout : float
         Longest wait for the port to take a step's frames, s. pyserial retries a
         full output buffer until it expires, so keep it a fraction of a step;
         a timeout is counted (``write_timeouts``), not raised: the device's
         failsafe covers a device that stops reading.
-    rate : float
-        Hz at which the agent is to call :meth:`step`.
+    chain : GncChain, optional
+        The chain to fly (tests); None: one built from ``config``.
 
     Raises
     ------
@@ -149,17 +89,17 @@ class SerialPlatform:
     def __init__(
         self,
         port: str,
+        config: PlatformConfig | None = None,
         baudrate: int = 115200,
         *,
-        controller: ValveController | None = None,
-        pose_timeout: float = 0.5,
+        pose_timeout: float | None = None,
         write_timeout: float = 0.005,
-        rate: float = 100.0,
+        chain: GncChain | None = None,
     ):
         self.port = port
-        self.rate = rate
-        self.pose_timeout = pose_timeout
-        self.controller: ValveController = controller if controller is not None else BangBangPD()
+        self.config: PlatformConfig = config if config is not None else load_platform("knatte")
+        self.chain = chain or GncChain(self.config, fix_timeout=pose_timeout)
+        self.rate: float = self.chain.rate
         try:
             self._serial = serial.Serial(
                 port,
@@ -172,47 +112,51 @@ class SerialPlatform:
             raise PlatformError(f"cannot open serial port {port}: {error}") from error
         self._decoder = FrameDecoder(DEVICE_TO_HOST)
         self._valves = CLOSED
-        self._holding = False
         self._seq = 0
         self._failure: str | None = None
-        self._new_pose = False  # a POSE arrived in this step's read
-        self._pose_received_at: float | None = None  # agent time of the latest POSE
-        self.pose = Pose()
-        """Latest pose from the device (origin until the first POSE)."""
+        self._new_imu: ImuSample | None = None  # the latest IMU of this step's read
+        self._new_fix: Pose | None = None  # the latest POSE of this step's read
+        self.device_pose: Pose | None = None
+        """Latest POSE from the device (None until the first)."""
         self.pose_time: float | None = None
-        """Device time of :attr:`pose`, s."""
+        """Device time of :attr:`device_pose`, s."""
         self.imu: Imu | None = None
         self.status: Status | None = None
         self._host = {
             "frames_sent": 0,
             "write_timeouts": 0,
-            "closed_no_pose": 0,
             "device_failsafe_reports": 0,
         }
 
     # -- Platform ----------------------------------------------------------------
     def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
-        """Read, control, send HEARTBEAT and VALVES; return the device's latest pose.
+        """Read, run the chain, send HEARTBEAT and VALVES; return the navigation estimate.
 
         Raises
         ------
         PlatformError
             If the port has vanished or was closed; every valve is marked closed first.
-            An exception from the controller propagates after an all-closed VALVES.
+            An exception from the chain propagates after an all-closed VALVES.
         """
         self._check_open()
         try:
             self._read()
         except (serial.SerialException, OSError) as error:
             self._vanished(error)
+        imu, fix = self._new_imu, self._new_fix
+        self._new_imu = self._new_fix = None
         try:
-            valves = self._decide(t, heading_ref, rate_ref)
+            valves = tuple(
+                bool(v) for v in self.chain.update(t, heading_ref, rate_ref, imu=imu, fix=fix)
+            )
+            if len(valves) != N_VALVES:
+                raise ValueError(f"the chain gave {len(valves)} valve states, not {N_VALVES}")
         except BaseException:
             self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
             raise
         seq = self._next_seq()
         self._send(encode_heartbeat(seq, t) + encode_valves(seq, valves), 2, valves)
-        return self.pose
+        return self.chain.estimate
 
     def hold(self) -> None:
         """Close every valve now and keep them closed until :meth:`release`.
@@ -220,7 +164,7 @@ class SerialPlatform:
         Best effort: a port that has vanished is logged here and raised by the next
         :meth:`step` (the device's heartbeat failsafe closes its valves anyway).
         """
-        self._holding = True
+        self.chain.hold()
         self._valves = CLOSED
         if self._failure is None:
             try:
@@ -229,8 +173,17 @@ class SerialPlatform:
                 log.warning("hold: %s", error)
 
     def release(self) -> None:
-        """End :meth:`hold`: the controller drives the valves again from the next step."""
-        self._holding = False
+        """End :meth:`hold`: the chain drives the valves again from the next step."""
+        self.chain.release()
+
+    @property
+    def held(self) -> bool:
+        return self.chain.held
+
+    @property
+    def pose(self) -> Pose:
+        """The chain's navigation estimate (what :meth:`step` returned last)."""
+        return self.chain.estimate
 
     @property
     def valves(self) -> tuple[bool, ...]:
@@ -238,18 +191,15 @@ class SerialPlatform:
         return self._valves
 
     @property
-    def holding(self) -> bool:
-        return self._holding
-
-    @property
     def counters(self) -> dict[str, int]:
-        """Decoder counters (frames_ok, bad_checksum, garbage_bytes, ...) and the host's own."""
-        return {**self._decoder.counters, **self._host}
+        """Decoder counters (frames_ok, bad_checksum, garbage_bytes, ...), the host's own
+        and the chain's closed steps (closed_no_fix, closed_stale_fix, closed_held)."""
+        return {**self._decoder.counters, **self._host, **self.chain.counters}
 
     def close(self) -> None:
         """Send all-valves-closed (best effort) and close the port. Idempotent."""
+        self.chain.hold()
         if self._failure is None:
-            self._holding = True
             try:
                 self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
             except PlatformError as error:
@@ -287,31 +237,18 @@ class SerialPlatform:
                 return
             for message in self._decoder.feed(data):
                 if isinstance(message, DevicePose):
-                    self.pose = message.pose
+                    self.device_pose = message.pose
                     self.pose_time = message.t
-                    self._new_pose = True
+                    self._new_fix = message.pose
                 elif isinstance(message, Imu):
                     self.imu = message
+                    self._new_imu = ImuSample(message.gyro, message.ax, message.ay)
                 elif isinstance(message, Status):
                     self.status = message
                     if message.failsafe:
                         self._host["device_failsafe_reports"] += 1
             if len(data) < _READ_CHUNK:
                 return
-
-    def _decide(self, t: float, heading_ref: float, rate_ref: float) -> tuple[bool, ...]:
-        if self._new_pose:
-            self._new_pose = False
-            self._pose_received_at = t
-        if self._holding:
-            return CLOSED
-        if self._pose_received_at is None or t - self._pose_received_at > self.pose_timeout:
-            self._host["closed_no_pose"] += 1
-            return CLOSED
-        valves = tuple(bool(v) for v in self.controller(t, heading_ref, rate_ref, self.pose))
-        if len(valves) != N_VALVES:
-            raise ValueError(f"controller returned {len(valves)} valve states, not {N_VALVES}")
-        return valves
 
     def _send(self, frames: bytes, count: int, valves: tuple[bool, ...]) -> None:
         try:

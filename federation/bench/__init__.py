@@ -1,29 +1,9 @@
-"""``fedlab bench ...``: benchmarks that compare against baselines measured in the same run."""
+"""Benchmarks that compare against baselines measured in the same run (``fedlab bench``).
 
-from __future__ import annotations
+- :mod:`federation.bench.sync`: offset error of each estimator under emulated paths;
+- :mod:`federation.bench.latency`: pose latency beside bare Zenoh and raw UDP;
+- :mod:`federation.bench.scale`: CPU, latency and loss as the number of agents grows.
 
-import argparse
-from collections.abc import Callable
-from typing import Any
-
-from federation.bench import latency, scale, sync
-
-__all__ = ["register"]
-
-
-def register(
-    sub: Any,
-    formatter: type[argparse.HelpFormatter],
-    add_zenoh_flags: Callable[[argparse.ArgumentParser], None],
-) -> None:
-    p = sub.add_parser(
-        "bench",
-        help="benchmarks: sync accuracy, latency, scale",
-        formatter_class=formatter,
-        description="Benchmarks; each prints a table, or JSON with --json.",
-        epilog="Example: fedlab bench sync --duration 60 --scenario drift",
-    )
-    benches = p.add_subparsers(dest="bench", required=True, metavar="BENCH")
-    sync.register(benches, formatter)
-    latency.register(benches, formatter)
-    scale.register(benches, formatter)
+Rule: library code; every run returns its results, :mod:`federation.cli.bench`
+parses the flags and prints them. No argparse here.
+"""

@@ -16,8 +16,6 @@ beside baselines measured in the same run.
 
 from __future__ import annotations
 
-import argparse
-import json
 import socket
 import sys
 import threading
@@ -31,7 +29,7 @@ import zenoh
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 
-__all__ = ["run"]
+__all__ = ["BASELINES", "PATHS", "bare_zenoh", "fedlab_pose", "raw_udp", "run"]
 
 BASELINES = Path(__file__).with_name("baselines")
 
@@ -180,7 +178,16 @@ def fedlab_pose(
     return latencies[int(rate) :], turnarounds
 
 
+PATHS = ("fedlab_pose", "bare_zenoh", "bare_zenoh_half_rtt", "raw_udp", "sync_turnaround")
+"""The measured paths, in the order a table shows them; each a key of :func:`run`'s result."""
+
+
 def run(seconds: float, rate: float, out: Path) -> dict[str, Any]:
+    """Measure every path in :data:`PATHS` for ``seconds`` at ``rate`` samples per second.
+
+    Returns each path's ``p50_ms``, ``p99_ms``, ``max_ms`` and ``n``, with the ratios
+    ``ratio_p50_fedlab_over_bare`` and ``ratio_p50_bare_over_udp``.
+    """
     out.mkdir(parents=True, exist_ok=True)
     kiruna, rome = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
     count = int(seconds * rate)
@@ -204,43 +211,3 @@ def run(seconds: float, rate: float, out: Path) -> dict[str, Any]:
     )
     result["ratio_p50_bare_over_udp"] = result["bare_zenoh"]["p50_ms"] / result["raw_udp"]["p50_ms"]
     return result
-
-
-def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
-    p = sub.add_parser(
-        "latency",
-        help="pose latency across two routers, beside bare zenoh and raw UDP",
-        formatter_class=formatter,
-        description=(__doc__ or "").split("\n\n")[0],
-        epilog="Example: fedlab bench latency --seconds 30 --rate 100 --json",
-    )
-    p.add_argument("--seconds", type=float, default=20.0, metavar="S", help="seconds per path")
-    p.add_argument("--rate", type=float, default=100.0, metavar="HZ", help="samples per second")
-    p.add_argument("--out", type=Path, default=Path("runs/bench-latency"), metavar="DIR")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.set_defaults(func=cmd_latency)
-
-
-def cmd_latency(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    result = run(args.seconds, args.rate, args.out)
-    if args.json:
-        print(json.dumps(result, indent=1))
-        return 0
-    table = Table(title=f"one-way latency, loopback, two routers ({args.rate:.0f} Hz)")
-    for col in ("path", "p50 (ms)", "p99 (ms)", "max (ms)", "samples"):
-        table.add_column(col, justify="left" if col == "path" else "right")
-    for name in ("fedlab_pose", "bare_zenoh", "bare_zenoh_half_rtt", "raw_udp", "sync_turnaround"):
-        r = result[name]
-        table.add_row(
-            name, f"{r['p50_ms']:.3f}", f"{r['p99_ms']:.3f}", f"{r['max_ms']:.3f}", str(r["n"])
-        )
-    console = Console()
-    console.print(table)
-    console.print(
-        f"fedlab / bare zenoh p50: {result['ratio_p50_fedlab_over_bare']:.2f}x; "
-        f"bare zenoh / raw udp p50: {result['ratio_p50_bare_over_udp']:.1f}x"
-    )
-    return 0

@@ -19,8 +19,6 @@ sync exchanges completed per second.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
 import threading
@@ -33,10 +31,12 @@ import numpy as np
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 
-__all__ = ["run", "run_one"]
+__all__ = ["DEFAULT_AGENTS", "LABS", "run", "run_one", "worker"]
 
 LABS = 4
 SETTLE = 3.0  # s after start before samples count (discovery, routes)
+DEFAULT_AGENTS = (2, 8, 16, 32, 64)
+"""Agent counts run when none is given."""
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -52,6 +52,10 @@ def _agents(n: int) -> list[tuple[int, str]]:
 
 
 def run_one(n: int, seconds: float, out: Path) -> dict[str, Any]:
+    """Run ``n`` agents (at least 2: a leader and a follower) for ``seconds``; returns
+    ``n``, ``cpu_cores``, ``p50_ms``, ``p99_ms``, ``loss``, ``samples`` and ``sync_per_s``."""
+    if n < 2:
+        raise ValueError(f"{n} agents: at least 2 are needed (a leader and a follower)")
     out = out / f"n{n}"
     out.mkdir(parents=True, exist_ok=True)
     for old in out.glob("*.mcap"):
@@ -123,6 +127,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
 
 
 def run(ns: list[int], seconds: float, out: Path) -> list[dict[str, Any]]:
+    """:func:`run_one` for each agent count in ``ns``."""
     return [run_one(n, seconds, out) for n in ns]
 
 
@@ -178,51 +183,6 @@ def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
             stop.set()
             for runtime in runtimes:
                 runtime.close()
-
-
-def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
-    p = sub.add_parser(
-        "scale",
-        help="N agents over 4 labs: CPU, latency and loss as N grows",
-        formatter_class=formatter,
-        description=(__doc__ or "").split("\n\n")[0],
-        epilog="Example: fedlab bench scale --agents 2 --agents 8 --seconds 20 --json",
-    )
-    p.add_argument(
-        "--agents", action="append", type=int, metavar="N",
-        help="agent counts to run (repeatable; default 2 8 16 32 64)",
-    )  # fmt: skip
-    p.add_argument("--seconds", type=float, default=20.0, metavar="S", help="seconds per N")
-    p.add_argument("--out", type=Path, default=Path("runs/bench-scale"), metavar="DIR")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.set_defaults(func=cmd_scale)
-
-
-def cmd_scale(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    ns = args.agents or [2, 8, 16, 32, 64]
-    if any(n < 2 for n in ns):
-        raise SystemExit("--agents must be at least 2 (a leader and a follower)")
-    console = Console(stderr=True)
-    results = []
-    for n in ns:
-        console.print(f"{n} agents: running {args.seconds:.0f} s")
-        results.append(run_one(n, args.seconds, args.out))
-    if args.json:
-        print(json.dumps(results, indent=1))
-        return 0
-    table = Table(title="N agents over 4 labs (pose 20 Hz, sync 10 Hz)")
-    for col in ("agents", "CPU (cores)", "p50 (ms)", "p99 (ms)", "loss", "sync/s"):
-        table.add_column(col, justify="right")
-    for r in results:
-        table.add_row(
-            str(r["n"]), f"{r['cpu_cores']:.2f}", f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}",
-            f"{r['loss']:.4f}", f"{r['sync_per_s']:.0f}",
-        )  # fmt: skip
-    Console().print(table)
-    return 0
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:

@@ -2,17 +2,18 @@
 
 Live (default): two lab routers linked through ``fedlab link`` with the
 scenario's delay, jitter, asymmetry and bursts; a leader and a follower whose
-clock is 26.42 s off and drifts by the scenario's ppm. The follower records
-every sync exchange (``--record``, MCAP); both agents' status messages pair their
-clock with the host's monotonic clock, which gives each clock as an exact
-linear function of host time, hence the true offset at every exchange.
+clock is off by the paper's Kiruna-Rome offset and drifts by the scenario's
+ppm. The follower records every sync exchange (``--record``, MCAP); both agents'
+status messages pair their clock with the host's monotonic clock, which gives
+each clock as an exact linear function of host time, hence the true offset at
+every exchange.
 
 Offline (``--offline``): the same exchanges drawn from the link model alone, no
 processes. Either way the recorded exchanges are replayed through every
 estimator, so one run compares them all on identical input; a live agent's own
 estimate is the same function of the same exchanges (tests check it).
 
-Scores: |estimate - truth| at each exchange after the sync phase (10 s), as
+Scores: |estimate - truth| at each exchange after the paper's sync phase, as
 p50, p95 and max in seconds. A single run holds one draw of the paper's mean
 (fixed after the sync phase), so ``restarts`` scores the same recording again
 as fresh starts: a new estimator every 10 s on a ``--trial``-second stretch
@@ -21,8 +22,6 @@ as fresh starts: a new estimator every 10 s on a ``--trial``-second stretch
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -31,30 +30,38 @@ from typing import Any
 
 import numpy as np
 
+from federation.core import paper
 from federation.core.estimators import ESTIMATORS, make_estimator
 from federation.core.sync import Exchange
-from federation.link.emulator import DirectionConfig, JitterDist, LinkModel
+from federation.link.model import LinkModel
 from federation.report.status import clock_line
+from schemas.link import DirectionConfig, JitterDist
 
 __all__ = [
+    "CLOCK_OFFSET",
+    "ESTIMATORS",
     "SCENARIOS",
+    "SYNC_PHASE",
     "Recording",
     "Scenario",
     "load_recording",
     "replay",
     "replay_trials",
+    "run",
     "run_live",
     "simulate",
 ]
 
-CLOCK_OFFSET = 26.42  # s, the paper's (section 4)
-SYNC_PHASE = 10.0  # s of exchanges before scoring starts (the paper's sync phase)
+CLOCK_OFFSET = paper.CLOCK_OFFSET
+"""s, the follower's clock offset in a live run (the paper's)."""
+SYNC_PHASE = paper.SYNC_PHASE
+"""s of exchanges before scoring starts (the paper's sync phase)."""
 
 
 @dataclass(frozen=True)
 class Scenario:
     name: str
-    delay_ms: float = 40.0
+    delay_ms: float = paper.ONE_WAY_DELAY * 1e3
     jitter_ms: float = 5.0
     jitter_dist: JitterDist = "normal"
     drift_ppm: float = 0.0
@@ -274,6 +281,9 @@ def run(
     progress: Callable[[str], None] = lambda s: None,
     trial: float = 60.0,
 ) -> list[dict[str, Any]]:
+    """Record each scenario (live, or ``offline`` from the link model) and score every
+    estimator on it: one row per (scenario, estimator) with :func:`replay`'s scores and,
+    when the recording spans ``trial`` seconds, :func:`replay_trials`' under ``restarts``."""
     results = []
     for scenario in scenarios:
         started = time.monotonic()
@@ -295,68 +305,3 @@ def run(
         progress(f"{scenario.name}: {len(recording.exchanges)} exchanges, "
                  f"{time.monotonic() - started:.0f} s")  # fmt: skip
     return results
-
-
-def register(sub: Any, formatter: type[argparse.HelpFormatter]) -> None:
-    p = sub.add_parser(
-        "sync",
-        help="offset error of each estimator under emulated internet paths",
-        formatter_class=formatter,
-        description=__doc__.split("\n\n")[1] if __doc__ else None,
-        epilog=(
-            "Examples:\n"
-            "  fedlab bench sync --duration 60 --scenario paper-like --scenario drift\n"
-            "  fedlab bench sync --offline --duration 600 --json"
-        ),
-    )
-    p.add_argument(
-        "--scenario", action="append", choices=sorted(SCENARIOS), metavar="NAME",
-        help=f"scenario to run (repeatable; default all: {', '.join(SCENARIOS)})",
-    )  # fmt: skip
-    p.add_argument(
-        "--estimator", action="append", choices=ESTIMATORS, metavar="NAME",
-        help=f"estimator to score (repeatable; default all: {', '.join(ESTIMATORS)})",
-    )  # fmt: skip
-    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds per scenario")
-    p.add_argument("--offline", action="store_true", help="draw exchanges from the link model")
-    p.add_argument("--seed", type=int, default=1, help="random seed of the link emulator")
-    p.add_argument(
-        "--trial", type=float, default=60.0, metavar="S",
-        help="seconds of each fresh start scored under 'restarts' (one every 10 s)",
-    )  # fmt: skip
-    p.add_argument("--out", type=Path, default=Path("runs/bench-sync"), metavar="DIR")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.set_defaults(func=cmd_sync)
-
-
-def cmd_sync(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    if args.duration <= SYNC_PHASE:
-        raise SystemExit(f"--duration must exceed the {SYNC_PHASE:.0f} s sync phase")
-    if args.trial <= SYNC_PHASE:
-        raise SystemExit(f"--trial must exceed the {SYNC_PHASE:.0f} s sync phase")
-    console = Console(stderr=True)
-    scenarios = [SCENARIOS[n] for n in (args.scenario or SCENARIOS)]
-    results = run(
-        scenarios, args.estimator or ESTIMATORS, args.duration, args.offline, args.out,
-        args.seed, progress=lambda s: console.print(s), trial=args.trial,
-    )  # fmt: skip
-    if args.json:
-        print(json.dumps(results, indent=1))
-        return 0
-    table = Table(title="clock offset |error| after the sync phase (ms)")
-    for col in ("scenario", "estimator", "p50", "p95", "max", "n", "restarts p50", "p95 ",
-                "starts"):  # fmt: skip
-        table.add_column(col, justify="left" if col in ("scenario", "estimator") else "right")
-    for r in results:
-        again = r["restarts"]
-        table.add_row(
-            r["scenario"], r["estimator"],
-            *(f"{r[k] * 1e3:.3f}" for k in ("p50", "p95", "max")), str(r["n"]),
-            *((f"{again['p50'] * 1e3:.3f}", f"{again['p95'] * 1e3:.3f}", str(again["trials"]))
-              if again else ("-", "-", "0")),
-        )  # fmt: skip
-    Console(width=max(Console().width, 100)).print(table)
-    return 0

@@ -4,13 +4,31 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
-from typing import Any
 
-__all__ = ["register"]
+from federation.cli.common import Formatter, Subparsers, nonnegative
+
+__all__ = ["add", "run"]
 
 
-def cmd_analyze(args: argparse.Namespace) -> int:
+def add(sub: Subparsers) -> None:
+    p = sub.add_parser(
+        "analyze",
+        help="heading-loop gain, phase and delay margins of a platform",
+        formatter_class=Formatter,
+        description=(
+            "Gain, phase and delay margins of a platform's heading loop (PID on 1/(I s^2), PWM\n"
+            "as its average torque), and a warning when a link delay exceeds a quarter of the\n"
+            "delay margin."
+        ),
+        epilog="Example: fedlab analyze --platform pinocchio --delay 0.04 --json",
+    )
+    p.add_argument("--platform", required=True, metavar="PRESET", help="preset name or TOML file")
+    p.add_argument("--delay", type=nonnegative, metavar="S", help="one-way link delay to check, s")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from agents.analysis import heading_margins
@@ -36,25 +54,3 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     elif args.delay is not None:
         console.print(f"  a {args.delay * 1e3:.0f} ms link delay is within a quarter of it")
     return 0
-
-
-def register(
-    sub: Any,
-    formatter: type[argparse.HelpFormatter],
-    add_zenoh_flags: Callable[[argparse.ArgumentParser], None],
-) -> None:
-    p = sub.add_parser(
-        "analyze",
-        help="heading-loop gain, phase and delay margins of a platform",
-        formatter_class=formatter,
-        description=(
-            "Gain, phase and delay margins of a platform's heading loop (PID on 1/(I s^2), PWM\n"
-            "as its average torque), and a warning when a link delay exceeds a quarter of the\n"
-            "delay margin."
-        ),
-        epilog="Example: fedlab analyze --platform pinocchio --delay 0.04 --json",
-    )
-    p.add_argument("--platform", required=True, metavar="PRESET", help="preset name or TOML file")
-    p.add_argument("--delay", type=float, metavar="S", help="one-way link delay to check, s")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    p.set_defaults(func=cmd_analyze)

@@ -1,6 +1,10 @@
 """What every ``fedlab`` command shares: the help formatter, Zenoh's usual flags,
 opening a session that a signal can interrupt, stopping on signals, and argument
 types. Each command module in this package parses with these and calls the library.
+
+The one place for each: Zenoh flags (:func:`add_zenoh_flags`, :func:`zenoh_options`),
+signal handling (:func:`stop_on_signals`, :func:`signal_handlers_kept`) and opening a
+session (:func:`open_session`, :func:`open_interruptible`).
 """
 
 from __future__ import annotations
@@ -11,36 +15,49 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
-from federation.runtime.session import ZenohConfigError
+from federation.core import keys
+from federation.runtime.session import ConnectError
 from schemas.config import ZenohOptions, validate
 
 __all__ = [
     "Formatter",
     "Subparsers",
     "add_zenoh_flags",
+    "agent_id",
+    "federation_name",
     "nonnegative",
     "open_interruptible",
+    "open_session",
     "positive",
     "probability",
+    "signal_handlers_kept",
     "stop_on_signals",
     "zenoh_options",
 ]
 
 log = logging.getLogger("fedlab")
 
-Subparsers = argparse._SubParsersAction
+if TYPE_CHECKING:
+    Subparsers: TypeAlias = argparse._SubParsersAction[argparse.ArgumentParser]
+else:  # not subscriptable at run time
+    Subparsers = argparse._SubParsersAction
+"""What ``add_subparsers()`` returns: each command module's ``add(sub)`` adds to it."""
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    pass
+    """Descriptions and epilogs as written (line breaks kept), defaults shown in help."""
 
 
 def add_zenoh_flags(parser: argparse.ArgumentParser) -> None:
+    """Zenoh's usual flags, as its own examples take them: -m, -e, -l, -c, --cfg."""
     group = parser.add_argument_group("zenoh")
     group.add_argument("-m", "--mode", choices=["client", "peer", "router"], help="session mode")
     group.add_argument(
@@ -70,6 +87,7 @@ def add_zenoh_flags(parser: argparse.ArgumentParser) -> None:
 
 
 def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+    """The Zenoh flags of parsed ``args``, validated (a ConfigError names the flag)."""
     data = {k: getattr(args, k) for k in ("mode", "connect", "listen", "config", "cfg")}
     return validate(ZenohOptions, data, "command line")
 
@@ -82,14 +100,30 @@ def stop_on_signals() -> threading.Event:
         log.info("received %s, stopping", signal.Signals(signum).name)
         stop.set()
 
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
+    for sig in _SIGNALS:
+        signal.signal(sig, handler)
     return stop
+
+
+@contextmanager
+def signal_handlers_kept() -> Iterator[None]:
+    """Put back the SIGINT and SIGTERM handlers found on entry: :func:`stop_on_signals`
+    replaces them, and ``main()`` may run inside another program or a test."""
+    previous = {sig: signal.getsignal(sig) for sig in _SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.Event) -> Any:
     """Open a session in a helper thread, so a signal can stop an agent still waiting for its
-    router (zenoh.open retries a missing router forever and does not return to Python)."""
+    router (zenoh.open retries a missing router forever and does not return to Python).
+
+    Returns the session, or None when ``stop`` was set first; raises
+    :class:`~federation.runtime.session.ConnectError` when Zenoh cannot open one.
+    """
     result: dict[str, Any] = {}
 
     def target() -> None:
@@ -108,11 +142,40 @@ def open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.
             log.info("waiting for the router (%.0f s)...", time.monotonic() - started)
             next_note += 10.0
     if "error" in result:
-        raise ZenohConfigError(f"cannot open a Zenoh session: {result['error']}")
+        raise ConnectError(f"cannot open a Zenoh session: {result['error']}")
     if stop.is_set() and "session" not in result:
         log.info("stopped before the router was reached")
         return None
     return result["session"]
+
+
+def open_session(
+    args: argparse.Namespace, stop: threading.Event, default_mode: str = "client"
+) -> Any:
+    """A Zenoh session from the command's Zenoh flags (see :func:`open_interruptible`);
+    None when ``stop`` was set before the router answered."""
+    import zenoh
+
+    from federation.runtime.session import build_config
+
+    conf = build_config(zenoh_options(args), default_mode=default_mode)
+    return open_interruptible(zenoh.open, conf, stop)
+
+
+def federation_name(text: str) -> str:
+    """Argument type: a federation name (lowercase letters, digits, ``-`` and ``_``)."""
+    try:
+        return keys.validate_name(text, "federation name")
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def agent_id(text: str) -> keys.AgentId:
+    """Argument type: an agent's address, ``LAB/NAME``."""
+    try:
+        return keys.AgentId.parse(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _number(text: str) -> float:

@@ -3,9 +3,23 @@
 ::
 
     waiting --start(at)--> armed --t_sim >= at--> running --freeze--> frozen
-                                                     ^                  |
-                                                     +-----resume-------+
+                             ^                       ^                  |
+                             |                       +-----resume-------+
+                             +-- start(at) from armed, running or frozen (re-arm)
     any mode --abort--> aborted   (safe hold: all valves closed; final)
+
+The rules, in the order :meth:`RunState.command` applies them:
+
+1. A command whose ``seq`` is not above every seq seen is a repeat: no event.
+2. ``abort`` aborts from any mode, aborted included.
+3. After an abort every other command is ``ignored``.
+4. ``start`` arms (``at``, or the present reference time without one) and starts
+   at once if that time has come; without ``at`` and unsynchronized it is ``ignored``.
+5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` or
+   the present; anything else is ``ignored``.
+
+:meth:`RunState.update` is the one transition not made by a command: armed to
+running once the reference time reaches the start.
 
 ``run_time`` is the experiment's clock: reference time since the start, less the
 time spent frozen. The leader's maneuver is a function of it.
@@ -14,17 +28,33 @@ time spent frozen. The leader's maneuver is a function of it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
-from schemas.messages import Command
-
-__all__ = ["Event", "Mode", "RunState"]
+__all__ = ["Event", "Mode", "RunCommand", "RunState"]
 
 Mode = Literal["waiting", "armed", "running", "frozen", "aborted"]
 
 
+class RunCommand(Protocol):
+    """What the run state reads of a command (:class:`schemas.messages.Command` is one)."""
+
+    @property
+    def command(self) -> str:
+        """``start``, ``freeze``, ``resume`` or ``abort``."""
+
+    @property
+    def seq(self) -> int:
+        """The command's number: a repeat of a seen one is ignored."""
+
+    @property
+    def at(self) -> float | None:
+        """Reference time (s) at which to act; None: on receipt."""
+
+
 @dataclass(frozen=True)
 class Event:
+    """What a transition (or a refused command) did, for the log and the recording."""
+
     kind: Literal["armed", "started", "frozen", "resumed", "aborted", "ignored"]
     t_sim: float | None  # reference time the event refers to (s)
     detail: str = ""
@@ -42,12 +72,7 @@ class RunState:
         if autostart:
             self.mode, self.start_at = "armed", 0.0
 
-    @property
-    def held(self) -> bool:
-        """Safe hold: the platform must keep every valve closed."""
-        return self.mode == "aborted"
-
-    def command(self, cmd: Command, t_sim: float | None) -> list[Event]:
+    def command(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
         """Apply a command received when the reference time was ``t_sim``."""
         if cmd.seq <= self.last_seq:
             return []

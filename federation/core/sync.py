@@ -17,10 +17,13 @@ One exchange between a client and a server::
 offset is wrong by half their difference; no application-layer method can see
 that, so :attr:`Exchange.error_bound` reports the worst case instead.
 
-:class:`SyncClient` matches replies to requests by the echoed ``t1`` and rejects
-late, duplicate, unmatched and malformed ones; an estimator turns accepted
-exchanges into one offset. Time is always passed in (``now``): nothing here
-reads a clock.
+Both halves are here. The client, :class:`SyncClient`, matches replies to
+requests by the echoed ``t1`` and rejects late, duplicate, unmatched and
+malformed ones; an estimator turns accepted exchanges into one offset. The
+server, :func:`serve`, answers a request with the paper's 64-byte reply and its
+send time ``t2s`` (the optional fourth timestamp) as the reply's attachment;
+the client reads that with :func:`read_send_time`. Time is always passed in
+(``now``): nothing here reads a clock.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import math
 import statistics
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, NamedTuple, Protocol
 
 from federation.core import wire
 
@@ -38,8 +41,10 @@ __all__ = [
     "Estimator",
     "Exchange",
     "PaperEstimator",
-    "Rejection",
+    "ServedReply",
     "SyncClient",
+    "read_send_time",
+    "serve",
 ]
 
 DEFAULT_WINDOW = 10.0
@@ -180,7 +185,32 @@ class PaperEstimator:
         return self._held is not None
 
 
-Rejection = Literal["malformed", "unmatched", "duplicate", "late"]
+class ServedReply(NamedTuple):
+    """The server's answer to one request."""
+
+    payload: bytes
+    """The reply (64 bytes): ``t1`` echoed, ``t2``, the server's pose."""
+    attachment: bytes
+    """The send time ``t2s`` (8 bytes, coded as a request): the payload stays the paper's."""
+
+
+def serve(
+    request: bytes | bytearray | memoryview, t2: float, pose: wire.Pose, now: float
+) -> ServedReply:
+    """The server half of an exchange: answer ``request``, received at ``t2``, with
+    ``pose``, the reply leaving at ``now`` (all on the server's clock, s).
+
+    Raises :class:`~federation.core.wire.DecodeError` for a malformed request. A
+    server answering on another's behalf (a bridge) passes that clock's ``t2``."""
+    t1 = wire.decode_request(request)
+    return ServedReply(wire.encode_reply(t1, t2, pose), wire.encode_request(now))
+
+
+def read_send_time(attachment: bytes | bytearray | memoryview) -> float:
+    """The server's send time ``t2s`` from a reply's attachment (s, server clock).
+
+    Raises :class:`~federation.core.wire.DecodeError` if it is not one."""
+    return wire.decode_request(attachment)
 
 
 class SyncClient:

@@ -19,18 +19,17 @@ Keys are ECDSA P-256 in PKCS#8 PEM, written with mode 0600; certificates are X.5
 v3 and always carry a Common Name (a certificate without one broke Zenoh's TLS links
 in 1.7.2, zenoh issue 2400).
 
-The functions here do the work and print nothing; :func:`register` adds the CLI.
+The functions here do the work and print nothing; ``fedlab certs``
+(:mod:`federation.cli.certs`) parses the flags and prints what was written.
 """
 
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import ipaddress
 import json
 import os
-import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,7 +55,6 @@ __all__ = [
     "init_ca",
     "issue_agent",
     "issue_lab",
-    "register",
     "tls_settings",
 ]
 
@@ -356,118 +354,3 @@ def _write_atomic(path: Path, data: bytes, mode: int) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-
-
-# -- command line --------------------------------------------------------------------
-def register(
-    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
-    formatter_class: type[argparse.HelpFormatter],
-    add_zenoh_flags: Callable[[argparse.ArgumentParser], None],
-) -> None:
-    """Add ``certs init|issue|issue-agent``. They open no Zenoh session: no Zenoh flags."""
-    del add_zenoh_flags
-    p = subparsers.add_parser(
-        "certs",
-        help="create the federation CA and the labs' and agents' certificates",
-        formatter_class=formatter_class,
-        description=(
-            "A federation's certificate authority signs one certificate per lab router (mutual\n"
-            "TLS between labs) and one per agent (its identity for the lab router's access\n"
-            "control). Keys are written with mode 0600. See docs/deploy.md."
-        ),
-        epilog=(
-            "Examples:\n"
-            "  fedlab certs init --dir /etc/fedlab/certs --federation default\n"
-            "  fedlab certs issue kiruna --dir /etc/fedlab/certs --host kiruna.example.org\n"
-            "  fedlab certs issue-agent kiruna knatte --dir /etc/fedlab/certs"
-        ),
-    )
-    sub = p.add_subparsers(dest="certs_command", required=True, metavar="ACTION")
-
-    def common(q: argparse.ArgumentParser, days: int) -> None:
-        q.add_argument(
-            "--dir", type=Path, default=DEFAULT_DIR, metavar="DIR", help="certificate folder"
-        )
-        q.add_argument("--force", action="store_true", help="replace existing files")
-        q.add_argument("--days", type=int, default=days, metavar="N", help="days of validity")
-
-    q = sub.add_parser(
-        "init",
-        help="create the federation CA (ca.pem, ca.key)",
-        formatter_class=formatter_class,
-        description="Create the federation CA. Refuses to replace an existing one without --force.",
-        epilog="Example: fedlab certs init --dir /etc/fedlab/certs --federation default",
-    )
-    q.add_argument(
-        "--federation", default=DEFAULT_FEDERATION, metavar="NAME", help="federation name"
-    )
-    common(q, CA_DAYS)
-    q.set_defaults(func=_cmd_init)
-
-    q = sub.add_parser(
-        "issue",
-        help="issue a lab router's certificate (<lab>.pem, <lab>.key)",
-        formatter_class=formatter_class,
-        description=(
-            "Issue a lab router's certificate, signed by the CA in --dir. CN is the lab name;\n"
-            "every --host (DNS name or IP address) becomes a Subject Alternative Name: give\n"
-            "each name other labs' routers and this lab's agents dial."
-        ),
-        epilog=(
-            "Example:\n"
-            "  fedlab certs issue kiruna --dir /etc/fedlab/certs --host kiruna.example.org"
-        ),
-    )
-    q.add_argument("lab", help="lab name")
-    q.add_argument(
-        "--host",
-        action="append",
-        default=argparse.SUPPRESS,
-        metavar="NAME",
-        help=f"host name or address (repeatable; default: {', '.join(DEFAULT_HOSTS)})",
-    )
-    common(q, LEAF_DAYS)
-    q.set_defaults(func=_cmd_issue)
-
-    q = sub.add_parser(
-        "issue-agent",
-        help="issue an agent's client certificate (<lab>.<name>.pem, .key)",
-        formatter_class=formatter_class,
-        description=(
-            "Issue an agent's client certificate, signed by the CA in --dir. Its CN is\n"
-            "'<lab>/<name>': list it in the lab router's access_control subjects."
-        ),
-        epilog="Example: fedlab certs issue-agent kiruna knatte --dir /etc/fedlab/certs",
-    )
-    q.add_argument("lab", help="the agent's lab")
-    q.add_argument("name", help="the agent's name")
-    common(q, LEAF_DAYS)
-    q.set_defaults(func=_cmd_issue_agent)
-
-
-def _report(issued: Issued) -> None:
-    print(f"CN {issued.common_name!r}: certificate {issued.cert}, key {issued.key} (mode 0600)")
-
-
-def _run(action: Callable[[], Issued]) -> int:
-    try:
-        _report(action())
-    except (CertError, ValueError, OSError) as error:
-        print(f"fedlab certs: error: {error}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def _cmd_init(args: argparse.Namespace) -> int:
-    return _run(lambda: init_ca(args.dir, args.federation, force=args.force, days=args.days))
-
-
-def _cmd_issue(args: argparse.Namespace) -> int:
-    hosts = getattr(args, "host", None) or DEFAULT_HOSTS
-    return _run(lambda: issue_lab(args.dir, args.lab, hosts, force=args.force, days=args.days))
-
-
-def _cmd_issue_agent(args: argparse.Namespace) -> int:
-    return _run(
-        lambda: issue_agent(args.dir, args.lab, args.name, force=args.force, days=args.days)
-    )

@@ -24,8 +24,16 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from federation.core import paper
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import last_status
+
+PAPER_MANEUVER = {
+    "still": paper.MANEUVER_STILL,
+    "duration": paper.MANEUVER_DURATION,
+    "amplitude_deg": paper.MANEUVER_AMPLITUDE_DEG,
+}
+"""The hardware run's maneuver (docs/paper.md)."""
 
 __all__ = ["run_demo"]
 
@@ -38,7 +46,7 @@ def experiment(duration: float) -> dict[str, Any]:
         "name": "attitude-tracking-demo",
         "duration": duration,
         "start_delay": START_IN,
-        "maneuver": {"still": 10.0, "duration": 60.0, "amplitude_deg": 45.0},
+        "maneuver": PAPER_MANEUVER,
         "participants": [
             {"agent": LEADER, "role": "leader", "platform": "knatte"},
             {"agent": FOLLOWER, "role": "follower", "platform": "pinocchio", "follow": LEADER},
@@ -94,7 +102,7 @@ def _start_run(endpoint: str, seconds_ahead: float) -> float:
         command = Command(
             command="start", at=at, seq=time.time_ns() // 1_000_000, issuer="demo",
             experiment="attitude-tracking-demo",
-            maneuver=ManeuverConfig(still=10.0, duration=60.0, amplitude_deg=45.0),
+            maneuver=ManeuverConfig(**PAPER_MANEUVER),
         )  # fmt: skip
         for _ in range(3):
             session.put(keys.control_key("default"), command.model_dump_json())
@@ -103,7 +111,10 @@ def _start_run(endpoint: str, seconds_ahead: float) -> float:
 
 
 def run_demo(
-    duration: float, out: Path, delay_ms: float = 40.0, clock_offset: float = 26.42
+    duration: float,
+    out: Path,
+    delay_ms: float = paper.ONE_WAY_DELAY * 1e3,
+    clock_offset: float = paper.CLOCK_OFFSET,
 ) -> int:
     """Run the demo; ``duration`` is seconds of run time after the common start."""
     console = Console()
@@ -188,7 +199,7 @@ def run_demo(
         "command": " ".join(["fedlab", *sys.argv[1:]]) if sys.argv else "fedlab demo",
     }
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
-    from federation.report.report import write_report
+    from federation.report import write_report
 
     summary = write_report(out, out)
     console.print(paper_table(summary))
@@ -203,7 +214,7 @@ def _find(rows: list[dict[str, Any]], **match: str) -> dict[str, Any]:
 
 
 def paper_table(summary: dict[str, Any]) -> Table:
-    """This run beside the paper (NOTES.md), for the compensated follower's view."""
+    """This run beside the paper (docs/paper.md), for the compensated follower's view."""
     pair = _find(summary.get("sync", []), client=FOLLOWER, peer=LEADER)
     comp = _find(summary.get("followers", []), follower=FOLLOWER)
     raw = _find(summary.get("followers", []), follower=RAW)

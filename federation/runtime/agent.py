@@ -12,17 +12,22 @@ Threads and who owns what:
   and sends sync requests (``session.get`` with a callback returns at once).
   Agents hosted in one process may share that thread (:func:`run_together`).
 - A recorder thread writes the MCAP file (:mod:`federation.runtime.recorder`).
+
+The decisions are made in the pure core: run modes (:mod:`federation.core.runstate`),
+time bases (:mod:`federation.core.timebase`), the sync exchange's two halves
+(:mod:`federation.core.sync`), the stale-link hold (:mod:`federation.core.linkwatch`)
+and the periodic tasks' deadlines (:mod:`federation.core.schedule`, run by
+:mod:`federation.runtime.loop`). :func:`run_together`, :class:`Schedule` and
+:func:`peer_status` are importable from here as before.
 """
 
 from __future__ import annotations
 
 import functools
-import heapq
 import logging
 import math
 import threading
 import time
-import zlib
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,21 +41,27 @@ from agents.guidance import ReferenceManeuver, track_heading
 from agents.kinematic import Platform
 from agents.platform import make_platform
 from federation.core import keys, wire
+from federation.core.channels import Channel
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
+from federation.core.linkwatch import LinkWatch
 from federation.core.runstate import Event, RunState
-from federation.core.sync import SyncClient
+from federation.core.schedule import next_tick
+from federation.core.sync import SyncClient, read_send_time, serve
+from federation.core.timebase import TimeBase
 from federation.runtime.clock import ExecClock
 from federation.runtime.fanout import Fanout
+from federation.runtime.loop import Schedule, run_together
 from federation.runtime.recorder import Recorder
+from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
-from schemas.messages import Command, PeerStatus, Status
+from schemas.messages import Command, Status
 from schemas.platform import PlatformConfig
 
 if TYPE_CHECKING:
     from agents.analysis import Margins  # imports python-control: only for a physical platform
 
-__all__ = ["Agent", "AgentRuntime", "NameTaken", "Schedule", "peer_status", "run_together"]
+__all__ = ["AgentRuntime", "NameTaken", "Schedule", "peer_status", "run_together"]
 
 log = logging.getLogger("fedlab.agent")
 
@@ -85,6 +96,10 @@ class Peer:
     on_reply: Any = None  # its reply handler, made once
     next_sync: float = 0.0  # host monotonic time of its next sync request
 
+    def offset_at(self, t: float) -> float | None:
+        """Its clock minus this agent's at own time ``t`` (s): the time base's estimate."""
+        return self.client.offset_at(t)
+
 
 class AgentRuntime:
     """One agent on an open Zenoh session. ``start()``, ``run(stop)``, ``close()``."""
@@ -104,7 +119,7 @@ class AgentRuntime:
         self.me = config.agent
         self.clock = clock or ExecClock(config.clock_offset, config.clock_drift_ppm)
         self.platform: Platform = platform or make_platform(
-            config.platform, config.seed, rate=config.pose_rate
+            config.platform, config.seed, rate=config.pose_rate, preset=config.platform_preset
         )
         self.maneuver = maneuver or _maneuver(config.maneuver)
         self.follow = AgentId.parse(config.follow) if config.follow else None
@@ -128,10 +143,12 @@ class AgentRuntime:
         # When they were computed: t_exec, host monotonic, t_sim, run time.
         self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
         self.peers: dict[AgentId, Peer] = {}
+        # Own clock <-> reference time <-> a peer's clock, through the peers' estimates.
+        self.timebase = TimeBase(self.me, self.reference, self.peers)
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
         self.hold_reason: str | None = None  # "stale" or "aborted" while valves are held
-        self._stale_since: float | None = None
+        self.link_watch = LinkWatch(config.stale_after)
         self._clock_stepped = False
         self.counters: Counter[str] = Counter()
         self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
@@ -153,11 +170,11 @@ class AgentRuntime:
         with self._count_lock:
             self.counters[name] += 1
 
-    def recording(self, topic: str) -> bool:
+    def recording(self, topic: Channel) -> bool:
         """Whether ``topic`` is recorded: callbacks build no message otherwise."""
         return self.recorder is not None and topic in self.recorder.channels
 
-    def record(self, topic: str, message: dict[str, Any]) -> None:
+    def record(self, topic: Channel, message: dict[str, Any]) -> None:
         if self.recorder is not None:
             self.recorder.record(topic, message)
 
@@ -219,23 +236,20 @@ class AgentRuntime:
         out = {}
         t_exec = self.clock.now()
         for agent, sample in list(self.latest_poses.items()):
-            peer = self.peers.get(agent)
-            to_sender = peer.client.offset_at(t_exec) if peer else None
-            to_reference = self.reference_offset(t_exec)
-            if to_sender is None or to_reference is None:
+            if agent == self.me:  # watching every pose, its own comes back too
                 continue
-            out[str(agent)] = (sample.t - to_sender + to_reference, sample.pose)
+            t_sim = self.timebase.peer_to_sim(agent, sample.t, t_exec)
+            if t_sim is not None:
+                out[str(agent)] = (t_sim, sample.pose)
         return out
 
     def close(self) -> None:
         """Undeclare everything (tokens and subscribers first); the caller closes the session."""
         self.platform.hold()  # leave the platform with every valve closed
-        closer = getattr(self.platform, "close", None)
-        if callable(closer):
-            try:
-                closer()  # a serial platform sends all-closed and releases its port
-            except Exception as error:
-                log.warning("closing the platform failed: %s", error)
+        try:
+            self.platform.close()  # a serial platform sends all-closed and releases its port
+        except Exception as error:
+            log.warning("closing the platform failed: %s", error)
         for entity in reversed(self._declared):
             try:
                 entity.undeclare()
@@ -263,26 +277,22 @@ class AgentRuntime:
     # -- time --------------------------------------------------------------------------
     def reference_offset(self, t_exec: float) -> float | None:
         """Reference clock minus own clock (0 on the reference itself)."""
-        if self.reference == self.me:
-            return 0.0
-        peer = self.peers.get(self.reference)
-        return peer.client.offset_at(t_exec) if peer else None
+        return self.timebase.reference_offset(t_exec)
 
     def sim_time(self, t_exec: float) -> float | None:
         """Simulation time (Eq. 5): the reference agent's clock."""
-        offset = self.reference_offset(t_exec)
-        return None if offset is None else t_exec + offset
+        return self.timebase.sim_time(t_exec)
 
-    def _start_due(self) -> float:
+    def start_due(self) -> float:
         """Host monotonic time at which an armed run starts (inf if none is armed)."""
         start_at = self.run_state.start_at
         if self.run_state.mode != "armed" or start_at is None:
             return math.inf
         t_exec, host = self.clock.read()
-        offset = self.reference_offset(t_exec)
-        if offset is None:
+        t_sim = self.timebase.sim_time(t_exec)
+        if t_sim is None:
             return math.inf
-        return host + (start_at - (t_exec + offset)) / self.clock.rate
+        return host + (start_at - t_sim) / self.clock.rate
 
     # -- the agent's own loop ----------------------------------------------------------
     def reference_heading(self, t_exec: float, run_time: float | None) -> tuple[float, float]:
@@ -293,9 +303,7 @@ class AgentRuntime:
             return 0.0, 0.0  # its pose source decides where it goes
         received = self.latest_poses.get(self.follow) if self.follow else None
         # The followed agent's clock now: its samples are stamped on it.
-        peer = self.peers.get(self.follow) if self.follow else None
-        offset = peer.client.offset_at(t_exec) if peer else None
-        now = None if offset is None else t_exec + offset
+        now = self.timebase.peer_time(self.follow, t_exec) if self.follow else None
         return track_heading(received, now, self.config.latency_compensation)
 
     def control_step(self) -> None:
@@ -314,29 +322,26 @@ class AgentRuntime:
 
     def _watch_link(self, t_exec: float, host: float) -> None:
         """Safe hold while the followed pose is stale; resume once it flows again and a
-        sync exchange has completed since (re-synchronized)."""
+        sync exchange has completed since (re-synchronized). An abort overrides it."""
         if self.follow is None or self.hold_reason == "aborted":
             return
         received = self.pose_received_at.get(self.follow)
-        if received is None:
-            return  # nothing followed yet: nothing went stale
-        stale = t_exec - received > self.config.stale_after
-        if stale and self.hold_reason is None:
-            self.hold_reason, self._stale_since = "stale", t_exec
+        peer = self.peers.get(self.follow)
+        last = peer.client.last if peer else None
+        action = self.link_watch.update(t_exec, received, None if last is None else last.t3)
+        if action == "stale_hold" and received is not None:
+            self.hold_reason = "stale"
             self.platform.hold()
             self.count("stale_holds")
             log.warning(
                 "no pose from %s for %.0f ms: safe hold", self.follow, (t_exec - received) * 1e3
             )
             self._event("stale_hold", t_exec, host, f"last pose {t_exec - received:.3f} s ago")
-        elif not stale and self.hold_reason == "stale":
-            peer = self.peers.get(self.follow)
-            last = peer.client.last if peer else None
-            if last is not None and self._stale_since is not None and last.t3 > self._stale_since:
-                self.hold_reason = None
-                self.platform.release()
-                log.info("pose from %s flows again and sync resumed: released", self.follow)
-                self._event("link_resumed", t_exec, host, "")
+        elif action == "link_resumed":
+            self.hold_reason = None
+            self.platform.release()
+            log.info("pose from %s flows again and sync resumed: released", self.follow)
+            self._event("link_resumed", t_exec, host, "")
 
     def _rehearse_clock_step(self) -> None:
         step = self.config.clock_step
@@ -347,7 +352,7 @@ class AgentRuntime:
 
     def _event(self, kind: str, t_exec: float, host: float, detail: str) -> None:
         self.record(
-            "/control",
+            Channel.CONTROL,
             {
                 "event": kind,
                 "command": None,
@@ -365,11 +370,11 @@ class AgentRuntime:
         self._pose_pub.put(wire.encode_pose(t_exec, self.pose))
         if self.recorder is not None:
             stamp = {"t_exec": t_exec, "host_monotonic": host}
-            self.record("/pose/sent", stamp | self.pose._asdict())
+            self.record(Channel.POSE_SENT, stamp | self.pose._asdict())
             # The reference as computed at the last control step, stamped with that step's time.
             g_exec, g_host, g_sim, g_run = self.guidance_at
             self.record(
-                "/reference",
+                Channel.REFERENCE,
                 {
                     "t_exec": g_exec,
                     "host_monotonic": g_host,
@@ -383,7 +388,7 @@ class AgentRuntime:
             )
             truth = getattr(self.platform, "truth", None)
             if truth is not None:
-                self.record("/truth", stamp | truth._asdict())
+                self.record(Channel.TRUTH, stamp | truth._asdict())
 
     def step(self) -> None:
         """One control step, then publish the pose."""
@@ -399,7 +404,7 @@ class AgentRuntime:
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(level, "run %s at reference time %s %s", event.kind, event.t_sim, event.detail)
             self.record(
-                "/control",
+                Channel.CONTROL,
                 {
                     "event": event.kind,
                     "command": None,
@@ -428,7 +433,7 @@ class AgentRuntime:
             if agent in self.close_sync:
                 peer.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
             else:
-                peer.next_sync = _next_tick(peer.next_sync, cfg.sync_others_period, now)
+                peer.next_sync = next_tick(peer.next_sync, cfg.sync_others_period, now)
             due.append(agent)
         return due
 
@@ -465,15 +470,9 @@ class AgentRuntime:
                     peers[str(agent)] = peer_status(peer.client, t_exec, peer.alive)
         t_sim = self.sim_time(t_exec)
         received = self.latest_poses.get(self.follow) if self.follow else None
-        follow_offset = (
-            self.peers[self.follow].client.offset_at(t_exec)
-            if (self.follow in self.peers)
-            else None
-        )
-        pose_age = (
-            None if received is None or follow_offset is None
-            else t_exec + follow_offset - received.t
-        )  # fmt: skip
+        # Its samples are stamped on its clock: their age is measured on it.
+        follow_now = self.timebase.peer_time(self.follow, t_exec) if self.follow else None
+        pose_age = None if received is None or follow_now is None else follow_now - received.t
         return Status(
             agent=str(self.me),
             federation=self.config.federation,
@@ -496,15 +495,7 @@ class AgentRuntime:
 
     def loop_stats(self) -> dict[str, float]:
         """Control loop timing: rate and lateness of the recent ticks (ms)."""
-        late = sorted(self.lateness)
-        stats = {"rate_hz": self.platform.rate, "ticks": float(len(late))}
-        if late:
-            stats |= {
-                "late_p50_ms": late[len(late) // 2] * 1e3,
-                "late_p99_ms": late[min(len(late) - 1, int(0.99 * len(late)))] * 1e3,
-                "late_max_ms": late[-1] * 1e3,
-            }
-        return stats
+        return loop_stats(self.platform.rate, list(self.lateness))
 
     def counter_snapshot(self) -> dict[str, int]:
         with self._count_lock:
@@ -530,23 +521,22 @@ class AgentRuntime:
         if self._status_file is not None:
             self._status_file.write(line + "\n")
             self._status_file.flush()
-        self.record("/status", status.model_dump())
+        self.record(Channel.STATUS, status.model_dump())
 
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------
     def _on_sync_query(self, query: zenoh.Query) -> None:
         t2 = self.clock.now()  # read on arrival: the paper's t2
         try:
             payload = query.payload
+            request = payload.to_bytes() if payload is not None else b""
             try:
-                t1 = wire.decode_request(payload.to_bytes() if payload is not None else b"")
+                # The send time rides in the attachment: the payload stays the paper's 64 bytes.
+                served = serve(request, t2, self.pose, self.clock.now())
             except wire.DecodeError as error:
                 self.count("sync_requests_malformed")
                 self.rejects("sync request", f"{query.key_expr}: {error}")
                 return
-            reply = wire.encode_reply(t1, t2, self.pose)
-            # The send time rides in the attachment: the payload stays the paper's 64 bytes.
-            t2s = wire.encode_request(self.clock.now())
-            query.reply(query.key_expr, reply, attachment=t2s)
+            query.reply(query.key_expr, served.payload, attachment=served.attachment)
             self.count("sync_requests_served")
         except Exception:
             log.exception("sync query on %s failed", query.key_expr)
@@ -562,7 +552,7 @@ class AgentRuntime:
             t2s = None
             if self.config.four_timestamps and reply.ok.attachment is not None:
                 try:
-                    t2s = wire.decode_request(reply.ok.attachment.to_bytes())
+                    t2s = read_send_time(reply.ok.attachment.to_bytes())
                 except wire.DecodeError:
                     self.count("sync_attachment_malformed")
             with self._lock:
@@ -570,7 +560,7 @@ class AgentRuntime:
                 accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3, t2s)
                 reason = peer.client.last_rejection
                 exchange = peer.client.last
-                recorded = self.recording("/sync/exchange")
+                recorded = self.recording(Channel.SYNC_EXCHANGE)
                 estimate = peer.client.offset_at(t3) if recorded else None
                 stepped = peer.client.steps > steps
             if stepped:
@@ -589,7 +579,7 @@ class AgentRuntime:
             if not recorded:
                 return
             self.record(
-                "/sync/exchange",
+                Channel.SYNC_EXCHANGE,
                 {
                     "peer": str(peer.agent),
                     "t1": exchange.t1,
@@ -619,10 +609,10 @@ class AgentRuntime:
             if parsed is not None:
                 self.latest_poses[parsed[0]] = decoded
                 self.pose_received_at[parsed[0]] = t_recv
-            if not self.recording("/pose/received"):
+            if not self.recording(Channel.POSE_RECEIVED):
                 return
             self.record(
-                "/pose/received",
+                Channel.POSE_RECEIVED,
                 {
                     "agent": str(parsed[0]) if parsed else str(sample.key_expr),
                     "t": decoded.t,
@@ -649,7 +639,7 @@ class AgentRuntime:
                 if command.maneuver is not None and any(e.kind == "armed" for e in events):
                     self.maneuver = _maneuver(command.maneuver)
             self.record(
-                "/control",
+                Channel.CONTROL,
                 {
                     "event": "command",
                     "command": command.model_dump(),
@@ -705,112 +695,10 @@ class AgentRuntime:
         return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), timeout=cfg.sync_timeout)
 
 
-class Schedule:
-    """When an agent's periodic tasks are due; :meth:`tick` runs the due ones."""
-
-    def __init__(self, agent: AgentRuntime, t0: float):
-        cfg = agent.config
-        self.agent = agent
-        self.deadline = t0 + cfg.duration if cfg.duration else math.inf
-        self.control_period = 1.0 / agent.platform.rate
-        self.pose_period = 1.0 / cfg.pose_rate
-        self.next_control = self.next_pose = self.next_sync = t0
-        # Each agent on its own phase: co-hosted agents that reported together held
-        # the interpreter for tens of ms, once a second.
-        phase = zlib.crc32(str(agent.me).encode()) / 2**32
-        self.next_status = t0 + cfg.status_period * (1.0 + phase)
-
-    def tick(self, now: float) -> float | None:
-        """Run what is due at host monotonic ``now``; the next wake-up time, or None
-        once the duration has passed (the final status is then published)."""
-        agent, cfg = self.agent, self.agent.config
-        if now >= self.deadline:
-            agent.publish_status()
-            return None
-        if now >= self.next_control or now >= agent._start_due():
-            if now >= self.next_control:
-                agent.lateness.append(now - self.next_control)
-                following = _next_tick(self.next_control, self.control_period, now)
-                if following - self.next_control > 1.5 * self.control_period:
-                    agent.count("loop_overruns")
-                self.next_control = following
-            agent.control_step()
-        if now >= self.next_pose:
-            agent.publish_pose()
-            self.next_pose = _next_tick(self.next_pose, self.pose_period, now)
-        if now >= self.next_sync:
-            agent.send_sync_requests(now)
-            self.next_sync = _next_tick(self.next_sync, cfg.sync_period, now)
-        if now >= self.next_status:
-            agent.publish_status()
-            self.next_status = _next_tick(self.next_status, cfg.status_period, now)
-        return min(
-            self.next_control, self.next_pose, self.next_sync, self.next_status,
-            self.deadline, agent._start_due(),
-        )  # fmt: skip
-
-
-def run_together(agents: list[AgentRuntime], stop: threading.Event, spread: float = 0.0) -> None:
-    """Run several agents' loops on this one thread until ``stop`` is set or every
-    agent's duration has passed; each publishes a last status when it ends.
-
-    Virtual agents hosted in one process (a lab's gateway, ``fedlab bench
-    scale``) share a thread rather than one each: with 16 agents per process,
-    16 threads waking on their own handed the interpreter lock back and forth and
-    cost the kernel a third of the process's CPU. ``spread`` seconds stagger the
-    agents' first ticks evenly, so that they do not all wake at once.
-    """
-    t0 = time.monotonic()
-    step = spread / len(agents) if agents else 0.0
-    wakes = [(t0 + i * step, i, Schedule(agent, t0 + i * step)) for i, agent in enumerate(agents)]
-    heapq.heapify(wakes)
-    while wakes and not stop.is_set():
-        at, i, schedule = wakes[0]
-        wait = at - time.monotonic()
-        if wait > 0:
-            stop.wait(wait)
-            continue
-        following = schedule.tick(time.monotonic())
-        if following is None:
-            heapq.heappop(wakes)
-        else:
-            heapq.heapreplace(wakes, (following, i, schedule))
-    for _, _, schedule in wakes:  # stopped early: the rest report once more
-        schedule.agent.publish_status()
-
-
-Agent = AgentRuntime
-
-
-def peer_status(client: SyncClient, t: float, alive: bool, base: float = 0.0) -> PeerStatus:
-    """What a sync client knows of its peer, as status reports it; ``base`` is
-    subtracted from offsets (to report them against another clock than ``t``'s)."""
-    offset = client.offset_at(t)
-    drift = getattr(client.estimator, "drift", None)
-    last = client.last
-    return PeerStatus(
-        offset=None if offset is None else offset - base,
-        delay=client.delay,
-        bound=client.estimator.bound,
-        drift_ppm=None if drift is None else drift * 1e6,
-        error_bound=last.error_bound if last else None,
-        last_offset=None if last is None else last.offset - base,
-        last_delay=last.delay if last else None,
-        locked=client.estimator.locked,
-        alive=alive,
-        samples=client.accepted,
-        sent=client.sent,
-        timeouts=client.timeouts,
-        rejected=sum(client.rejected.values()),
-        rejected_by_reason=dict(client.rejected),
-        clock_steps=client.steps,
-    )
-
-
 def _margins(platform: Platform) -> Margins | None:
     """Heading-loop margins of a platform that has a physical description."""
-    config = getattr(platform, "config", None)
-    if not isinstance(config, PlatformConfig):
+    config: PlatformConfig | None = platform.config
+    if config is None:
         return None
     from agents.analysis import heading_margins
 
@@ -823,9 +711,3 @@ def _margins(platform: Platform) -> Margins | None:
 
 def _maneuver(m: ManeuverConfig) -> ReferenceManeuver:
     return ReferenceManeuver(m.still, m.duration, math.radians(m.amplitude_deg))
-
-
-def _next_tick(previous: float, period: float, now: float) -> float:
-    """Next deadline on the period's grid; skip missed ticks instead of bursting."""
-    tick = previous + period
-    return tick if tick > now else now + period

@@ -1,39 +1,60 @@
-"""``fedlab ctl start|freeze|resume|abort``: execution control over the federation.
+"""Execution control over a federation: start, freeze, resume or abort a run.
 
 ``start`` syncs with the reference agent (the experiment's leader) exactly as
-agents do, then announces a start at a reference time ``--in`` seconds ahead;
+agents do, then announces a start at a reference time some seconds ahead;
 every agent begins when its own synchronized clock reaches that instant. The
 other commands act on receipt. Each command is published a few times with the
-same sequence number (agents ignore repeats) and ctl waits, bounded, until every
-expected agent reports the new mode.
+same sequence number (agents ignore repeats) and :func:`issue` waits, bounded,
+until every expected agent reports the new mode.
+
+:func:`issue` does it all on an open session and returns a :class:`ControlResult`;
+``fedlab ctl`` (:mod:`federation.cli.ctl`) parses, calls it and prints the table.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 from federation.core import keys
 from federation.core.clockfilter import ClockFilter
 from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.clock import ExecClock
+from federation.runtime.session import ConnectError
 from schemas.config import ConfigError
+from schemas.experiment import ExperimentConfig
 from schemas.messages import Command
 
-__all__ = ["register"]
+__all__ = [
+    "ACTIONS",
+    "DEFAULT_START_IN",
+    "EXPECTED_MODE",
+    "Action",
+    "ControlResult",
+    "Federation",
+    "choose_reference",
+    "issue",
+    "reference_now",
+    "send",
+]
 
-_EXPECTED_MODE = {
-    "start": {"armed", "running"},
-    "freeze": {"frozen"},
-    "resume": {"running"},
-    "abort": {"aborted"},
+Action = Literal["start", "freeze", "resume", "abort"]
+
+EXPECTED_MODE: dict[str, frozenset[str]] = {
+    "start": frozenset({"armed", "running"}),
+    "freeze": frozenset({"frozen"}),
+    "resume": frozenset({"running"}),
+    "abort": frozenset({"aborted"}),
 }
+"""The modes an agent reports once it has taken each command."""
+ACTIONS: tuple[Action, ...] = ("start", "freeze", "resume", "abort")
+DEFAULT_START_IN = 3.0
+"""s between the announcement and a start, without an experiment's ``start_delay``."""
 
 
 class Federation:
@@ -67,8 +88,36 @@ class Federation:
         self._sub.undeclare()
 
 
+@dataclass(frozen=True)
+class ControlResult:
+    """A command as sent and the federation's answer to it."""
+
+    command: Command
+    reference: AgentId
+    expected: frozenset[str]
+    """Agents that had to confirm: the experiment's participants, else every agent seen."""
+    modes: dict[str, str]
+    """Every expected or seen agent (sorted) and its last reported mode; ``absent``: none."""
+    elapsed: float
+    """s from the first publication until all confirmed or the wait ran out."""
+
+    @property
+    def pending(self) -> list[str]:
+        """Expected agents that did not report the command's mode in time."""
+        want = EXPECTED_MODE[self.command.command]
+        return sorted(a for a in self.expected if self.modes.get(a) not in want)
+
+    @property
+    def ok(self) -> bool:
+        """Every expected agent confirmed."""
+        return not self.pending
+
+
 def reference_now(session: Any, federation: str, reference: AgentId, clock: ExecClock) -> float:
-    """The reference agent's clock now, from a burst of sync exchanges (best of 20)."""
+    """The reference agent's clock now, from a burst of sync exchanges (best of 20).
+
+    Raises :class:`~federation.runtime.session.ConnectError` when it never answers.
+    """
     import zenoh
 
     client = SyncClient(ClockFilter(), timeout=1.0)
@@ -95,7 +144,7 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
     t = clock.now()
     offset = client.offset_at(t)
     if offset is None:
-        raise ConfigError(f"reference agent {reference} did not answer sync queries on {key}")
+        raise ConnectError(f"reference agent {reference} did not answer sync queries on {key}")
     return t + offset
 
 
@@ -103,18 +152,21 @@ def send(
     session: Any,
     federation: str,
     command: Command,
-    expected: set[str],
+    expected: set[str] | frozenset[str],
     fed: Federation,
     timeout: float,
     progress: Callable[[str], None],
 ) -> dict[str, str]:
-    """Publish ``command`` (three times) and wait until ``expected`` agents report the mode."""
+    """Publish ``command`` (three times) and wait until ``expected`` agents report the mode.
+
+    Returns every expected or seen agent's last mode (``absent`` for none), sorted.
+    """
     payload = command.model_dump_json()
     key = keys.control_key(federation)
     for _ in range(3):
         session.put(key, payload)
         time.sleep(0.05)
-    want = _EXPECTED_MODE[command.command]
+    want = EXPECTED_MODE[command.command]
     deadline = time.monotonic() + timeout
     while True:
         modes = {a: s.get("mode", "?") for a, s in fed.snapshot().items()}
@@ -124,77 +176,23 @@ def send(
         time.sleep(0.1)
     if pending:
         progress(f"no confirmation within {timeout:.0f} s from: {', '.join(sorted(pending))}")
-    return {a: modes.get(a, "absent") for a in sorted(expected | set(modes))}
+    return {a: modes.get(a, "absent") for a in sorted(set(expected) | set(modes))}
 
 
-def cmd_ctl(args: argparse.Namespace) -> int:
-    import zenoh
-    from rich.console import Console
-    from rich.table import Table
-
-    from federation.cli.common import open_interruptible, stop_on_signals, zenoh_options
-    from federation.runtime.session import build_config
-    from schemas.experiment import load_experiment
-
-    console = Console()
-    experiment = load_experiment(args.experiment) if args.experiment else None
-    federation = experiment.federation if experiment else args.federation
-    keys.validate_name(federation, "federation name")
-    conf = build_config(zenoh_options(args), default_mode="client")
-    session = open_interruptible(zenoh.open, conf, stop_on_signals())
-    if session is None:
-        return 0
-    with session:
-        fed = Federation(session, federation)
-        try:
-            time.sleep(args.discover)  # statuses arrive once a second
-            seen = fed.snapshot()
-            expected = {p.agent for p in experiment.participants} if experiment else set(seen)
-            if not expected:
-                raise ConfigError(f"no agent found in federation {federation!r}")
-            at = None
-            maneuver = experiment.maneuver if experiment else None
-            reference = _reference(args, experiment, seen)
-            clock = ExecClock()
-            ref_now = reference_now(session, federation, reference, clock)
-            ref_offset = ref_now - clock.now()
-            if args.action == "start":
-                delay = args.start_in if args.start_in is not None else (
-                    experiment.start_delay if experiment else 3.0
-                )  # fmt: skip
-                at = ref_now + delay
-                console.print(f"start at reference time {at:.3f} s ({reference}'s clock)")
-            command = Command(
-                command=args.action,
-                at=at,
-                seq=time.time_ns() // 1_000_000,
-                issued_at=clock.now() + ref_offset,
-                issuer="ctl",
-                experiment=experiment.name if experiment else None,
-                maneuver=maneuver,
-            )
-            sent = time.monotonic()
-            modes = send(session, federation, command, expected, fed, args.wait, console.print)
-            table = Table(title=f"fedlab ctl {args.action} ({time.monotonic() - sent:.2f} s)")
-            table.add_column("agent")
-            table.add_column("mode")
-            for agent, mode in modes.items():
-                table.add_row(agent, mode)
-            console.print(table)
-            ok = all(modes.get(a) in _EXPECTED_MODE[args.action] for a in expected)
-            return 0 if ok else 1
-        finally:
-            fed.close()
-
-
-def _reference(
-    args: argparse.Namespace, experiment: Any, seen: dict[str, dict[str, Any]]
+def choose_reference(
+    reference: AgentId | None,
+    experiment: ExperimentConfig | None,
+    seen: dict[str, dict[str, Any]],
 ) -> AgentId:
-    if args.reference:
-        return AgentId.parse(args.reference)
+    """The agent whose clock is reference time: ``reference`` if given, else the
+    experiment's leader, else the one agent seen with role ``leader``.
+
+    Raises :class:`ConfigError` when none or several leaders are seen.
+    """
+    if reference is not None:
+        return reference
     if experiment is not None:
-        leader: AgentId = experiment.leader
-        return leader
+        return experiment.leader
     leaders = sorted(a for a, s in seen.items() if s.get("role") == "leader")
     if len(leaders) != 1:
         raise ConfigError(
@@ -204,34 +202,93 @@ def _reference(
     return AgentId.parse(leaders[0])
 
 
-def register(
-    sub: Any,
-    formatter: type[argparse.HelpFormatter],
-    add_zenoh_flags: Callable[[argparse.ArgumentParser], None],
-) -> None:
-    p = sub.add_parser(
-        "ctl",
-        help="start, freeze, resume or abort a run across the federation",
-        formatter_class=formatter,
-        description=(__doc__ or "").split("\n\n")[1],
-        epilog=(
-            "Examples:\n"
-            "  fedlab ctl start --experiment deploy/experiments/attitude-tracking.toml \\\n"
-            "      -e tcp/127.0.0.1:7447\n"
-            "  fedlab ctl abort -e tcp/127.0.0.1:7447"
-        ),
-    )
-    p.add_argument("action", choices=["start", "freeze", "resume", "abort"])
-    p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
-    p.add_argument("--federation", default=keys.DEFAULT_FEDERATION, help="federation name")
-    p.add_argument("--reference", metavar="LAB/NAME", help="agent whose clock is reference time")
-    p.add_argument(
-        "--in", dest="start_in", type=float, metavar="S",
-        help="start this many seconds ahead (default: the experiment's start_delay, else 3)",
-    )  # fmt: skip
-    p.add_argument("--wait", type=float, default=5.0, metavar="S", help="confirmation timeout")
-    p.add_argument(
-        "--discover", type=float, default=1.5, metavar="S", help="seconds to collect statuses"
-    )
-    add_zenoh_flags(p)
-    p.set_defaults(func=cmd_ctl)
+def issue(
+    session: Any,
+    action: Action,
+    *,
+    federation: str = keys.DEFAULT_FEDERATION,
+    experiment: ExperimentConfig | None = None,
+    reference: AgentId | None = None,
+    start_in: float | None = None,
+    wait: float = 5.0,
+    discover: float = 1.5,
+    progress: Callable[[str], None] = lambda text: None,
+) -> ControlResult:
+    r"""Send ``action`` to every agent of a federation and collect their confirmations.
+
+    Parameters
+    ----------
+    session
+        An open Zenoh session.
+    action
+        ``start``, ``freeze``, ``resume`` or ``abort``.
+    federation
+        Federation name; an ``experiment``'s own name wins.
+    experiment
+        The run: its participants must confirm, its leader is the reference, its
+        maneuver and ``start_delay`` go with a start.
+    reference
+        Agent whose clock is reference time (default: see :func:`choose_reference`).
+    start_in
+        s between now (reference time) and the start; default the experiment's
+        ``start_delay``, else :data:`DEFAULT_START_IN`.
+    wait
+        s to wait for confirmations.
+    discover
+        s to collect statuses first (agents publish one a second).
+    progress
+        Called with a line of text on the way (start time, missing confirmations).
+
+    The start instant, on the reference clock :math:`t_r`, is
+
+    .. math:: t_{start} = t_r(now) + \Delta_{in},
+              \qquad t_r(now) = t_{ctl}(now) + \hat\theta
+
+    with :math:`\hat\theta` the offset estimated by a burst of sync exchanges.
+
+    Raises
+    ------
+    ConnectError
+        No agent seen in the federation, or the reference does not answer.
+    ConfigError
+        No single leader to take as the reference.
+    """
+    if action not in EXPECTED_MODE:
+        raise ValueError(f"unknown action {action!r}: expected one of {', '.join(ACTIONS)}")
+    if experiment is not None:
+        federation = experiment.federation
+    keys.validate_name(federation, "federation name")
+    fed = Federation(session, federation)
+    try:
+        time.sleep(discover)  # statuses arrive once a second
+        seen = fed.snapshot()
+        if experiment is not None:
+            expected = frozenset(str(p.agent) for p in experiment.participants)
+        else:
+            expected = frozenset(seen)
+        if not expected:
+            raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
+        ref = choose_reference(reference, experiment, seen)
+        clock = ExecClock()
+        ref_now = reference_now(session, federation, ref, clock)
+        ref_offset = ref_now - clock.now()
+        at = None
+        if action == "start":
+            if start_in is None:
+                start_in = experiment.start_delay if experiment else DEFAULT_START_IN
+            at = ref_now + start_in
+            progress(f"start at reference time {at:.3f} s ({ref}'s clock)")
+        command = Command(
+            command=action,
+            at=at,
+            seq=time.time_ns() // 1_000_000,
+            issued_at=clock.now() + ref_offset,
+            issuer="ctl",
+            experiment=experiment.name if experiment else None,
+            maneuver=experiment.maneuver if experiment else None,
+        )
+        sent = time.monotonic()
+        modes = send(session, federation, command, expected, fed, wait, progress)
+        return ControlResult(command, ref, expected, modes, time.monotonic() - sent)
+    finally:
+        fed.close()

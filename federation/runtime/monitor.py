@@ -1,4 +1,4 @@
-"""``fedlab monitor``: a live terminal view of every agent in a federation.
+"""A live terminal view of every agent in a federation (``fedlab monitor``).
 
 Three layers, so the part that decides what is shown is tested without Zenoh:
 
@@ -9,7 +9,7 @@ Three layers, so the part that decides what is shown is tested without Zenoh:
   :class:`schemas.messages.Status`, or names another agent than its key says is
   counted as malformed and shown in the footer.
 - :func:`render`: rows to a ``rich.table.Table``.
-- The Zenoh layer (:func:`subscribe`, :func:`run_monitor`): subscribers on
+- The Zenoh layer (:func:`subscribe`, :class:`Watch`, :func:`live`): subscribers on
   ``fedlab/<federation>/*/*/status`` and on liveliness ``fedlab/<federation>/*/*``
   (with history, so agents already present show up at once) hand each sample to
   the model under a lock; the display refreshes once a second.
@@ -34,13 +34,8 @@ last status     seconds since its last valid status; ``left`` once its livelines
 
 from __future__ import annotations
 
-import argparse
-import json
 import logging
 import math
-import os
-import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -65,11 +60,12 @@ __all__ = [
     "OPTIONAL_COLUMNS",
     "MonitorModel",
     "Row",
+    "Snapshot",
+    "Watch",
     "fit",
-    "register",
+    "live",
     "render",
     "row_json",
-    "run_monitor",
     "subscribe",
 ]
 
@@ -79,7 +75,6 @@ DEFAULT_STALE_AFTER = 3.0
 """Seconds without a status after which a row is stale (agents publish once a second)."""
 MAX_STATUS_BYTES = 1 << 20
 """A status larger than this is malformed without being parsed."""
-_PIPE_WIDTH = 140
 
 State = Literal["ok", "stale", "left", "waiting"]
 
@@ -425,150 +420,82 @@ def _undeclare(declared: list[Any]) -> None:
     declared.clear()
 
 
-def run_monitor(
-    session: Any,
-    federation: str,
-    stop: threading.Event,
-    *,
-    once: bool = False,
-    wait: float = 3.0,
-    duration: float | None = None,
-    as_json: bool = False,
-    console: Console | None = None,
-    stale_after: float = DEFAULT_STALE_AFTER,
-) -> int:
-    """Watch ``federation`` on an open session until ``stop``, ``duration`` or, with
-    ``once``, print one snapshot after ``wait`` seconds. Returns the exit code."""
+@dataclass(frozen=True)
+class Snapshot:
+    """What the monitor knows at one instant."""
+
+    federation: str
+    rows: tuple[Row, ...]
+    malformed: int
+    last_error: str | None
+
+    def as_json(self) -> dict[str, Any]:
+        """JSON-ready: the rows as :func:`row_json` gives them."""
+        return {
+            "federation": self.federation,
+            "rows": [row_json(r) for r in self.rows],
+            "malformed": self.malformed,
+            "last_error": self.last_error,
+        }
+
+    def table(self, console: Console) -> Table:
+        """The table :func:`fit` to ``console``."""
+        return fit(
+            console,
+            self.rows,
+            federation=self.federation,
+            malformed=self.malformed,
+            last_error=self.last_error,
+        )
+
+
+class Watch:
+    """A :class:`MonitorModel` fed by a session's status and liveliness subscribers.
+
+    Close it (or leave its ``with`` block) before closing the session.
+    """
+
+    def __init__(
+        self,
+        session: Any,
+        federation: str = keys.DEFAULT_FEDERATION,
+        stale_after: float = DEFAULT_STALE_AFTER,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.model = MonitorModel(federation, stale_after)
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._declared = subscribe(session, self.model, self._lock, clock)
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            return Snapshot(
+                self.model.federation,
+                tuple(self.model.rows(self._clock())),
+                self.model.malformed,
+                self.model.last_error,
+            )
+
+    def close(self) -> None:
+        _undeclare(self._declared)
+
+    def __enter__(self) -> Watch:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def live(
+    watch: Watch, console: Console, stop: threading.Event, duration: float | None = None
+) -> None:
+    """Show ``watch``'s table on ``console``, refreshed once a second, until ``stop`` or
+    ``duration`` seconds."""
     from rich.live import Live
 
-    if console is None:
-        console = Console()
-        if not console.is_terminal and "COLUMNS" not in os.environ:
-            console = Console(width=_PIPE_WIDTH)  # a file or pipe: the full table, not 80 columns
     clock = time.monotonic
-    model = MonitorModel(federation, stale_after)
-    lock = threading.Lock()
-
-    def table() -> Table:
-        with lock:
-            rows = model.rows(clock())
-            malformed, last_error = model.malformed, model.last_error
-        return fit(console, rows, federation=federation, malformed=malformed, last_error=last_error)
-
-    declared = subscribe(session, model, lock, clock)
-    try:
-        if once:
-            stop.wait(max(0.0, wait))
-            if as_json:
-                with lock:
-                    snapshot = {
-                        "federation": federation,
-                        "rows": [row_json(r) for r in model.rows(clock())],
-                        "malformed": model.malformed,
-                        "last_error": model.last_error,
-                    }
-                # print, not console.print: scripts want the bare JSON, unwrapped.
-                print(json.dumps(snapshot, indent=2), file=console.file, flush=True)
-            else:
-                console.print(table())
-            return 0
-        deadline = math.inf if duration is None else clock() + duration
-        with Live(table(), console=console, auto_refresh=False) as live:
-            while not stop.is_set() and clock() < deadline:
-                stop.wait(min(1.0, max(0.0, deadline - clock())))
-                live.update(table(), refresh=True)
-        return 0
-    finally:
-        _undeclare(declared)
-
-
-# -- command line ------------------------------------------------------------------
-def cmd_monitor(args: argparse.Namespace) -> int:
-    import zenoh
-
-    from federation.cli.common import open_interruptible, stop_on_signals, zenoh_options
-    from federation.runtime.session import build_config
-
-    if args.json and not args.once:
-        print("fedlab monitor: error: --json needs --once", file=sys.stderr)
-        return 2
-    federation = args.federation
-    conf = build_config(zenoh_options(args), default_mode="client")
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    stop = stop_on_signals()
-    try:
-        session = open_interruptible(zenoh.open, conf, stop)
-        if session is None:
-            return 0
-        with session:
-            return run_monitor(
-                session,
-                federation,
-                stop,
-                once=args.once,
-                wait=args.wait,
-                duration=args.duration,
-                as_json=args.json,
-            )
-    finally:
-        # Put the caller's handlers back (main() may run inside another program or a test).
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-def _federation(text: str) -> str:
-    try:
-        return keys.validate_name(text, "federation name")
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected seconds >= 0")
-    return value
-
-
-def register(
-    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
-    formatter_class: type[argparse.HelpFormatter],
-    add_zenoh_flags: Callable[[argparse.ArgumentParser], None],
-) -> None:
-    """Add the ``monitor`` command (with Zenoh's usual flags)."""
-    p = subparsers.add_parser(
-        "monitor",
-        help="live view of every agent in a federation",
-        formatter_class=formatter_class,
-        description=(
-            "Show every agent of a federation, refreshed once a second: role, mode, platform,\n"
-            "clock offset to its reference and delay, pose age, sync samples, rejected inputs,\n"
-            "control loop lateness and the age of its last status. Stale rows are dimmed;\n"
-            "agents whose liveliness token is gone are shown as 'left'."
-        ),
-        epilog=(
-            "Examples:\n"
-            "  fedlab monitor -e tcp/127.0.0.1:7447\n"
-            "  fedlab monitor --federation demo -e tcp/kiruna.example.org:7447\n"
-            "  fedlab monitor -e tcp/127.0.0.1:7447 --once --wait 3 --json"
-        ),
-    )
-    p.add_argument(
-        "--federation",
-        type=_federation,
-        default=keys.DEFAULT_FEDERATION,
-        metavar="NAME",
-        help="federation name",
-    )
-    p.add_argument(
-        "--duration", type=_positive, default=None, metavar="S", help="stop after S seconds"
-    )
-    p.add_argument(
-        "--once", action="store_true", help="print one snapshot after --wait seconds and exit"
-    )
-    p.add_argument(
-        "--wait", type=_positive, default=3.0, metavar="S", help="with --once: seconds to listen"
-    )
-    p.add_argument("--json", action="store_true", help="with --once: print the rows as JSON")
-    add_zenoh_flags(p)
-    p.set_defaults(func=cmd_monitor)
+    deadline = math.inf if duration is None else clock() + duration
+    with Live(watch.snapshot().table(console), console=console, auto_refresh=False) as view:
+        while not stop.is_set() and clock() < deadline:
+            stop.wait(min(1.0, max(0.0, deadline - clock())))
+            view.update(watch.snapshot().table(console), refresh=True)

@@ -1,21 +1,9 @@
 """Recording an agent's run to an MCAP file (Foxglove opens it).
 
-Every message is JSON on one of these channels; each carries ``t_exec`` (the
-agent's clock) and ``host_monotonic`` (the host's clock read at the same
-instant), so recordings of agents on one machine line up exactly.
-
-=====================  ============================================================
-channel                message
-=====================  ============================================================
-``/pose/sent``         the pose published: t_exec, x, y, heading, vx, vy, omega
-``/pose/received``     a pose received: agent, t (sender's clock), t_recv, pose
-``/sync/exchange``     an accepted exchange: peer, t1, t2, t3, t2s, offset, delay,
-                       estimate (the filtered offset after it)
-``/reference``         guidance: t_sim, run_time, heading_ref, rate_ref, mode
-``/truth``             a simulated platform's true pose (for evaluation)
-``/control``           execution control: event, command, at, t_sim, mode
-``/status``            the status message (as published)
-=====================  ============================================================
+Every message is JSON on one of the channels of :mod:`federation.core.channels`
+(:class:`~federation.core.channels.Channel`, where their fields are listed); each
+carries ``t_exec`` (the agent's clock) and ``host_monotonic`` (the host's clock
+read at the same instant), so recordings of agents on one machine line up exactly.
 
 Recording never blocks the agent and wakes no thread: :meth:`Recorder.record`
 appends the message to a bounded buffer (dropping and counting when full), and
@@ -38,41 +26,31 @@ from typing import Any
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-__all__ = ["CHANNELS", "Recorder", "read_messages"]
+from federation.core.channels import CHANNEL_FIELDS, Channel
+
+__all__ = ["Recorder", "read_messages"]
 
 log = logging.getLogger("fedlab.recorder")
 
 FLUSH_PERIOD = 0.05  # s between writes of the buffered messages
 
-_POSE = ["x", "y", "heading", "vx", "vy", "omega"]
-CHANNELS: dict[str, list[str]] = {
-    "/pose/sent": ["t_exec", "host_monotonic", *_POSE],
-    "/pose/received": ["agent", "t", "t_recv", "host_monotonic", *_POSE],
-    "/sync/exchange": [
-        "peer", "t1", "t2", "t3", "t2s", "offset", "delay", "estimate", "host_monotonic",
-    ],
-    "/reference": [
-        "t_exec", "host_monotonic", "t_sim", "run_time", "heading_ref", "rate_ref", "mode",
-        "valves_open",
-    ],
-    "/truth": ["t_exec", "host_monotonic", *_POSE],
-    "/control": ["event", "command", "at", "t_exec", "t_sim", "host_monotonic", "mode", "detail"],
-    "/status": ["agent", "t_exec", "host_monotonic", "peers", "counters"],
-}  # fmt: skip
-
 
 class Recorder:
+    """One agent's MCAP file; ``channels``: the ones recorded (default: all), at most
+    ``capacity`` messages buffered."""
+
     def __init__(
         self,
         path: str | Path,
         agent: str,
-        channels: list[str] | None = None,
+        channels: list[Channel] | list[str] | None = None,
         capacity: int = 200_000,
     ):
-        unknown = set(channels or ()) - set(CHANNELS)
+        unknown = set(channels or ()) - set(Channel)
         if unknown:
-            raise ValueError(f"unknown channels {sorted(unknown)}: choose from {list(CHANNELS)}")
-        self.channels = set(channels or CHANNELS)
+            choices = [str(c) for c in Channel]
+            raise ValueError(f"unknown channels {sorted(unknown)}: choose from {choices}")
+        self.channels: set[str] = {str(c) for c in channels or Channel}
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.dropped = 0
@@ -86,7 +64,8 @@ class Recorder:
         self._writer = Writer(self._file, chunk_size=256 * 1024)
         self._writer.start(profile="", library="fedlab")
         self._channels: dict[str, int] = {}
-        for topic, fields in CHANNELS.items():
+        for channel, fields in CHANNEL_FIELDS.items():
+            topic = str(channel)
             schema = {
                 "title": topic,
                 "type": "object",
@@ -182,7 +161,7 @@ def read_messages(
     path: str | Path, topics: list[str] | None = None
 ) -> dict[str, list[dict[str, Any]]]:
     """Every message of a recording by channel, in log-time order."""
-    out: dict[str, list[dict[str, Any]]] = {t: [] for t in (topics or CHANNELS)}
+    out: dict[str, list[dict[str, Any]]] = {str(t): [] for t in (topics or Channel)}
     with Path(path).open("rb") as f:
         reader = make_reader(f)
         for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):

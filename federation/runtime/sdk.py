@@ -28,6 +28,7 @@ from federation.core.wire import Pose
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.session import build_config
 from schemas.config import AgentConfig, ZenohOptions, validate
+from schemas.platform import PlatformConfig
 
 __all__ = ["Agent", "PoseSource"]
 
@@ -42,6 +43,9 @@ PoseSource = Callable[[float], Pose] | _HasPose
 
 class _SourcePlatform:
     """A pose source as a platform: guidance is ignored, the source decides."""
+
+    config: PlatformConfig | None = None
+    """No physical description: nothing to analyse."""
 
     def __init__(self, source: PoseSource, rate: float, clock: Callable[[float], float | None]):
         method = getattr(source, "pose", None)
@@ -62,6 +66,10 @@ class _SourcePlatform:
 
     def release(self) -> None:
         self.held = False
+
+    def close(self) -> None:
+        """Nothing to release: the source stops being asked."""
+        self.held = True
 
 
 class Agent:
@@ -130,9 +138,9 @@ class Agent:
     def offset(self, agent: str) -> float | None:
         """Estimated clock offset of ``agent`` minus this agent's clock (s)."""
         runtime = self._running()
-        for peer_id, peer in runtime.peers.items():
+        for peer_id in list(runtime.peers):  # liveliness may add one meanwhile
             if str(peer_id) == agent:
-                return peer.client.offset_at(runtime.clock.now())
+                return runtime.timebase.offset(peer_id, runtime.clock.now())
         return None
 
     @property

@@ -20,7 +20,7 @@ import zenoh
 
 from schemas.config import ZenohOptions
 
-__all__ = ["ZenohConfigError", "build_config"]
+__all__ = ["ConnectError", "ZenohConfigError", "build_config"]
 
 _DEFAULTS: dict[str, Any] = {
     "scouting/multicast/enabled": False,
@@ -35,6 +35,13 @@ _CLIENT_DEFAULTS: dict[str, Any] = {
 
 class ZenohConfigError(ValueError):
     """Zenoh refused a configuration; the message says which setting."""
+
+
+class ConnectError(ConnectionError):
+    """A network failure: no session could be opened, or the federation did not answer.
+
+    Not a configuration error (the settings may be right and the router down).
+    """
 
 
 def _insert(conf: zenoh.Config, key: str, value_json5: str, source: str) -> None:

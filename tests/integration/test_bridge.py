@@ -1,10 +1,10 @@
 """``fedlab bridge udp``: a legacy agent speaking the paper's UDP packets joins a federation.
 
 The legacy agent (tests/integration/legacy_agent.py) is plain sockets, no fedlab code, with its
-clock 26.42 s off. Unit tests drive :class:`BridgeCore` with time passed in; the
-integration test runs a router, a fedlab leader, the bridge and the legacy agent as
-processes on loopback (bounded waits, every process stopped by pid, every Zenoh
-session closed).
+clock 26.42 s off (the paper's offset). A router, a fedlab leader, the bridge and the legacy
+agent run as processes on loopback (bounded waits, every process stopped by pid, every
+Zenoh session closed). The protocol logic, time passed in, is tested in
+tests/unit/bridge/test_bridge_core.py.
 """
 
 from __future__ import annotations
@@ -23,169 +23,18 @@ from typing import Any
 import pytest
 import zenoh
 
-from federation.bridge.udp import BridgeConfig, BridgeCore, parse_address
 from federation.core import wire
-from federation.core.keys import AgentId
-from federation.core.sync import SyncClient
+from federation.core.paper import CLOCK_OFFSET
 from federation.fleet.launch import Fleet, wait_for
 from federation.report.status import last_status, read_status
-from schemas.config import ConfigError
 
 LEADER = "kiruna/knatte"
 LEGACY = "rome/legacy"
-LEGACY_OFFSET = 26.42  # the legacy agent's clock minus the host's monotonic clock
+LEGACY_OFFSET = CLOCK_OFFSET  # the legacy agent's clock minus the host's monotonic clock
 LEGACY_POSE = (1.25, -0.5, 0.3, 0.0, 0.0, 0.0)  # tests/integration/legacy_agent.py
 LEGACY_AGENT = Path(__file__).with_name("legacy_agent.py")
 
 
-# -- the protocol logic, time passed in --------------------------------------------------
-def config(**overrides: Any) -> BridgeConfig:
-    settings: dict[str, Any] = {
-        "agent": AgentId("rome", "legacy"),
-        "listen": ("127.0.0.1", 9000),
-        "peer": ("127.0.0.1", 9001),
-        "follow": AgentId("kiruna", "knatte"),
-    }
-    return BridgeConfig(**(settings | overrides))
-
-
-def exchange(client_request: bytes, server_offset: float, t_send: float, rtt: float) -> bytes:
-    """The reply a server whose clock is ``server_offset`` ahead sends to a request."""
-    t1 = wire.decode_request(client_request)
-    return wire.encode_reply(t1, t_send + rtt / 2 + server_offset, wire.Pose(2.0, 3.0, 0.1))
-
-
-def sync_core(core: BridgeCore, legacy: float, reference: float, n: int = 20) -> float:
-    """Feed ``n`` exchanges on both links (bridge clock starts at 100 s); returns now."""
-    now = 100.0
-    for _ in range(n):
-        request = core.legacy_request(now)
-        reply = wire.decode_request(request)
-        data = wire.encode_reply(reply, now + 0.0005 + legacy, wire.Pose(*LEGACY_POSE))
-        assert core.on_datagram(data, now + 0.001).pose is not None
-        ref_request = core.reference_request(now)
-        assert ref_request is not None
-        assert core.on_reference_reply(exchange(ref_request, reference, now, 0.002), now + 0.002)
-        now += 0.1
-    return now
-
-
-def test_legacy_request_before_reference_time_gets_no_reply() -> None:
-    core = BridgeCore(config())
-    outcome = core.on_datagram(wire.encode_request(5.0), 10.0)
-    assert outcome.reply is None and outcome.rejected == "no reference time yet"
-    assert core.counters["udp_requests_unsynced"] == 1
-
-
-def test_replies_carry_reference_time_and_queries_legacy_time() -> None:
-    core = BridgeCore(config())
-    now = sync_core(core, legacy=26.42, reference=-3.0)
-    core.on_followed_pose(wire.encode_pose(50.0, wire.Pose(0.5, 0.25, 0.7)))
-    # The legacy agent's request: t2 on the leader's clock, the leader's pose.
-    outcome = core.on_datagram(wire.encode_request(1234.5), now)
-    assert outcome.reply is not None
-    reply = wire.decode_reply(outcome.reply)
-    assert reply.t1 == 1234.5
-    assert reply.t2 == pytest.approx(now - 3.0, abs=1e-9)
-    assert reply.pose == wire.Pose(0.5, 0.25, 0.7)
-    # A federation query: t2 on the legacy agent's clock, the legacy agent's pose.
-    answer = core.on_sync_query(wire.encode_request(7.0), now)
-    assert answer is not None
-    reply = wire.decode_reply(answer[0])
-    assert reply.t1 == 7.0
-    assert reply.t2 == pytest.approx(now + 26.42, abs=1e-9)
-    assert reply.pose == wire.Pose(*LEGACY_POSE)
-    # Status is on the legacy agent's clock; the leader's offset relative to it.
-    status = core.status(now, host=500.0)
-    assert status.t_exec == pytest.approx(now + 26.42, abs=1e-9)
-    assert status.peers[LEADER].offset == pytest.approx(-3.0 - 26.42, abs=1e-9)
-    assert status.t_sim == pytest.approx(now - 3.0, abs=1e-9)
-    extra = status.model_dump()
-    assert extra["clock"] == "legacy" and extra["legacy"]["offset"] == pytest.approx(26.42)
-    assert status.role == "follower" and status.reference == LEADER
-    assert status.pose == list(LEGACY_POSE)
-
-
-def test_leader_bridge_serves_the_legacy_clock_as_reference_time() -> None:
-    core = BridgeCore(config(role="leader", follow=None))
-    assert core.reference_request(0.0) is None
-    now = 100.0
-    for _ in range(5):
-        t1 = wire.decode_request(core.legacy_request(now))
-        core.on_datagram(wire.encode_reply(t1, now + 0.0005 + 7.0, wire.Pose()), now + 0.001)
-        now += 0.1
-    outcome = core.on_datagram(wire.encode_request(1.0), now)
-    assert outcome.reply is not None
-    assert wire.decode_reply(outcome.reply).t2 == pytest.approx(now + 7.0, abs=1e-9)
-    assert core.status(now, 0.0).reference == LEGACY
-
-
-@pytest.mark.parametrize(
-    ("data", "reason"),
-    [
-        (b"\x00" * 7, "got 7"),
-        (b"\x00" * 65, "got 65"),
-        (b"", "got 0"),
-        (struct.pack("<d", math.nan), "not a finite number"),
-        (struct.pack("<d", math.inf), "not a finite number"),
-        (struct.pack("<8d", 1.0, math.nan, 0, 0, 0, 0, 0, 0), "malformed"),
-    ],
-)
-def test_malformed_datagrams_are_dropped_and_counted(data: bytes, reason: str) -> None:
-    core = BridgeCore(config())
-    sync_core(core, 26.42, -3.0, n=3)
-    outcome = core.on_datagram(data, 200.0)
-    assert outcome.reply is None and outcome.pose is None
-    assert outcome.rejected is not None and reason in outcome.rejected
-    assert core.counters["udp_malformed"] == 1
-
-
-def test_malformed_federation_query_raises_decode_error_and_is_counted() -> None:
-    core = BridgeCore(config())
-    with pytest.raises(wire.DecodeError):
-        core.on_sync_query(b"\x00" * 7, 1.0)
-    assert core.counters["sync_requests_malformed"] == 1
-
-
-def test_legacy_agent_silent_is_lost_and_its_clock_forgotten() -> None:
-    core = BridgeCore(config(legacy_timeout=2.0))
-    assert core.on_sync_query(wire.encode_request(1.0), 50.0) is None  # never seen
-    now = sync_core(core, 26.42, -3.0)
-    assert core.check_legacy(now)
-    assert core.on_sync_query(wire.encode_request(1.0), now) is not None
-    assert not core.check_legacy(now + 2.5)
-    assert core.on_sync_query(wire.encode_request(1.0), now + 2.5) is None
-    assert core.legacy_offset(now + 2.5) is None
-    assert core.counters["legacy_lost"] == 1
-
-
-def test_parse_address() -> None:
-    assert parse_address("127.0.0.1:9000", "--peer") == ("127.0.0.1", 9000)
-    assert parse_address("[::1]:9000", "--peer") == ("::1", 9000)
-    for bad in ("9000", "host:", "host:x", ":9000", "host:70000"):
-        with pytest.raises(ConfigError, match="HOST:PORT"):
-            parse_address(bad, "--peer")
-
-
-def test_bridge_config_refuses_bad_values() -> None:
-    with pytest.raises(ConfigError, match="sync-period"):
-        config(sync_period=0.0)
-    with pytest.raises(ConfigError, match="cannot follow itself"):
-        config(follow=AgentId("rome", "legacy"))
-
-
-def test_sync_client_accepts_the_bridges_legacy_replies_only_once() -> None:
-    # The bridge never answers its own replies: a duplicate is rejected, not re-published.
-    core = BridgeCore(config())
-    t1 = wire.decode_request(core.legacy_request(10.0))
-    data = wire.encode_reply(t1, 36.42, wire.Pose())
-    assert core.on_datagram(data, 10.001).pose is not None
-    again = core.on_datagram(data, 10.002)
-    assert again.pose is None and again.rejected == "sync reply (duplicate)"
-    assert isinstance(core.legacy.client, SyncClient)
-
-
-# -- real processes ------------------------------------------------------------------
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -358,7 +207,8 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
             view, line = leader_view(), last_status(leader_status)
             if view is None or line is None or not view["alive"] or view["offset"] is None:
                 return False
-            return abs(view["offset"] - (-5.0 - (line["t_exec"] - line["host_monotonic"]))) < 0.002
+            truth = -5.0 - (line["t_exec"] - line["host_monotonic"])
+            return bool(abs(view["offset"] - truth) < 0.002)
 
         assert wait_for(resynced, timeout=10), leader_view()
 

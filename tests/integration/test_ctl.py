@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from loopback import Labs
 
-from federation.fleet.launch import Fleet, wait_for
-from federation.report.status import clock_line, last_status
+from federation.fleet.launch import wait_for
+from federation.report.status import clock_line
 from federation.runtime.recorder import read_messages
 
 pytestmark = pytest.mark.integration
@@ -26,44 +26,34 @@ def ctl(*args: str) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
-def test_start_is_simultaneous_and_abort_holds_within_200_ms(
-    fleet: Fleet, endpoint: Callable[[], str], tmp_path: Path
-) -> None:
-    kiruna, rome = endpoint(), endpoint()
-    fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
-    fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", kiruna])
-    agents = {"kiruna/knatte": kiruna, "rome/pinocchio": rome}
-    for agent, ep in agents.items():
-        lab, name = agent.split("/")
-        fleet.start(
-            f"{lab}-{name}",
-            ["agent", "--experiment", str(EXPERIMENT), "--lab", lab, "--name", name, "-e", ep,
-             "--clock-offset", "26.42" if lab == "rome" else "0", "--status-period", "0.5",
-             "--status-json", str(tmp_path / f"{lab}-{name}.jsonl"),
-             "--record", str(tmp_path / f"{lab}-{name}.mcap")],
-        )  # fmt: skip
+def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None:
+    pair = labs.pair()
+    agents = {
+        who: labs.agent(
+            who, at, "--experiment", str(EXPERIMENT),
+            "--clock-offset", "26.42" if at is pair.rome else "0", record=True,
+        )
+        for who, at in {"kiruna/knatte": pair.kiruna, "rome/pinocchio": pair.rome}.items()
+    }  # fmt: skip
 
-    def synced() -> bool:
-        line = last_status(tmp_path / "rome-pinocchio.jsonl")
-        return line is not None and line["t_sim"] is not None and line["mode"] == "waiting"
-
-    assert wait_for(synced, timeout=20)
-    started = ctl("start", "--experiment", str(EXPERIMENT), "--in", "2", "-e", rome)
+    agents["rome/pinocchio"].until(
+        lambda line: line["t_sim"] is not None and line["mode"] == "waiting",
+        timeout=20,
+        what="synced, waiting for the start",
+    )
+    started = ctl("start", "--experiment", str(EXPERIMENT), "--in", "2", "-e", pair.rome.endpoint)
     assert started.returncode == 0, started.stdout + started.stderr
     assert wait_for(
-        lambda: all(
-            (last_status(tmp_path / f"{a.replace('/', '-')}.jsonl") or {}).get("mode") == "running"
-            for a in agents
-        ),
+        lambda: all((a.last() or {}).get("mode") == "running" for a in agents.values()),
         timeout=10,
     )
-    aborted = ctl("abort", "--experiment", str(EXPERIMENT), "-e", kiruna)
+    aborted = ctl("abort", "--experiment", str(EXPERIMENT), "-e", pair.kiruna.endpoint)
     assert aborted.returncode == 0, aborted.stdout + aborted.stderr
-    for agent in agents:
-        fleet.stop(agent.replace("/", "-"))
+    for process in agents.values():
+        process.stop()
 
     # Truth: every clock as a linear function of the host's monotonic clock.
-    rec = {a: read_messages(tmp_path / f"{a.replace('/', '-')}.mcap") for a in agents}
+    rec = {who: read_messages(agent.record) for who, agent in agents.items()}
     a_ref, b_ref = clock_line(rec["kiruna/knatte"]["/status"])
 
     def reference_time(host: float) -> float:

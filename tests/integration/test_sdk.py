@@ -5,34 +5,25 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from loopback import LEADER, Labs
 
-from federation.fleet.launch import Fleet, wait_for
-from federation.report.status import last_status
+from federation.fleet.launch import wait_for
 
 pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_sdk_example_joins_and_sees_the_leader(
-    fleet: Fleet, endpoint: Callable[[], str], tmp_path: Path
-) -> None:
-    ep = endpoint()
-    fleet.start("router", ["router", "--lab", "kiruna", "-l", ep])
-    leader = tmp_path / "leader.jsonl"
-    fleet.start(
-        "leader",
-        ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", ep,
-         "--status-period", "0.5", "--status-json", str(leader)],
-    )  # fmt: skip
-    assert wait_for(lambda: last_status(leader) is not None, timeout=15)
+def test_sdk_example_joins_and_sees_the_leader(labs: Labs) -> None:
+    router = labs.router("kiruna")
+    leader = labs.leader(router)
+    leader.wait_status(timeout=15)
     ghost = subprocess.run(
         [sys.executable, str(ROOT / "examples" / "ghost_agent.py"),
-         str(ROOT / "examples" / "ghost.csv"), ep, "6"],
+         str(ROOT / "examples" / "ghost.csv"), router.endpoint, "6"],
         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     assert ghost.returncode == 0, ghost.stderr[-2000:]
@@ -40,13 +31,11 @@ def test_sdk_example_joins_and_sees_the_leader(
     assert len(lines) == 6
     last = lines[-1]
     assert last["time"] is not None  # its own clock: simulation time from the start
-    assert "kiruna/knatte" in last["others"]  # the leader's pose, on simulation time
+    assert LEADER in last["others"]  # the leader's pose, on simulation time
     # The leader synced with the ghost and saw it leave when the example ended.
-    view = (last_status(leader) or {})["peers"]["lab3/ghost"]
+    view = leader.latest()["peers"]["lab3/ghost"]
     assert view["samples"] >= 3 and view["offset"] is not None  # 1 Hz: not its reference
-    assert wait_for(
-        lambda: not (last_status(leader) or {})["peers"]["lab3/ghost"]["alive"], timeout=5
-    )
+    assert wait_for(lambda: not leader.latest()["peers"]["lab3/ghost"]["alive"], timeout=5)
     # Its code is about 20 lines: the SDK does the rest.
     code = [
         line for line in (ROOT / "examples" / "ghost_agent.py").read_text().splitlines()
@@ -55,19 +44,14 @@ def test_sdk_example_joins_and_sees_the_leader(
     assert len(code) <= 30, len(code)
 
 
-def test_a_taken_name_is_refused_clearly(
-    fleet: Fleet, endpoint: Callable[[], str], tmp_path: Path
-) -> None:
-    ep = endpoint()
-    fleet.start("router", ["router", "--lab", "kiruna", "-l", ep])
-    first = tmp_path / "first.jsonl"
-    args = ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", ep]
-    fleet.start("first", [*args, "--status-json", str(first)])
-    assert wait_for(lambda: last_status(first) is not None, timeout=15)
+def test_a_taken_name_is_refused_clearly(labs: Labs) -> None:
+    router = labs.router("kiruna")
+    first = labs.leader(router, status_period=None)
+    first.wait_status(timeout=15)
     second = subprocess.run(
-        [sys.executable, "-m", "federation", *args],
+        [sys.executable, "-m", "federation", *labs.agent_args(LEADER, router, role="leader")],
         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     assert second.returncode == 2
     assert "kiruna/knatte is already in federation default" in second.stderr
-    assert fleet.alive("first")
+    assert first.alive()

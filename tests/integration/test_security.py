@@ -5,17 +5,16 @@ as ``python -m federation router -c deploy/routers/tls/<lab>.json5`` with the
 certificate paths and loopback ports overridden by flags, nothing else changed.
 Kiruna's agents authenticate with client certificates, Rome's with user/password.
 
-Every wait is bounded; every process is stopped by pid (the ``fleet`` fixture);
+Every wait is bounded; every process is stopped by pid (the ``labs`` fixture);
 every Zenoh session opened here is closed. Measured facts are printed (``-s``).
+The certificates themselves are tested in tests/unit/deploy/test_certs.py.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import socket
 import ssl
-import stat
 import threading
 import time
 from collections.abc import Iterator
@@ -25,88 +24,18 @@ from typing import Any
 
 import pytest
 import zenoh
-from cryptography import x509
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+from loopback import FOLLOWER, LEADER, Labs
 
-from federation import cli
 from federation.deploy import certs
-from federation.fleet.launch import Fleet, free_port, wait_for
-from federation.report.status import last_status, read_status, true_offset
+from federation.fleet.launch import free_port, wait_for
+from federation.report.status import true_offset
+
+pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "deploy" / "routers" / "tls"
 OPEN_TIMEOUT_MS = 1500  # how long a test client tries to reach its router
 PASSWORDS = {"rome/pinocchio": "pinocchio-secret", "rome/ctl": "ctl-secret"}
-
-
-# -- certificates (no processes) ----------------------------------------------------
-def _cn(cert: x509.Certificate) -> str:
-    value = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
-    return value if isinstance(value, str) else value.decode()
-
-
-def _load(path: Path) -> x509.Certificate:
-    return x509.load_pem_x509_certificate(path.read_bytes())
-
-
-def test_certs_init_issue_and_refuse_to_overwrite(tmp_path: Path) -> None:
-    d = tmp_path / "certs"
-    with pytest.raises(certs.CertError, match="certs init"):
-        certs.issue_lab(d, "kiruna")
-    ca = certs.init_ca(d, "demo")
-    assert (ca.cert.name, ca.key.name) == ("ca.pem", "ca.key")
-    ca_cert = _load(ca.cert)
-    assert _cn(ca_cert) == "demo federation CA" == ca.common_name
-    assert ca_cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
-    with pytest.raises(certs.CertError, match="--force"):
-        certs.init_ca(d, "demo")
-    assert _load(ca.cert) == ca_cert  # untouched
-    assert _load(certs.init_ca(d, "demo", force=True).cert) != ca_cert
-
-    lab = certs.issue_lab(d, "kiruna")
-    cert = _load(lab.cert)
-    assert (lab.cert.name, lab.key.name, _cn(cert)) == ("kiruna.pem", "kiruna.key", "kiruna")
-    sans = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    assert [str(v) for v in sans.get_values_for_type(x509.DNSName)] == ["localhost"]
-    assert {str(v) for v in sans.get_values_for_type(x509.IPAddress)} == {"127.0.0.1", "::1"}
-    usage = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
-    assert set(usage) == {ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH}
-    assert cert.issuer == _load(d / "ca.pem").subject
-    with pytest.raises(certs.CertError, match="--force"):
-        certs.issue_lab(d, "kiruna")
-    other = certs.issue_lab(d, "rome", ["rome.example.org", "192.0.2.7"])
-    sans = _load(other.cert).extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    assert sans.get_values_for_type(x509.DNSName) == ["rome.example.org"]
-    assert [str(v) for v in sans.get_values_for_type(x509.IPAddress)] == ["192.0.2.7"]
-
-    agent = certs.issue_agent(d, "kiruna", "knatte")
-    cert = _load(agent.cert)
-    assert (agent.cert.name, _cn(cert)) == ("kiruna.knatte.pem", "kiruna/knatte")
-    usage = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
-    assert list(usage) == [ExtendedKeyUsageOID.CLIENT_AUTH]
-
-    for path in d.iterdir():
-        mode = stat.S_IMODE(path.stat().st_mode)
-        assert mode == (0o600 if path.suffix == ".key" else 0o644), (path, oct(mode))
-    for bad in (lambda: certs.issue_lab(d, "Kiruna"), lambda: certs.issue_agent(d, "a", "b/c")):
-        with pytest.raises(ValueError):
-            bad()
-    with pytest.raises(certs.CertError, match="host"):
-        certs.issue_lab(d, "lund", ["bad host"])
-
-
-def test_certs_command_line(tmp_path: Path) -> None:
-    """``fedlab certs ...`` through the real parser."""
-    d = str(tmp_path / "c")
-    assert cli.main(["certs", "init", "--dir", d, "--federation", "demo"]) == 0
-    assert cli.main(["certs", "init", "--dir", d]) == 2  # refuses without --force
-    assert cli.main(["certs", "issue", "kiruna", "--dir", d, "--host", "kiruna.example.org"]) == 0
-    assert cli.main(["certs", "issue-agent", "kiruna", "knatte", "--dir", d]) == 0
-    assert cli.main(["certs", "issue", "rome", "--dir", str(tmp_path / "none")]) == 2
-    assert _cn(_load(tmp_path / "c" / "kiruna.knatte.pem")) == "kiruna/knatte"
-    parser = cli.build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    assert "Example" in (sub.choices["certs"].epilog or "")
 
 
 # -- a lab pair with the shipped configs --------------------------------------------
@@ -138,7 +67,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
 
 
 @dataclass
-class LabPair:
+class TlsPair:
     kiruna_port: int
     rome_port: int
 
@@ -160,13 +89,12 @@ def _shipped_endpoint(lab: str, key: str, port: int) -> str:
     return f"{proto}/127.0.0.1:{port}" + (f"#{options}" if options else "")
 
 
-def _start_router(fleet: Fleet, pki: Pki, lab: str, port: int, *extra: str) -> None:
-    args = ["router", "-c", str(CONFIGS / f"{lab}.json5")]
-    args += ["-l", _shipped_endpoint(lab, "listen/endpoints", port)]
-    args += certs.cfg_flags(certs.tls_settings(pki.dir, lab, listen=True))
+def _start_router(labs: Labs, pki: Pki, lab: str, port: int, *extra: str) -> None:
+    args = certs.cfg_flags(certs.tls_settings(pki.dir, lab, listen=True))
     if lab == "rome":
         args += ["--cfg", f"transport/auth/usrpwd/dictionary_file:{json.dumps(str(pki.users))}"]
-    fleet.start(f"router-{lab}", [*args, *extra])
+    listen = _shipped_endpoint(lab, "listen/endpoints", port)
+    labs.router(lab, *args, *extra, listen=listen, config=CONFIGS / f"{lab}.json5")
 
 
 def _wait_listening(port: int, timeout: float = 10.0) -> None:
@@ -180,11 +108,11 @@ def _wait_listening(port: int, timeout: float = 10.0) -> None:
     assert wait_for(up, timeout=timeout, interval=0.05), f"nothing listens on {port}"
 
 
-def start_lab_pair(fleet: Fleet, pki: Pki, *kiruna_extra: str) -> LabPair:
-    pair = LabPair(free_port(), free_port())
-    _start_router(fleet, pki, "kiruna", pair.kiruna_port, *kiruna_extra)
+def start_lab_pair(labs: Labs, pki: Pki, *kiruna_extra: str) -> TlsPair:
+    pair = TlsPair(free_port(), free_port())
+    _start_router(labs, pki, "kiruna", pair.kiruna_port, *kiruna_extra)
     _wait_listening(pair.kiruna_port)
-    _start_router(fleet, pki, "rome", pair.rome_port, "-e", pair.kiruna)
+    _start_router(labs, pki, "rome", pair.rome_port, "-e", pair.kiruna)
     _wait_listening(pair.rome_port)
     return pair
 
@@ -332,9 +260,8 @@ def _forbidden_then_allowed(
     return arrived - sent
 
 
-@pytest.mark.integration
-def test_tls_lab_pair_refuses_strangers(fleet: Fleet, pki: Pki, sessions: list[Any]) -> None:
-    pair = start_lab_pair(fleet, pki)
+def test_tls_lab_pair_refuses_strangers(labs: Labs, pki: Pki, sessions: list[Any]) -> None:
+    pair = start_lab_pair(labs, pki)
     facts = []
 
     # Raw TLS: Kiruna's router hangs up on a client without a certificate, or with one
@@ -383,9 +310,8 @@ def test_tls_lab_pair_refuses_strangers(fleet: Fleet, pki: Pki, sessions: list[A
     print("\n" + "\n".join(facts))
 
 
-@pytest.mark.integration
-def test_agents_write_only_under_their_own_lab(fleet: Fleet, pki: Pki, sessions: list[Any]) -> None:
-    pair = start_lab_pair(fleet, pki)
+def test_agents_write_only_under_their_own_lab(labs: Labs, pki: Pki, sessions: list[Any]) -> None:
+    pair = start_lab_pair(labs, pki)
     knatte = open_session(client_config(pki, pair.kiruna, cert="kiruna/knatte"))
     sessions.append(knatte)
     pinocchio = open_session(client_config(pki, pair.rome, user="rome/pinocchio"))
@@ -480,14 +406,11 @@ def test_agents_write_only_under_their_own_lab(fleet: Fleet, pki: Pki, sessions:
     print("\n" + "\n".join(facts))
 
 
-@pytest.mark.integration
-def test_lab_link_confines_a_misconfigured_peer(
-    fleet: Fleet, pki: Pki, sessions: list[Any]
-) -> None:
+def test_lab_link_confines_a_misconfigured_peer(labs: Labs, pki: Pki, sessions: list[Any]) -> None:
     """Rome's router checks what comes over the lab link too: with Kiruna's access control
     switched off (a misconfigured or compromised lab), a kiruna client still cannot write
     under fedlab/default/rome/** as far as Rome's agents can see."""
-    pair = start_lab_pair(fleet, pki, "--cfg", "access_control/enabled:false")
+    pair = start_lab_pair(labs, pki, "--cfg", "access_control/enabled:false")
     ghost = open_session(client_config(pki, pair.kiruna, cert="kiruna/ghost"))
     sessions.append(ghost)
     pinocchio = open_session(client_config(pki, pair.rome, user="rome/pinocchio"))
@@ -523,53 +446,34 @@ def _agent_config(tmp: Path, name: str, settings: dict[str, Any]) -> Path:
     return path
 
 
-@pytest.mark.integration
-def test_agents_sync_over_the_tls_lab_link(fleet: Fleet, pki: Pki, tmp_path: Path) -> None:
-    pair = start_lab_pair(fleet, pki)
+def test_agents_sync_over_the_tls_lab_link(labs: Labs, pki: Pki, tmp_path: Path) -> None:
+    pair = start_lab_pair(labs, pki)
     leader_conf = _agent_config(
         tmp_path, "knatte", client_config(pki, pair.kiruna, cert="kiruna/knatte")
     )
     follower_conf = _agent_config(
         tmp_path, "pinocchio", client_config(pki, pair.rome, user="rome/pinocchio")
     )
-    leader, follower = tmp_path / "knatte.jsonl", tmp_path / "pinocchio.jsonl"
-    common = ["--status-period", "0.5"]
-    fleet.start(
-        "kiruna-knatte",
-        [
-            *("agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte"),
-            *("-c", str(leader_conf), "--status-json", str(leader), *common),
-        ],
-    )
+    # No -e: each agent dials its router as its config file says.
+    leader = labs.leader(None, "-c", str(leader_conf))
     started = time.monotonic()
-    fleet.start(
-        "rome-pinocchio",
-        [
-            *("agent", "--role", "follower", "--lab", "rome", "--name", "pinocchio"),
-            *("--follow", "kiruna/knatte", "--clock-offset", "26.42"),
-            *("-c", str(follower_conf), "--status-json", str(follower), *common),
-        ],
-    )
+    follower = labs.follower(None, "--clock-offset", "26.42", "-c", str(follower_conf))
 
-    def view() -> dict[str, Any] | None:
-        line = last_status(follower)
-        return None if line is None else line["peers"].get("kiruna/knatte")
-
-    assert wait_for(lambda: (view() or {}).get("samples", 0) >= 10, timeout=20), "no sync"
+    follower.wait_samples(LEADER, 10, timeout=20)
     took = time.monotonic() - started
-    peer = view()
+    peer = follower.peer(LEADER)
     assert peer is not None
-    truth = true_offset(read_status(leader)[-1], read_status(follower)[-1])
+    truth = true_offset(leader.latest(), follower.latest())
     assert abs(peer["offset"] - truth) < 0.002, (peer["offset"], truth)
     assert peer["rejected"] == 0
-    back = (last_status(leader) or {"peers": {}})["peers"].get("rome/pinocchio")
+    back = leader.peer(FOLLOWER)
     assert back is not None and back["samples"] > 0  # the leader syncs with rome as well
-    line = last_status(follower)
+    line = follower.last()
     assert line is not None and line["counters"]["pose_received"] > 0
     print(
         f"\nagents over TLS (leader by certificate, follower by password): 10 sync samples "
         f"{took:.1f} s after the follower started; offset error "
         f"{abs(peer['offset'] - truth) * 1e6:.0f} us, delay {peer['delay'] * 1e3:.2f} ms"
     )
-    assert fleet.stop("rome-pinocchio") == 0
-    assert fleet.stop("kiruna-knatte") == 0
+    assert follower.stop() == 0
+    assert leader.stop() == 0

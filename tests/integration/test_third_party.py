@@ -7,14 +7,14 @@ fedlab leader run as processes on loopback (bounded waits, stopped by pid).
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+from loopback import Labs
 
 from federation.fleet.launch import Fleet, wait_for
-from federation.report.status import last_status, read_status
+from federation.report.status import read_status
 
 pytestmark = pytest.mark.integration
 
@@ -28,33 +28,23 @@ def raw_lines(fleet: Fleet) -> list[dict[str, Any]]:
     return read_status(fleet.log_path("raw"))
 
 
-def test_raw_zenoh_agent_joins_answers_sync_and_gets_synced(
-    fleet: Fleet, endpoint: Callable[[], str], tmp_path: Path
-) -> None:
-    kiruna = endpoint()
-    fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
-    leader_status = tmp_path / "leader.jsonl"
-    fleet.start(
-        "kiruna-knatte",
-        ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
-         "--status-json", str(leader_status), "--status-period", "0.5"],
-    )  # fmt: skip
+def test_raw_zenoh_agent_joins_answers_sync_and_gets_synced(labs: Labs, fleet: Fleet) -> None:
+    kiruna = labs.router("kiruna")
+    leader = labs.leader(kiruna)
     # The raw agent dials the router; started once the router is up (zenoh.open needs it).
-    assert wait_for(lambda: last_status(leader_status) is not None, timeout=10)
-    fleet.spawn("raw", [sys.executable, str(RAW_AGENT), kiruna, RAW, str(RAW_OFFSET), "60"])
-
-    def view() -> dict[str, Any] | None:
-        line = last_status(leader_status)
-        return None if line is None else line["peers"].get(RAW)
+    leader.wait_status(timeout=10)
+    fleet.spawn(
+        "raw", [sys.executable, str(RAW_AGENT), kiruna.endpoint, RAW, str(RAW_OFFSET), "60"]
+    )
 
     # The leader queries an agent it does not follow once a second.
-    assert wait_for(lambda: (view() or {}).get("samples", 0) >= 8, timeout=15), (
-        last_status(leader_status),
+    assert wait_for(lambda: leader.samples(RAW) >= 8, timeout=15), (
+        leader.last(),
         fleet.log_path("raw").read_text()[-2000:],
     )
-    leader = read_status(leader_status)[-1]
-    peer = leader["peers"][RAW]
-    truth = RAW_OFFSET - (leader["t_exec"] - leader["host_monotonic"])  # raw minus leader
+    line = leader.latest()
+    peer = line["peers"][RAW]
+    truth = RAW_OFFSET - (line["t_exec"] - line["host_monotonic"])  # raw minus leader
     error = peer["offset"] - truth
     assert peer["alive"] and peer["samples"] > 0
     assert abs(error) < 0.002, (peer, truth)
@@ -68,4 +58,4 @@ def test_raw_zenoh_agent_joins_answers_sync_and_gets_synced(
 
     # SIGTERM: the raw agent undeclares and closes its session; the leader sees it leave.
     assert fleet.stop("raw") == 0
-    assert wait_for(lambda: not (view() or {"alive": True})["alive"], timeout=5)
+    assert wait_for(lambda: not (leader.peer(RAW) or {"alive": True})["alive"], timeout=5)

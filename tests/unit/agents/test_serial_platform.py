@@ -1,22 +1,19 @@
-"""The serial platform and the device emulator.
+"""The serial platform (agents/serial/platform.py) and ``fedlab emulate-device``.
 
-Three layers: the emulator's pure device (physics, failsafe timing, fault
-injection) with ``now`` passed in; ``SerialPlatform`` against a scripted device
-on a pseudo-terminal this test owns (exact counters, the frames it sends, a
-vanished port); and ``fedlab emulate-device`` as a process with the platform
-closing the heading loop over its pseudo-terminal. Every loop is bounded and
-every process is stopped by pid (the ``fleet`` fixture).
+Two layers: ``SerialPlatform`` against a scripted device on a pseudo-terminal this
+test owns (exact counters, the frames it sends, a vanished port); and ``fedlab
+emulate-device`` as a process with the platform closing the heading loop, through the
+GNC chain, over its pseudo-terminal. The emulator's device without I/O is tested in
+test_serial_emulator.py. Every loop is bounded and every process is stopped by pid
+(the ``fleet`` fixture).
 """
 
 from __future__ import annotations
 
-import itertools
 import json
-import math
 import os
 import re
 import signal
-import struct
 import sys
 import time
 import tty
@@ -26,23 +23,11 @@ from typing import Any
 
 import pytest
 
-from agents.serial.emulator import (
-    BodyParams,
-    EmulatedDevice,
-    SensorNoise,
-    register,
-    thruster_wrench,
-)
-from agents.serial.platform import (
-    CLOSED,
-    NEGATIVE_TORQUE,
-    POSITIVE_TORQUE,
-    BangBangPD,
-    PlatformError,
-    SerialPlatform,
-)
+from agents.dynamics import PAIRS
+from agents.gnc import GncChain
+from agents.platform import make_platform
+from agents.serial.platform import CLOSED, PlatformError, SerialPlatform
 from agents.serial.protocol import (
-    DEVICE_TO_HOST,
     HOST_TO_DEVICE,
     DevicePose,
     FrameDecoder,
@@ -59,137 +44,23 @@ from agents.serial.protocol import (
     encode_valves,
 )
 from federation import cli
+from federation.cli import emulate_device
+from federation.cli.common import Formatter
 from federation.core.wire import Pose
 from federation.fleet.launch import Fleet, wait_for
+from schemas.platform import load_platform
 
 EMULATOR = [sys.executable, "-m", "federation", "emulate-device"]
-QUIET = SensorNoise().scaled(0.0)
+KNATTE = load_platform("knatte")
+ALPHA = KNATTE.pair_torque / KNATTE.inertia  # rad/s^2 of a torque couple: 0.4
+POSITIVE_TORQUE = tuple(i in PAIRS["+torque"] for i in range(8))  # valves 1, 2
+NEGATIVE_TORQUE = tuple(i in PAIRS["-torque"] for i in range(8))  # valves 0, 3
+AHEAD = 1.0  # rad: a reference this far from a platform at rest saturates +torque
 
 
 def main(args: list[str]) -> int:
     """``fedlab emulate-device ARGS`` in this process."""
     return cli.main(["emulate-device", *args])
-
-
-def f32(x: float) -> float:
-    return float(struct.unpack("<f", struct.pack("<f", x))[0])
-
-
-# -- the emulator's device, no I/O ---------------------------------------------
-def test_thruster_couples_and_pairs() -> None:
-    p = BodyParams()
-    assert p.arm == pytest.approx(0.08)
-    assert thruster_wrench(0b0000_0110, p) == pytest.approx((0.0, 0.0, 0.032))  # valves 1, 2
-    assert thruster_wrench(0b0000_1001, p) == pytest.approx((0.0, 0.0, -0.032))  # valves 0, 3
-    assert thruster_wrench(0b0000_0011, p) == pytest.approx((0.4, 0.0, 0.0))
-    assert thruster_wrench(0b1100_0000, p) == pytest.approx((0.0, -0.4, 0.0))
-    assert thruster_wrench(0xFF, p) == pytest.approx((0.0, 0.0, 0.0))
-
-
-def test_thruster_geometry_matches_agents_dynamics() -> None:
-    dyn = pytest.importorskip("agents.dynamics")
-    theirs = dyn.BodyParams(mass=10.0, inertia=0.160, thrust=0.20, arm=0.08)
-    for i in range(8):
-        one_hot = [1.0 if j == i else 0.0 for j in range(8)]
-        assert thruster_wrench(1 << i, BodyParams()) == pytest.approx(
-            tuple(dyn.wrench(one_hot, theirs)), abs=1e-12
-        ), f"valve {i}"
-
-
-def _device(**kw: Any) -> EmulatedDevice:
-    kw.setdefault("noise", QUIET)
-    return EmulatedDevice(100.0, **kw)  # device time 0 is host time 100
-
-
-def _run(device: EmulatedDevice, t0: float, t1: float, dt: float = 0.001) -> list[Message]:
-    """Poll the device every ``dt`` from host time ``t0`` to ``t1``; decoded frames out."""
-    decoder = FrameDecoder(DEVICE_TO_HOST)
-    out: list[Message] = []
-    for k in range(round((t1 - t0) / dt) + 1):
-        out += decoder.feed(device.poll(t0 + k * dt))
-    return out
-
-
-def test_torque_couple_gives_the_rotation_the_inertia_predicts() -> None:
-    device = _device()
-    device.receive(encode_heartbeat(0, 0.0) + encode_valves(0, POSITIVE_TORQUE), 100.0)
-    for k in range(1, 11):  # heartbeats every 50 ms for 0.5 s keep the valves open
-        device.receive(encode_heartbeat(k, 0.05 * k), 100.0 + 0.05 * k)
-    device.receive(encode_valves(11, CLOSED), 100.5)
-    device.receive(encode_heartbeat(12, 1.0), 101.0)
-    alpha = 0.032 / 0.160
-    pose = device.pose
-    print(f"torque pulse 0.5 s: omega {pose.omega:.6f} rad/s (predicted {alpha * 0.5:.6f})")
-    assert pose.omega == pytest.approx(alpha * 0.5, rel=1e-9)
-    # heading: 1/2 alpha t^2 during the pulse, then coasting for 0.5 s
-    assert pose.heading == pytest.approx(0.5 * alpha * 0.25 + alpha * 0.5 * 0.5, rel=1e-9)
-    assert (pose.x, pose.y, pose.vx, pose.vy) == pytest.approx((0, 0, 0, 0), abs=1e-15)
-
-
-def test_push_pair_moves_along_the_body_axis() -> None:
-    device = EmulatedDevice(0.0, noise=QUIET, initial=Pose(heading=math.pi / 2))
-    device.receive(encode_heartbeat(0, 0.0) + encode_valves(0, 0b0000_0011), 0.0)  # +x body
-    device.receive(encode_heartbeat(1, 0.1), 0.1)
-    pose = device.pose
-    # body +x is table +y at heading 90 degrees: a = 0.4 N / 10 kg
-    assert pose.vy == pytest.approx(0.04 * 0.1, rel=1e-9)
-    assert pose.vx == pytest.approx(0.0, abs=1e-12)
-    assert pose.omega == 0.0
-
-
-def test_device_stream_rates() -> None:
-    frames = _run(_device(), 100.0, 101.0)
-    imu = [m for m in frames if isinstance(m, Imu)]
-    poses = [m for m in frames if isinstance(m, DevicePose)]
-    status = [m for m in frames if isinstance(m, Status)]
-    # 1 s with both ends included: 100 or 101 IMU frames, 20 or 21 POSE, 10 or 11 STATUS
-    assert 100 <= len(imu) <= 101 and 20 <= len(poses) <= 21 and 10 <= len(status) <= 11
-    gaps = [b.t - a.t for a, b in itertools.pairwise(imu)]
-    assert max(gaps) == pytest.approx(0.010, abs=1.5e-3)
-    assert status[0].failsafe  # no heartbeat yet: valves held closed
-
-
-def test_failsafe_closes_valves_when_heartbeats_stop() -> None:
-    events: list[dict[str, Any]] = []
-    device = _device(heartbeat_timeout=0.2, on_event=events.append)
-    decoder = FrameDecoder(DEVICE_TO_HOST)
-    # Before any heartbeat, VALVES are ignored.
-    device.receive(encode_valves(0, POSITIVE_TORQUE), 100.0)
-    assert device.applied == 0 and device.valves_ignored == 1
-    device.receive(encode_heartbeat(1, 0.0) + encode_valves(1, POSITIVE_TORQUE), 100.01)
-    assert device.applied == 0b110 and not device.failsafe
-    decoder.feed(device.poll(100.01))
-    # Silence: open until 0.2 s after the heartbeat, closed from then on.
-    decoder.feed(device.poll(100.2099))
-    assert device.applied == 0b110
-    frames = decoder.feed(device.poll(100.2101))
-    assert device.failsafe and device.applied == 0 and device.failsafe_trips == 1
-    status = [m for m in frames if isinstance(m, Status)]
-    assert status and status[-1].failsafe and status[-1].valves == 0  # sent at once
-    assert status[-1].failsafe_trips == 1
-    # The valves closed exactly at the deadline: omega = alpha * 0.2 s.
-    assert device.pose.omega == pytest.approx(0.2 * 0.2, rel=1e-9)
-    # VALVES while in failsafe are ignored; a heartbeat clears it, valves stay closed...
-    device.receive(encode_valves(2, POSITIVE_TORQUE), 100.3)
-    device.receive(encode_heartbeat(3, 0.3), 100.31)
-    assert not device.failsafe and device.applied == 0
-    # ...until the next VALVES.
-    device.receive(encode_valves(4, NEGATIVE_TORQUE), 100.32)
-    assert device.applied == 0b1001
-    assert [e["event"] for e in events] == ["valves", "failsafe", "failsafe", "failsafe", "valves"]
-    assert [e.get("active") for e in events if e["event"] == "failsafe"] == [False, True, False]
-
-
-def test_fault_injection_is_counted_exactly_by_the_host_decoder() -> None:
-    device = _device(inject_garbage=0.2, inject_bad_crc=0.1)
-    decoder = FrameDecoder(DEVICE_TO_HOST)
-    for k in range(3001):
-        decoder.feed(device.poll(100.0 + k * 0.001))
-    print(f"injected: {device.counters}; host decoder: {decoder.counters}")
-    assert device.injected_bad_crc > 10 and device.injected_garbage_bytes > 100
-    assert decoder.bad_checksum == device.injected_bad_crc
-    assert decoder.frames_ok == device.frames_sent - device.injected_bad_crc
-    assert decoder.garbage_bytes >= device.injected_garbage_bytes
 
 
 # -- SerialPlatform against a scripted device on a pty this test owns ------------
@@ -241,11 +112,12 @@ def _valves_of(messages: list[Message]) -> list[int]:
 
 
 def test_no_valve_opens_before_the_first_pose(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, controller=lambda *a: POSITIVE_TORQUE) as plat:
-        assert plat.step(0.0, 1.0, 0.0) == Pose()
+    with SerialPlatform(pty_dev.path) as plat:
+        assert plat.step(0.0, AHEAD, 0.0) == Pose()  # the filter's prior: nothing known
         sent = pty_dev.received()
         assert sent == [Heartbeat(0, 0.0), Valves(0, 0)]
-        assert plat.valves == CLOSED and plat.counters["closed_no_pose"] == 1
+        assert plat.valves == CLOSED and plat.counters["closed_no_fix"] == 1
+        assert plat.chain.reason == "no_fix"
 
 
 def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None:
@@ -261,10 +133,14 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
         + garbage
         + encode_status(Status(1.02, 0, 2, 200, 0, 0, 0, 0, 0, 0))
     )
-    with SerialPlatform(pty_dev.path, controller=lambda *a: POSITIVE_TORQUE) as plat:
+    with SerialPlatform(pty_dev.path) as plat:
         pty_dev.send(stream)
         got = plat.step(5.0, 1.0, 0.0)
-        assert got == pose and plat.pose_time == 1.0
+        assert plat.device_pose == pose and plat.pose_time == 1.0
+        # What it returns is the chain's estimate, which has taken the fix and the gyro.
+        assert got == plat.pose == plat.chain.estimate
+        assert (got.x, got.y, got.heading) == pytest.approx(pose[:3], abs=1e-3)
+        assert got.omega == pytest.approx(0.0625)
         assert plat.imu == Imu(1.01, 0.0625, 0.0, 0.0)
         assert plat.status is not None and not plat.status.failsafe
         c = plat.counters
@@ -278,72 +154,74 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
 
 
 def test_hold_sends_all_closed_at_once_and_until_release(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, controller=lambda *a: POSITIVE_TORQUE) as plat:
+    with SerialPlatform(pty_dev.path) as plat:
         pty_dev.send(encode_pose(0.0, Pose()))
-        plat.step(0.0, 0.0, 0.0)
+        plat.step(0.0, AHEAD, 0.0)
         assert _valves_of(pty_dev.received()) == [0b110]
         plat.hold()
-        assert plat.valves == CLOSED and plat.holding
+        assert plat.valves == CLOSED and plat.held
         assert pty_dev.received() == [Valves(1, 0)]  # sent now, not at the next step
-        plat.step(0.01, 0.0, 0.0)
+        plat.step(0.01, AHEAD, 0.0)
         assert _valves_of(pty_dev.received()) == [0]
+        assert plat.counters["closed_held"] == 1
         plat.release()
-        plat.step(0.02, 0.0, 0.0)
+        assert not plat.held
+        plat.step(0.02, AHEAD, 0.0)
         assert _valves_of(pty_dev.received()) == [0b110]
 
 
 def test_stale_pose_closes_the_valves(pty_dev: Pty) -> None:
-    with SerialPlatform(
-        pty_dev.path, controller=lambda *a: POSITIVE_TORQUE, pose_timeout=0.5
-    ) as plat:
+    with SerialPlatform(pty_dev.path, pose_timeout=0.5) as plat:
         pty_dev.send(encode_pose(0.0, Pose()))
-        plat.step(10.0, 0.0, 0.0)
-        plat.step(10.5, 0.0, 0.0)
+        plat.step(10.0, AHEAD, 0.0)
+        plat.step(10.5, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
-        plat.step(10.51, 0.0, 0.0)
+        plat.step(10.51, AHEAD, 0.0)
         assert plat.valves == CLOSED
+        assert plat.counters["closed_stale_fix"] == 1 and plat.chain.reason == "stale_fix"
         assert _valves_of(pty_dev.received()) == [0b110, 0b110, 0]
 
 
-def test_a_failing_controller_closes_the_valves_before_raising(pty_dev: Pty) -> None:
-    def broken(t: float, ref: float, rate: float, pose: Pose) -> tuple[bool, ...]:
-        if t > 0:
-            raise ZeroDivisionError("gain schedule")
-        return POSITIVE_TORQUE
+def test_a_failing_chain_closes_the_valves_before_raising(pty_dev: Pty) -> None:
+    class Broken(GncChain):
+        def update(self, now: float, *args: Any, **kwargs: Any) -> tuple[bool, ...]:
+            if now > 0:
+                raise ZeroDivisionError("gain schedule")
+            return super().update(now, *args, **kwargs)
 
-    with SerialPlatform(pty_dev.path, controller=broken) as plat:
+    with SerialPlatform(pty_dev.path, chain=Broken(KNATTE)) as plat:
         pty_dev.send(encode_pose(0.0, Pose()))
-        plat.step(0.0, 0.0, 0.0)
+        plat.step(0.0, AHEAD, 0.0)
         with pytest.raises(ZeroDivisionError):
-            plat.step(0.01, 0.0, 0.0)
+            plat.step(0.01, AHEAD, 0.0)
         assert plat.valves == CLOSED
         assert _valves_of(pty_dev.received()) == [0b110, 0]
 
 
 def test_close_sends_all_closed_then_refuses_to_step(pty_dev: Pty) -> None:
-    plat = SerialPlatform(pty_dev.path, controller=lambda *a: POSITIVE_TORQUE)
+    plat = SerialPlatform(pty_dev.path)
     pty_dev.send(encode_pose(0.0, Pose()))
-    plat.step(0.0, 0.0, 0.0)
+    plat.step(0.0, AHEAD, 0.0)
     plat.close()
     assert _valves_of(pty_dev.received()) == [0b110, 0]
     assert plat.valves == CLOSED
     with pytest.raises(PlatformError, match="is closed"):
-        plat.step(0.01, 0.0, 0.0)
+        plat.step(0.01, AHEAD, 0.0)
     plat.close()  # idempotent
 
 
 def test_vanished_port_stops_actuation_with_a_clear_error(pty_dev: Pty) -> None:
-    plat = SerialPlatform(pty_dev.path, controller=lambda *a: POSITIVE_TORQUE)
+    plat = SerialPlatform(pty_dev.path)
     try:
         pty_dev.send(encode_pose(0.0, Pose()))
-        plat.step(0.0, 0.0, 0.0)
+        plat.step(0.0, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
         pty_dev.close_master()  # the device is gone
         with pytest.raises(PlatformError, match=re.escape(f"serial port {pty_dev.path} vanished")):
-            plat.step(0.01, 0.0, 0.0)
+            plat.step(0.01, AHEAD, 0.0)
         assert plat.valves == CLOSED
         with pytest.raises(PlatformError, match="vanished"):
-            plat.step(0.02, 0.0, 0.0)
+            plat.step(0.02, AHEAD, 0.0)
         plat.hold()  # a safe hold on a dead port does not raise
     finally:
         plat.close()
@@ -354,15 +232,28 @@ def test_opening_a_missing_port_is_a_platform_error(tmp_path: Path) -> None:
         SerialPlatform(str(tmp_path / "nope"))
 
 
-def test_bang_bang_pd_fires_the_couple_towards_the_reference() -> None:
-    c = BangBangPD()
-    assert c(0.0, 0.3, 0.0, Pose()) == POSITIVE_TORQUE
-    assert c(0.0, -0.3, 0.0, Pose()) == NEGATIVE_TORQUE
-    assert c(0.0, 0.005, 0.0, Pose()) == CLOSED  # inside the dead band
-    # Braking: short of the target but turning fast towards it.
-    assert c(0.0, 0.3, 0.0, Pose(heading=0.2, omega=0.2)) == NEGATIVE_TORQUE
-    # The error wraps: from 179 to -179 degrees is +2 degrees.
-    assert c(0.0, math.radians(-179), 0.0, Pose(heading=math.radians(179))) == POSITIVE_TORQUE
+def test_it_flies_the_gnc_chain_of_its_preset(pty_dev: Pty) -> None:
+    """The chain of a simulated platform, built from the preset the agent names."""
+    plat = make_platform(f"serial:{pty_dev.path}", preset="pinocchio")
+    try:
+        assert isinstance(plat, SerialPlatform) and isinstance(plat.chain, GncChain)
+        assert plat.config == plat.chain.config == load_platform("pinocchio")
+        assert plat.rate == plat.config.control.rate
+        assert plat.chain.fix_timeout == plat.config.control.fix_timeout
+    finally:
+        plat.close()
+    with SerialPlatform(pty_dev.path) as default:  # the default preset: knatte
+        assert default.config == KNATTE
+    # The fix wraps next to the estimate and the error wraps (Eq. 1): from 179 to -179
+    # degrees is +2 degrees, a positive torque.
+    with SerialPlatform(pty_dev.path) as plat:
+        pty_dev.send(encode_pose(0.0, Pose(heading=3.124)))
+        plat.step(0.0, -3.124, 0.0)
+        assert plat.valves == POSITIVE_TORQUE
+    with SerialPlatform(pty_dev.path) as plat:
+        pty_dev.send(encode_pose(0.0, Pose()))
+        plat.step(0.0, -AHEAD, 0.0)
+        assert plat.valves == NEGATIVE_TORQUE
 
 
 # -- the emulator as a process -------------------------------------------------
@@ -401,10 +292,16 @@ class Clock:
         return self.k * self.period
 
 
+def chase(plat: SerialPlatform) -> tuple[float, float]:
+    """A reference always AHEAD of the estimate at its rate: +torque, saturated, every step."""
+    est = plat.pose
+    return est.heading + AHEAD, est.omega
+
+
 def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_path: Path) -> None:
     port, record = _start_emulator(fleet, "device", tmp_path, "--seed", "3")
     ref = 0.3  # rad, from t = 0.5 s
-    plat = SerialPlatform(port)
+    plat = SerialPlatform(port)  # the GNC chain of knatte, as the emulator's default preset
     settled_at = None
     try:
         clock = Clock(plat.rate)
@@ -419,11 +316,12 @@ def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_pa
                 settled_at = None
             t = clock.tick()
         counters = plat.counters
-        # Then fire the +torque couple for a few steps, so that close() must change it.
-        plat.controller = lambda *a: POSITIVE_TORQUE
-        for _ in range(5):
-            plat.step(t, ref, 0.0)
+        # Then fire the +torque couple for a few steps, so that close() must change it
+        # (the PWM reads a demand at each period's start: more than one period, 0.1 s).
+        for _ in range(15):
+            plat.step(t, *chase(plat))
             t = clock.tick()
+        assert plat.valves[1] and plat.valves[2]
     finally:
         plat.close()
     took = "never" if settled_at is None else f"{settled_at - 0.5:.2f} s"
@@ -434,10 +332,12 @@ def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_pa
     assert settled_at is not None and settled_at - 0.5 < 7.0
     assert abs(pose.heading - ref) < 0.02
     assert counters["frames_ok"] > 300 and counters["bad_checksum"] == 0
+    assert counters["closed_stale_fix"] == 0 and counters["closed_no_fix"] <= 10
     # close() sent all-valves-closed: the device's last recorded command is mask 0.
     assert fleet.stop("device") == 0
     valves = [e for e in _events(record) if e["event"] == "valves"]
-    assert [e["mask"] for e in valves[-2:]] == [0b110, 0] and valves[-1]["applied"]
+    assert valves[-2]["mask"] & 0b110 == 0b110  # the +torque couple (a push maybe beside)
+    assert valves[-1]["mask"] == 0 and valves[-1]["applied"]
 
 
 def test_faults_hold_heartbeat_loss_and_disconnect_over_a_pty(fleet: Fleet, tmp_path: Path) -> None:
@@ -454,7 +354,7 @@ def test_faults_hold_heartbeat_loss_and_disconnect_over_a_pty(fleet: Fleet, tmp_
         "--noise",
         "0",
     )
-    plat = SerialPlatform(port, controller=lambda *a: POSITIVE_TORQUE)
+    plat = SerialPlatform(port)
     try:
         clock = Clock(plat.rate)
         t = 0.0
@@ -462,7 +362,7 @@ def test_faults_hold_heartbeat_loss_and_disconnect_over_a_pty(fleet: Fleet, tmp_
         def run(seconds: float) -> None:
             nonlocal t
             for _ in range(round(seconds * plat.rate)):
-                plat.step(t, 0.0, 0.0)
+                plat.step(t, *chase(plat))
                 t = clock.tick()
 
         # 1. Garbage and bad checksums on the line: dropped, counted, the loop goes on.
@@ -471,32 +371,36 @@ def test_faults_hold_heartbeat_loss_and_disconnect_over_a_pty(fleet: Fleet, tmp_
         print(f"after 1.5 s with faults injected: {c}")
         assert c["frames_ok"] > 100
         assert c["bad_checksum"] > 0 and c["garbage_bytes"] > 0
-        assert plat.status is not None and plat.status.valves == 0b110
+        assert plat.status is not None and plat.status.valves & 0b110 == 0b110
         # 2. hold(): the device applies all-valves-closed.
         plat.hold()
         run(0.3)
         assert plat.status.valves == 0 and not plat.status.failsafe
         plat.release()
         run(0.3)
-        assert plat.status.valves == 0b110
+        assert plat.status.valves & 0b110 == 0b110
         # 3. Heartbeats stop for 0.5 s: the device closes every valve after 0.2 s.
         omega_before = plat.pose.omega
         time.sleep(0.5)
         clock = Clock(plat.rate)
-        plat.step(t, 0.0, 0.0)  # reads what the device sent during the silence
+        plat.step(t, *chase(plat))  # reads what the device sent during the silence
         gained = plat.pose.omega - omega_before
-        print(f"heartbeat gap 0.5 s: omega gained {gained:.4f} rad/s (0.2 s x 0.2 rad/s^2 = 0.04)")
+        print(
+            f"heartbeat gap 0.5 s: omega gained {gained:.4f} rad/s "
+            f"(0.2 s x {ALPHA} rad/s^2 = {0.2 * ALPHA:.2f}; without the failsafe "
+            f"{0.5 * ALPHA:.2f})"
+        )
         assert plat.counters["device_failsafe_reports"] > 0
         # (>= 1: a loaded machine that stalls either process for 0.2 s trips it too)
         assert plat.status.failsafe_trips >= 1
-        # Torque stopped at the timeout (0.04 rad/s, plus up to 0.01 for the age of the
-        # pose read before the gap), not after 0.5 s (0.10 rad/s).
-        assert 0.02 < gained < 0.08
+        # Torque stopped at the timeout (0.2 alpha, plus up to 0.05 alpha for the age of
+        # the IMU sample read before the gap), not after 0.5 s (0.5 alpha).
+        assert 0.1 * ALPHA < gained < 0.4 * ALPHA
         # 4. Disconnect: the emulator goes away; the next step raises, valves closed.
         assert fleet.stop("faulty") == 0
         with pytest.raises(PlatformError, match=re.escape(f"serial port {port} vanished")):
             for _ in range(10):
-                plat.step(t, 0.0, 0.0)
+                plat.step(t, *chase(plat))
                 t = clock.tick()
         assert plat.valves == CLOSED
     finally:
@@ -513,22 +417,24 @@ def test_faults_hold_heartbeat_loss_and_disconnect_over_a_pty(fleet: Fleet, tmp_
 def test_emulate_device_command_help_and_signals(tmp_path: Path, fleet: Fleet) -> None:
     import argparse
 
-    parser = argparse.ArgumentParser(prog="fedlab")
+    parser = argparse.ArgumentParser(prog="fedlab", formatter_class=Formatter)
     sub = parser.add_subparsers(dest="command")
-    register(sub, argparse.RawDescriptionHelpFormatter, lambda p: None)
+    emulate_device.add(sub)
     text = sub.choices["emulate-device"].format_help()
     assert "fedlab emulate-device" in text and "Example" in text
+    assert "--platform" in text and "--torque-pair" in text
     assert "--connect" not in text  # no Zenoh session, no Zenoh flags
     args = parser.parse_args(["emulate-device", "--duration", "1"])
-    assert callable(args.func)
+    assert callable(args.func) and args.platform == "knatte"
     # SIGINT stops cleanly with exit code 0, and the symlink goes away.
     port, _ = _start_emulator(fleet, "sigint", tmp_path)
     assert fleet.stop("sigint", sig=signal.SIGINT) == 0
     assert not Path(port).exists()
-    # --duration ends it on its own.
-    proc = fleet.spawn("timed", [*EMULATOR, "--duration", "0.3"])
+    # --duration ends it on its own; --platform names the preset it runs.
+    proc = fleet.spawn("timed", [*EMULATOR, "--duration", "0.3", "--platform", "pinocchio"])
     assert proc.wait(10) == 0
-    assert "device on /dev/" in fleet.log_path("timed").read_text()
+    log = fleet.log_path("timed").read_text()
+    assert "device on /dev/" in log and "(pinocchio)" in log
 
 
 def test_emulate_device_rejects_bad_flags(capsys: pytest.CaptureFixture[str]) -> None:
@@ -536,14 +442,17 @@ def test_emulate_device_rejects_bad_flags(capsys: pytest.CaptureFixture[str]) ->
         main(["--mass", "-1"])
     assert exit_info.value.code == 2
     assert "positive" in capsys.readouterr().err
+    # A preset that does not exist: a clear error, exit code 2, before any pty is opened.
+    assert main(["--platform", "gustav"]) == 2
+    assert "unknown platform 'gustav'" in capsys.readouterr().err
 
 
 def test_scripted_frames_sent_by_the_host_are_the_documented_ones(pty_dev: Pty) -> None:
     # One step = HEARTBEAT then VALVES with the same seq: the device's failsafe
     # clears before the command is read.
-    with SerialPlatform(pty_dev.path, controller=lambda *a: NEGATIVE_TORQUE) as plat:
+    with SerialPlatform(pty_dev.path) as plat:
         pty_dev.send(encode(DevicePose(0.0, Pose())))
-        plat.step(2.5, 0.0, 0.0)
+        plat.step(2.5, -AHEAD, 0.0)
         time.sleep(0.02)
         raw = os.read(pty_dev.master, 4096)
     assert raw.startswith(encode_heartbeat(0, 2.5) + encode_valves(0, 0b1001))

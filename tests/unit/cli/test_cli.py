@@ -1,23 +1,51 @@
-"""The command line: help with an example on every command, version, clear config errors."""
+"""The command line: help with an example on every command, version, clear config and
+network errors, and argparse only in federation.cli."""
 
 from __future__ import annotations
 
+import argparse
+import ast
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from federation import cli
 from federation.cli import build_parser, main
+from federation.cli.common import open_interruptible, signal_handlers_kept, stop_on_signals
+from federation.core.keys import AgentId
 from federation.fleet.launch import free_port
+from federation.runtime import control
 from federation.runtime.router import load_router_config
+from federation.runtime.session import ConnectError
+from schemas import export
 from schemas.config import ConfigError, ZenohOptions
+from schemas.messages import Command
 
 ROOT = Path(__file__).resolve().parents[3]
-COMMANDS = sorted(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+LIBRARY = ("federation", "agents", "schemas")  # every package but federation/cli
+ENTRY_POINT = ROOT / "federation" / "__main__.py"  # python -m federation: calls the CLI
+
+
+def parsers(
+    parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+) -> Iterator[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+    """Every command and subcommand's parser, with its words after ``fedlab``."""
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                yield from parsers(child, (*path, name))
+
+
+COMMANDS = sorted(path[0] for path, _ in parsers(build_parser()) if len(path) == 1)
 
 
 def fedlab(*args: str, timeout: float = 30) -> subprocess.CompletedProcess[str]:
@@ -32,6 +60,28 @@ def fedlab(*args: str, timeout: float = 30) -> subprocess.CompletedProcess[str]:
 
 def test_commands_exist() -> None:
     assert {"router", "agent", "demo"} <= set(COMMANDS)
+    expected = {"ctl", "monitor", "link", "bridge", "report", "analyze", "bench", "certs"}
+    assert expected | {"schemas", "emulate-device"} <= set(COMMANDS)
+
+
+def test_every_command_module_adds_and_runs() -> None:
+    for module in cli.COMMANDS:
+        assert callable(module.add) and callable(module.run), module.__name__
+
+
+@pytest.mark.parametrize(
+    ("path", "parser"),
+    [pytest.param(path, p, id=" ".join(path) or "fedlab") for path, p in parsers(build_parser())],
+)
+def test_every_command_and_subcommand_has_help_with_an_example(
+    path: tuple[str, ...], parser: argparse.ArgumentParser
+) -> None:
+    text = parser.format_help()
+    assert parser.description or not path, f"fedlab {' '.join(path)}: no description"
+    assert "Example" in text, f"fedlab {' '.join(path)}: no example in its help"
+    assert " ".join(("fedlab", *path)) in text.split("Example", 1)[1]
+    for action in parser._actions:
+        assert action.help or isinstance(action, argparse._SubParsersAction), (path, action)
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -179,3 +229,123 @@ def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
             proc.wait(10)
     assert proc.returncode == 0, out
     assert "waiting for the router" in out
+
+
+# -- errors --------------------------------------------------------------------------
+def test_network_failure_is_not_a_config_error() -> None:
+    assert not issubclass(ConnectError, ConfigError)
+    assert not issubclass(ConnectError, ValueError)
+
+    def refuse(conf: Any) -> Any:
+        raise RuntimeError("no route")
+
+    with pytest.raises(ConnectError, match="cannot open a Zenoh session: no route"):
+        open_interruptible(refuse, None, threading.Event())
+
+
+def test_connect_error_exits_1_with_a_clear_message(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def unreachable(args: argparse.Namespace, stop: threading.Event) -> Any:
+        raise ConnectError("cannot open a Zenoh session: router unreachable")
+
+    monkeypatch.setattr(cli.ctl, "open_session", unreachable)
+    assert main(["ctl", "abort", "-e", "tcp/127.0.0.1:9"]) == 1
+    assert "fedlab ctl: error: cannot open a Zenoh session" in capsys.readouterr().err
+
+
+def test_main_puts_signal_handlers_back(monkeypatch: pytest.MonkeyPatch) -> None:
+    before = signal.getsignal(signal.SIGTERM)
+    with signal_handlers_kept():
+        stop_on_signals()
+        assert signal.getsignal(signal.SIGTERM) is not before
+    assert signal.getsignal(signal.SIGTERM) is before
+
+    def stops(args: argparse.Namespace, stop: threading.Event) -> None:
+        return None  # as if a signal stopped it before the router answered
+
+    monkeypatch.setattr(cli.monitor, "open_session", stops)
+    assert main(["monitor", "--once", "-e", "tcp/127.0.0.1:9"]) == 0
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["bench", "sync", "--duration", "5"],  # not past the 10 s sync phase
+        ["bench", "scale", "--agents", "1"],
+        ["ctl", "start", "--reference", "nolab"],
+        ["ctl", "start", "--federation", "Bad/Name"],
+        ["monitor", "--wait", "-1"],
+    ],
+)
+def test_bad_values_are_refused_by_the_parser(argv: list[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+
+
+# -- fedlab schemas ------------------------------------------------------------------
+def test_schemas_writes_then_checks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["schemas", "--out", str(tmp_path)]) == 0
+    assert len(list(tmp_path.glob("*.schema.json"))) == len(export.MODELS)
+    assert main(["schemas", "--check", "--out", str(tmp_path)]) == 0
+    (tmp_path / "Command.schema.json").write_text("{}\n")
+    capsys.readouterr()
+    assert main(["schemas", "--check", "--out", str(tmp_path)]) == 1
+    assert "Command.schema.json" in capsys.readouterr().err
+
+
+# -- fedlab ctl: what it decides without a network ------------------------------------
+def test_ctl_reference_is_the_flag_then_the_experiment_then_the_one_leader() -> None:
+    seen = {"kiruna/knatte": {"role": "leader"}, "rome/pinocchio": {"role": "follower"}}
+    given = AgentId("rome", "pinocchio")
+    assert control.choose_reference(given, None, seen) == given
+    assert control.choose_reference(None, None, seen) == AgentId("kiruna", "knatte")
+    with pytest.raises(ConfigError, match="found 0 leaders"):
+        control.choose_reference(None, None, {"rome/pinocchio": {"role": "follower"}})
+    two = seen | {"rome/other": {"role": "leader"}}
+    with pytest.raises(ConfigError, match="found 2 leaders"):
+        control.choose_reference(None, None, two)
+
+
+def test_ctl_result_is_ok_when_every_expected_agent_confirmed() -> None:
+    command = Command(command="abort", seq=1)
+    expected = frozenset({"kiruna/knatte", "rome/pinocchio"})
+    modes = {"kiruna/knatte": "aborted", "rome/pinocchio": "running", "x/y": "running"}
+    result = control.ControlResult(command, AgentId("kiruna", "knatte"), expected, modes, 0.1)
+    assert not result.ok and result.pending == ["rome/pinocchio"]
+    done = control.ControlResult(
+        command, result.reference, expected, modes | {"rome/pinocchio": "aborted"}, 0.1
+    )
+    assert done.ok and done.pending == []
+
+
+# -- layering: argparse only in federation/cli ---------------------------------------
+def _library_files() -> Iterator[Path]:
+    for package in LIBRARY:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if (ROOT / "federation" / "cli") not in path.parents and path != ENTRY_POINT:
+                yield path
+
+
+def test_library_never_imports_argparse_nor_defines_a_command() -> None:
+    found = []
+    for path in _library_files():
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        where = path.relative_to(ROOT)
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Import | ast.ImportFrom):
+                continue
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            else:
+                names = [node.module or ""]
+            if any(n == "argparse" or n.startswith(("argparse.", "federation.cli")) for n in names):
+                found.append(f"{where}:{node.lineno} imports {', '.join(names)}")
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef) and (
+                node.name == "register" or node.name.startswith("cmd_")
+            ):
+                found.append(f"{where}:{node.lineno} defines {node.name}()")
+    assert not found, "command-line code outside federation/cli:\n" + "\n".join(found)

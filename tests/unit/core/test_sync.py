@@ -1,4 +1,4 @@
-"""Three-timestamp synchronization (federation/sync.py).
+"""Three-timestamp synchronization (federation/core/sync.py): both halves.
 
 SyncClient is driven through a tiny in-memory network: a server whose clock is the
 client's clock plus a known offset answers each request at once, and datagrams travel
@@ -19,7 +19,14 @@ from hypothesis import strategies as st
 
 from federation.core import wire
 from federation.core.clockfilter import ClockFilter
-from federation.core.sync import DEFAULT_WINDOW, Exchange, PaperEstimator, SyncClient
+from federation.core.sync import (
+    DEFAULT_WINDOW,
+    Exchange,
+    PaperEstimator,
+    SyncClient,
+    read_send_time,
+    serve,
+)
 from federation.core.wire import Pose, encode_reply
 
 PAPER_OFFSET = 26.420  # s, validation run (figures 8 and 9)
@@ -46,8 +53,8 @@ class MemoryServer:
 
     def handle(self, request: bytes, client_now: float) -> bytes:
         self.requests += 1
-        t1 = wire.decode_request(request)
-        return wire.encode_reply(t1, client_now + self.offset, self.pose)
+        t2 = client_now + self.offset
+        return serve(request, t2, self.pose, t2).payload
 
 
 @dataclass
@@ -767,3 +774,34 @@ def test_own_clock_going_back_rejects_the_reply() -> None:
     assert payload
     assert client.receive(encode_reply(10.0, 12.0, Pose()), 9.0) is None
     assert client.rejected["clock_step"] == 1
+
+
+# ------------------------------------------------------------------ the server half
+
+
+def test_serve_echoes_t1_stamps_t2_and_attaches_the_send_time() -> None:
+    client = SyncClient(PaperEstimator(), timeout=1.0)
+    request = client.request(10.0)
+    pose = Pose(1.0, 2.0, 0.5, 0.1, 0.2, 0.01)
+    # 40 ms each way, 0.5 ms turnaround, the server 26.42 s ahead (the paper's figures).
+    served = serve(request, t2=36.46, pose=pose, now=36.4605)
+    assert len(served.payload) == wire.REPLY_SIZE and len(served.attachment) == 8
+    assert wire.decode_reply(served.payload) == wire.SyncReply(10.0, 36.46, pose)
+    assert read_send_time(served.attachment) == 36.4605
+    # The client turns both into a four-timestamp exchange.
+    t2s = read_send_time(served.attachment)
+    assert client.receive(served.payload, 10.0805, t2s) is not None
+    assert client.last == Exchange(10.0, 36.46, 10.0805, 36.4605)
+    assert client.last.offset == pytest.approx(26.42, abs=1e-9)
+    assert client.last.delay == pytest.approx(0.04, abs=1e-9)
+
+
+@pytest.mark.parametrize("request_", [b"", bytes(7), bytes(9), bytes.fromhex("000000000000f87f")])
+def test_serve_refuses_a_malformed_request(request_: bytes) -> None:
+    with pytest.raises(wire.DecodeError):
+        serve(request_, 1.0, Pose(), 1.0)
+
+
+def test_read_send_time_refuses_what_is_not_a_time() -> None:
+    with pytest.raises(wire.DecodeError):
+        read_send_time(bytes(3))

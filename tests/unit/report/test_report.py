@@ -31,7 +31,8 @@ from matplotlib import image
 
 from agents.guidance import ReferenceManeuver
 from federation import cli
-from federation.report import report
+from federation.report import load_run, write_report
+from federation.report.analysis import best_shift, heading_rms_deg, xcorr_lag
 from federation.runtime.recorder import Recorder
 
 LEADER, FOLLOWER, RAW = "kiruna/knatte", "rome/pinocchio", "rome/pinocchio-raw"
@@ -254,7 +255,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def written(run_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], Path]:
     out = tmp_path_factory.mktemp("out")
-    return report.write_report(run_dir, out), out
+    return write_report(run_dir, out), out
 
 
 def _sync(summary: dict[str, Any], client: str) -> dict[str, Any]:
@@ -271,17 +272,17 @@ def _follower(summary: dict[str, Any], name: str) -> dict[str, Any]:
 def test_best_shift_finds_a_known_delay_and_refuses_the_edge() -> None:
     t = np.arange(0.0, 20.0, 0.05)
     x = np.sin(0.5 * t)
-    assert report.best_shift(t + 0.0371, x, t, x) == pytest.approx(0.0371, abs=2e-4)
-    assert report.best_shift(t - 0.012, x, t, x) == pytest.approx(-0.012, abs=2e-4)
-    assert report.best_shift(t + 0.8, x, t, x) is None  # beyond +-0.5 s
+    assert best_shift(t + 0.0371, x, t, x) == pytest.approx(0.0371, abs=2e-4)
+    assert best_shift(t - 0.012, x, t, x) == pytest.approx(-0.012, abs=2e-4)
+    assert best_shift(t + 0.8, x, t, x) is None  # beyond +-0.5 s
 
 
 def test_xcorr_lag_finds_a_lag_and_needs_motion() -> None:
     t = np.arange(0.0, 60.0, 0.05)
     ref = np.exp(-(((t - 20.0) / 4.0) ** 2))
     follower = np.exp(-(((t - 24.3) / 4.0) ** 2))
-    assert report.xcorr_lag(t, follower, t, ref) == pytest.approx(4.3, abs=0.01)
-    assert report.xcorr_lag(t, np.zeros_like(t), t, ref) is None
+    assert xcorr_lag(t, follower, t, ref) == pytest.approx(4.3, abs=0.01)
+    assert xcorr_lag(t, np.zeros_like(t), t, ref) is None
 
 
 def test_heading_rms_uses_only_running_samples() -> None:
@@ -292,7 +293,7 @@ def test_heading_rms_uses_only_running_samples() -> None:
     heading = [
         {"t_exec": float(t), "heading": math.radians(2.0 if t >= 5 else 30.0)} for t in range(10)
     ]
-    assert report.heading_rms_deg(heading, reference) == pytest.approx(2.0)
+    assert heading_rms_deg(heading, reference) == pytest.approx(2.0)
 
 
 # -- the synthetic run ----------------------------------------------------------------------
@@ -407,13 +408,14 @@ def test_figures_are_real_pngs_and_the_report_shows_them(
     assert all(row.replace("\\|", "").count("|") == 5 for row in rows)  # 4 cells each
     assert "60–100" in md and "4–5" in md  # the paper's separation and lag
     assert "40.0 ms one-way delay" in md  # what was emulated
+    assert "the source paper (docs/paper.md)" in md and "NOTES.md" not in md
 
 
 # -- missing pieces and the command line ---------------------------------------------------
 def test_missing_leader_and_run_json_are_reported_not_fatal(tmp_path: Path) -> None:
     write_run(tmp_path, with_run_json=False)
     (tmp_path / "kiruna-knatte.mcap").unlink()
-    summary = report.write_report(tmp_path)
+    summary = write_report(tmp_path)
     s = _sync(summary, FOLLOWER)
     assert s["delay_median_s"] == pytest.approx(DELAY, abs=1e-3)
     assert "estimate_error_median_abs_s" not in s  # no truth without the leader's clock
@@ -435,7 +437,7 @@ def test_damaged_recordings_are_recovered_or_skipped_with_a_note(
     # Cut in the middle of its only chunk: nothing to recover.
     truncated = tmp_path / "rome-pinocchio.mcap"
     truncated.write_bytes(truncated.read_bytes()[:5000])
-    run = report.load_run(tmp_path)
+    run = load_run(tmp_path)
     assert set(run.agents) == {LEADER, RAW}
     assert len(run.agents[RAW].channel("/status")) == 80
     notes = " ".join(run.notes)

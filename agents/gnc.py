@@ -1,0 +1,221 @@
+"""The GNC chain of paper section 2.3 (its figure 3), one for every platform.
+
+One call of :meth:`GncChain.update` per control step, ``1 / control.rate`` seconds:
+
+1. navigation: the Kalman filter (:class:`~agents.navigation.NavigationFilter`)
+   predicts to ``now`` with the latest IMU sample and corrects with a metrology fix
+   (camera or Vicon) if one came in since the last step;
+2. control: the PID on the heading reference (Eq. 1, 2) gives a torque demand, the
+   position hold (optional) force demands, both on the filter's estimate;
+3. actuation: the pulse-width modulator turns the demands into pulses and the
+   thruster allocation into the eight valve states to hold until the next step.
+
+The chain is pure: time and sensor data come in as arguments, valve states go out; it
+opens no port and reads no clock. A simulated platform (:mod:`agents.simulated`) feeds
+it its plant's sensors, a real one (:mod:`agents.serial.platform`) the frames of its
+avionics: the same code, built from the same :class:`~schemas.platform.PlatformConfig`.
+
+Fails closed
+------------
+Every valve stays closed, and :attr:`GncChain.reason` says why, while
+
+- ``"no_fix"``: no metrology fix has come in yet (the estimate is a guess);
+- ``"stale_fix"``: the latest fix is older than ``control.fix_timeout`` (dead
+  reckoning on the IMU alone drifts; out of the cameras' view, say);
+- ``"held"``: :meth:`GncChain.hold` is in force (safe hold).
+
+Each closed step is counted (:attr:`GncChain.counters`). When control resumes, the PID's
+integral and the PWM period start afresh (bumpless restart).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from agents.control import HeadingPid, PositionHold, PulseWidthModulator, allocate
+from agents.dynamics import THRUSTERS
+from agents.navigation import NavigationFilter
+from agents.sensors import ImuSample
+from federation.core.wire import Pose
+from schemas.platform import PlatformConfig
+
+__all__ = ["CLOSED", "GncChain", "Reason"]
+
+CLOSED: tuple[bool, ...] = (False,) * len(THRUSTERS)
+"""Every valve closed."""
+
+Reason = Literal["held", "no_fix", "stale_fix"]
+"""Why every valve is closed."""
+
+
+class GncChain:
+    """Navigation, heading PID, position hold, PWM and allocation: sensors in, valves out.
+
+    Parameters
+    ----------
+    config : PlatformConfig
+        The preset: sensor noise (filter tuning), gains, PWM, thrusters, ``fix_timeout``.
+    position_hold : bool, optional
+        Hold a position with a PD; None: ``config.control.position_hold``.
+    target : tuple of float, optional
+        Position to hold (x, y), m; None: the estimate after the first fix.
+    fix_timeout : float, optional
+        Seconds after the latest fix at which the valves close; None:
+        ``config.control.fix_timeout``.
+    """
+
+    def __init__(
+        self,
+        config: PlatformConfig,
+        *,
+        position_hold: bool | None = None,
+        target: tuple[float, float] | None = None,
+        fix_timeout: float | None = None,
+    ):
+        self.config = config
+        c, v, i, n = config.control, config.vision, config.imu, config.navigation
+        self.rate: float = c.rate
+        self.fix_timeout = c.fix_timeout if fix_timeout is None else fix_timeout
+        if not self.fix_timeout > 0:
+            raise ValueError(f"fix_timeout must be positive seconds, not {self.fix_timeout!r}")
+        self.filter = NavigationFilter(
+            gyro_noise=i.gyro_noise,
+            accel_noise=i.accel_noise,
+            position_noise=v.position_noise,
+            heading_noise=v.heading_noise,
+            unmodelled_accel=n.unmodelled_accel,
+            gyro_bias_walk=n.gyro_bias_walk,
+            accel_bias_walk=n.accel_bias_walk,
+        )
+        self.pid = HeadingPid(c.kp, c.ki, c.kd, config.pair_torque, c.integral_limit)
+        # Channels: body x force, body y force, torque. The torque pairs share valves
+        # with the x pairs, so x pulses sit at the end of the period, torque at the start.
+        self.pwm = PulseWidthModulator(
+            c.pwm_period,
+            c.min_on_time,
+            1.0 / c.rate,
+            channels=3,
+            right_aligned=(True, False, False),
+        )
+        if position_hold is None:
+            position_hold = c.position_hold
+        self.position_hold: PositionHold | None = (
+            PositionHold(c.kp_position, c.kd_position, config.pair_force, target or (0.0, 0.0))
+            if position_hold
+            else None
+        )
+        self._target_set = target is not None
+        self._force_scale = 1.0 / config.pair_force
+        self._torque_scale = 1.0 / config.pair_torque
+        self._imu = ImuSample(0.0, 0.0, 0.0)
+        self._fix_at: float | None = None  # ``now`` of the latest fix
+        self._held = False
+        self._closed = True  # the last step was forced closed: restart PID and PWM
+        self._valves = CLOSED
+        self.reason: Reason | None = "no_fix"
+        """Why every valve is closed now; None while the chain controls."""
+        self.counters: dict[str, int] = {
+            "closed_held": 0,
+            "closed_no_fix": 0,
+            "closed_stale_fix": 0,
+        }
+        """Control steps closed, per reason."""
+
+    # ------------------------------------------------------------------ one step
+
+    def update(
+        self,
+        now: float,
+        heading_ref: float,
+        rate_ref: float,
+        imu: ImuSample | None = None,
+        fix: Pose | None = None,
+    ) -> tuple[bool, ...]:
+        """The eight valve states for the control step starting at ``now`` (s).
+
+        Parameters
+        ----------
+        now : float
+            Time of the step, s (any clock, as long as it is the same every step).
+        heading_ref, rate_ref : float
+            Heading (rad) and rate (rad/s) references from guidance.
+        imu : ImuSample, optional
+            A new IMU sample; None: keep using the last one.
+        fix : Pose, optional
+            A new metrology fix (x, y, heading; its rates are ignored), taken now.
+        """
+        if imu is not None:
+            self._imu = imu
+        self.filter.predict(now, self._imu)
+        if fix is not None:
+            self.filter.correct(now, fix)
+            self._fix_at = now
+            if self.position_hold is not None and not self._target_set:
+                est = self.filter.estimate
+                self.position_hold.target = (est.x, est.y)
+                self._target_set = True
+        reason = self._closed_reason(now)
+        if reason is not None:
+            self.counters[f"closed_{reason}"] += 1
+            self.reason = reason
+            self._closed = True
+            self._valves = CLOSED
+            return CLOSED
+        if self._closed:  # resuming: no integral or PWM period left from before
+            self._closed = False
+            self.pid.reset()
+            self.pwm.reset()
+        self.reason = None
+        est = self.filter.estimate
+        torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
+        fx = fy = 0.0
+        if self.position_hold is not None:
+            fx, fy = self.position_hold.update(est)
+        signs = self.pwm.update(
+            now, (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)
+        )
+        self._valves = allocate(*signs)
+        return self._valves
+
+    def _closed_reason(self, now: float) -> Reason | None:
+        if self._held:
+            return "held"
+        if self._fix_at is None:
+            return "no_fix"
+        if now - self._fix_at > self.fix_timeout:
+            return "stale_fix"
+        return None
+
+    # ------------------------------------------------------------------ safe hold
+
+    def hold(self) -> None:
+        """Safe hold: every valve closed from now until :meth:`release`."""
+        self._held = True
+        self._closed = True
+        self._valves = CLOSED
+        self.reason = "held"
+
+    def release(self) -> None:
+        """End the hold; control resumes (from a clean start) at the next :meth:`update`."""
+        self._held = False
+
+    @property
+    def held(self) -> bool:
+        return self._held
+
+    # ------------------------------------------------------------------ outputs
+
+    @property
+    def valves(self) -> tuple[bool, ...]:
+        """The eight valve states of the last step (all closed after :meth:`hold`)."""
+        return self._valves
+
+    @property
+    def estimate(self) -> Pose:
+        """The navigation estimate: what the agent publishes."""
+        return self.filter.estimate
+
+    @property
+    def fix_time(self) -> float | None:
+        """``now`` of the latest fix, s (None before the first)."""
+        return self._fix_at

@@ -1,0 +1,254 @@
+"""``fedlab agent``: run an agent, a platform taking part in the federation.
+
+Its settings come from ``--agent-config`` (TOML or JSON), then its part in an
+``--experiment``, then the flags given (:func:`agent_config`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+from federation.cli.common import (
+    Formatter,
+    Subparsers,
+    add_zenoh_flags,
+    open_session,
+    stop_on_signals,
+)
+from federation.core import paper
+from schemas.config import AgentConfig, ConfigError, load_model, validate
+
+__all__ = ["add", "agent_config", "run"]
+
+log = logging.getLogger("fedlab")
+
+
+def add(sub: Subparsers) -> None:
+    p = sub.add_parser(
+        "agent",
+        help="run an agent (a platform in the federation)",
+        formatter_class=Formatter,
+        description="Run an agent: serve sync queries, sync with peers, publish pose and status.",
+        epilog=(
+            "Examples:\n"
+            "  fedlab agent --role leader --lab kiruna --name knatte -e tcp/127.0.0.1:7447\n"
+            "  fedlab agent --role follower --lab rome --name pinocchio --follow kiruna/knatte \\\n"
+            f"      -e tcp/127.0.0.1:7448 --clock-offset {paper.CLOCK_OFFSET} \\\n"
+            "      --status-json rome.jsonl"
+        ),
+    )
+    p.add_argument(
+        "--agent-config", type=Path, metavar="FILE", help="agent settings (TOML or JSON)"
+    )
+    p.add_argument(
+        "--experiment",
+        type=Path,
+        metavar="FILE",
+        help="take role, platform and maneuver from an experiment file; wait for ctl start",
+    )
+    p.add_argument("--federation", help="federation name (default: default)")
+    p.add_argument("--lab", help="this agent's lab")
+    p.add_argument("--name", help="this agent's name")
+    p.add_argument(
+        "--role",
+        choices=["leader", "follower", "member"],
+        help="leader runs the maneuver; follower tracks --follow; member only takes part",
+    )
+    p.add_argument("--follow", metavar="LAB/NAME", help="agent whose heading a follower tracks")
+    p.add_argument(
+        "--sync-with",
+        action="append",
+        default=[],
+        metavar="LAB/NAME",
+        help="sync only with these agents (default: the reference and the followed agent "
+        "every --sync-period, every other agent alive every --sync-others-period)",
+    )
+    p.add_argument(
+        "--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)"
+    )
+    p.add_argument(
+        "--sync-others-period", type=float, metavar="S",
+        help="seconds between sync requests to agents neither followed nor the reference (1)",
+    )  # fmt: skip
+    p.add_argument("--sync-timeout", type=float, metavar="S", help="sync reply timeout (0.5)")
+    p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
+    p.add_argument(
+        "--estimator",
+        choices=["clockfilter", "mean", "median"],
+        help="offset estimator: clockfilter (offset and drift; default) or the paper's mean/median",
+    )
+    p.add_argument(
+        "--four-timestamps",
+        action="store_const",
+        const=True,
+        help="also use the server's send time (for servers with slow turnaround)",
+    )
+    p.add_argument("--pose-rate", type=float, metavar="HZ", help="pose samples per second (20)")
+    p.add_argument("--status-period", type=float, metavar="S", help="seconds between status (1)")
+    p.add_argument("--clock-offset", type=float, metavar="S", help="skew this agent's clock (s)")
+    p.add_argument("--clock-drift-ppm", type=float, metavar="PPM", help="clock rate error (ppm)")
+    p.add_argument(
+        "--platform",
+        metavar="SPEC",
+        help="pose source: kinematic (default), knatte, pinocchio, a platform TOML, serial:PORT",
+    )
+    p.add_argument(
+        "--platform-preset",
+        metavar="NAME|FILE",
+        help="GNC preset of a serial:PORT platform: knatte (default), pinocchio, a platform TOML",
+    )
+    p.add_argument("--seed", type=int, help="seed of a simulated platform's noise (0)")
+    p.add_argument(
+        "--no-latency-compensation",
+        dest="latency_compensation",
+        action="store_const",
+        const=False,
+        help="track the followed pose as received, without dead reckoning",
+    )
+    p.add_argument(
+        "--clock-step",
+        type=_clock_step,
+        metavar="AT:S",
+        help="rehearse a clock step: jump S seconds when the clock reads AT",
+    )
+    p.add_argument(
+        "--stale-after",
+        type=float,
+        metavar="S",
+        help="seconds without the followed pose before safe hold (0.15)",
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
+    p.add_argument("--record", type=Path, metavar="FILE", help="record the run to an MCAP file")
+    p.add_argument(
+        "--wait-start",
+        action="store_const",
+        const=True,
+        help="hold still until a start command (fedlab ctl start) instead of starting at once",
+    )
+    add_zenoh_flags(p)
+    p.set_defaults(func=run)
+
+
+_AGENT_FLAGS = (
+    "federation",
+    "lab",
+    "name",
+    "role",
+    "follow",
+    "sync_with",
+    "sync_period",
+    "sync_others_period",
+    "sync_timeout",
+    "sync_window",
+    "estimator",
+    "four_timestamps",
+    "pose_rate",
+    "status_period",
+    "clock_offset",
+    "clock_drift_ppm",
+    "clock_step",
+    "stale_after",
+    "duration",
+    "status_json",
+    "record",
+    "wait_start",
+    "platform",
+    "platform_preset",
+    "seed",
+    "latency_compensation",
+)
+
+
+def agent_config(args: argparse.Namespace) -> AgentConfig:
+    """The agent's file (if any), then its part in an experiment (if any), overlaid
+    with the flags given on the command line."""
+    data: dict[str, Any] = {}
+    sources = []
+    if args.agent_config is not None:
+        base = load_model(AgentConfig, args.agent_config)
+        data = base.model_dump(exclude_unset=True)
+        sources.append(str(args.agent_config))
+    if args.experiment is not None:
+        data |= _experiment_part(args)
+        sources.append(str(args.experiment))
+    source = " + ".join([*sources, "command line"])
+    for name in _AGENT_FLAGS:
+        value = getattr(args, name)
+        if value is not None and value != []:
+            data[name] = value
+    return validate(AgentConfig, data, source)
+
+
+def _experiment_part(args: argparse.Namespace) -> dict[str, Any]:
+    """This agent's settings from an experiment file: role, platform, maneuver, ..."""
+    from federation.core.keys import AgentId
+    from schemas.experiment import load_experiment
+
+    experiment = load_experiment(args.experiment)
+    if not (args.lab and args.name):
+        raise ConfigError(f"{args.experiment}: give --lab and --name to pick this agent's part")
+    me = AgentId(args.lab, args.name)
+    part = experiment.participant(me)
+    if part is None:
+        names = ", ".join(p.agent for p in experiment.participants)
+        raise ConfigError(f"{args.experiment}: {me} does not take part (participants: {names})")
+    return {
+        "federation": experiment.federation,
+        "role": part.role,
+        "platform": part.platform,
+        "follow": part.follow,
+        "latency_compensation": part.latency_compensation,
+        "maneuver": experiment.maneuver.model_dump(),
+        "wait_start": True,
+    }
+
+
+def _clock_step(text: str) -> tuple[float, float]:
+    at, sep, jump = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(at), float(jump)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected AT:SECONDS, e.g. 20:0.5, not {text!r}"
+        ) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from agents.kinematic import PlatformError
+    from federation.runtime.agent import AgentRuntime, NameTaken
+    from federation.runtime.heap import freeze_startup_heap
+
+    config = agent_config(args)
+    stop = stop_on_signals()
+    session = open_session(args, stop)
+    if session is None:
+        return 0
+    with session:
+        try:
+            runtime = AgentRuntime(config, session)
+        except PlatformError as error:
+            print(f"fedlab agent: error: {error}", file=sys.stderr)
+            return 1
+        try:
+            runtime.start()
+        except NameTaken as error:
+            runtime.close()
+            print(f"fedlab agent: error: {error}", file=sys.stderr)
+            return 2
+        freeze_startup_heap()
+        try:
+            runtime.run(stop)
+        except PlatformError as error:
+            print(f"fedlab agent: error: {error}; all valves closed", file=sys.stderr)
+            return 1
+        finally:
+            runtime.close()
+    log.info("agent %s stopped", config.agent)
+    return 0

@@ -1,0 +1,214 @@
+"""``fedlab bench sync|latency|scale``: benchmarks beside baselines measured in the same run.
+
+Each parses its flags, runs :mod:`federation.bench` and prints a table (or ``--json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from federation.bench import latency, scale, sync
+from federation.cli.common import Formatter, Subparsers, positive
+
+__all__ = ["add", "run"]
+
+
+def add(sub: Subparsers) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="benchmarks: sync accuracy, latency, scale",
+        formatter_class=Formatter,
+        description="Benchmarks; each prints a table, or JSON with --json.",
+        epilog=(
+            "Examples:\n"
+            "  fedlab bench sync --duration 60 --scenario drift\n"
+            "  fedlab bench latency --seconds 30 --rate 100 --json\n"
+            "  fedlab bench scale --agents 2 --agents 8 --seconds 20"
+        ),
+    )
+    benches = p.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    _add_sync(benches)
+    _add_latency(benches)
+    _add_scale(benches)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark named by ``args.bench`` and print its results."""
+    return {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}[args.bench](args)
+
+
+# -- sync ----------------------------------------------------------------------------
+def _after_sync_phase(text: str) -> float:
+    """Argument type: seconds longer than the paper's sync phase (nothing is scored before)."""
+    value = positive(text)
+    if value <= sync.SYNC_PHASE:
+        raise argparse.ArgumentTypeError(
+            f"must exceed the {sync.SYNC_PHASE:g} s sync phase, not {text!r}"
+        )
+    return value
+
+
+def _add_sync(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "sync",
+        help="offset error of each estimator under emulated internet paths",
+        formatter_class=Formatter,
+        description=(sync.__doc__ or "").split("\n\n")[1],
+        epilog=(
+            "Examples:\n"
+            "  fedlab bench sync --duration 60 --scenario paper-like --scenario drift\n"
+            "  fedlab bench sync --offline --duration 600 --json"
+        ),
+    )
+    p.add_argument(
+        "--scenario", action="append", choices=sorted(sync.SCENARIOS), metavar="NAME",
+        help=f"scenario to run (repeatable; default all: {', '.join(sync.SCENARIOS)})",
+    )  # fmt: skip
+    p.add_argument(
+        "--estimator", action="append", choices=sync.ESTIMATORS, metavar="NAME",
+        help=f"estimator to score (repeatable; default all: {', '.join(sync.ESTIMATORS)})",
+    )  # fmt: skip
+    p.add_argument(
+        "--duration", type=_after_sync_phase, default=60.0, metavar="S",
+        help="seconds per scenario",
+    )  # fmt: skip
+    p.add_argument("--offline", action="store_true", help="draw exchanges from the link model")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the link emulator")
+    p.add_argument(
+        "--trial", type=_after_sync_phase, default=60.0, metavar="S",
+        help="seconds of each fresh start scored under 'restarts' (one every 10 s)",
+    )  # fmt: skip
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/bench-sync"), metavar="DIR", help="run folder"
+    )
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _run_sync(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console(stderr=True)
+    scenarios = [sync.SCENARIOS[n] for n in (args.scenario or sync.SCENARIOS)]
+    results = sync.run(
+        scenarios, args.estimator or sync.ESTIMATORS, args.duration, args.offline, args.out,
+        args.seed, progress=console.print, trial=args.trial,
+    )  # fmt: skip
+    if args.json:
+        print(json.dumps(results, indent=1))
+        return 0
+    table = Table(title="clock offset |error| after the sync phase (ms)")
+    for col in ("scenario", "estimator", "p50", "p95", "max", "n", "restarts p50", "p95 ",
+                "starts"):  # fmt: skip
+        table.add_column(col, justify="left" if col in ("scenario", "estimator") else "right")
+    for r in results:
+        again = r["restarts"]
+        table.add_row(
+            r["scenario"], r["estimator"],
+            *(f"{r[k] * 1e3:.3f}" for k in ("p50", "p95", "max")), str(r["n"]),
+            *((f"{again['p50'] * 1e3:.3f}", f"{again['p95'] * 1e3:.3f}", str(again["trials"]))
+              if again else ("-", "-", "0")),
+        )  # fmt: skip
+    Console(width=max(Console().width, 100)).print(table)
+    return 0
+
+
+# -- latency -------------------------------------------------------------------------
+def _add_latency(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "latency",
+        help="pose latency across two routers, beside bare zenoh and raw UDP",
+        formatter_class=Formatter,
+        description=(latency.__doc__ or "").split("\n\n")[0],
+        epilog="Example: fedlab bench latency --seconds 30 --rate 100 --json",
+    )
+    p.add_argument("--seconds", type=positive, default=20.0, metavar="S", help="seconds per path")
+    p.add_argument("--rate", type=positive, default=100.0, metavar="HZ", help="samples per second")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/bench-latency"), metavar="DIR", help="run folder"
+    )
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _run_latency(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    result = latency.run(args.seconds, args.rate, args.out)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    table = Table(title=f"one-way latency, loopback, two routers ({args.rate:.0f} Hz)")
+    for col in ("path", "p50 (ms)", "p99 (ms)", "max (ms)", "samples"):
+        table.add_column(col, justify="left" if col == "path" else "right")
+    for name in latency.PATHS:
+        r = result[name]
+        table.add_row(
+            name, f"{r['p50_ms']:.3f}", f"{r['p99_ms']:.3f}", f"{r['max_ms']:.3f}", str(r["n"])
+        )
+    console = Console()
+    console.print(table)
+    console.print(
+        f"fedlab / bare zenoh p50: {result['ratio_p50_fedlab_over_bare']:.2f}x; "
+        f"bare zenoh / raw udp p50: {result['ratio_p50_bare_over_udp']:.1f}x"
+    )
+    return 0
+
+
+# -- scale ---------------------------------------------------------------------------
+def _agents(text: str) -> int:
+    """Argument type: an agent count of at least 2 (a leader and a follower)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if n < 2:
+        raise argparse.ArgumentTypeError(f"at least 2 (a leader and a follower), not {text!r}")
+    return n
+
+
+def _add_scale(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "scale",
+        help=f"N agents over {scale.LABS} labs: CPU, latency and loss as N grows",
+        formatter_class=Formatter,
+        description=(scale.__doc__ or "").split("\n\n")[0],
+        epilog="Example: fedlab bench scale --agents 2 --agents 8 --seconds 20 --json",
+    )
+    p.add_argument(
+        "--agents", action="append", type=_agents, metavar="N",
+        help="agent counts to run (repeatable; default "
+        f"{' '.join(map(str, scale.DEFAULT_AGENTS))})",
+    )  # fmt: skip
+    p.add_argument("--seconds", type=positive, default=20.0, metavar="S", help="seconds per N")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/bench-scale"), metavar="DIR", help="run folder"
+    )
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _run_scale(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console(stderr=True)
+    results = []
+    for n in args.agents or scale.DEFAULT_AGENTS:
+        console.print(f"{n} agents: running {args.seconds:.0f} s")
+        results.append(scale.run_one(n, args.seconds, args.out))
+    if args.json:
+        print(json.dumps(results, indent=1))
+        return 0
+    table = Table(title=f"N agents over {scale.LABS} labs (pose 20 Hz, sync 10 Hz)")
+    for col in ("agents", "CPU (cores)", "p50 (ms)", "p99 (ms)", "loss", "sync/s"):
+        table.add_column(col, justify="right")
+    for r in results:
+        table.add_row(
+            str(r["n"]), f"{r['cpu_cores']:.2f}", f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}",
+            f"{r['loss']:.4f}", f"{r['sync_per_s']:.0f}",
+        )  # fmt: skip
+    Console().print(table)
+    return 0

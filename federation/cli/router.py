@@ -1,0 +1,41 @@
+"""``fedlab router``: run a lab's Zenoh router."""
+
+from __future__ import annotations
+
+import argparse
+
+from federation.cli.common import (
+    Formatter,
+    Subparsers,
+    add_zenoh_flags,
+    stop_on_signals,
+    zenoh_options,
+)
+
+__all__ = ["add", "run"]
+
+
+def add(sub: Subparsers) -> None:
+    p = sub.add_parser(
+        "router",
+        help="run a lab's Zenoh router",
+        formatter_class=Formatter,
+        description="Run a lab's Zenoh router: the only fedlab process that crosses the firewall.",
+        epilog=(
+            "Examples:\n"
+            "  fedlab router --lab kiruna -l tcp/0.0.0.0:7447\n"
+            "  fedlab router --lab rome -l tcp/127.0.0.1:7448 -e tcp/kiruna.example.org:7447\n"
+            "  fedlab router -c deploy/routers/kiruna.json5"
+        ),
+    )
+    p.add_argument("--lab", help="lab name (else metadata.lab in the config file)")
+    add_zenoh_flags(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from federation.runtime.router import load_router_config, run_router
+
+    settings, conf = load_router_config(zenoh_options(args), args.lab)
+    run_router(settings, conf, stop_on_signals())
+    return 0

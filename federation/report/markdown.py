@@ -1,0 +1,103 @@
+"""``report.md``: a run set beside the source paper, in Markdown.
+
+The text is built from the summary alone (:func:`federation.report.summary.summarize`,
+with the ``figures`` :func:`federation.report.figures.write_figures` drew) and the
+demo's ``run.json``; it names the source paper by ``docs/paper.md``, the one place
+that describes it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from federation.report.summary import comparison_rows
+
+__all__ = ["markdown"]
+
+
+def _emulated(meta: dict[str, Any] | None) -> str:
+    """One sentence on the emulated link, from run.json."""
+    if meta is None:
+        return "Unknown: the run directory has no run.json."
+    link = meta.get("link")
+    if not link:
+        return "No network emulation: the agents talked over loopback."
+    delay, jitter = link.get("delay_ms"), link.get("jitter_ms")
+    extra = {k: v for k, v in link.items() if k not in ("delay_ms", "jitter_ms")}
+    text = f"A link with {delay} ms one-way delay"
+    text += f" and {jitter} ms jitter" if jitter is not None else ""
+    if extra:
+        text += " (" + ", ".join(f"{k} {v}" for k, v in extra.items()) + ")"
+    return text + " between the labs' routers."
+
+
+def markdown(summary: dict[str, Any], meta: dict[str, Any] | None) -> str:
+    """report.md: the run, the table beside the paper, the figures and the notes."""
+    run_name = Path(summary["run_dir"]).name or summary["run_dir"]
+    lines = [f"# fedlab run report: {run_name}", ""]
+    if summary.get("command"):
+        lines += [f"Command: `{summary['command']}`", ""]
+    if summary.get("duration_s") is not None:
+        lines += [f"Duration: {summary['duration_s']} s.", ""]
+    lines += ["## What was emulated", "", _emulated(meta), ""]
+    info = (meta or {}).get("agents") or {}
+    lines += [
+        "| agent | role | platform | follows | latency compensation | clock offset (s) "
+        "| clock drift (ppm) | recording |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, a in summary["agents"].items():
+        i = info.get(name) or {}
+        comp = a["latency_compensation"]
+        lines.append(
+            f"| {name} | {a['role'] or '?'} | {a['platform'] or '?'} | {a['follow'] or '-'} "
+            f"| {'-' if comp is None else ('on' if comp else 'off')} "
+            f"| {i.get('clock_offset', '?')} | {i.get('clock_drift_ppm', '?')} | {a['recording']} |"
+        )
+    lines += [
+        "",
+        "## This run beside the paper",
+        "",
+        "The paper's figures come from the source paper (docs/paper.md): its validation (600 s "
+        "over the internet) and its hardware run (figures 8-11).",
+        "",
+        "| figure | pair or agent | this run | paper |",
+        "|---|---|---:|---:|",
+    ]
+    for row in comparison_rows(summary):
+        lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in row) + " |")
+    figures = summary.get("figures", {})
+    lines += ["", "## Clock synchronization (figures 8, 9 and 11)", ""]
+    lines += [
+        "Each exchange gives an offset (Eq. 4) and a delay (Eq. 3); the line is the client's "
+        "filtered estimate, the dashed line the truth from the shared host clock. Truth here "
+        "cannot show path asymmetry: over a real path the estimate is also off by half of it.",
+        "",
+    ]
+    for s in summary["sync"]:
+        key = f"sync {s['client']} {s['peer']}"
+        if key in figures:
+            lines += [f"![sync of {s['client']} with {s['peer']}]({figures[key]})", ""]
+    lines += ["## Heading (figure 10)", ""]
+    if "heading" in figures:
+        lines += [
+            "Every heading on reference time (the leader's clock). Lag: the shift of the peak "
+            "Pearson correlation between the follower's and the leader's heading.",
+            "",
+            f"![heading]({figures['heading']})",
+            "",
+            "## Sent vs received heading",
+            "",
+            "Separation: the time shift that best aligns a series with the sent heading "
+            "(least squares over the maneuver). The received heading trails by the one-way "
+            "delay; a latency-compensated follower's guidance reference should not trail at all.",
+            "",
+            f"![sent vs received heading]({figures['sent_vs_received']})",
+            "",
+        ]
+    else:
+        lines += ["No follower with a recorded leader: no heading figures.", ""]
+    if summary["notes"]:
+        lines += ["## Notes", ""] + [f"- {n}" for n in summary["notes"]] + [""]
+    return "\n".join(lines)

@@ -1,0 +1,145 @@
+"""The GNC chain (agents/gnc.py): sensors in, valves out, and closed when it cannot know.
+
+Pure: every call takes ``now``, so the tests step it in simulated time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from agents.dynamics import PAIRS
+from agents.gnc import CLOSED, GncChain
+from agents.sensors import ImuSample
+from agents.simulated import Plant, SimulatedPlatform
+from federation.core.wire import Pose
+from schemas.platform import load_platform
+
+KNATTE = load_platform("knatte")
+PINOCCHIO = load_platform("pinocchio")
+TICK = 1.0 / KNATTE.control.rate
+STILL = ImuSample(0.0, 0.0, 0.0)
+PLUS_TORQUE = tuple(i in PAIRS["+torque"] for i in range(8))
+
+
+def run(
+    chain: GncChain, t0: float, t1: float, ref: float = 1.0, fix_every: float | None = None
+) -> list[tuple[bool, ...]]:
+    """Steps from ``t0`` to ``t1`` (both included) at rest, towards ``ref`` (rad); a fix at
+    the origin every ``fix_every`` seconds of the steps (None: no fix)."""
+    out = []
+    for k in range(round((t1 - t0) / TICK) + 1):
+        now = t0 + k * TICK
+        due = fix_every is not None and k % max(1, round(fix_every / TICK)) == 0
+        out.append(chain.update(now, ref, 0.0, imu=STILL, fix=Pose() if due else None))
+    return out
+
+
+def test_no_valve_opens_before_the_first_fix() -> None:
+    chain = GncChain(KNATTE)
+    assert chain.reason == "no_fix" and chain.valves == CLOSED
+    assert set(run(chain, 0.0, 2.0)) == {CLOSED}  # IMU only: a 1 rad error, nothing fires
+    assert chain.reason == "no_fix"
+    assert chain.counters == {"closed_held": 0, "closed_no_fix": 201, "closed_stale_fix": 0}
+    # The first fix: the chain controls from this very step.
+    valves = chain.update(2.01, 1.0, 0.0, imu=STILL, fix=Pose())
+    assert valves == PLUS_TORQUE and chain.reason is None
+    assert chain.fix_time == 2.01
+
+
+def test_a_stale_fix_closes_every_valve_until_a_new_one() -> None:
+    chain = GncChain(KNATTE)
+    assert KNATTE.control.fix_timeout == 0.5
+    chain.update(10.0, 1.0, 0.0, imu=STILL, fix=Pose())
+    opened = run(chain, 10.01, 10.5)  # no fix since 10.0: still fresh up to 0.5 s
+    assert set(opened) == {PLUS_TORQUE}
+    assert chain.update(10.51, 1.0, 0.0, imu=STILL) == CLOSED
+    assert chain.reason == "stale_fix" and chain.counters["closed_stale_fix"] == 1
+    assert set(run(chain, 10.52, 12.0)) == {CLOSED}  # dead reckoning alone is not enough
+    # A fix again: control resumes, from a clean start (no integral left from before).
+    chain.pid.integral = 123.0
+    assert chain.update(12.01, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
+    assert chain.reason is None and chain.pid.integral == 0.0
+
+
+def test_the_fix_timeout_can_be_set() -> None:
+    chain = GncChain(KNATTE, fix_timeout=0.1)
+    chain.update(0.0, 1.0, 0.0, imu=STILL, fix=Pose())
+    assert chain.update(0.1, 1.0, 0.0) == PLUS_TORQUE
+    assert chain.update(0.11, 1.0, 0.0) == CLOSED and chain.reason == "stale_fix"
+    with pytest.raises(ValueError, match="fix_timeout"):
+        GncChain(KNATTE, fix_timeout=0.0)
+
+
+def test_hold_closes_every_valve_now_and_until_release() -> None:
+    chain = GncChain(KNATTE)
+    assert set(run(chain, 0.0, 0.2, fix_every=0.05)) == {PLUS_TORQUE}
+    chain.hold()
+    assert chain.held and chain.valves == CLOSED and chain.reason == "held"
+    assert set(run(chain, 0.21, 1.0, fix_every=0.05)) == {CLOSED}  # fixes flow: still held
+    assert chain.counters["closed_held"] == 80
+    chain.release()
+    assert not chain.held
+    assert chain.update(1.01, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
+    assert chain.reason is None
+
+
+def test_held_wins_over_every_other_reason() -> None:
+    chain = GncChain(KNATTE)
+    chain.hold()
+    chain.update(0.0, 1.0, 0.0)
+    assert chain.reason == "held" and chain.counters["closed_no_fix"] == 0
+
+
+def test_the_estimate_is_the_filters_and_learns_the_fix() -> None:
+    chain = GncChain(PINOCCHIO)
+    fix = Pose(0.4, -0.2, 0.3)
+    for k in range(50):
+        chain.update(k * TICK, 0.3, 0.0, imu=STILL, fix=fix)
+    est = chain.estimate
+    assert est == chain.filter.estimate
+    assert (est.x, est.y, est.heading) == pytest.approx((0.4, -0.2, 0.3), abs=1e-3)
+
+
+def test_position_hold_holds_where_the_first_fix_was() -> None:
+    chain = GncChain(KNATTE)
+    assert chain.position_hold is not None  # KNATTE holds its position
+    chain.update(0.0, 0.0, 0.0, imu=STILL, fix=Pose(0.7, -0.3, 0.0))
+    assert chain.position_hold.target == pytest.approx((0.7, -0.3), abs=0.01)
+    chain.update(0.01, 0.0, 0.0, imu=STILL, fix=Pose(0.2, 0.1, 0.0))  # only the first counts
+    assert chain.position_hold.target == pytest.approx((0.7, -0.3), abs=0.01)
+    fixed = GncChain(KNATTE, target=(1.0, 1.0))
+    fixed.update(0.0, 0.0, 0.0, imu=STILL, fix=Pose())
+    assert fixed.position_hold is not None and fixed.position_hold.target == (1.0, 1.0)
+    assert GncChain(KNATTE, position_hold=False).position_hold is None
+
+
+def test_the_simulated_platform_is_the_plant_under_the_chain() -> None:
+    """SimulatedPlatform adds nothing to the chain: the same samples give the same valves."""
+    platform = SimulatedPlatform(PINOCCHIO, seed=5)
+    plant, chain = Plant(PINOCCHIO, seed=5), GncChain(PINOCCHIO)
+    for k in range(600):
+        t = k * TICK
+        ref = (math.radians(20.0) if t > 1.0 else 0.0, 0.0)
+        estimate = platform.step(t, *ref)
+        if k:
+            plant.advance(TICK, chain.valves)
+        imu = plant.imu() if plant.imu_sensor.sampler.due(t) else None
+        fix = plant.vision() if plant.vision_sensor.sampler.due(t) else None
+        valves = chain.update(t, *ref, imu=imu, fix=fix)
+        assert valves == platform.valves, k
+        assert estimate == chain.estimate
+    assert np.array_equal(plant.state, platform.plant.state)
+    assert any(platform.valves) or platform.truth.omega != 0.0
+    assert isinstance(platform.chain, GncChain)
+
+
+def test_out_of_the_cameras_view_the_valves_close() -> None:
+    """A simulated platform leaving the coverage gets no fix: the chain fails closed."""
+    platform = SimulatedPlatform(KNATTE, seed=0, x=1.6, y=0.0, disturbance=False)  # 3 m wide
+    for k in range(100):
+        platform.step(k * TICK, 0.5, 0.0)
+        assert platform.valves == CLOSED
+    assert platform.chain.reason == "no_fix"

@@ -1,0 +1,101 @@
+"""``fedlab bridge udp``'s settings (:mod:`schemas.bridge`) and its flags."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import pytest
+
+from federation.cli import bridge as bridge_cli
+from federation.cli.common import Formatter
+from federation.core.estimators import DEFAULT_ESTIMATOR
+from federation.core.keys import AgentId
+from schemas.bridge import UdpBridgeConfig, format_address, parse_address
+from schemas.config import ConfigError, validate
+
+REQUIRED = ["--as", "rome/legacy", "--listen", "127.0.0.1:9000", "--peer", "[::1]:9001"]
+
+
+def config(**overrides: Any) -> UdpBridgeConfig:
+    settings: dict[str, Any] = {
+        "agent": "rome/legacy",
+        "listen": "127.0.0.1:9000",
+        "peer": "127.0.0.1:9001",
+        "follow": "kiruna/knatte",
+    }
+    return validate(UdpBridgeConfig, settings | overrides, "command line")
+
+
+def parse(*flags: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="fedlab", formatter_class=Formatter)
+    bridge_cli.add(parser.add_subparsers(dest="command", required=True))
+    return parser.parse_args(["bridge", "udp", *flags])
+
+
+def test_parse_address() -> None:
+    assert parse_address("127.0.0.1:9000", "--peer") == ("127.0.0.1", 9000)
+    assert parse_address("[::1]:9000", "--peer") == ("::1", 9000)
+    for bad in ("9000", "host:", "host:x", ":9000", "host:70000"):
+        with pytest.raises(ConfigError, match="HOST:PORT"):
+            parse_address(bad, "--peer")
+
+
+def test_format_address_inverts_parse_address() -> None:
+    for text in ("127.0.0.1:9000", "[::1]:9000", "example.org:0"):
+        assert format_address(parse_address(text)) == text
+
+
+def test_bridge_config_refuses_bad_values() -> None:
+    with pytest.raises(ConfigError, match="sync_period"):
+        config(sync_period=0.0)
+    with pytest.raises(ConfigError, match="cannot follow itself"):
+        config(follow="rome/legacy")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "reason"),
+    [
+        ("sync_timeout", -1.0, "greater than 0"),
+        ("sync_window", float("inf"), "finite"),
+        ("legacy_timeout", float("nan"), "finite"),
+        ("status_period", 0.0, "greater than 0"),
+        ("duration", 0.0, "greater than 0"),
+        ("estimator", "mode", "unknown estimator"),
+        ("federation", "Big Lab", "invalid federation name"),
+        ("agent", "legacy", "expected LAB/NAME"),
+        ("follow", "kiruna/", "invalid agent name"),
+        ("listen", "9000", "HOST:PORT"),
+        ("peer", "host:x", "HOST:PORT"),
+        ("role", "member", "'leader' or 'follower'"),
+        ("colour", "red", "unknown field"),
+    ],
+)
+def test_a_bad_value_fails_naming_the_field(field: str, value: Any, reason: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        config(**{field: value})
+    message = str(error.value)
+    assert message.startswith(f"command line: field '{field}'") and reason in message, message
+
+
+def test_defaults_and_parsed_names() -> None:
+    cfg = config(follow=None, peer="[::1]:9001")
+    assert (cfg.sync_period, cfg.sync_timeout, cfg.legacy_timeout) == (0.1, 0.5, 2.0)
+    assert cfg.estimator == DEFAULT_ESTIMATOR and cfg.role == "follower"
+    assert cfg.me == AgentId("rome", "legacy") and cfg.followed is None
+    assert cfg.listen_address == ("127.0.0.1", 9000) and cfg.peer_address == ("::1", 9001)
+    assert cfg.peer_text == "[::1]:9001"
+
+
+def test_flags_become_the_config() -> None:
+    cfg = bridge_cli.bridge_config(
+        parse(*REQUIRED, "--follow", "kiruna/knatte", "--sync-period", "0.2",
+              "--estimator", "median", "--duration", "5")
+    )  # fmt: skip
+    assert cfg == config(peer="[::1]:9001", sync_period=0.2, estimator="median", duration=5.0)
+    assert bridge_cli.bridge_config(parse(*REQUIRED)).follow is None
+
+
+def test_a_bad_flag_fails_naming_the_field() -> None:
+    with pytest.raises(ConfigError, match="field 'sync_period'"):
+        bridge_cli.bridge_config(parse(*REQUIRED, "--sync-period", "0"))

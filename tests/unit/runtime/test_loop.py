@@ -1,0 +1,109 @@
+"""The agents' loop (federation/runtime/loop.py) driving stand-in agents: no Zenoh."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+
+from federation.core.keys import AgentId
+from federation.runtime.loop import Schedule, run_together
+from schemas.config import AgentConfig
+
+
+@dataclass
+class Rate:
+    rate: float = 100.0
+
+
+@dataclass
+class Stub:
+    """Records what the loop asks of it, in order."""
+
+    config: AgentConfig
+    start_at: float = math.inf
+    calls: list[str] = field(default_factory=list)
+    counters: list[str] = field(default_factory=list)
+    lateness: deque[float] = field(default_factory=deque)
+    platform: Rate = field(default_factory=Rate)
+
+    @property
+    def me(self) -> AgentId:
+        return self.config.agent
+
+    def count(self, name: str) -> None:
+        self.counters.append(name)
+
+    def start_due(self) -> float:
+        return self.start_at
+
+    def control_step(self) -> None:
+        self.calls.append("control")
+        self.start_at = math.inf  # the run started
+
+    def publish_pose(self) -> None:
+        self.calls.append("pose")
+
+    def send_sync_requests(self, now: float | None = None) -> None:
+        self.calls.append("sync")
+
+    def publish_status(self) -> None:
+        self.calls.append("status")
+
+
+def stub(**settings: Any) -> Stub:
+    return Stub(AgentConfig(lab="lab0", name="a0", role="leader", **settings))
+
+
+def test_a_tick_runs_the_due_tasks_in_order_and_says_when_to_wake() -> None:
+    agent = stub()
+    schedule = Schedule(agent, t0=100.0)
+    assert schedule.tick(100.0) == pytest.approx(100.01)  # the next control tick
+    assert agent.calls == ["control", "pose", "sync"]
+    assert list(agent.lateness) == [0.0]
+
+
+def test_an_overrun_is_counted() -> None:
+    agent = stub()
+    schedule = Schedule(agent, t0=0.0)
+    schedule.tick(0.0)
+    schedule.tick(0.2)
+    assert agent.counters == ["loop_overruns"]
+
+
+def test_an_armed_start_wakes_the_loop_and_runs_a_control_step() -> None:
+    agent = stub()
+    schedule = Schedule(agent, t0=0.0)
+    schedule.tick(0.0)
+    agent.start_at = 0.004
+    assert schedule.timetable.next_wake(agent.start_due()) == 0.004
+    agent.calls.clear()
+    assert schedule.tick(0.004) == pytest.approx(0.01)  # started: back to the grid
+    assert agent.calls == ["control"] and len(agent.lateness) == 1
+
+
+def test_the_duration_ends_with_a_last_status() -> None:
+    agent = stub(duration=1.0)
+    schedule = Schedule(agent, t0=0.0)
+    assert schedule.tick(1.0) is None
+    assert agent.calls == ["status"]
+
+
+def test_run_together_runs_every_agent_for_its_duration() -> None:
+    agents = [stub(duration=0.2), stub(duration=0.3, pose_rate=50.0)]
+    run_together(agents, threading.Event(), spread=0.02)
+    for agent, poses in zip(agents, (4, 15), strict=True):
+        assert agent.calls[-1] == "status"
+        assert abs(agent.calls.count("pose") - poses) <= 2
+
+
+def test_a_stopped_loop_reports_once_more() -> None:
+    agents = [stub(), stub()]
+    stop = threading.Event()
+    stop.set()
+    run_together(agents, stop)
+    assert [a.calls for a in agents] == [["status"], ["status"]]
