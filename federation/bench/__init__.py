@@ -7,3 +7,5 @@
 Rule: library code; every run returns its results, :mod:`federation.cli.bench`
 parses the flags and prints them. No argparse here.
 """
+
+__all__: list[str] = []

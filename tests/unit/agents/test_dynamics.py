@@ -207,7 +207,20 @@ def test_slope_field_rejects_nonsense() -> None:
 # ---------------------------------------------------------------- purity
 
 
-@pytest.mark.parametrize("module", ["dynamics", "sensors", "navigation", "control"])
+@pytest.mark.parametrize(
+    "module",
+    [
+        "dynamics",
+        "sensors",
+        "navigation",
+        "control",
+        "gnc",
+        "simulated",
+        "guidance",
+        "serial/protocol",
+        "serial/emulator",
+    ],
+)
 def test_pure_modules_import_no_io_or_clock(module: str) -> None:
     path = Path(__file__).resolve().parents[3] / "agents" / f"{module}.py"
     imported = set()
@@ -216,4 +229,6 @@ def test_pure_modules_import_no_io_or_clock(module: str) -> None:
             imported |= {alias.name.split(".")[0] for alias in node.names}
         elif isinstance(node, ast.ImportFrom) and node.module:
             imported.add(node.module.split(".")[0])
-    assert not imported & {"zenoh", "socket", "time", "datetime", "asyncio", "serial"}
+    assert not imported & {
+        "zenoh", "socket", "time", "datetime", "asyncio", "serial", "os", "select", "threading",
+    }  # fmt: skip

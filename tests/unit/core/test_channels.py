@@ -22,7 +22,8 @@ def test_channel_names_are_the_recorded_topics() -> None:
 
 
 def test_a_channel_is_its_name() -> None:
-    assert Channel.STATUS == "/status" and f"{Channel.STATUS}" == "/status"
+    assert isinstance(Channel.STATUS, str) and Channel("/status") is Channel.STATUS
+    assert f"{Channel.STATUS}" == "/status"
     assert {"/status": 1}[Channel.STATUS] == 1  # recordings read back by plain names
 
 
