@@ -60,8 +60,7 @@ def test_armed_starts_when_reference_time_reaches_the_start() -> None:
     assert state.update(4.999) == []
     assert state.update(None) == []  # not synchronized: no time, no start
     assert state.mode == "armed"
-    assert state.update(5.0) == [Event("started", 5.0)]
-    assert state.mode == "running"
+    assert (state.update(5.0), state.mode) == ([Event("started", 5.0)], "running")
     assert state.update(6.0) == []  # started once
     assert state.run_time(7.5) == pytest.approx(2.5)
 
