@@ -20,6 +20,7 @@ from federation.cli.common import (
     stop_on_signals,
 )
 from federation.core import paper
+from federation.core.estimators import ESTIMATORS
 from schemas.config import AgentConfig, ConfigError, load_model, validate
 
 __all__ = ["add", "agent_config", "run"]
@@ -78,7 +79,7 @@ def add(sub: Subparsers) -> None:
     p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
     p.add_argument(
         "--estimator",
-        choices=["clockfilter", "mean", "median"],
+        choices=ESTIMATORS,
         help="offset estimator: clockfilter (offset and drift; default) or the paper's mean/median",
     )
     p.add_argument(
