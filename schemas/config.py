@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
+from federation.core import paper
 from federation.core.channels import Channel
 from federation.core.estimators import DEFAULT_ESTIMATOR, EstimatorName
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
@@ -75,9 +76,15 @@ class ZenohOptions(_Model):
 class ManeuverConfig(_Model):
     """The leader's reference maneuver (paper section 5)."""
 
-    still: float = Field(10.0, ge=0, description="seconds held still after the start")
-    duration: float = Field(60.0, gt=0, description="seconds to rotate out and back")
-    amplitude_deg: float = Field(45.0, ge=-180, le=180, description="rotation, degrees")
+    still: float = Field(
+        paper.MANEUVER_STILL, ge=0, description="seconds held still after the start"
+    )
+    duration: float = Field(
+        paper.MANEUVER_DURATION, gt=0, description="seconds to rotate out and back"
+    )
+    amplitude_deg: float = Field(
+        paper.MANEUVER_AMPLITUDE_DEG, ge=-180, le=180, description="rotation, degrees"
+    )
 
 
 class AgentConfig(_Model):
