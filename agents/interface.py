@@ -7,7 +7,7 @@ without an import cycle. Import both names from :mod:`agents.platform`.
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
@@ -19,6 +19,7 @@ class PlatformError(RuntimeError):
     """The platform cannot be driven (a serial port vanished, say); valves are closed."""
 
 
+@runtime_checkable
 class Platform(Protocol):
     """A pose source driven by a heading command.
 

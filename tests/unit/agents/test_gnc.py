@@ -12,6 +12,8 @@ import pytest
 
 from agents.dynamics import PAIRS
 from agents.gnc import CLOSED, GncChain
+from agents.kinematic import KinematicPlatform
+from agents.platform import Platform, make_platform
 from agents.sensors import ImuSample
 from agents.simulated import Plant, SimulatedPlatform
 from federation.core.wire import Pose
@@ -143,3 +145,19 @@ def test_out_of_the_cameras_view_the_valves_close() -> None:
         platform.step(k * TICK, 0.5, 0.0)
         assert platform.valves == CLOSED
     assert platform.chain.reason == "no_fix"
+
+
+def test_every_platform_is_a_platform() -> None:
+    """The agent runtime drives them through the protocol, without probing."""
+    kinematic, simulated = KinematicPlatform(), SimulatedPlatform(KNATTE)
+    for platform in (kinematic, simulated, make_platform("pinocchio", seed=1)):
+        assert isinstance(platform, Platform)
+    assert kinematic.config is None and simulated.config is KNATTE
+    assert make_platform("kinematic", rate=50.0).rate == 50.0
+    simulated.hold()
+    assert simulated.held and simulated.valves == CLOSED
+    simulated.release()
+    assert not simulated.held
+    simulated.close()
+    assert simulated.valves == CLOSED
+    kinematic.close()

@@ -25,7 +25,7 @@ import pytest
 
 from agents.dynamics import PAIRS
 from agents.gnc import GncChain
-from agents.platform import make_platform
+from agents.platform import Platform, make_platform
 from agents.serial.platform import CLOSED, PlatformError, SerialPlatform
 from agents.serial.protocol import (
     HOST_TO_DEVICE,
@@ -238,6 +238,7 @@ def test_it_flies_the_gnc_chain_of_its_preset(pty_dev: Pty) -> None:
     plat = make_platform(f"serial:{pty_dev.path}", preset="pinocchio")
     try:
         assert isinstance(plat, SerialPlatform) and isinstance(plat.chain, GncChain)
+        assert isinstance(plat, Platform)
         assert plat.config == plat.chain.config == load_platform("pinocchio")
         assert plat.rate == plat.config.control.rate
         assert plat.chain.fix_timeout == plat.config.control.fix_timeout
