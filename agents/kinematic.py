@@ -8,13 +8,10 @@ fly real dynamics.
 
 from __future__ import annotations
 
-from agents.interface import Platform, PlatformError
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
-# Platform and PlatformError live in agents.interface (import them from agents.platform);
-# they stay importable from here for older callers.
-__all__ = ["KinematicPlatform", "Platform", "PlatformError"]
+__all__ = ["KinematicPlatform"]
 
 
 class KinematicPlatform:

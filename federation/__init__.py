@@ -1,4 +1,22 @@
-"""fedlab's federation layer: keys, wire codecs, sync, Zenoh session and router, CLI."""
+"""fedlab's federation layer, in packages named by their layer.
+
+========================  ==========================================================
+package                   what, and what it may import
+========================  ==========================================================
+``federation.core``       pure protocol logic (wire, keys, sync, estimators, run
+                          state, time base, schedules); imports nothing of fedlab
+``federation.runtime``    the thin Zenoh layer: sessions, routers, agents, recorder,
+                          ctl and monitor libraries, SDK; imports core, agents, schemas
+``federation.link``       the link emulator; ``federation.report``: reports;
+                          ``federation.bridge``: the legacy UDP bridge;
+                          ``federation.deploy``: certificates; may import runtime
+``federation.fleet``      processes on this host and the demo
+``federation.bench``      benchmarks against baselines of the same run
+``federation.cli``        the ``fedlab`` command: parses and calls; nothing imports it
+========================  ==========================================================
+
+The rules are import-linter contracts in pyproject.toml, checked by ``make test``.
+"""
 
 from federation.core.keys import AgentId
 from federation.core.sync import Exchange, PaperEstimator, SyncClient

@@ -3,7 +3,7 @@ joins a federation as an agent like any other.
 
 The legacy agent (a Simulink model, say) knows one peer: the bridge's UDP address. It
 sends 8-byte requests there and answers the bridge's 8-byte requests with 64-byte
-replies (NOTES.md, paper section 3.2). The bridge translates both directions::
+replies (docs/paper.md, paper section 3.2). The bridge translates both directions::
 
     legacy agent  <--- UDP (paper's packets) --->  bridge  <--- Zenoh --->  federation
 

@@ -222,7 +222,7 @@ def _clock_step(text: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from agents.kinematic import PlatformError
+    from agents.platform import PlatformError
     from federation.runtime.agent import AgentRuntime, NameTaken
     from federation.runtime.heap import freeze_startup_heap
 

@@ -38,8 +38,7 @@ import zenoh
 from pydantic import ValidationError
 
 from agents.guidance import ReferenceManeuver, track_heading
-from agents.kinematic import Platform
-from agents.platform import make_platform
+from agents.platform import Platform, make_platform
 from federation.core import keys, wire
 from federation.core.channels import Channel
 from federation.core.estimators import make_estimator
