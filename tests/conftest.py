@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from federation.fleet.launch import Fleet, free_port
+from federation.fleet.launch import Fleet
 
 
 @pytest.fixture
@@ -22,9 +22,3 @@ def fleet(tmp_path: Path) -> Iterator[Fleet]:
             log = f.log_path(name)
             if log.exists():
                 print(f"--- {name} (exit {codes[name]}) ---\n{log.read_text()[-3000:]}")
-
-
-@pytest.fixture
-def endpoint() -> object:
-    """A function giving a fresh loopback TCP endpoint."""
-    return lambda: f"tcp/127.0.0.1:{free_port()}"

@@ -82,16 +82,16 @@ def _unpack(
     if len(payload) != codec.size:
         raise DecodeError(f"{what}: expected {codec.size} bytes, got {len(payload)}")
     values: tuple[float, ...] = codec.unpack(payload)
-    for index, value in enumerate(values):
-        if not math.isfinite(value):
-            raise DecodeError(f"{what}: field {index} is {value!r}, not a finite number")
+    _check_finite(values, what, DecodeError)
     return values
 
 
-def _check_finite(values: tuple[float, ...], what: str) -> None:
+def _check_finite(
+    values: tuple[float, ...], what: str, error: type[ValueError] = ValueError
+) -> None:
     for index, value in enumerate(values):
         if not math.isfinite(value):
-            raise ValueError(f"{what}: field {index} is {value!r}, not a finite number")
+            raise error(f"{what}: field {index} is {value!r}, not a finite number")
 
 
 def encode_request(t1: float) -> bytes:

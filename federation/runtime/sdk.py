@@ -24,11 +24,11 @@ from typing import Any, Protocol, cast
 
 import zenoh
 
+from agents.kinematic import KinematicPlatform
 from federation.core.wire import Pose
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.session import build_config
 from schemas.config import AgentConfig, ZenohOptions, validate
-from schemas.platform import PlatformConfig
 
 __all__ = ["Agent", "PoseSource"]
 
@@ -41,35 +41,24 @@ PoseSource = Callable[[float], Pose] | _HasPose
 """A function of simulation time giving the pose, or an object with ``pose(t)``."""
 
 
-class _SourcePlatform:
-    """A pose source as a platform: guidance is ignored, the source decides."""
+class _SourcePlatform(KinematicPlatform):
+    """A pose source as a platform: guidance is ignored, the source decides.
 
-    config: PlatformConfig | None = None
-    """No physical description: nothing to analyse."""
+    Holding, releasing and closing are the kinematic platform's; held, the last
+    pose stays as it was.
+    """
 
     def __init__(self, source: PoseSource, rate: float, clock: Callable[[float], float | None]):
+        super().__init__(rate=rate)
         method = getattr(source, "pose", None)
         self.source = cast(Callable[[float], Pose], method if callable(method) else source)
-        self.rate = rate
         self.sim_time = clock
-        self.held = False
-        self.last = Pose()
 
     def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
         if not self.held:
             t_sim = self.sim_time(t)
-            self.last = Pose(*self.source(t if t_sim is None else t_sim))
-        return self.last
-
-    def hold(self) -> None:
-        self.held = True
-
-    def release(self) -> None:
-        self.held = False
-
-    def close(self) -> None:
-        """Nothing to release: the source stops being asked."""
-        self.held = True
+            self.pose = Pose(*self.source(t if t_sim is None else t_sim))
+        return self.pose
 
 
 class Agent:

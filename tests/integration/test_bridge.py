@@ -2,33 +2,31 @@
 
 The legacy agent (tests/integration/legacy_agent.py) is plain sockets, no fedlab code, with its
 clock 26.42 s off (the paper's offset). A router, a fedlab leader, the bridge and the legacy
-agent run as processes on loopback (bounded waits, every process stopped by pid, every
-Zenoh session closed). The protocol logic, time passed in, is tested in
+agent run as processes on loopback (the ``labs`` fixture: bounded waits, every process
+stopped by pid, every Zenoh session closed). The protocol logic, time passed in, is tested in
 tests/unit/bridge/test_bridge_core.py.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import socket
 import struct
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 import zenoh
+from loopback import LEADER, Agent, Labs, client_config
 
 from federation.core import wire
 from federation.core.paper import CLOCK_OFFSET
 from federation.fleet.launch import Fleet, wait_for
-from federation.report.status import last_status, read_status
+from federation.report.status import read_status
 
-LEADER = "kiruna/knatte"
 LEGACY = "rome/legacy"
 LEGACY_OFFSET = CLOCK_OFFSET  # the legacy agent's clock minus the host's monotonic clock
 LEGACY_POSE = (1.25, -0.5, 0.3, 0.0, 0.0, 0.0)  # tests/integration/legacy_agent.py
@@ -42,8 +40,24 @@ def free_udp_port() -> int:
         return port
 
 
-def start_bridge(fleet: Fleet, args: list[str]) -> None:
-    fleet.start("bridge", ["bridge", "udp", *args])
+def start_bridge(labs: Labs, *args: str) -> Agent:
+    """``fedlab bridge udp ARGS`` as the legacy agent, its status lines in ``bridge.jsonl``."""
+    status = labs.tmp / "bridge.jsonl"
+    argv = ["bridge", "udp", "--as", LEGACY, *args, "--status-json", str(status)]
+    bridge = Agent(labs.fleet, "bridge", argv, who=LEGACY, status=status)
+    bridge.start()
+    return bridge
+
+
+def start_legacy(
+    fleet: Fleet, name: str, legacy_port: int, bridge_port: int, offset: float
+) -> None:
+    """The legacy agent on ``legacy_port``, its clock ``offset`` s off, for 60 s."""
+    fleet.spawn(
+        name,
+        [sys.executable, str(LEGACY_AGENT), str(legacy_port), f"127.0.0.1:{bridge_port}",
+         str(offset), "60"],
+    )  # fmt: skip
 
 
 def legacy_lines(fleet: Fleet) -> list[dict[str, Any]]:
@@ -56,17 +70,18 @@ def legacy_samples(fleet: Fleet) -> int:
     return int(lines[-1]["samples"]) if lines else 0
 
 
+def gone(line: dict[str, Any]) -> bool:
+    """The leader's status line shows the legacy agent gone (not yet seen: not gone)."""
+    return not line["peers"].get(LEGACY, {"alive": True})["alive"]
+
+
 class PoseTap:
     """A Zenoh subscriber on the legacy agent's pose key; the payloads it received."""
 
     def __init__(self, endpoint: str, key: str):
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("scouting/multicast/enabled", "false")
         self.payloads: list[bytes] = []
         self._lock = threading.Lock()
-        self.session = zenoh.open(conf)
+        self.session = zenoh.open(client_config(endpoint))
         self.sub = self.session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -85,47 +100,28 @@ class PoseTap:
 
 @pytest.mark.integration
 def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
-    fleet: Fleet, endpoint: Callable[[], str], tmp_path: Path
+    labs: Labs, fleet: Fleet
 ) -> None:
-    kiruna = endpoint()
-    fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
-    leader_status = tmp_path / "leader.jsonl"
-    fleet.start(
-        "kiruna-knatte",
-        # The leader queries the bridged agent every 0.1 s, not once a second.
-        ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", kiruna,
-         "--status-json", str(leader_status), "--status-period", "0.5",
-         "--sync-others-period", "0.1"],
-    )  # fmt: skip
+    router = labs.router("kiruna")
+    # The leader queries the bridged agent every 0.1 s, not once a second.
+    leader = labs.leader(router, "--sync-others-period", "0.1")
     bridge_port, legacy_port = free_udp_port(), free_udp_port()
-    fleet.spawn(
-        "legacy",
-        [sys.executable, str(LEGACY_AGENT), str(legacy_port), f"127.0.0.1:{bridge_port}",
-         str(LEGACY_OFFSET), "60"],
-    )  # fmt: skip
-    bridge_status = tmp_path / "bridge.jsonl"
+    start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
     # No --follow: the bridge finds the leader by its status.
-    start_bridge(
-        fleet,
-        ["--as", LEGACY, "--listen", f"127.0.0.1:{bridge_port}",
-         "--peer", f"127.0.0.1:{legacy_port}", "-e", kiruna,
-         "--status-json", str(bridge_status), "--status-period", "0.5",
-         "--legacy-timeout", "1.0"],
+    bridge = start_bridge(
+        labs,
+        "--listen", f"127.0.0.1:{bridge_port}", "--peer", f"127.0.0.1:{legacy_port}",
+        "-e", router.endpoint, "--status-period", "0.5", "--legacy-timeout", "1.0",
     )  # fmt: skip
     # The leader writes status once its session is up: then the router is too.
-    assert wait_for(lambda: last_status(leader_status) is not None, timeout=10)
-    tap = PoseTap(kiruna, f"fedlab/default/{LEGACY}/pose")
+    leader.wait_status(timeout=10)
+    tap = PoseTap(router.endpoint, f"fedlab/default/{LEGACY}/pose")
     try:
         assert wait_for(lambda: legacy_samples(fleet) >= 50, timeout=20), legacy_lines(fleet)[-3:]
-
-        def leader_view() -> dict[str, Any] | None:
-            line = last_status(leader_status)
-            return None if line is None else line["peers"].get(LEGACY)
-
-        assert wait_for(lambda: (leader_view() or {}).get("samples", 0) >= 20, timeout=10)
+        leader.wait_samples(LEGACY, 20, timeout=10)
 
         # The legacy agent's own estimate of the leader's clock (Eq. 4, median of 50).
-        leader_line = read_status(leader_status)[-1]
+        leader_line = leader.latest()
         leader_clock = leader_line["t_exec"] - leader_line["host_monotonic"]  # minus host
         truth = leader_clock - LEGACY_OFFSET  # leader's clock minus the legacy agent's
         legacy = legacy_lines(fleet)[-1]
@@ -137,7 +133,7 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         assert legacy["served"] > 0
 
         # The leader synced with the legacy agent through the bridge.
-        view = leader_view()
+        view = leader.peer(LEGACY)
         assert view is not None and view["alive"] and view["samples"] > 0
         error_leader = view["offset"] + truth  # legacy minus leader
         assert abs(error_leader) < 0.002, (view, truth)
@@ -151,8 +147,7 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         assert abs(sample.t - (time.monotonic() + LEGACY_OFFSET)) < 1.0
 
         # The bridge's status: on the legacy agent's clock, the leader as reference.
-        status = last_status(bridge_status)
-        assert status is not None
+        status = bridge.latest()
         assert status["agent"] == LEGACY and status["role"] == "follower"
         assert status["reference"] == LEADER and status["clock"] == "legacy"
         assert status["t_exec"] - status["host_monotonic"] == pytest.approx(
@@ -170,51 +165,41 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             for payload in bad:
                 s.sendto(payload, ("127.0.0.1", bridge_port))
-
-        def counted() -> bool:
-            line = last_status(bridge_status)
-            return line is not None and line["counters"].get("udp_malformed", 0) == len(bad)
-
-        assert wait_for(counted, timeout=5), last_status(bridge_status)
+        bridge.until(
+            lambda line: line["counters"].get("udp_malformed", 0) == len(bad),
+            timeout=5,
+            what=f"{len(bad)} malformed datagrams counted",
+        )
         before = legacy_samples(fleet)
         assert wait_for(lambda: legacy_samples(fleet) >= before + 10, timeout=5)
-        assert fleet.alive("bridge")
-        log = fleet.log_path("bridge").read_text()
+        assert bridge.alive()
+        log = bridge.log()
         assert "rejected udp datagram (malformed)" in log and "got 7" in log
 
         # The legacy agent goes silent: after --legacy-timeout its token goes, the bridge stays.
         assert fleet.stop("legacy") == 0
-        assert wait_for(lambda: not (leader_view() or {"alive": True})["alive"], timeout=5)
-
-        def bridge_saw_it_go() -> bool:
-            line = last_status(bridge_status)
-            return line is not None and not line["legacy"]["alive"]
-
-        assert wait_for(bridge_saw_it_go, timeout=5), last_status(bridge_status)
-        status = last_status(bridge_status)
-        assert status is not None
+        leader.until(gone, timeout=5, what=f"{LEGACY} gone")
+        status = bridge.until(
+            lambda line: not line["legacy"]["alive"], timeout=5, what="the legacy agent gone"
+        )
         assert status["clock"] == "bridge" and status["counters"]["legacy_lost"] == 1
-        assert fleet.alive("bridge")
+        assert bridge.alive()
 
         # It comes back with another clock: the federation syncs with the new one.
-        fleet.spawn(
-            "legacy-again",
-            [sys.executable, str(LEGACY_AGENT), str(legacy_port), f"127.0.0.1:{bridge_port}",
-             "-5.0", "60"],
-        )  # fmt: skip
+        start_legacy(fleet, "legacy-again", legacy_port, bridge_port, -5.0)
 
-        def resynced() -> bool:
-            view, line = leader_view(), last_status(leader_status)
-            if view is None or line is None or not view["alive"] or view["offset"] is None:
+        def resynced(line: dict[str, Any]) -> bool:
+            view = line["peers"].get(LEGACY)
+            if view is None or not view["alive"] or view["offset"] is None:
                 return False
             truth = -5.0 - (line["t_exec"] - line["host_monotonic"])
             return bool(abs(view["offset"] - truth) < 0.002)
 
-        assert wait_for(resynced, timeout=10), leader_view()
+        leader.until(resynced, timeout=10, what=f"the new clock of {LEGACY}")
 
         # SIGTERM: clean exit; the token goes first, so the leader sees the agent leave.
-        assert fleet.stop("bridge") == 0
-        assert wait_for(lambda: not (leader_view() or {"alive": True})["alive"], timeout=5)
+        assert bridge.stop() == 0
+        leader.until(gone, timeout=5, what=f"{LEGACY} gone")
         print(
             f"legacy estimate error {error_legacy * 1e3:+.3f} ms, "
             f"leader estimate error {error_leader * 1e3:+.3f} ms, "

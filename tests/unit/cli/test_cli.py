@@ -129,28 +129,20 @@ def test_bad_agent_config_file_names_file_and_field(tmp_path: Path) -> None:
     assert "sync_period" in result.stderr and "greater than 0" in result.stderr
 
 
-def test_bad_flag_value_names_the_field() -> None:
-    result = fedlab("agent", "--role", "leader", "--lab", "Kiruna", "--name", "knatte")
+@pytest.mark.parametrize(
+    ("command", "said"),
+    [
+        ("agent --role leader --lab Kiruna --name knatte", ("field 'lab'", "lowercase")),
+        ("agent --role follower --lab rome --name p", ("follow",)),
+        ("router --lab kiruna -l nowhere", ("nowhere", "PROTOCOL/ADDRESS")),
+        ("router --lab kiruna -l tcp/127.0.0.1:9 --cfg no/such/key:1", ("no/such/key",)),
+    ],
+)
+def test_bad_invocation_exits_2_saying_why(command: str, said: tuple[str, ...]) -> None:
+    result = fedlab(*command.split())
     assert result.returncode == 2
-    assert "field 'lab'" in result.stderr and "lowercase" in result.stderr
-
-
-def test_follower_needs_follow() -> None:
-    result = fedlab("agent", "--role", "follower", "--lab", "rome", "--name", "p")
-    assert result.returncode == 2
-    assert "follow" in result.stderr
-
-
-def test_bad_endpoint_is_refused() -> None:
-    result = fedlab("router", "--lab", "kiruna", "-l", "nowhere")
-    assert result.returncode == 2
-    assert "nowhere" in result.stderr and "PROTOCOL/ADDRESS" in result.stderr
-
-
-def test_bad_cfg_key_is_refused() -> None:
-    result = fedlab("router", "--lab", "kiruna", "-l", "tcp/127.0.0.1:9", "--cfg", "no/such/key:1")
-    assert result.returncode == 2
-    assert "no/such/key" in result.stderr
+    for text in said:
+        assert text in result.stderr, text
 
 
 @pytest.mark.parametrize("lab", ["kiruna", "rome"])
@@ -172,62 +164,46 @@ def test_router_config_without_lab_is_refused(tmp_path: Path) -> None:
         load_router_config(ZenohOptions(config=path), None)
 
 
-def test_router_from_shipped_file_runs_and_stops_on_sigterm(tmp_path: Path) -> None:
-    path = ROOT / "deploy" / "routers" / "kiruna.json5"
-    listen = f"tcp/127.0.0.1:{free_port()}"
+def signalled(args: list[str], sig: int, after: float) -> tuple[bool, int, str]:
+    """Run ``fedlab ARGS`` for ``after`` seconds, then send ``sig``: whether it was still
+    running then, its exit code and its output (killed if it outlives 10 s more)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "federation", "router", "-c", str(path), "-l", listen],
+        [sys.executable, "-m", "federation", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         stdin=subprocess.DEVNULL,
         text=True,
     )
     try:
-        time.sleep(2.0)
-        assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
-        os.kill(proc.pid, signal.SIGTERM)
+        time.sleep(after)
+        running = proc.poll() is None
+        if running:
+            os.kill(proc.pid, sig)
         out, _ = proc.communicate(timeout=10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
-    assert proc.returncode == 0, out
+    return running, proc.returncode, out
+
+
+def test_router_from_shipped_file_runs_and_stops_on_sigterm() -> None:
+    path = ROOT / "deploy" / "routers" / "kiruna.json5"
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    running, code, out = signalled(["router", "-c", str(path), "-l", listen], signal.SIGTERM, 2.0)
+    assert running, out
+    assert code == 0, out
     assert "router kiruna up" in out and listen in out
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
     nowhere = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "federation",
-            "agent",
-            "--role",
-            "leader",
-            "--lab",
-            "kiruna",
-            "--name",
-            "knatte",
-            "-e",
-            nowhere,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        stdin=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        time.sleep(4.5)  # start-up, then 2 s of waiting before the first note
-        assert proc.poll() is None, "an agent keeps waiting for its router"
-        os.kill(proc.pid, sig)
-        out, _ = proc.communicate(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-    assert proc.returncode == 0, out
+    args = ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", nowhere]
+    # Start-up, then 2 s of waiting before the first note.
+    running, code, out = signalled(args, sig, 4.5)
+    assert running, "an agent keeps waiting for its router"
+    assert code == 0, out
     assert "waiting for the router" in out
 
 

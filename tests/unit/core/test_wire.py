@@ -37,6 +37,17 @@ poses = st.builds(Pose, finite, finite, finite, finite, finite, finite)
 NON_FINITE = [math.nan, math.inf, -math.inf]
 NON_FINITE_IDS = ["nan", "+inf", "-inf"]
 Decoder = Callable[[bytes], Any]
+# The reply and the pose sample as flat lists of float64 fields: each field in turn.
+FIELDS = {"reply": 8, "pose": 7}
+EVERY_FIELD = [pytest.param(k, i, id=f"{k}-{i}") for k, n in FIELDS.items() for i in range(n)]
+DECODE: dict[str, tuple[Decoder, str]] = {
+    "reply": (decode_reply, "sync reply"),
+    "pose": (decode_pose, "pose sample"),
+}
+ENCODE: dict[str, Callable[[list[float]], bytes]] = {
+    "reply": lambda v: encode_reply(v[0], v[1], Pose(*v[2:])),
+    "pose": lambda v: encode_pose(v[0], Pose(*v[1:])),
+}
 
 
 def le_doubles(*values: float) -> bytes:
@@ -263,27 +274,15 @@ def test_request_non_finite_rejected(bad: float) -> None:
 
 
 @pytest.mark.parametrize("bad", NON_FINITE, ids=NON_FINITE_IDS)
-@pytest.mark.parametrize("position", range(8))
-def test_reply_non_finite_rejected_in_every_field(bad: float, position: int) -> None:
-    values = [1.0] * 8
+@pytest.mark.parametrize(("kind", "position"), EVERY_FIELD)
+def test_non_finite_rejected_in_every_field(kind: str, position: int, bad: float) -> None:
+    decode, what = DECODE[kind]
+    values = [1.0] * FIELDS[kind]
     values[position] = bad
     with pytest.raises(DecodeError) as info:
-        decode_reply(le_doubles(*values))
+        decode(le_doubles(*values))
     message = str(info.value)
-    assert "sync reply" in message
-    assert f"field {position}" in message
-    assert repr(bad) in message
-
-
-@pytest.mark.parametrize("bad", NON_FINITE, ids=NON_FINITE_IDS)
-@pytest.mark.parametrize("position", range(7))
-def test_pose_non_finite_rejected_in_every_field(bad: float, position: int) -> None:
-    values = [1.0] * 7
-    values[position] = bad
-    with pytest.raises(DecodeError) as info:
-        decode_pose(le_doubles(*values))
-    message = str(info.value)
-    assert "pose sample" in message
+    assert what in message
     assert f"field {position}" in message
     assert repr(bad) in message
 
@@ -353,21 +352,12 @@ def test_encode_request_refuses_non_finite(bad: float) -> None:
 
 
 @pytest.mark.parametrize("bad", NON_FINITE, ids=NON_FINITE_IDS)
-@pytest.mark.parametrize("position", range(8))
-def test_encode_reply_refuses_non_finite_in_every_field(bad: float, position: int) -> None:
-    values = [0.5] * 8
+@pytest.mark.parametrize(("kind", "position"), EVERY_FIELD)
+def test_encode_refuses_non_finite_in_every_field(kind: str, position: int, bad: float) -> None:
+    values = [0.5] * FIELDS[kind]
     values[position] = bad
     with pytest.raises(ValueError, match=f"field {position}"):
-        encode_reply(values[0], values[1], Pose(*values[2:]))
-
-
-@pytest.mark.parametrize("bad", NON_FINITE, ids=NON_FINITE_IDS)
-@pytest.mark.parametrize("position", range(7))
-def test_encode_pose_refuses_non_finite_in_every_field(bad: float, position: int) -> None:
-    values = [0.5] * 7
-    values[position] = bad
-    with pytest.raises(ValueError, match=f"field {position}"):
-        encode_pose(values[0], Pose(*values[1:]))
+        ENCODE[kind](values)
 
 
 def test_all_exports_exist() -> None:
