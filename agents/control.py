@@ -1,4 +1,4 @@
-"""Control: heading PID (paper Eq. 1 and 2), pulse-width modulation, position hold.
+"""Control: heading PID (paper Eq. 1 and 2), pulse-width modulation, position control.
 
 No I/O and no clock: every call takes the time ``now``.
 
@@ -13,6 +13,7 @@ import math
 from collections.abc import Sequence
 
 from agents.dynamics import PAIRS, THRUSTERS
+from agents.guidance import Track
 from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
 
@@ -218,14 +219,19 @@ def allocate(fx: int, fy: int, torque: int) -> tuple[bool, ...]:
 
 
 class PositionHold:
-    """PD on lab-frame position, as a body-frame force demand.
+    """PD on lab-frame position with feed-forward, as a body-frame force demand.
+
+    Holding a point (``target``), or following a :class:`~agents.guidance.Track`
+    :math:`(\\mathbf{p}_r, \\mathbf{v}_r, \\mathbf{a}_r)`:
 
     .. math::
 
-        \\mathbf{f}_{lab} = -K_p (\\mathbf{p} - \\mathbf{p}_{ref}) - K_d \\mathbf{v},
+        \\mathbf{f}_{lab} = m\\,\\mathbf{a}_r - K_p (\\mathbf{p} - \\mathbf{p}_r)
+            - K_d (\\mathbf{v} - \\mathbf{v}_r),
         \\qquad \\mathbf{f}_b = R(\\psi)^T \\mathbf{f}_{lab}
 
-    each body component saturated at ``limit`` (N).
+    each body component saturated at ``limit`` (N). Holding a point is the case
+    :math:`\\mathbf{v}_r = \\mathbf{a}_r = 0`.
 
     Parameters
     ----------
@@ -235,16 +241,29 @@ class PositionHold:
         Force of one thruster pair, N.
     target : tuple of float
         Position to hold (x, y), m.
+    mass : float
+        Mass for the acceleration feed-forward, kg (0: none).
     """
 
-    def __init__(self, kp: float, kd: float, limit: float, target: tuple[float, float]):
+    def __init__(
+        self,
+        kp: float,
+        kd: float,
+        limit: float,
+        target: tuple[float, float],
+        mass: float = 0.0,
+    ):
         self.kp, self.kd, self.limit = kp, kd, limit
         self.target = target
+        self.mass = mass
 
-    def update(self, pose: Pose) -> tuple[float, float]:
-        """Body-frame force demand (N) for the estimated pose."""
-        fx = -self.kp * (pose.x - self.target[0]) - self.kd * pose.vx
-        fy = -self.kp * (pose.y - self.target[1]) - self.kd * pose.vy
+    def update(self, pose: Pose, track: Track | None = None) -> tuple[float, float]:
+        """Body-frame force demand (N) for the estimated pose; ``track`` replaces the
+        held target for this step."""
+        if track is None:
+            track = Track(*self.target)
+        fx = self.mass * track.ax - self.kp * (pose.x - track.x) - self.kd * (pose.vx - track.vx)
+        fy = self.mass * track.ay - self.kp * (pose.y - track.y) - self.kd * (pose.vy - track.vy)
         c = math.cos(pose.heading)
         s = math.sin(pose.heading)
         return _clip(c * fx + s * fy, self.limit), _clip(-s * fx + c * fy, self.limit)

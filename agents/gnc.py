@@ -6,7 +6,9 @@ One call of :meth:`GncChain.update` per control step, ``1 / control.rate`` secon
    predicts to ``now`` with the latest IMU sample and corrects with a metrology fix
    (camera or Vicon) if one came in since the last step;
 2. control: the PID on the heading reference (Eq. 1, 2) gives a torque demand, the
-   position hold (optional) force demands, both on the filter's estimate;
+   position controller force demands, both on the filter's estimate: following a
+   3-DOF :class:`~agents.guidance.Track` (position, velocity, acceleration) when
+   guidance gives one, else holding a point (optional);
 3. actuation: the pulse-width modulator turns the demands into pulses and the
    thruster allocation into the eight valve states to hold until the next step.
 
@@ -34,6 +36,7 @@ from typing import Literal
 
 from agents.control import HeadingPid, PositionHold, PulseWidthModulator, allocate
 from agents.dynamics import THRUSTERS
+from agents.guidance import Track
 from agents.navigation import NavigationFilter
 from agents.sensors import ImuSample
 from federation.core.wire import Pose
@@ -49,7 +52,7 @@ Reason = Literal["held", "no_fix", "stale_fix"]
 
 
 class GncChain:
-    """Navigation, heading PID, position hold, PWM and allocation: sensors in, valves out.
+    """Navigation, heading PID, position control, PWM and allocation: sensors in, valves out.
 
     Parameters
     ----------
@@ -99,11 +102,11 @@ class GncChain:
         )
         if position_hold is None:
             position_hold = c.position_hold
-        self.position_hold: PositionHold | None = (
-            PositionHold(c.kp_position, c.kd_position, config.pair_force, target or (0.0, 0.0))
-            if position_hold
-            else None
+        self.position = PositionHold(
+            c.kp_position, c.kd_position, config.pair_force, target or (0.0, 0.0), config.mass
         )
+        """The position controller: follows a track when given one, else holds a point."""
+        self.position_hold: PositionHold | None = self.position if position_hold else None
         self._target_set = target is not None
         self._force_scale = 1.0 / config.pair_force
         self._torque_scale = 1.0 / config.pair_torque
@@ -130,6 +133,7 @@ class GncChain:
         rate_ref: float,
         imu: ImuSample | None = None,
         fix: Pose | None = None,
+        track: Track | None = None,
     ) -> tuple[bool, ...]:
         """The eight valve states for the control step starting at ``now`` (s).
 
@@ -143,6 +147,9 @@ class GncChain:
             A new IMU sample; None: keep using the last one.
         fix : Pose, optional
             A new metrology fix (x, y, heading; its rates are ignored), taken now.
+        track : Track, optional
+            A position reference with its rates (this chain's frame, the table's); None:
+            hold the target if position hold is on, else no force.
         """
         if imu is not None:
             self._imu = imu
@@ -169,7 +176,9 @@ class GncChain:
         est = self.filter.estimate
         torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
         fx = fy = 0.0
-        if self.position_hold is not None:
+        if track is not None:
+            fx, fy = self.position.update(est, track)
+        elif self.position_hold is not None:
             fx, fy = self.position_hold.update(est)
         signs = self.pwm.update(
             now, (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)

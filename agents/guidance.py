@@ -11,17 +11,43 @@ are continuous:
     \\qquad t_0 \\le t \\le t_0 + T
 
 The follower's reference is the heading it last received from the agent it follows.
+
+Beyond attitude, a 3-DOF reference adds a :class:`Track`: position, velocity and
+acceleration (x, y) that the GNC chain's position controller follows (the
+scenarios of :mod:`agents.formation` and :mod:`agents.docking` make them).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from federation.core import paper
 from federation.core.wire import PoseSample
 
-__all__ = ["ReferenceManeuver", "track_heading"]
+__all__ = ["Reference", "ReferenceManeuver", "Track", "track_heading"]
+
+
+class Track(NamedTuple):
+    """A position reference with its rates, in one frame (the common frame in guidance,
+    the table frame in the GNC chain): m, m/s, m/s^2."""
+
+    x: float
+    y: float
+    vx: float = 0.0
+    vy: float = 0.0
+    ax: float = 0.0
+    ay: float = 0.0
+
+
+class Reference(NamedTuple):
+    """A 3-DOF reference: heading (rad) and rate (rad/s), and a :class:`Track` (None:
+    keep the platform's own position behaviour, e.g. position hold)."""
+
+    heading: float = 0.0
+    rate: float = 0.0
+    track: Track | None = None
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Protocol, runtime_checkable
 
+from agents.guidance import Track
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
@@ -21,7 +22,7 @@ class PlatformError(RuntimeError):
 
 @runtime_checkable
 class Platform(Protocol):
-    """A pose source driven by a heading command.
+    """A pose source driven by a heading command (and optionally a position track).
 
     The agent calls :meth:`step` :attr:`rate` times a second with its clock's time
     and the guidance's heading and rate references; the returned pose is what it
@@ -45,8 +46,11 @@ class Platform(Protocol):
         """Whether :meth:`hold` is in force."""
         ...
 
-    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
-        """Advance to ``t`` (s) towards ``heading_ref`` (rad) at ``rate_ref`` (rad/s)."""
+    def step(
+        self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> Pose:
+        """Advance to ``t`` (s) towards ``heading_ref`` (rad) at ``rate_ref`` (rad/s) and,
+        if given, along ``track`` (a position reference with its rates, 3-DOF)."""
         ...
 
     def hold(self) -> None:

@@ -8,6 +8,7 @@ fly real dynamics.
 
 from __future__ import annotations
 
+from agents.guidance import Track
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
@@ -27,11 +28,17 @@ class KinematicPlatform:
         self.pose = Pose(x=x, y=y)
         self.held = False
 
-    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
+    def step(
+        self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> Pose:
+        """The pose is the reference: heading and rate, and the track's position and
+        velocity if one is given (else the position stays)."""
         if self.held:
-            self.pose = self.pose._replace(omega=0.0)
-        else:
+            self.pose = self.pose._replace(vx=0.0, vy=0.0, omega=0.0)
+        elif track is None:
             self.pose = self.pose._replace(heading=heading_ref, omega=rate_ref)
+        else:
+            self.pose = Pose(track.x, track.y, heading_ref, track.vx, track.vy, rate_ref)
         return self.pose
 
     def hold(self) -> None:

@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from agents.dynamics import THRUSTERS, BodyParams, SlopeField, step, wrench
 from agents.gnc import CLOSED, GncChain
+from agents.guidance import Track
 from agents.navigation import NavigationFilter
 from agents.sensors import Coverage, Imu, ImuSample, Vision
 from federation.core.wire import Pose
@@ -170,9 +171,12 @@ class SimulatedPlatform:
 
     # ------------------------------------------------------------------ interface
 
-    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
+    def step(
+        self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> Pose:
         """Advance to ``t`` (s) tracking ``heading_ref`` (rad) with ``rate_ref`` (rad/s)
-        as the derivative reference; return the filter's estimate.
+        as the derivative reference (and ``track``, a position reference in the table
+        frame, if given); return the filter's estimate.
 
         The first call sets the time origin. Later calls run every whole control step
         up to ``t`` with this reference (none if ``t`` has not advanced a step); the
@@ -180,7 +184,7 @@ class SimulatedPlatform:
         """
         if self._t0 is None:
             self._t0 = t
-            self._tick_at(t, heading_ref, rate_ref)
+            self._tick_at(t, heading_ref, rate_ref, track)
             return self.chain.estimate
         tick, t0 = self._tick, self._t0
         while True:
@@ -189,7 +193,7 @@ class SimulatedPlatform:
                 break
             self.plant.advance(tick, self.chain.valves)
             self._k += 1
-            self._tick_at(now, heading_ref, rate_ref)
+            self._tick_at(now, heading_ref, rate_ref, track)
         return self.chain.estimate
 
     def hold(self) -> None:
@@ -230,9 +234,11 @@ class SimulatedPlatform:
 
     # ------------------------------------------------------------------ one step
 
-    def _tick_at(self, now: float, heading_ref: float, rate_ref: float) -> None:
+    def _tick_at(
+        self, now: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> None:
         """Sample the sensors that are due, then one step of the chain."""
         plant = self.plant
         imu = plant.imu() if plant.imu_sensor.sampler.due(now) else None
         fix = plant.vision() if plant.vision_sensor.sampler.due(now) else None
-        self.chain.update(now, heading_ref, rate_ref, imu=imu, fix=fix)
+        self.chain.update(now, heading_ref, rate_ref, imu=imu, fix=fix, track=track)

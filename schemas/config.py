@@ -22,6 +22,7 @@ from schemas.base import format_validation_error as format_validation_error
 from schemas.base import load_model as load_model
 from schemas.base import validate as validate
 from schemas.platform import load_platform, validate_platform_spec
+from schemas.scenario import ScenarioPart
 
 __all__ = [
     "AgentConfig",
@@ -161,11 +162,28 @@ class AgentConfig(_Model):
         False, description="subscribe to every agent's pose, not only the followed one's"
     )
     record: Path | None = Field(None, description="MCAP file to record the run to")
+    runs_dir: Path | None = Field(
+        None,
+        description="record each run into RUNS_DIR/<run-id>/ (MCAP, status lines, manifest) "
+        "and serve the finished ones to fedlab collect; set to runs by --experiment unless "
+        "record is given",
+    )
+    experiment: Path | None = Field(
+        None, description="the experiment file this agent takes part in (recorded with each run)"
+    )
+    run_duration: float | None = Field(
+        None, gt=0, description="s of run time after which a run is done, when its start gives none"
+    )
     record_channels: list[Channel] | None = Field(
         None, description="channels to record (e.g. /pose/sent); none: all"
     )
     latency_compensation: bool = Field(
         True, description="dead-reckon the followed pose to the present synchronized time"
+    )
+    scenario: ScenarioPart | None = Field(
+        None,
+        description="this agent's part of a formation, docking or adaptive-gain scenario "
+        "(from --experiment); none: attitude tracking as configured above",
     )
 
     @field_validator("platform")

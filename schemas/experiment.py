@@ -3,6 +3,17 @@
 Every lab runs its agent with the same file (``fedlab agent --experiment FILE
 --lab LAB --name NAME``) and anyone starts the run with ``fedlab ctl start
 --experiment FILE``: no video call.
+
+``kind`` says what is rehearsed (:mod:`schemas.scenario`):
+
+- ``attitude-tracking`` (default): the leader's maneuver, followers track its heading
+  (a follower may schedule its gains: ``adaptive_gains = true`` and ``[adaptive]``);
+- ``formation``: N >= 3 platforms in N labs keep their ``[formation.slots]`` around a
+  virtual centre on a circle, each from the others' shared poses;
+- ``docking``: ``[docking]``'s chaser docks with its target in another lab from
+  emulated relative measurements (``[relative_sensor]``).
+
+``[frames.LAB]`` places each lab's table in the common frame (default: identity).
 """
 
 from __future__ import annotations
@@ -14,16 +25,34 @@ from pydantic import Field, model_validator
 
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
 from schemas.config import AgentRef, ManeuverConfig, _Model, _name, load_model
+from schemas.scenario import (
+    AdaptiveConfig,
+    DockingConfig,
+    FormationConfig,
+    LabFrame,
+    RelativeSensorConfig,
+    ScenarioKind,
+    ScenarioPart,
+)
 
 __all__ = ["ExperimentConfig", "Participant", "load_experiment"]
 
 
 class Participant(_Model):
     agent: AgentRef = Field(description="LAB/NAME")
-    role: Literal["leader", "follower"]
+    role: Literal["leader", "follower", "member"] = Field(
+        description="leader: the reference clock (and the maneuver); follower: tracks "
+        "'follow'; member: a formation member"
+    )
     platform: str = Field("kinematic", description="pose source (see fedlab agent --platform)")
     follow: AgentRef | None = Field(None, description="LAB/NAME a follower tracks")
-    latency_compensation: bool = Field(True, description="dead-reckon the followed pose")
+    latency_compensation: bool = Field(
+        True, description="dead-reckon the followed (or shared) poses to the present"
+    )
+    adaptive_gains: bool = Field(
+        False, description="a follower schedules its heading gains from the leader's motion"
+    )
+    seed: int | None = Field(None, description="seed of the simulated platform's noise")
 
 
 class ExperimentConfig(_Model):
@@ -34,6 +63,14 @@ class ExperimentConfig(_Model):
         3.0, gt=0, le=60, description="seconds between the start command and the start"
     )
     maneuver: ManeuverConfig = Field(default_factory=ManeuverConfig)
+    kind: ScenarioKind = Field("attitude-tracking", description="what the experiment rehearses")
+    frames: dict[str, LabFrame] = Field(
+        default_factory=dict, description="LAB -> its table frame in the common frame"
+    )
+    formation: FormationConfig | None = None
+    docking: DockingConfig | None = None
+    relative_sensor: RelativeSensorConfig = Field(default_factory=RelativeSensorConfig)
+    adaptive: AdaptiveConfig = Field(default_factory=AdaptiveConfig)
     participants: list[Participant] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -49,7 +86,74 @@ class ExperimentConfig(_Model):
                 raise ValueError(f"follower {p.agent} needs 'follow'")
             if p.follow is not None and p.follow not in names:
                 raise ValueError(f"{p.agent} follows {p.follow}, who does not take part")
+            if p.adaptive_gains and p.role != "follower":
+                raise ValueError(f"{p.agent}: adaptive_gains applies to a follower only")
+        labs = {p.agent.split("/")[0] for p in self.participants}
+        for lab in self.frames:
+            if lab not in labs:
+                raise ValueError(f"frames.{lab}: no participant in lab {lab!r}")
+        if self.kind == "formation":
+            self._check_formation(names)
+        elif self.kind == "docking":
+            self._check_docking()
+        else:
+            members = [p.agent for p in self.participants if p.role == "member"]
+            if members:
+                raise ValueError(f"attitude-tracking has no members: {', '.join(members)}")
         return self
+
+    def _check_formation(self, names: list[str]) -> None:
+        f = self.formation
+        if f is None:
+            raise ValueError("a formation experiment needs a [formation] table")
+        if len(names) < 3:
+            raise ValueError(f"a formation needs at least 3 platforms, not {len(names)}")
+        labs = [n.split("/")[0] for n in names]
+        if len(set(labs)) != len(labs):
+            raise ValueError("a formation has one platform per lab")
+        missing = [n for n in names if n not in f.slots]
+        if missing:
+            raise ValueError(f"formation.slots: no slot for {', '.join(missing)}")
+        extra = [n for n in f.slots if n not in names]
+        if extra:
+            raise ValueError(f"formation.slots: {', '.join(extra)} do not take part")
+        for p in self.participants:
+            if p.role == "follower":
+                raise ValueError(f"{p.agent}: formation platforms are members (or the leader)")
+
+    def _check_docking(self) -> None:
+        d = self.docking
+        if d is None:
+            raise ValueError("a docking experiment needs a [docking] table")
+        target, chaser = self.participant_named(d.target), self.participant_named(d.chaser)
+        if target is None or chaser is None:
+            raise ValueError("docking.target and docking.chaser must take part")
+        if target.role != "leader":
+            raise ValueError(f"docking.target {d.target} must be the leader (the reference)")
+        if chaser.role != "follower" or chaser.follow != d.target:
+            raise ValueError(f"docking.chaser {d.chaser} must be a follower of {d.target}")
+        if d.target.split("/")[0] == d.chaser.split("/")[0]:
+            raise ValueError("the chaser and the target are in different labs")
+
+    def participant_named(self, agent: str) -> Participant | None:
+        return next((p for p in self.participants if p.agent == agent), None)
+
+    def part(self, agent: AgentId) -> ScenarioPart | None:
+        """``agent``'s part of the scenario (None for attitude tracking without adaptive
+        gains: the runtime then runs as before)."""
+        p = self.participant(agent)
+        if p is None:
+            return None
+        if self.kind == "attitude-tracking" and not p.adaptive_gains:
+            return None
+        return ScenarioPart(
+            kind=self.kind,
+            frame=self.frames.get(agent.lab, LabFrame()),
+            formation=self.formation,
+            docking=self.docking,
+            relative_sensor=self.relative_sensor,
+            adaptive=self.adaptive if p.adaptive_gains else None,
+        )
 
     @property
     def leader(self) -> AgentId:

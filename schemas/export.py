@@ -24,6 +24,7 @@ from pydantic import BaseModel
 
 from schemas.config import AgentConfig, RouterConfig
 from schemas.experiment import ExperimentConfig
+from schemas.federation import FederationFile
 from schemas.messages import Command, PeerStatus, Status
 from schemas.platform import PlatformConfig
 
@@ -37,8 +38,9 @@ CONFIGS: tuple[type[BaseModel], ...] = (
     RouterConfig,
     ExperimentConfig,
     PlatformConfig,
+    FederationFile,
 )
-"""What operators write: agent, router, experiment and platform files."""
+"""What operators write: agent, router, experiment, platform and federation files."""
 
 MODELS = MESSAGES + CONFIGS
 

@@ -3,13 +3,24 @@ on ``.../status`` and appends to ``--status-json``."""
 
 from __future__ import annotations
 
+import json
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.config import ManeuverConfig
 
-__all__ = ["PeerStatus", "Status"]
+__all__ = [
+    "CHUNK_SIZE",
+    "Command",
+    "CommandOutcome",
+    "FileEntry",
+    "Manifest",
+    "PeerStatus",
+    "Readiness",
+    "Status",
+    "is_abort",
+]
 
 
 class PeerStatus(BaseModel):
@@ -38,6 +49,43 @@ class PeerStatus(BaseModel):
     rejected: int = Field(description="rejected replies (all reasons)")
     rejected_by_reason: dict[str, int] = Field(default_factory=dict)
     clock_steps: int = Field(0, description="clock steps detected (estimate reset each time)")
+    silent: float | None = Field(
+        None,
+        description="alarm: seconds the peer, alive, has answered no sync request (over 2 s); "
+        "none while it answers",
+    )
+
+
+class Readiness(BaseModel):
+    """What ``fedlab ctl start`` checks of an agent before a run (preflight)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    platform: bool = Field(description="platform ready: not in a fault hold, measurements fresh")
+    platform_detail: str = Field("", description="why not, when not")
+    recording: bool = Field(description="the next run will be recorded")
+    recording_to: str | None = Field(None, description="folder of this agent's recordings")
+    reference_locked: bool = Field(
+        description="the reference clock's estimate is locked (always true on the reference)"
+    )
+    reference_bound: float | None = Field(
+        None, description="error bound of the reference clock's estimate, s (0 on the reference)"
+    )
+
+
+class CommandOutcome(BaseModel):
+    """One command an agent received and what it made of it."""
+
+    model_config = ConfigDict(extra="allow")
+
+    command: str
+    issuer: str
+    seq: int
+    outcome: str = Field(
+        description="applied, ignored (not in this mode), or why it was dropped: repeat, "
+        "stale, seq out of range, seq jumped"
+    )
+    detail: str = ""
 
 
 class Status(BaseModel):
@@ -52,12 +100,21 @@ class Status(BaseModel):
     t_exec: float = Field(description="own execution clock, s")
     host_monotonic: float = Field(description="host monotonic clock read with t_exec, s")
     t_sim: float | None = Field(description="simulation (reference) time, Eq. 5, s")
-    mode: str = Field("armed", description="run mode: waiting, armed, running, frozen, aborted")
+    mode: str = Field(
+        "armed", description="run mode: waiting, armed, running, frozen, done, aborted"
+    )
     run_time: float | None = Field(None, description="experiment time since the start, s")
+    run_id: str | None = Field(None, description="the run started last (ctl start names it)")
+    duration: float | None = Field(None, description="run time after which the run is done, s")
+    ready: Readiness | None = Field(None, description="what preflight checks of this agent")
+    commands: list[CommandOutcome] = Field(
+        default_factory=list, description="the last commands received and what became of each"
+    )
     platform: str = Field("kinematic", description="pose source")
     follow: str | None = Field(None, description="LAB/NAME of the agent followed")
     hold: str | None = Field(
-        None, description="why every valve is held closed: stale (link lost) or aborted"
+        None,
+        description="why every valve is held closed: stale (link lost), contested, aborted",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"
@@ -74,6 +131,11 @@ class Status(BaseModel):
     counters: dict[str, int] = Field(
         default_factory=dict, description="rejected inputs and served requests"
     )
+    contested: dict[str, str] = Field(
+        default_factory=dict,
+        description="LAB/NAME -> why that agent is contested (two sources speak for it): "
+        "nothing from it is used; a follower of it holds",
+    )
 
 
 class Command(BaseModel):
@@ -82,17 +144,65 @@ class Command(BaseModel):
     Modelled on SpaceFOM's run/freeze/shutdown modes. ``at`` is a reference
     (simulation) time: every agent acts when its own synchronized clock reaches
     it, so a start is simultaneous without a video call. Without ``at`` the
-    command takes effect on receipt. ``seq`` makes repeats idempotent.
+    command takes effect on receipt. ``seq`` counts one issuer's commands (1, 2,
+    3...); ordering is per issuer (:mod:`federation.core.commands`) and an abort
+    is honoured whatever its seq, so seq is any integer here and judged there.
     """
 
     model_config = ConfigDict(extra="forbid")
 
-    command: Literal["start", "freeze", "resume", "abort"]
+    command: Literal["start", "freeze", "resume", "abort", "reset"]
     at: float | None = Field(None, allow_inf_nan=False, description="reference time, s")
-    seq: int = Field(ge=0, description="command number; a repeat of a seen seq is ignored")
+    seq: int = Field(description="the issuer's command number, 1, 2, 3...; repeats are ignored")
     issued_at: float | None = Field(
         None, allow_inf_nan=False, description="reference time when the issuer sent it, s"
     )
     issuer: str = Field("ctl", max_length=200, description="who sent it")
     experiment: str | None = Field(None, max_length=200, description="experiment name")
     maneuver: ManeuverConfig | None = Field(None, description="the leader's maneuver for this run")
+    run_id: str | None = Field(
+        None,
+        max_length=200,
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$",
+        description="the run a start names",
+    )
+    duration: float | None = Field(
+        None, gt=0, allow_inf_nan=False, description="s of run time after which the run is done"
+    )
+
+
+def is_abort(payload: bytes) -> bool:
+    """Whether a control payload that did not validate still says ``abort``: an abort
+    is honoured even from a newer or damaged issuer, as long as it says so in JSON."""
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(data, dict) and data.get("command") == "abort"
+
+
+CHUNK_SIZE = 32 << 10
+"""Bytes per chunk an agent serves of a recording (``fedlab collect``): a reply fits one
+Zenoh batch (64 KiB), which the low-latency transport fedlab uses cannot fragment; a
+larger one does not arrive and can drop the link it was sent on."""
+
+
+class FileEntry(BaseModel):
+    """One finished file of a run, as an agent lists it for ``fedlab collect``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(max_length=200, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+    size: int = Field(ge=0, description="bytes")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="of the whole file")
+
+
+class Manifest(BaseModel):
+    """An agent's finished files of one run (reply to a ``recordings`` query)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    agent: str = Field(description="LAB/NAME")
+    run_id: str
+    files: list[FileEntry]
+    chunk_size: int = Field(CHUNK_SIZE, gt=0, le=CHUNK_SIZE)

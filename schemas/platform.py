@@ -40,6 +40,7 @@ __all__ = [
     "ImuConfig",
     "NavigationConfig",
     "PlatformConfig",
+    "TableConfig",
     "VisionConfig",
     "load_platform",
     "validate_platform_spec",
@@ -77,6 +78,23 @@ class VisionConfig(_Model):
     height: float = Field(1.7, gt=0, description="coverage along lab y, m")
     origin: tuple[float, float] = Field(
         (0.0, 0.0), description="centre of the coverage rectangle in the lab frame (x, y), m"
+    )
+
+
+class TableConfig(_Model):
+    """The lab's table (its own frame) and the margin that makes the usable area: the
+    table and the vision coverage, both shrunk by ``margin``."""
+
+    width: float = Field(3.1, gt=0, description="table size along its x, m")
+    height: float = Field(3.4, gt=0, description="table size along its y, m")
+    origin: tuple[float, float] = Field(
+        (0.0, 0.0), description="centre of the table in the table frame (x, y), m"
+    )
+    margin: float = Field(
+        0.15,
+        ge=0,
+        description="distance kept from the edges of the table and of the coverage "
+        "(the body's half-size and a stopping distance), m",
     )
 
 
@@ -183,6 +201,7 @@ class PlatformConfig(_Model):
     disturbance: DisturbanceConfig = Field(
         default_factory=DisturbanceConfig, description="table slope field"
     )
+    table: TableConfig = Field(default_factory=TableConfig, description="the table and margin")
 
     @model_validator(mode="after")
     def _limits(self) -> PlatformConfig:
@@ -190,12 +209,33 @@ class PlatformConfig(_Model):
             raise ValueError(f"thrust {self.thrust} N exceeds max_thrust {self.max_thrust} N")
         if self.torque > self.max_torque:
             raise ValueError(f"torque {self.torque} Nm exceeds max_torque {self.max_torque} Nm")
+        x0, x1, y0, y1 = self._area()
+        if not (x0 < x1 and y0 < y1):
+            raise ValueError(
+                f"no usable area: the table and the vision coverage, less table.margin "
+                f"({self.table.margin} m), do not overlap"
+            )
         if self.control.fix_timeout * self.vision.rate < 1.0:
             raise ValueError(
                 f"control.fix_timeout ({self.control.fix_timeout} s) is shorter than one vision "
                 f"period (1/vision.rate = {1.0 / self.vision.rate} s): no valve would ever open"
             )
         return self
+
+    def _area(self) -> tuple[float, float, float, float]:
+        t, v, m = self.table, self.vision, self.table.margin
+        return (
+            max(t.origin[0] - t.width / 2, v.origin[0] - v.width / 2) + m,
+            min(t.origin[0] + t.width / 2, v.origin[0] + v.width / 2) - m,
+            max(t.origin[1] - t.height / 2, v.origin[1] - v.height / 2) + m,
+            min(t.origin[1] + t.height / 2, v.origin[1] + v.height / 2) - m,
+        )
+
+    @property
+    def usable_area(self) -> tuple[float, float, float, float]:
+        """Where the platform's centre may go, table frame: (x_min, x_max, y_min, y_max), m:
+        the table and the vision coverage overlap, less ``table.margin``."""
+        return self._area()
 
     @property
     def moment_arm(self) -> float:

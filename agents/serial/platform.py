@@ -31,6 +31,7 @@ from types import TracebackType
 import serial
 
 from agents.gnc import CLOSED, GncChain
+from agents.guidance import Track
 from agents.interface import PlatformError
 from agents.sensors import ImuSample
 from agents.serial.protocol import (
@@ -129,8 +130,12 @@ class SerialPlatform:
         }
 
     # -- Platform ----------------------------------------------------------------
-    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
+    def step(
+        self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> Pose:
         """Read, run the chain, send HEARTBEAT and VALVES; return the navigation estimate.
+
+        ``track``: a 3-DOF position reference (table frame) for the chain, if any.
 
         Raises
         ------
@@ -147,7 +152,8 @@ class SerialPlatform:
         self._new_imu = self._new_fix = None
         try:
             valves = tuple(
-                bool(v) for v in self.chain.update(t, heading_ref, rate_ref, imu=imu, fix=fix)
+                bool(v)
+                for v in self.chain.update(t, heading_ref, rate_ref, imu=imu, fix=fix, track=track)
             )
             if len(valves) != N_VALVES:
                 raise ValueError(f"the chain gave {len(valves)} valve states, not {N_VALVES}")

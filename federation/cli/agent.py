@@ -18,6 +18,7 @@ from federation.cli.common import (
     add_zenoh_flags,
     open_session,
     stop_on_signals,
+    zenoh_options,
 )
 from federation.core import paper
 from federation.core.estimators import ESTIMATORS
@@ -124,7 +125,16 @@ def add(sub: Subparsers) -> None:
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
-    p.add_argument("--record", type=Path, metavar="FILE", help="record the run to an MCAP file")
+    p.add_argument(
+        "--record", type=Path, metavar="FILE", help="record everything to one MCAP file"
+    )
+    p.add_argument(
+        "--runs-dir",
+        type=Path,
+        metavar="DIR",
+        help="record each run into DIR/<run-id>/ and serve it to fedlab collect "
+        "(default with --experiment: runs)",
+    )
     p.add_argument(
         "--wait-start",
         action="store_const",
@@ -157,6 +167,7 @@ _AGENT_FLAGS = (
     "duration",
     "status_json",
     "record",
+    "runs_dir",
     "wait_start",
     "platform",
     "platform_preset",
@@ -206,6 +217,27 @@ def _experiment_part(args: argparse.Namespace) -> dict[str, Any]:
         "latency_compensation": part.latency_compensation,
         "maneuver": experiment.maneuver.model_dump(),
         "wait_start": True,
+        "experiment": str(args.experiment),
+        "run_duration": experiment.duration,
+        # Every run recorded on this host, unless --record names one file for all.
+        **({} if args.record is not None else {"runs_dir": "runs"}),
+        **_scenario_part(experiment, me),
+    }
+
+
+def _scenario_part(experiment: Any, me: Any) -> dict[str, Any]:
+    """Issue 14: a formation, docking or adaptive-gain part (none for plain attitude
+    tracking). Everyone's clock reference is the leader; formation members watch every
+    pose; a participant's seed, if given."""
+    scenario = experiment.part(me)
+    if scenario is None:
+        return {}
+    part = experiment.participant(me)
+    return {
+        "scenario": scenario.model_dump(),
+        "reference": str(experiment.leader),
+        **({"watch_all": True} if experiment.kind == "formation" else {}),
+        **({"seed": part.seed} if part.seed is not None else {}),
     }
 
 
@@ -221,12 +253,24 @@ def _clock_step(text: str) -> tuple[float, float]:
         ) from None
 
 
+def _check_identity(args: argparse.Namespace, config: AgentConfig) -> None:
+    """Identity = name: the certificate CN or user name in the Zenoh config must be the
+    agent's lab/name (an IdentityError, a ConfigError: exit 2), before any session."""
+    from federation.deploy.identity import check_identity
+    from federation.runtime.session import build_config
+
+    options = zenoh_options(args)
+    source = str(options.config) if options.config else "Zenoh flags"
+    check_identity(build_config(options, default_mode="client"), config.agent, source)
+
+
 def run(args: argparse.Namespace) -> int:
     from agents.platform import PlatformError
     from federation.runtime.agent import AgentRuntime, NameTaken
     from federation.runtime.heap import freeze_startup_heap
 
     config = agent_config(args)
+    _check_identity(args, config)
     stop = stop_on_signals()
     session = open_session(args, stop)
     if session is None:

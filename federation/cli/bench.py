@@ -1,4 +1,4 @@
-"""``fedlab bench sync|latency|scale``: benchmarks beside baselines measured in the same run.
+"""``fedlab bench sync|latency|scale|network``: benchmarks beside baselines run alongside.
 
 Each parses its flags, runs :mod:`federation.bench` and prints a table (or ``--json``).
 """
@@ -25,19 +25,22 @@ def add(sub: Subparsers) -> None:
             "Examples:\n"
             "  fedlab bench sync --duration 60 --scenario drift\n"
             "  fedlab bench latency --seconds 30 --rate 100 --json\n"
-            "  fedlab bench scale --agents 2 --agents 8 --seconds 20"
+            "  fedlab bench scale --agents 2 --agents 8 --seconds 20\n"
+            "  fedlab bench network --scenario loss5 --transport multilink --seconds 60"
         ),
     )
     benches = p.add_subparsers(dest="bench", required=True, metavar="BENCH")
     _add_sync(benches)
     _add_latency(benches)
     _add_scale(benches)
+    _add_network(benches)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark named by ``args.bench`` and print its results."""
-    return {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}[args.bench](args)
+    runs = {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}
+    return (runs | {"network": _run_network})[args.bench](args)
 
 
 # -- sync ----------------------------------------------------------------------------
@@ -212,3 +215,93 @@ def _run_scale(args: argparse.Namespace) -> int:
         )  # fmt: skip
     Console().print(table)
     return 0
+
+
+# -- network -------------------------------------------------------------------------
+_NETWORK_SCENARIOS = ("clean", "loss1", "loss5", "loss20", "cut10", "mtu576")
+_NETWORK_TRANSPORTS = ("multilink", "tcp")
+
+
+def _add_network(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "network",
+        help="the federation on real network stacks (namespaces, NAT, loss, cuts, MTU); root",
+        formatter_class=Formatter,
+        description=(
+            "Two labs in network namespaces (Rome behind NAT and a stateful firewall),\n"
+            "the paper's path between them (40 ms one way, 3 ms jitter) with loss, a cut\n"
+            "or a path-MTU black hole, routers from deploy/routers/, a leader, a follower\n"
+            "and an outside subscriber. Needs root, nftables and /dev/net/tun."
+        ),
+        epilog=(
+            "Examples:\n"
+            "  fedlab bench network --scenario loss5 --transport multilink --transport tcp\n"
+            "  fedlab bench network --seconds 60 --repeats 2 --json-out benchmarks/network.json"
+        ),
+    )
+    p.add_argument(
+        "--scenario", action="append", choices=_NETWORK_SCENARIOS, metavar="NAME",
+        help=f"scenario (repeatable; default all: {', '.join(_NETWORK_SCENARIOS)})",
+    )  # fmt: skip
+    p.add_argument(
+        "--transport", action="append", choices=_NETWORK_TRANSPORTS, metavar="NAME",
+        help="multilink: the shipped configs (TCP + UDP links); tcp: the previous ones "
+        "(repeatable; default multilink)",
+    )  # fmt: skip
+    p.add_argument(
+        "--seconds", type=positive, default=60.0, metavar="S",
+        help="seconds scored per run, after the 10 s sync phase",
+    )  # fmt: skip
+    p.add_argument("--repeats", type=int, default=1, metavar="N", help="runs per scenario")
+    p.add_argument("--seed", type=int, default=1, help="the packet stage's first seed")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/bench-network"), metavar="DIR", help="run folder"
+    )
+    p.add_argument("--json-out", type=Path, metavar="FILE", help="also write the results here")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _run_network(args: argparse.Namespace) -> int:
+    import shlex
+    import sys
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from federation.bench import network
+    from federation.testbed import missing
+
+    why = missing()
+    if why is not None:
+        raise SystemExit(f"fedlab bench network: {why}")
+    names = args.scenario or list(_NETWORK_SCENARIOS)
+    transports = args.transport or ["multilink"]
+    results = network.run(names, transports, args.seconds, args.out, args.repeats, args.seed)
+    document = {"command": shlex.join(["fedlab", *sys.argv[1:]]), "results": results}
+    if args.json_out is not None:
+        args.json_out.parent.mkdir(parents=True, exist_ok=True)
+        args.json_out.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+    if args.json:
+        print(json.dumps(document, indent=1))
+        return 0
+    table = Table(title="federation on the testbed (40 ms one way, 3 ms jitter, Rome behind NAT)")
+    cols = ("scenario", "transport", "holds/min", "held", "pose p99 ms", "sync p95 ms",
+            "heading max deg", "cut: hold ms", "back s")  # fmt: skip
+    for col in cols:
+        table.add_column(col, justify="left" if col in cols[:2] else "right")
+    for r in results:
+        cut = r.get("cut") or {}
+        back = [cut.get(k) for k in ("pose_back_after_s", "sync_back_after_s")]
+        table.add_row(
+            r["scenario"]["name"], r["transport"], f"{r['holds_per_min']:.1f}",
+            f"{r['held_fraction']:.1%}", _num(r["pose_latency_ms"]["p99"]),
+            _num(r["sync_error_ms"]["p95"], 3), _num(r["heading_error_deg"]["max"], 3),
+            _num(cut.get("hold_after_cut_ms")),
+            "-" if None in back else f"{max(b for b in back if b is not None):.2f}",
+        )  # fmt: skip
+    Console(width=max(Console().width, 120)).print(table)
+    return 0
+
+
+def _num(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"

@@ -1,9 +1,12 @@
 """``fedlab bridge udp``: join an unchanged legacy agent that speaks the paper's UDP
-packets to the federation (the library: :mod:`federation.bridge.udp`)."""
+packets to the federation (the library: :mod:`federation.bridge.udp`); ``fedlab bridge
+ros2``: the federation's poses on ROS 2, and a ROS 2 platform in the federation (the
+library: :mod:`federation.bridge.ros2`)."""
 
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +14,11 @@ from federation.cli.common import (
     Formatter,
     Subparsers,
     add_zenoh_flags,
+    agent_id,
+    federation_name,
     open_interruptible,
+    open_session,
+    positive,
     stop_on_signals,
     zenoh_options,
 )
@@ -43,13 +50,13 @@ def _seconds(p: argparse.ArgumentParser, flag: str, help_text: str) -> None:
 
 
 def add(sub: Subparsers) -> None:
-    """Add ``bridge`` and its one kind, ``bridge udp``."""
+    """Add ``bridge`` and its kinds, ``bridge udp`` and ``bridge ros2``."""
     bridge = sub.add_parser(
         "bridge",
-        help="join a legacy agent to the federation (the paper's UDP packets)",
+        help="join a legacy agent (the paper's UDP packets) or ROS 2 to the federation",
         formatter_class=Formatter,
-        description="Bridges that let an unchanged legacy agent join the federation.",
-        epilog=_EXAMPLE,
+        description="Bridges that let an unchanged legacy agent or ROS 2 join the federation.",
+        epilog=_EXAMPLE + "\n" + _ROS2_EXAMPLE,
     )
     kinds = bridge.add_subparsers(dest="bridge", required=True, metavar="KIND")
     p = kinds.add_parser(
@@ -105,6 +112,129 @@ def add(sub: Subparsers) -> None:
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.set_defaults(func=run)
+    _add_ros2(kinds)
+
+
+_ROS2_EXAMPLE = (
+    "  fedlab bridge ros2 --domain-id 0 -e tcp/127.0.0.1:7447\n"
+    "  fedlab bridge ros2 --as ros2lab/rover --odom /rover/odom -e tcp/127.0.0.1:7447"
+)
+
+
+def _ros_domain(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value <= 232:
+        raise argparse.ArgumentTypeError(f"a ROS 2 domain id is 0 to 232, not {value}")
+    return value
+
+
+def _add_ros2(kinds: Any) -> None:
+    p = kinds.add_parser(
+        "ros2",
+        help="every agent's pose as ROS 2 odometry and TF; a ROS 2 platform joins (--as)",
+        formatter_class=Formatter,
+        description=(
+            "Publish every federation agent's pose on ROS 2 (DDS, Cyclone DDS): a\n"
+            "nav_msgs/msg/Odometry on /fedlab/LAB/NAME/odom and a transform\n"
+            "fedlab_common -> LAB/NAME on /tf, stamped on the federation's reference time\n"
+            "mapped to this host's clock. With --as LAB/NAME --odom TOPIC, a ROS 2\n"
+            "platform's odometry is that agent's pose: it answers sync, holds a token and\n"
+            "publishes pose and status; with no odometry for --odom-timeout seconds it holds\n"
+            "(status hold: stale) and publishes no pose. Cyclone DDS reads CYCLONEDDS_URI."
+        ),
+        epilog="Examples:\n" + _ROS2_EXAMPLE,
+    )
+    add_zenoh_flags(p)
+    p.add_argument(
+        "--federation", type=federation_name, default="default", metavar="NAME",
+        help="federation name",
+    )  # fmt: skip
+    p.add_argument(
+        "--domain-id", type=_ros_domain, default=os.environ.get("ROS_DOMAIN_ID", "0"),
+        metavar="N", help="ROS 2 (DDS) domain id; default: ROS_DOMAIN_ID, else 0",
+    )  # fmt: skip
+    p.add_argument(
+        "--as", dest="as_agent", type=agent_id, metavar="LAB/NAME",
+        help="join a ROS 2 platform to the federation under this name (needs --odom)",
+    )  # fmt: skip
+    p.add_argument(
+        "--odom", metavar="TOPIC", help="the ROS 2 platform's nav_msgs/msg/Odometry topic"
+    )
+    p.add_argument(
+        "--odom-timeout", type=positive, default=0.5, metavar="S",
+        help="seconds without odometry before the joined agent holds",
+    )  # fmt: skip
+    p.add_argument(
+        "--role", choices=["member", "leader"], default="member",
+        help="the joined agent's role; leader: its clock is the reference time",
+    )  # fmt: skip
+    p.add_argument("--status-period", type=positive, metavar="S", help="joined agent: status (1)")
+    p.add_argument(
+        "--status-json", type=Path, metavar="FILE", help="joined agent: append status lines here"
+    )
+    p.add_argument("--duration", type=positive, metavar="S", help="stop after this many seconds")
+    p.set_defaults(func=run_ros2)
+
+
+def ros2_join_config(args: argparse.Namespace) -> Any:
+    """The joined agent's AgentConfig from the flags (None without --as); ConfigError naming
+    the flag if one is bad."""
+    from federation.bridge.ros2_core import ros_topic
+    from schemas.config import AgentConfig, ConfigError
+
+    if args.as_agent is None:
+        if args.odom is not None:
+            raise ConfigError("command line: --odom needs --as LAB/NAME (the agent it joins as)")
+        return None
+    if args.odom is None:
+        raise ConfigError("command line: --as needs --odom TOPIC (the platform's odometry)")
+    try:
+        ros_topic(args.odom)
+    except ValueError as error:
+        raise ConfigError(f"command line: --odom: {error}") from None
+    data: dict[str, Any] = {
+        "federation": args.federation, "lab": args.as_agent.lab, "name": args.as_agent.name,
+        "role": args.role, "watch_all": False, "status_json": args.status_json,
+    }  # fmt: skip
+    if args.status_period is not None:
+        data["status_period"] = args.status_period
+    return validate(AgentConfig, data, "command line")
+
+
+def run_ros2(args: argparse.Namespace) -> int:
+    import sys
+
+    from cyclonedds.core import DDSException
+
+    from federation.bridge.ros2 import run_ros2_bridge
+    from federation.runtime.agent import NameTaken
+
+    join = ros2_join_config(args)
+    stop = stop_on_signals()
+    session = open_session(args, stop)
+    if session is None:
+        return 0
+    with session:
+        try:
+            run_ros2_bridge(
+                session, stop, args.federation, args.domain_id, join, args.odom,
+                args.odom_timeout, args.duration,
+            )  # fmt: skip
+        except NameTaken as error:
+            print(f"fedlab bridge ros2: error: {error}", file=sys.stderr)
+            return 2
+        except DDSException as error:
+            uri = os.environ.get("CYCLONEDDS_URI", "(unset)")
+            print(
+                f"fedlab bridge ros2: error: DDS domain {args.domain_id} failed: {error} "
+                f"(CYCLONEDDS_URI={uri})",
+                file=sys.stderr,
+            )
+            return 1
+    return 0
 
 
 def bridge_config(args: argparse.Namespace) -> UdpBridgeConfig:

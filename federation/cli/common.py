@@ -28,6 +28,7 @@ from schemas.config import ZenohOptions, validate
 __all__ = [
     "Formatter",
     "Subparsers",
+    "add_timeout_flag",
     "add_zenoh_flags",
     "agent_id",
     "federation_name",
@@ -86,6 +87,19 @@ def add_zenoh_flags(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_timeout_flag(parser: argparse.ArgumentParser) -> None:
+    """``--timeout S``: give up on an unreachable router after S seconds."""
+    from federation.runtime.session import DEFAULT_TIMEOUT
+
+    parser.add_argument(
+        "--timeout",
+        type=positive,
+        default=DEFAULT_TIMEOUT,
+        metavar="S",
+        help="give up on an unreachable router after S seconds (names the endpoint and why)",
+    )
+
+
 def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
     """The Zenoh flags of parsed ``args``, validated (a ConfigError names the flag)."""
     data = {k: getattr(args, k) for k in ("mode", "connect", "listen", "config", "cfg")}
@@ -117,13 +131,21 @@ def signal_handlers_kept() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
-def open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.Event) -> Any:
+def open_interruptible(
+    opener: Callable[[Any], Any],
+    conf: Any,
+    stop: threading.Event,
+    timeout: float | None = None,
+) -> Any:
     """Open a session in a helper thread, so a signal can stop an agent still waiting for its
     router (zenoh.open retries a missing router forever and does not return to Python).
 
     Returns the session, or None when ``stop`` was set first; raises
-    :class:`~federation.runtime.session.ConnectError` when Zenoh cannot open one.
+    :class:`~federation.runtime.session.ConnectError` when Zenoh cannot open one (with
+    ``timeout``: within it), naming each endpoint and why it failed.
     """
+    from federation.runtime.session import connect_error, endpoints
+
     result: dict[str, Any] = {}
 
     def target() -> None:
@@ -136,13 +158,21 @@ def open_interruptible(opener: Callable[[Any], Any], conf: Any, stop: threading.
     thread.start()
     started = time.monotonic()
     next_note = started + 2.0
+    # Zenoh gives up by itself after the timeout; this is the backstop.
+    deadline = math.inf if timeout is None else started + timeout + 2.0
+    where = ", ".join(endpoints(conf)) or "no endpoint"
     while thread.is_alive() and not stop.is_set():
         thread.join(0.1)
-        if time.monotonic() >= next_note:
-            log.info("waiting for the router (%.0f s)...", time.monotonic() - started)
+        now = time.monotonic()
+        if now >= deadline:
+            raise connect_error(conf, "no answer", timeout or 0.0)
+        if now >= next_note:
+            log.info("waiting for the router at %s (%.0f s)...", where, now - started)
             next_note += 10.0
     if "error" in result:
-        raise ConnectError(f"cannot open a Zenoh session: {result['error']}")
+        if timeout is not None:
+            raise connect_error(conf, result["error"], timeout)
+        raise ConnectError(f"cannot open a Zenoh session ({where}): {result['error']}")
     if stop.is_set() and "session" not in result:
         log.info("stopped before the router was reached")
         return None
@@ -153,13 +183,17 @@ def open_session(
     args: argparse.Namespace, stop: threading.Event, default_mode: str = "client"
 ) -> Any:
     """A Zenoh session from the command's Zenoh flags (see :func:`open_interruptible`);
-    None when ``stop`` was set before the router answered."""
+    None when ``stop`` was set before the router answered. A command with
+    ``--timeout`` (:func:`add_timeout_flag`) gives up after it."""
     import zenoh
 
-    from federation.runtime.session import build_config
+    from federation.runtime.session import build_config, fail_fast
 
     conf = build_config(zenoh_options(args), default_mode=default_mode)
-    return open_interruptible(zenoh.open, conf, stop)
+    timeout: float | None = getattr(args, "timeout", None)
+    if timeout is not None:
+        fail_fast(conf, timeout)
+    return open_interruptible(zenoh.open, conf, stop, timeout)
 
 
 def federation_name(text: str) -> str:

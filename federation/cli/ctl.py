@@ -1,53 +1,77 @@
-"""``fedlab ctl start|freeze|resume|abort``: execution control over the federation.
+"""``fedlab ctl start|freeze|resume|abort|reset|status``: execution control over the federation.
 
-Parses, calls :func:`federation.runtime.control.issue` and prints who confirmed.
+Parses, calls :func:`federation.runtime.control.issue` (or
+:func:`~federation.runtime.control.status`) and prints who confirmed, who is
+missing what, and why an agent did not confirm.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
+from typing import Any
 
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_timeout_flag,
     add_zenoh_flags,
     agent_id,
     federation_name,
     nonnegative,
     open_session,
+    positive,
     stop_on_signals,
 )
 from federation.core import keys
+from federation.core.preflight import CHECKS, DEFAULT_MAX_BOUND, Row, blocking
 from federation.runtime import control
 
 __all__ = ["add", "run"]
 
 
+def _run_id(text: str) -> str:
+    from federation.core.chunking import RequestError, safe_name
+
+    try:
+        return safe_name(text, "run id")
+    except RequestError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "ctl",
-        help="start, freeze, resume or abort a run across the federation",
+        help="start, freeze, resume, abort or reset a run; status: who is ready",
         formatter_class=Formatter,
         description=(
-            "start syncs with the reference agent (the experiment's leader) exactly as agents\n"
-            "do, then announces a start at a reference time --in seconds ahead; every agent\n"
-            "begins when its own synchronized clock reaches that instant. The other commands\n"
-            "act on receipt. Each command is published a few times with the same sequence\n"
-            "number (agents ignore repeats) and ctl waits, bounded, until every expected agent\n"
-            "reports the new mode. Exit code 1 if one did not."
+            "start checks every participant first (present, waiting, synchronized with the\n"
+            "reference, platform ready, recording) and starts nothing unless all pass (exit\n"
+            "code 1 and a table of who misses what; --force overrides). It names the run\n"
+            "(--run-id, default <experiment>-<UTC time>), syncs with the reference agent (the\n"
+            "experiment's leader) and announces a start --in seconds ahead; every agent begins\n"
+            "when its own synchronized clock reaches that instant and is done (valves closed,\n"
+            "recording finalized) after the experiment's duration. abort is sent at once and\n"
+            "puts every platform in safe hold; reset brings aborted agents back to waiting.\n"
+            "freeze and resume act on receipt. status prints the preflight table. Exit code 1\n"
+            "if an agent did not confirm (the table says why) or the router is unreachable."
         ),
         epilog=(
             "Examples:\n"
+            "  fedlab ctl status --experiment deploy/experiments/attitude-tracking.toml \\\n"
+            "      -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl start --experiment deploy/experiments/attitude-tracking.toml \\\n"
             "      -e tcp/127.0.0.1:7447\n"
-            "  fedlab ctl abort -e tcp/127.0.0.1:7447"
+            "  fedlab ctl abort -e tcp/127.0.0.1:7447\n"
+            "  fedlab ctl reset --experiment deploy/experiments/attitude-tracking.toml \\\n"
+            "      -e tcp/127.0.0.1:7447"
         ),
     )
     p.add_argument(
         "action",
-        choices=control.ACTIONS,
-        help="start at a common instant, or freeze, resume or abort on receipt",
+        choices=[*control.ACTIONS, "status"],
+        help="start at a common instant; freeze, resume, abort, reset on receipt; status",
     )
     p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
     p.add_argument(
@@ -67,14 +91,58 @@ def add(sub: Subparsers) -> None:
         help="start this many seconds ahead "
         f"(default: the experiment's start_delay, else {control.DEFAULT_START_IN:g})",
     )
+    p.add_argument("--run-id", type=_run_id, metavar="ID", help="name of the run (start)")
+    p.add_argument(
+        "--duration",
+        type=positive,
+        metavar="S",
+        help="s of run time until done (default: the experiment's duration)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="start even if preflight fails (says what it overrode)"
+    )
+    p.add_argument(
+        "--max-bound",
+        type=positive,
+        default=DEFAULT_MAX_BOUND,
+        metavar="S",
+        help="largest error bound of an agent's estimate of the reference clock for a start",
+    )
     p.add_argument(
         "--wait", type=nonnegative, default=5.0, metavar="S", help="confirmation timeout"
     )
     p.add_argument(
         "--discover", type=nonnegative, default=1.5, metavar="S", help="seconds to collect statuses"
     )
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_timeout_flag(p)
     add_zenoh_flags(p)
     p.set_defaults(func=run)
+
+
+def preflight_table(rows: list[Row], title: str) -> Any:
+    """The preflight rows as a rich table: one column per check, failures in red."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("agent")
+    table.add_column("mode")
+    for name in CHECKS:
+        table.add_column(name)
+    for row in rows:
+        cells = []
+        for name in CHECKS:
+            check = row.checks.get(name)
+            if check is None:
+                cells.append("")
+            elif check.ok:
+                shown = check.detail if name in ("synced", "recording") else ""
+                cells.append(f"[green]ok[/green] {shown}".strip())
+            else:
+                cells.append(f"[red]{check.detail}[/red]")
+        agent = row.agent if row.participant else f"{row.agent} (not a participant)"
+        table.add_row(agent, row.mode or "-", *cells)
+    return table
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,27 +151,61 @@ def run(args: argparse.Namespace) -> int:
 
     from schemas.experiment import load_experiment
 
-    console = Console()
+    console = Console(stderr=args.json, width=max(Console().width, 120))
     experiment = load_experiment(args.experiment) if args.experiment else None
     session = open_session(args, stop_on_signals())
     if session is None:
         return 0
     with session:
-        result = control.issue(
-            session,
-            args.action,
-            federation=args.federation,
-            experiment=experiment,
-            reference=args.reference,
-            start_in=args.start_in,
-            wait=args.wait,
-            discover=args.discover,
-            progress=console.print,
-        )
-    table = Table(title=f"fedlab ctl {args.action} ({result.elapsed:.2f} s)")
+        if args.action == "status":
+            rows = control.status(
+                session, federation=args.federation, experiment=experiment,
+                discover=args.discover, max_bound=args.max_bound,
+            )  # fmt: skip
+            ready = not blocking(rows) and any(r.participant for r in rows)
+            if args.json:
+                print(json.dumps({"ready": ready, "agents": [r.as_json() for r in rows]}, indent=1))
+            else:
+                console.print(preflight_table(rows, "ready" if ready else "not ready"))
+            return 0 if ready else 1
+        try:
+            result = control.issue(
+                session,
+                args.action,
+                federation=args.federation,
+                experiment=experiment,
+                reference=args.reference,
+                start_in=args.start_in,
+                wait=args.wait,
+                discover=args.discover,
+                run_id=args.run_id,
+                duration=args.duration,
+                force=args.force,
+                max_bound=args.max_bound,
+                progress=console.print,
+            )
+        except control.PreflightFailed as failed:
+            if args.json:
+                table = [r.as_json() for r in failed.rows]
+                print(json.dumps({"ok": False, "started": False, "preflight": table}, indent=1))
+            else:
+                console.print(preflight_table(failed.rows, "not started: preflight failed"))
+                console.print("nothing was started; fix the above or use --force")
+            return 1
+    if args.json:
+        print(json.dumps(result.as_json(), indent=1))
+        return 0 if result.ok else 1
+    if result.preflight:
+        console.print(preflight_table(result.preflight, "preflight"))
+    for line in result.overridden:
+        console.print(f"[yellow]overridden by --force: {line}[/yellow]")
+    run_id = result.command.run_id
+    title = f"fedlab ctl {args.action}{' ' + run_id if run_id else ''} ({result.elapsed:.2f} s)"
+    table = Table(title=title)
     table.add_column("agent")
     table.add_column("mode")
+    table.add_column("why not confirmed")
     for agent, mode in result.modes.items():
-        table.add_row(agent, mode)
+        table.add_row(agent, mode, result.reasons.get(agent, ""))
     console.print(table)
     return 0 if result.ok else 1

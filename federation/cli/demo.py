@@ -27,15 +27,34 @@ def add(sub: Subparsers) -> None:
             " then the report (report.md, summary.json, figures) beside the paper's numbers.",
             width=88,
         ),
-        epilog="Example: fedlab demo --duration 75 --out runs/demo",
+        epilog=(
+            "Examples:\n  fedlab demo --duration 75 --out runs/demo\n"
+            "  fedlab demo --scenario formation --delay-ms 250 --out runs/formation-250\n"
+            "  fedlab demo --scenario docking --seed 3 --out runs/docking-3"
+        ),
+    )
+    p.add_argument(
+        "--scenario",
+        choices=["attitude", "formation", "docking"],
+        default="attitude",
+        help="attitude: the paper's experiment; formation: three labs keep a formation "
+        "(deploy/experiments/formation.toml); docking: rome's PINOCCHIO docks with kiruna's "
+        "KNATTE from emulated relative measurements (deploy/experiments/docking.toml)",
     )
     p.add_argument(
         "--duration",
         type=positive,
-        default=75.0,
+        default=None,
         metavar="S",
-        help="seconds of run after the start",
+        help="seconds of run after the start (attitude: 75; else the experiment file's)",
     )
+    p.add_argument(
+        "--no-latency-compensation",
+        dest="latency_compensation",
+        action="store_false",
+        help="formation, docking: use the others' poses as received, not dead-reckoned",
+    )
+    p.add_argument("--seed", type=int, default=0, help="formation, docking: seed of the noise")
     p.add_argument(
         "--delay-ms",
         type=nonnegative,
@@ -55,8 +74,20 @@ def add(sub: Subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from federation.fleet.demo import run_demo
+    from federation.fleet.demo import run_demo, run_scenario_demo
 
+    if args.scenario != "attitude":
+        return run_scenario_demo(
+            args.scenario,
+            args.out,
+            duration=args.duration,
+            delay_ms=args.delay_ms,
+            compensate=args.latency_compensation,
+            seed=args.seed,
+        )
     return run_demo(
-        duration=args.duration, out=args.out, delay_ms=args.delay_ms, clock_offset=args.clock_offset
+        duration=75.0 if args.duration is None else args.duration,
+        out=args.out,
+        delay_ms=args.delay_ms,
+        clock_offset=args.clock_offset,
     )

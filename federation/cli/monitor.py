@@ -14,6 +14,7 @@ import sys
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_timeout_flag,
     add_zenoh_flags,
     federation_name,
     nonnegative,
@@ -62,6 +63,7 @@ def add(sub: Subparsers) -> None:
         "--wait", type=nonnegative, default=3.0, metavar="S", help="with --once: seconds to listen"
     )
     p.add_argument("--json", action="store_true", help="with --once: print the rows as JSON")
+    add_timeout_flag(p)
     add_zenoh_flags(p)
     p.set_defaults(func=run)
 

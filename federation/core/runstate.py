@@ -3,26 +3,39 @@
 ::
 
     waiting --start(at)--> armed --t_sim >= at--> running --freeze--> frozen
-                             ^                       ^                  |
-                             |                       +-----resume-------+
-                             +-- start(at) from armed, running or frozen (re-arm)
-    any mode --abort--> aborted   (safe hold: all valves closed; final)
+      ^  ^                  |  ^                   |   ^                 |
+      |  |                  |  +--start (re-arm)   |   +-----resume------+
+      |  +------reset-------+                      |
+      |                                  run_time >= duration
+      |                                            v
+      +------------reset----------------------- done --start--> armed
+    any mode --abort--> aborted --reset--> waiting
 
-The rules, in the order :meth:`RunState.command` applies them:
+The rules, in the order :meth:`RunState.command` applies them (which commands reach
+it at all is decided first by :class:`federation.core.commands.CommandGate`):
 
-1. A command whose ``seq`` is not above every seq seen is a repeat: no event.
-2. ``abort`` aborts from any mode, aborted included.
-3. After an abort every other command is ``ignored``.
-4. ``start`` arms (``at``, or the present reference time without one) and starts
-   at once if that time has come; without ``at`` and unsynchronized it is ``ignored``.
-5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` or
-   the present; anything else is ``ignored``.
+1. ``abort`` aborts from any mode; aborted again, nothing happens (idempotent).
+2. ``reset`` brings an aborted, done or armed run back to waiting (an operator's
+   explicit act after an abort); while waiting it does nothing; while running or
+   frozen it is ``ignored`` (abort first).
+3. After an abort every other command is ``ignored`` until a reset.
+4. ``start`` arms (``at``, or the present reference time without one) from waiting,
+   done or armed (re-arm) and starts at once if that time has come; while running
+   or frozen it is ``ignored``; without ``at`` and unsynchronized it is ``ignored``.
+   It names the run (``run_id``) and may give its ``duration`` (s of run time).
+5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` (not
+   later than the present) or the present; anything else is ``ignored``.
 
-:meth:`RunState.update` is the one transition not made by a command: armed to
-running once the reference time reaches the start.
+:meth:`RunState.update` makes the transitions no command makes: armed to running
+once the reference time reaches the start, running to done once the run time
+reaches the duration.
 
 ``run_time`` is the experiment's clock: reference time since the start, less the
 time spent frozen. The leader's maneuver is a function of it.
+
+``autostart`` (a lone agent, no ``ctl start``): the run starts at the first
+update with a reference time, so the run time counts from when the agent is
+ready, not from its clock's zero.
 """
 
 from __future__ import annotations
@@ -30,9 +43,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-__all__ = ["Event", "Mode", "RunCommand", "RunState"]
+__all__ = ["HOLD_MODES", "Event", "Mode", "RunCommand", "RunState"]
 
-Mode = Literal["waiting", "armed", "running", "frozen", "aborted"]
+Mode = Literal["waiting", "armed", "running", "frozen", "done", "aborted"]
+
+HOLD_MODES: frozenset[str] = frozenset({"done", "aborted"})
+"""Modes in which every valve stays closed."""
 
 
 class RunCommand(Protocol):
@@ -40,76 +56,125 @@ class RunCommand(Protocol):
 
     @property
     def command(self) -> str:
-        """``start``, ``freeze``, ``resume`` or ``abort``."""
-
-    @property
-    def seq(self) -> int:
-        """The command's number: a repeat of a seen one is ignored."""
+        """``start``, ``freeze``, ``resume``, ``abort`` or ``reset``."""
 
     @property
     def at(self) -> float | None:
         """Reference time (s) at which to act; None: on receipt."""
+
+    @property
+    def run_id(self) -> str | None:
+        """The run a start names."""
+
+    @property
+    def duration(self) -> float | None:
+        """s of run time after which the run is done (None: no end)."""
 
 
 @dataclass(frozen=True)
 class Event:
     """What a transition (or a refused command) did, for the log and the recording."""
 
-    kind: Literal["armed", "started", "frozen", "resumed", "aborted", "ignored"]
+    kind: Literal["armed", "started", "frozen", "resumed", "done", "aborted", "reset", "ignored"]
     t_sim: float | None  # reference time the event refers to (s)
     detail: str = ""
 
 
 class RunState:
-    """``autostart``: the run starts at reference time 0 with no command (a lone agent)."""
+    """The run mode, its start, frozen time, name and duration; ``duration``: a run's
+    duration when its start gives none (an experiment's, known to the agent)."""
 
-    def __init__(self, autostart: bool = False):
+    def __init__(self, autostart: bool = False, duration: float | None = None):
+        self.default_duration = duration
         self.mode: Mode = "waiting"
         self.start_at: float | None = None
         self.frozen_at: float | None = None
         self.frozen_total = 0.0
-        self.last_seq = -1
+        self.run_id: str | None = None
+        self.duration: float | None = duration
+        self.autostart = autostart
         if autostart:
-            self.mode, self.start_at = "armed", 0.0
+            self.mode = "armed"  # start_at set at the first update with a reference time
 
     def command(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
         """Apply a command received when the reference time was ``t_sim``."""
-        if cmd.seq <= self.last_seq:
-            return []
-        self.last_seq = cmd.seq
-        if cmd.command == "abort":
+        kind = cmd.command
+        if kind == "abort":
+            if self.mode == "aborted":
+                return []
+            if self.mode == "running":
+                self.frozen_at = t_sim  # run time held at the abort
+            elif self.mode in ("waiting", "armed"):
+                self.frozen_at = None  # no run time: it never started
             self.mode = "aborted"
             return [Event("aborted", t_sim)]
+        if kind == "reset":
+            if self.mode in ("aborted", "done", "armed"):
+                self.mode, self.start_at, self.frozen_at = "waiting", None, None
+                self.autostart = False
+                return [Event("reset", t_sim)]
+            if self.mode == "waiting":
+                return []
+            return [Event("ignored", t_sim, f"reset while {self.mode}: abort first")]
         if self.mode == "aborted":
-            return [Event("ignored", t_sim, f"{cmd.command} after abort")]
-        if cmd.command == "start":
+            return [Event("ignored", t_sim, f"{kind} after abort: fedlab ctl reset first")]
+        if kind == "start":
+            if self.mode in ("running", "frozen"):
+                return [Event("ignored", t_sim, f"start while {self.mode}: abort first")]
             if cmd.at is None and t_sim is None:
                 return [Event("ignored", None, "start now, but not synchronized yet")]
             self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
-            self.frozen_total, self.frozen_at = 0.0, None
+            self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
+            self.run_id = getattr(cmd, "run_id", None)
+            duration = getattr(cmd, "duration", None)
+            self.duration = self.default_duration if duration is None else duration
             return [Event("armed", self.start_at), *self.update(t_sim)]
-        at = cmd.at if cmd.at is not None else t_sim
-        if cmd.command == "freeze" and self.mode == "running" and at is not None:
+        at = t_sim if cmd.at is None or t_sim is None else min(cmd.at, t_sim)
+        if kind == "freeze" and self.mode == "running" and at is not None:
             self.mode, self.frozen_at = "frozen", at
             return [Event("frozen", at)]
-        if cmd.command == "resume" and self.mode == "frozen" and at is not None:
+        if kind == "resume" and self.mode == "frozen" and at is not None:
             assert self.frozen_at is not None
             self.frozen_total += max(0.0, at - self.frozen_at)
             self.mode, self.frozen_at = "running", None
             return [Event("resumed", at)]
-        return [Event("ignored", t_sim, f"{cmd.command} while {self.mode}")]
+        return [Event("ignored", t_sim, f"{kind} while {self.mode}")]
 
     def update(self, t_sim: float | None) -> list[Event]:
-        """Advance time: an armed run starts once the reference time reaches its start."""
+        """Advance time: an armed run starts once the reference time reaches its start;
+        a running one is done once its run time reaches its duration."""
+        if t_sim is None:
+            return []
+        events = []
+        if self.mode == "armed" and self.autostart and self.start_at is None:
+            self.start_at = t_sim
         start = self.start_at
-        if self.mode == "armed" and start is not None and t_sim is not None and t_sim >= start:
+        if self.mode == "armed" and start is not None and t_sim >= start:
             self.mode = "running"
-            return [Event("started", t_sim)]
-        return []
+            events.append(Event("started", t_sim))
+        if self.mode == "running" and self.duration is not None:
+            run_time = self.run_time(t_sim)
+            if run_time is not None and run_time >= self.duration:
+                assert start is not None
+                self.mode = "done"
+                self.frozen_at = start + self.frozen_total + self.duration  # run time held
+                events.append(Event("done", self.frozen_at))
+        return events
 
     def run_time(self, t_sim: float | None) -> float | None:
-        """Seconds of experiment so far (None before the start or without sync)."""
+        """Seconds of experiment so far (None before the start or without sync); held at
+        the duration once done, and at the abort's run time once aborted."""
         if t_sim is None or self.start_at is None or self.mode in ("waiting", "armed"):
             return None
-        end = self.frozen_at if self.mode == "frozen" and self.frozen_at is not None else t_sim
-        return max(0.0, end - self.start_at - self.frozen_total)
+        if self.mode in ("frozen", "done", "aborted"):
+            if self.frozen_at is None:
+                return None
+            return max(0.0, self.frozen_at - self.start_at - self.frozen_total)
+        return max(0.0, t_sim - self.start_at - self.frozen_total)
+
+    def fraction(self, t_sim: float | None) -> float | None:
+        """Share of the duration flown (0 to 1), None without a duration or a run."""
+        run_time = self.run_time(t_sim)
+        if run_time is None or not self.duration:
+            return None
+        return min(1.0, run_time / self.duration)

@@ -3,7 +3,8 @@
 One CA per federation signs one certificate per lab router and one per agent. Lab
 routers link with mutual TLS (each shows its lab certificate and checks the other's
 against the CA); agents show theirs to their own lab's router, whose access control
-knows them by Common Name (``cert_common_names`` in deploy/routers/tls/*.json5).
+knows them by Common Name (``cert_common_names`` in the router configs that
+:mod:`federation.deploy.generate` writes, e.g. deploy/routers/tls/*.json5).
 Files written to the certificate folder::
 
     ca.pem, ca.key                  federation CA, CN "<federation> federation CA"

@@ -36,7 +36,7 @@ PAPER_MANEUVER = {
 }
 """The hardware run's maneuver (docs/paper.md)."""
 
-__all__ = ["run_demo"]
+__all__ = ["SCENARIOS", "run_demo", "run_scenario_demo"]
 
 LEADER, FOLLOWER, RAW = "kiruna/knatte", "rome/pinocchio", "rome/pinocchio-raw"
 START_IN = 2.0  # s between the start command and the common start instant
@@ -84,7 +84,9 @@ def _progress(run: Path, elapsed: float, total: float, phase: str) -> Table:
     return table
 
 
-def _start_run(endpoint: str, seconds_ahead: float) -> float:
+def _start_run(
+    endpoint: str, seconds_ahead: float, experiment: str = "attitude-tracking-demo"
+) -> float:
     """Announce the start as ``fedlab ctl start`` does; returns the reference start time."""
     import zenoh
 
@@ -102,7 +104,7 @@ def _start_run(endpoint: str, seconds_ahead: float) -> float:
         at = reference_now(session, "default", AgentId.parse(LEADER), clock) + seconds_ahead
         command = Command(
             command="start", at=at, seq=time.time_ns() // 1_000_000, issuer="demo",
-            experiment="attitude-tracking-demo",
+            experiment=experiment,
             maneuver=ManeuverConfig(**PAPER_MANEUVER),
         )  # fmt: skip
         for _ in range(3):
@@ -261,4 +263,174 @@ def paper_table(summary: dict[str, Any]) -> Table:
     ]  # fmt: skip
     for row in rows:
         table.add_row(*row)
+    return table
+
+
+# -- scenarios beyond attitude (issue 14) --------------------------------------------------
+SCENARIOS = ("attitude", "formation", "docking")
+"""``fedlab demo --scenario``: attitude is the paper's experiment above."""
+
+EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "deploy" / "experiments"
+SCENARIO_CLOCKS = {"kiruna": 0.0, "rome": paper.CLOCK_OFFSET, "lab3": -7.3}
+"""Each lab's clock offset, s (kiruna's is the reference)."""
+
+
+def scenario_experiment(
+    scenario: str, duration: float | None, compensate: bool, seed: int
+) -> dict[str, Any]:
+    """deploy/experiments/<scenario>.toml as a dict, with the demo's settings."""
+    import tomllib
+
+    text = (EXPERIMENTS_DIR / f"{scenario}.toml").read_text(encoding="utf-8")
+    spec = tomllib.loads(text)
+    spec["name"] = f"{scenario}-demo"
+    spec["start_delay"] = START_IN
+    if duration is not None:
+        spec["duration"] = duration
+    for i, p in enumerate(spec["participants"]):
+        p["latency_compensation"] = compensate
+        p["seed"] = seed * 100 + i
+    if "relative_sensor" in spec:
+        spec["relative_sensor"]["seed"] = spec["relative_sensor"].get("seed", 0) + seed
+    from schemas.base import validate
+    from schemas.experiment import ExperimentConfig
+
+    validate(ExperimentConfig, spec, str(EXPERIMENTS_DIR / f"{scenario}.toml"))
+    return spec
+
+
+def run_scenario_demo(
+    scenario: str,
+    out: Path,
+    duration: float | None = None,
+    delay_ms: float = paper.ONE_WAY_DELAY * 1e3,
+    compensate: bool = True,
+    seed: int = 0,
+) -> int:
+    """A formation or docking run on this machine: kiruna's router listens, every other
+    lab's router dials it through its own link emulator (``delay_ms`` one way), one
+    simulated platform per lab; then the report (formation error, docking outcome,
+    workspace) in ``out``."""
+    console = Console()
+    out.mkdir(parents=True, exist_ok=True)
+    for old in [*out.glob("*.mcap"), *out.glob("*.jsonl"), *out.glob("*.png")]:
+        old.unlink()
+    spec = scenario_experiment(scenario, duration, compensate, seed)
+    run_s = float(spec["duration"])
+    (out / "experiment.json").write_text(json.dumps(spec, indent=1) + "\n")
+    agents = [p["agent"] for p in spec["participants"]]
+    labs = sorted({a.split("/")[0] for a in agents}, key=lambda lab: lab != "kiruna")
+    kiruna = f"tcp/127.0.0.1:{free_port()}"
+    endpoints = {"kiruna": kiruna}
+    jitter_ms = 2.0
+    started = time.monotonic()
+    interrupted = False
+    with Fleet(out / "logs") as fleet:
+        fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
+        for i, lab in enumerate(labs[1:]):
+            link, own = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
+            fleet.start(
+                f"link-{lab}",
+                ["link", "--listen", link, "--to", kiruna, "--delay-ms", f"{delay_ms}",
+                 "--jitter-ms", f"{jitter_ms}", "--seed", f"{seed * 10 + i + 1}"],
+            )  # fmt: skip
+            fleet.start(f"router-{lab}", ["router", "--lab", lab, "-l", own, "-e", link])
+            endpoints[lab] = own
+        for agent in agents:
+            lab, name = agent.split("/")
+            fleet.start(
+                _stem(agent),
+                ["agent", "--experiment", str(out / "experiment.json"), "--lab", lab,
+                 "--name", name, "-e", endpoints[lab],
+                 "--clock-offset", f"{SCENARIO_CLOCKS.get(lab, 1.5)}",
+                 "--status-json", str(out / f"{_stem(agent)}.jsonl"),
+                 "--record", str(out / f"{_stem(agent)}.mcap"),
+                 # A sync reply takes a round trip: over a relay satellite's 250 ms one
+                 # way, longer than the default 0.5 s timeout.
+                 "--sync-timeout", f"{max(0.5, 4 * delay_ms / 1e3):g}"],
+            )  # fmt: skip
+        total = run_s + START_IN
+        try:
+
+            def synced() -> bool:
+                lines = [last_status(out / f"{_stem(a)}.jsonl") for a in agents]
+                return all(line is not None and line["t_sim"] is not None for line in lines)
+
+            console.print(f"fedlab demo --scenario {scenario}: waiting for sync")
+            if not wait_for(synced, timeout=40, interval=0.5):
+                console.print(f"[red]the agents never synchronized; see {out / 'logs'}[/red]")
+                return 1
+            _start_run(kiruna, START_IN, spec["name"])
+            t0 = time.monotonic()
+            last_print = 0.0
+            while (elapsed := time.monotonic() - t0) < total:
+                if not all(fleet.alive(_stem(a)) for a in agents):
+                    console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
+                    break
+                if elapsed - last_print >= 10:
+                    last_print = elapsed
+                    console.print(f"  running {elapsed:5.1f} / {total:.0f} s")
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            interrupted = True
+            console.print("interrupted: stopping agents, links and routers")
+        codes = fleet.stop_all()
+    run = {
+        "leader": agents[0],
+        "scenario": scenario,
+        "experiment": spec,
+        "agents": {
+            p["agent"]: {
+                "role": p["role"],
+                "platform": p["platform"],
+                "follow": p.get("follow"),
+                "latency_compensation": compensate,
+                "clock_offset": SCENARIO_CLOCKS.get(p["agent"].split("/")[0], 1.5),
+                "clock_drift_ppm": 0.0,
+            }
+            for p in spec["participants"]
+        },
+        "link": {"delay_ms": delay_ms, "jitter_ms": jitter_ms, "jitter_dist": "normal"},
+        "duration_s": run_s,
+        "seed": seed,
+        "exit_codes": codes,
+        "command": " ".join(["fedlab", *sys.argv[1:]]) if sys.argv else "fedlab demo",
+        "wall_s": time.monotonic() - started,
+    }
+    (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
+    from federation.report import write_report
+
+    summary = write_report(out, out)
+    console.print(scenario_table(summary))
+    console.print(f"report.md, summary.json, figures and recordings in {out}")
+    return 130 if interrupted else 0
+
+
+def scenario_table(summary: dict[str, Any]) -> Table:
+    """The scenario's figures: formation error or docking outcome, and the workspace."""
+    table = Table(title=f"fedlab demo: {summary.get('scenario', '?')}")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    f, d = summary.get("formation"), summary.get("docking")
+    if f is not None:
+        comp = "compensated" if f.get("latency_compensation") else "not compensated"
+        table.add_row("one-way delay (ms)", f"{f.get('delay_ms')}")
+        table.add_row(f"formation error RMS (cm), {comp}", f"{f['error_rms_m'] * 100:.2f}")
+        table.add_row(f"formation error max (cm), {comp}", f"{f['error_max_m'] * 100:.2f}")
+    if d is not None:
+        table.add_row("docking success", str(d["success"]))
+        rows = (
+            ("time_s", 1, "s"),
+            ("contact_speed_mps", 100, "cm/s"),
+            ("lateral_error_m", 100, "cm"),
+            ("heading_error_deg", 1, "deg"),
+        )
+        for key, scale, unit in rows:
+            value = d.get(key)
+            table.add_row(f"{key} ({unit})", "-" if value is None else f"{value * scale:.2f}")
+    for agent, w in (summary.get("workspace") or {}).items():
+        table.add_row(
+            f"{agent}: area violations / clamped / holds",
+            f"{w['violations']} / {w['clamped']} / {w['holds']}",
+        )
     return table

@@ -25,6 +25,7 @@ from federation.core import paper
 from federation.report.figures import write_figures
 from federation.report.load import Run, load_run
 from federation.report.markdown import markdown
+from federation.report.scenarios import markdown_section, scenario_summary, write_scenario_figures
 from federation.report.summary import comparison_rows, summarize, summary_table
 
 __all__ = ["Run", "comparison_rows", "load_run", "summarize", "summary_table", "write_report"]
@@ -55,9 +56,12 @@ def write_report(
     out = Path(out if out is not None else run.directory)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(run, sync_phase)
+    summary |= scenario_summary(run)  # formation, docking, workspace (issue 14)
     figures = write_figures(run, summary, out, sync_phase)
+    figures |= write_scenario_figures(run, summary, out)
     summary["figures"] = {k: p.name for k, p in figures.items()}
     summary["files"] = ["summary.json", "report.md", *(p.name for p in figures.values())]
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-    (out / "report.md").write_text(markdown(summary, run.meta), encoding="utf-8")
+    report = markdown(summary, run.meta) + markdown_section(summary)
+    (out / "report.md").write_text(report, encoding="utf-8")
     return summary

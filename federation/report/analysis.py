@@ -68,6 +68,7 @@ __all__ = [
     "clock_map",
     "fit_clock",
     "follows",
+    "heading_error",
     "heading_rms_deg",
     "heading_source",
     "sync_pairs",
@@ -270,6 +271,25 @@ class Follow:
     start: float  # reference time the run started (for plots)
     pose_received: int
     pose_age: Array  # reception (true reference time) minus send time, s
+    end: float | None = None  # reference time the leader's run stopped running
+
+
+def heading_error(f: Follow) -> tuple[Array, Array] | None:
+    """The follower's heading minus the leader's actual heading at the same reference time
+    (rad, wrapped to [-pi, pi)), while the run ran: from its start to its end (or the
+    leader's last sample). None without both headings."""
+    if f.heading is None:
+        return None
+    (t, h), (t_l, h_l) = f.heading, f.leader_heading
+    if t_l.size < 2:
+        return None
+    end = f.end if f.end is not None else float(t_l[-1])
+    keep = (t >= max(f.start, float(t_l[0]))) & (t <= min(end, float(t_l[-1])))
+    if not keep.any():
+        return None
+    leader = np.interp(t[keep], t_l, np.unwrap(h_l))
+    error = (h[keep] - leader + np.pi) % (2 * np.pi) - np.pi
+    return t[keep], error
 
 
 def _col(messages: Sequence[dict[str, Any]], key: str) -> Array:
@@ -408,6 +428,7 @@ def follows(run: Run) -> list[Follow]:
             )
         sent_series = _series(_col(sent, "t_exec"), _col(sent, "heading"))
         start = _run_start(lead_ref, lead.channel(Channel.CONTROL))
+        ran = [m["t_sim"] for m in lead_ref if m.get("mode") == "running" and m.get("t_sim")]
         out.append(
             Follow(
                 follower=name,
@@ -424,6 +445,7 @@ def follows(run: Run) -> list[Follow]:
                 start=float(sent_series[0][0]) if start is None else start,
                 pose_received=len(received_msgs),
                 pose_age=age,
+                end=max(ran) if ran else None,
             )
         )
     return out

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from federation.core import paper
-from federation.report.analysis import Array, Follow, SyncPair, follows, sync_pairs
+from federation.report.analysis import Array, Follow, SyncPair, follows, heading_error, sync_pairs
 from federation.report.load import Run
 from federation.report.summary import compensation_label, fmt
 
@@ -177,8 +177,9 @@ _REFERENCE: dict[str, Any] = {"lw": 1.6, "marker": "s", "ms": 3.5}
 
 
 def plot_heading(follow_list: list[Follow], summaries: list[dict[str, Any]], path: Path) -> None:
-    """Leader reference and heading with each follower's heading (the paper's figure 10)."""
-    fig, (ax,) = _figure(1, 5.5)
+    """Leader reference and heading with each follower's heading (the paper's figure 10);
+    below, each follower's heading error against the leader's actual heading."""
+    fig, (ax, err_ax) = _figure(2, 8.0)
     first = follow_list[0]
     t0 = first.start
     if first.leader_reference is not None:
@@ -206,10 +207,29 @@ def plot_heading(follow_list: list[Follow], summaries: list[dict[str, Any]], pat
             label=f"{f.follower} heading, {compensation_label(f.compensation)} "
             f"(lag {fmt(s['lag_s'], 1, 2)} s)",
         )
-    ax.set_xlabel(f"reference time since the run started, {first.leader}'s clock (s)")
     ax.set_ylabel("heading (deg)")
     ax.set_title("Leader and follower heading on corrected (reference) time", fontsize=11)
     ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
+    for i, (f, s) in enumerate(zip(follow_list, summaries, strict=True)):
+        error = heading_error(f)
+        if error is None:
+            continue
+        rms, peak = (
+            s.get("heading_error_vs_leader_rms_deg"),
+            s.get("heading_error_vs_leader_max_deg"),
+        )
+        err_ax.plot(
+            error[0] - t0,
+            np.degrees(error[1]),
+            color=_COLORS[i % 6],
+            lw=1.2,
+            label=f"{f.follower}, {compensation_label(f.compensation)} "
+            f"(RMS {fmt(rms, 1, 2)}, max {fmt(peak, 1, 2)} deg)",
+        )
+    err_ax.axhline(0.0, color="0.6", lw=0.8)
+    err_ax.set_xlabel(f"reference time since the run started, {first.leader}'s clock (s)")
+    err_ax.set_ylabel("follower - leader (deg)")
+    err_ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
     fig.savefig(path, dpi=DPI)
 
 

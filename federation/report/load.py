@@ -4,7 +4,9 @@ A run directory holds one MCAP recording per agent (``<lab>-<name>.mcap``, see
 :mod:`federation.runtime.recorder`) and, optionally, the ``run.json`` the demo writes
 (roles, followed agents, latency compensation, the emulated link). A damaged
 recording (an agent killed, its summary broken) gives every message up to the
-damage; what could not be read becomes a note, not an error.
+damage; what could not be read becomes a note, not an error. Recordings from before
+the channels in Foxglove's types (``/tf``, ``/pose``) read the same: only the JSON
+channels are read.
 """
 
 from __future__ import annotations
@@ -102,8 +104,8 @@ def _recover(path: Path) -> Messages:
     try:
         with path.open("rb") as f:
             for record in StreamReader(f).records:
-                if isinstance(record, Channel):
-                    topics[record.id] = record.topic
+                if isinstance(record, Channel) and record.message_encoding == "json":
+                    topics[record.id] = record.topic  # Foxglove's types (/tf, /pose) skipped
                 elif isinstance(record, Message) and record.channel_id in topics:
                     topic = topics[record.channel_id]
                     stamped.setdefault(topic, []).append((record.log_time, record.data))

@@ -32,10 +32,66 @@ def _emulated(meta: dict[str, Any] | None) -> str:
     return text + " between the labs' routers."
 
 
+def _run_lines(described: dict[str, Any]) -> list[str]:
+    """Experiment, run id, date, versions, truncation and each agent's command line."""
+    if not described.get("run_id"):
+        return []
+    versions = described.get("versions") or {}
+    lines = [
+        f"Experiment **{described.get('experiment') or '?'}**, run `{described['run_id']}`, "
+        f"started {described.get('utc_start') or '?'} (UTC). fedlab "
+        f"{versions.get('fedlab_version') or '?'}, Zenoh {versions.get('zenoh_version') or '?'}, "
+        f"Python {versions.get('python_version') or '?'}, commit "
+        f"`{(versions.get('git_commit') or 'none')[:12]}`.",
+        "",
+    ]
+    reached, duration = described.get("run_time_reached_s"), described.get("run_duration_s")
+    if described.get("truncated"):
+        lines += [
+            f"**Truncated run**: run time reached {reached:.1f} s of the {duration:g} s planned "
+            "(aborted or stopped early).",
+            "",
+        ]
+    elif duration is not None:
+        lines += [f"The run completed its {duration:g} s of run time.", ""]
+    for agent, command in sorted((described.get("command_lines") or {}).items()):
+        host = (described.get("hosts") or {}).get(agent) or "?"
+        lines.append(f"- {agent} on {host}: `{command}`")
+    return [*lines, ""]
+
+
+def _headline(followers: list[dict[str, Any]]) -> list[str]:
+    """Each follower's heading error against the leader's actual heading."""
+    rows = [f for f in followers if f.get("heading_error_vs_leader_rms_deg") is not None]
+    if not rows:
+        return []
+    lines = [
+        "## Headline: heading error against the leader",
+        "",
+        "Each follower's heading minus the leader's actual heading at the same reference "
+        "time, while the run ran (figure: heading, bottom panel).",
+        "",
+        "| follower | leader | latency compensation | RMS (deg) | max (deg) |",
+        "|---|---|---|---:|---:|",
+    ]
+    for f in rows:
+        comp = f.get("latency_compensation")
+        lines.append(
+            f"| {f['follower']} | {f['leader']} | "
+            f"{'?' if comp is None else 'with' if comp else 'without'} | "
+            f"{f['heading_error_vs_leader_rms_deg']:.3f} | "
+            f"{f['heading_error_vs_leader_max_deg']:.3f} |"
+        )
+    return [*lines, ""]
+
+
 def markdown(summary: dict[str, Any], meta: dict[str, Any] | None) -> str:
     """report.md: the run, the table beside the paper, the figures and the notes."""
     run_name = Path(summary["run_dir"]).name or summary["run_dir"]
-    lines = [f"# fedlab run report: {run_name}", ""]
+    described = summary.get("run") or {}
+    lines = [f"# fedlab run report: {described.get('run_id') or run_name}", ""]
+    lines += _run_lines(described)
+    lines += _headline(summary.get("followers") or [])
     if summary.get("command"):
         lines += [f"Command: `{summary['command']}`", ""]
     if summary.get("duration_s") is not None:

@@ -7,6 +7,7 @@ paper's (``docs/paper.md``, numbers from :mod:`federation.core.paper`).
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from federation.report.analysis import (
     SyncPair,
     best_shift,
     follows,
+    heading_error,
     heading_rms_deg,
     heading_source,
     sync_pairs,
@@ -120,12 +122,90 @@ def follow_summary(f: Follow) -> dict[str, Any]:
         "lag_s": lag,
         "maneuver_s": None if f.window is None else [f.window[0] - f.start, f.window[1] - f.start],
         "pose_received_count": f.pose_received,
+        **_error_vs_leader(f),
     }
+
+
+def _error_vs_leader(f: Follow) -> dict[str, float | None]:
+    """RMS and largest |heading error| against the leader's actual heading (deg)."""
+    error = heading_error(f)
+    if error is None:
+        return {"heading_error_vs_leader_rms_deg": None, "heading_error_vs_leader_max_deg": None}
+    e = np.degrees(error[1])
+    return {
+        "heading_error_vs_leader_rms_deg": float(np.sqrt(np.mean(e**2))),
+        "heading_error_vs_leader_max_deg": float(np.max(np.abs(e))),
+    }
+
+
+def run_description(run: Run) -> dict[str, Any]:
+    """The run as its recordings describe themselves (MCAP metadata ``fedlab.run``):
+    run id, experiment, versions, date, each agent's command line; and whether the run
+    was cut short (its run time never reached its duration)."""
+    from federation.runtime.recorder import read_metadata
+
+    described: dict[str, dict[str, str]] = {}
+    for name, rec in run.agents.items():
+        try:
+            meta = read_metadata(Path(run.directory) / rec.file).get("fedlab.run")
+        except Exception:  # an old or damaged recording: no metadata
+            meta = None
+        if meta:
+            described[name] = meta
+    for name, meta in described.items():  # roles as the agents recorded them
+        rec = run.agents[name]
+        if rec.latency_compensation is None and meta.get("latency_compensation") in (
+            "true",
+            "false",
+        ):
+            rec.latency_compensation = meta["latency_compensation"] == "true"
+    first = next(iter(described.values()), {})
+    duration = _float(first.get("duration"))
+    ran = [
+        m["run_time"]
+        for rec in run.agents.values()
+        for m in rec.channel(Channel.REFERENCE)
+        if m.get("mode") in ("running", "done") and m.get("run_time") is not None
+    ]
+    reached = max(ran) if ran else None
+    truncated = None
+    if duration is not None and reached is not None:
+        truncated = reached < duration - 0.5
+    return {
+        "run_id": first.get("run_id"),
+        "experiment": _experiment_name(first.get("experiment", "")),
+        "utc_start": first.get("utc_start"),
+        "versions": {
+            k: first.get(k)
+            for k in ("fedlab_version", "zenoh_version", "python_version", "git_commit")
+        },
+        "run_duration_s": duration,
+        "run_time_reached_s": reached,
+        "truncated": truncated,
+        "command_lines": {a: m.get("command_line") for a, m in described.items()},
+        "hosts": {a: m.get("host") for a, m in described.items()},
+    }
+
+
+def _float(text: str | None) -> float | None:
+    try:
+        return None if text in (None, "", "null") else float(text)
+    except ValueError:
+        return None
+
+
+def _experiment_name(toml_text: str) -> str | None:
+    for line in toml_text.splitlines():
+        key, sep, value = line.partition("=")
+        if sep and key.strip() == "name":
+            return value.split("#", 1)[0].strip().strip('"')
+    return None
 
 
 def summarize(run: Run, sync_phase: float = paper.SYNC_PHASE) -> dict[str, Any]:
     """Everything ``summary.json`` holds; seconds, degrees and counts named in the keys."""
     run = Run(run.agents, run.meta, list(run.notes), run.directory)  # notes: the caller's stay
+    described = run_description(run)
     pairs = sync_pairs(run)
     follow_list = follows(run)
     followers = [follow_summary(f) for f in follow_list]
@@ -162,8 +242,14 @@ def summarize(run: Run, sync_phase: float = paper.SYNC_PHASE) -> dict[str, Any]:
     if not pairs:
         run.notes.append(f"no {Channel.SYNC_EXCHANGE} recorded by any agent")
     meta = run.meta or {}
+    if described["truncated"]:
+        run.notes.append(
+            f"truncated run: run time reached {described['run_time_reached_s']:.1f} s of "
+            f"{described['run_duration_s']:g} s"
+        )
     return {
         "run_dir": run.directory,
+        "run": described,
         "leader": run.leader,
         "duration_s": meta.get("duration_s"),
         "command": meta.get("command"),

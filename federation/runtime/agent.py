@@ -37,24 +37,30 @@ from typing import IO, TYPE_CHECKING, Any
 import zenoh
 from pydantic import ValidationError
 
-from agents.guidance import ReferenceManeuver, track_heading
+from agents.guidance import ReferenceManeuver, Track, track_heading
 from agents.platform import Platform, make_platform
+from agents.scenario import ScenarioGuidance, make_scenario
 from federation.core import keys, wire
 from federation.core.channels import Channel
+from federation.core.commands import CommandGate
+from federation.core.contest import Channel as ContestChannel
+from federation.core.contest import ContestWatch
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
-from federation.core.linkwatch import LinkWatch
+from federation.core.linkwatch import LinkWatch, SilenceWatch
 from federation.core.runstate import Event, RunState
 from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient, read_send_time, serve
 from federation.core.timebase import TimeBase
 from federation.runtime.clock import ExecClock
+from federation.runtime.collect import RecordingServer
 from federation.runtime.fanout import Fanout
 from federation.runtime.loop import Schedule, run_together
 from federation.runtime.recorder import Recorder
+from federation.runtime.runs import RunRecording
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
-from schemas.messages import Command, Status
+from schemas.messages import Command, CommandOutcome, Readiness, Status, is_abort
 from schemas.platform import PlatformConfig
 
 if TYPE_CHECKING:
@@ -63,6 +69,10 @@ if TYPE_CHECKING:
 __all__ = ["AgentRuntime", "NameTaken", "Schedule", "peer_status", "run_together"]
 
 log = logging.getLogger("fedlab.agent")
+
+MAX_SMALL_PAYLOAD = 1024
+"""Bytes: a pose sample is 56, a sync request 8 and its reply 64; a payload larger than
+this on those keys is junk, dropped and counted before it is copied (issue 13)."""
 
 
 class NameTaken(ValueError):
@@ -122,6 +132,16 @@ class AgentRuntime:
         )
         self.maneuver = maneuver or _maneuver(config.maneuver)
         self.follow = AgentId.parse(config.follow) if config.follow else None
+        # Issue 14's hook: a formation, docking or adaptive-gain part (agents.scenario)
+        # gives the 3-DOF reference; its platform takes and gives the common frame.
+        self.scenario: ScenarioGuidance | None = None
+        if config.scenario is not None:
+            self.scenario = make_scenario(
+                str(self.me), config.scenario, self.platform,
+                None if self.follow is None else str(self.follow), config.latency_compensation,
+            )  # fmt: skip
+            self.platform = self.scenario.platform
+        self.track: Track | None = None  # the last position reference, common frame
         if config.reference is not None:
             self.reference = AgentId.parse(config.reference)
         elif config.role == "follower" and self.follow is not None:
@@ -136,7 +156,9 @@ class AgentRuntime:
         self.close_sync = self.explicit_sync or {
             a for a in (self.reference, self.follow) if a is not None and a != self.me
         }
-        self.run_state = RunState(autostart=not config.wait_start)
+        self.run_state = RunState(autostart=not config.wait_start, duration=config.run_duration)
+        self.gate = CommandGate()  # which commands to act on: per issuer, aborts always
+        self.command_log: deque[CommandOutcome] = deque(maxlen=8)
         self.pose = wire.Pose()
         self.guidance = (0.0, 0.0)  # last heading and rate references
         # When they were computed: t_exec, host monotonic, t_sim, run time.
@@ -146,15 +168,27 @@ class AgentRuntime:
         self.timebase = TimeBase(self.me, self.reference, self.peers)
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
-        self.hold_reason: str | None = None  # "stale" or "aborted" while valves are held
+        # Why valves are held: "stale" (link), "aborted", "done" (run over) or "reset"
+        # (waiting after an abort); the last two are released by the next start.
+        self.hold_reason: str | None = None
         self.link_watch = LinkWatch(config.stale_after)
+        # Two sources speaking for one peer: nothing from it is used (issue 13).
+        self.contest = ContestWatch()
+        self._contest_lock = threading.Lock()
+        self._contest_cleared: float | None = None  # own time a followed contest cleared
+        self._pose_sn = 0  # sequence number in the pose samples' source info
+        self.silence = SilenceWatch()  # peers alive that answer no sync request
+        self._silent_warned: set[AgentId] = set()
         self._clock_stepped = False
+        self._left_area = False  # the scenario's platform left its area (held for good)
         self.counters: Counter[str] = Counter()
         self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
         self.recorder = (
             Recorder(config.record, str(self.me), config.record_channels) if config.record else None
         )
+        self.run_recording: RunRecording | None = None  # this run's, under runs_dir
+        self.recording_server: RecordingServer | None = None
         self.margins = _margins(self.platform)
         self._delay_warned = False
         self._count_lock = threading.Lock()
@@ -171,11 +205,16 @@ class AgentRuntime:
 
     def recording(self, topic: Channel) -> bool:
         """Whether ``topic`` is recorded: callbacks build no message otherwise."""
+        if self.run_recording is not None and topic in self.run_recording.recorder.channels:
+            return True
         return self.recorder is not None and topic in self.recorder.channels
 
     def record(self, topic: Channel, message: dict[str, Any]) -> None:
         if self.recorder is not None:
             self.recorder.record(topic, message)
+        run = self.run_recording
+        if run is not None:
+            run.record(topic, message)
 
     def key(self, agent: AgentId, topic: str | None = None) -> str:
         return keys.agent_key(self.config.federation, agent, topic)
@@ -192,7 +231,12 @@ class AgentRuntime:
                 self.key(self.me, "sync"), callback(self._on_sync_query, indirect=False)
             )
         )
-        self._pose_pub = s.declare_publisher(self.key(self.me, "pose"), express=True)
+        # Best effort: a router with a UDP link beside its TCP one (deploy/routers) sends
+        # pose there, so a pose never waits behind a lost TCP segment; the next pose
+        # supersedes a lost one. Sync, control and status stay reliable.
+        self._pose_pub = s.declare_publisher(
+            self.key(self.me, "pose"), express=True, reliability=zenoh.Reliability.BEST_EFFORT
+        )
         self._status_pub = s.declare_publisher(self.key(self.me, "status"))
         self._declared += [self._pose_pub, self._status_pub]
         watched = keys.all_of(fed, "pose") if self.config.watch_all else None
@@ -212,6 +256,8 @@ class AgentRuntime:
                 keys.all_agents(fed), callback(self._on_liveliness, indirect=False), history=True
             )
         )
+        if self.config.runs_dir is not None:
+            self.recording_server = RecordingServer(s, fed, self.me, self.config.runs_dir)
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
         if self.config.status_json is not None:
             path = Path(self.config.status_json)
@@ -255,6 +301,10 @@ class AgentRuntime:
             except Exception as error:  # a session already closed by zenoh
                 log.debug("undeclare failed: %s", error)
         self._declared.clear()
+        if self.recording_server is not None:
+            self.recording_server.close()
+            self.recording_server = None
+        self._end_run_recording(wait=True)
         if self._status_file is not None:
             self._status_file.close()
             self._status_file = None
@@ -316,13 +366,30 @@ class AgentRuntime:
         self._apply(events, t_exec, host)
         self._watch_link(t_exec, host)
         self.guidance = self.reference_heading(t_exec, run_time)
+        if self.scenario is not None:
+            self._scenario_reference(t_sim, run_time)
         self.guidance_at = (t_exec, host, t_sim, run_time)
-        self.pose = self.platform.step(t_exec, *self.guidance)
+        self.pose = self.platform.step(t_exec, *self.guidance, self.track)
+        if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
+            self._left_area = True
+            self.hold_reason = "workspace"
+            log.warning("safe hold: %s", self.scenario.hold_reason)
+            self._event("workspace_hold", t_exec, host, self.scenario.hold_reason or "")
+
+    def _scenario_reference(self, t_sim: float | None, run_time: float | None) -> None:
+        """The scenario's 3-DOF reference from the others' poses on reference time."""
+        assert self.scenario is not None
+        ref = self.scenario.reference(t_sim, run_time, self.others(), self.pose)
+        if ref is not None:
+            self.guidance = (ref.heading, ref.rate)
+            self.track = ref.track
 
     def _watch_link(self, t_exec: float, host: float) -> None:
         """Safe hold while the followed pose is stale; resume once it flows again and a
         sync exchange has completed since (re-synchronized). An abort overrides it."""
-        if self.follow is None or self.hold_reason == "aborted":
+        if self.follow is None or self.hold_reason in ("aborted", "done", "reset"):
+            return  # held by the run, not the link: only the run releases it
+        if self._contest_hold(t_exec, host):
             return
         received = self.pose_received_at.get(self.follow)
         peer = self.peers.get(self.follow)
@@ -366,8 +433,8 @@ class AgentRuntime:
 
     def publish_pose(self) -> None:
         t_exec, host = self.clock.read()
-        self._pose_pub.put(wire.encode_pose(t_exec, self.pose))
-        if self.recorder is not None:
+        self._pose_pub.put(wire.encode_pose(t_exec, self.pose), source_info=self._source_info())
+        if self.recorder is not None or self.run_recording is not None:
             stamp = {"t_exec": t_exec, "host_monotonic": host}
             self.record(Channel.POSE_SENT, stamp | self.pose._asdict())
             # The reference as computed at the last control step, stamped with that step's time.
@@ -383,7 +450,8 @@ class AgentRuntime:
                     "rate_ref": self.guidance[1],
                     "mode": self.run_state.mode,
                     "valves_open": sum(getattr(self.platform, "valves", ())),
-                },
+                }
+                | ({} if self.scenario is None else self.scenario.fields()),
             )
             truth = getattr(self.platform, "truth", None)
             if truth is not None:
@@ -395,13 +463,22 @@ class AgentRuntime:
         self.publish_pose()
 
     def _apply(self, events: list[Event], t_exec: float, host: float) -> None:
-        """Act on run-state events: safe hold on abort; log and record each."""
+        """Act on run-state events: safe hold on abort, done and reset; release and a new
+        recording when a start arms; log and record each."""
         for event in events:
-            if event.kind == "aborted":
-                self.hold_reason = "aborted"
+            if event.kind in ("aborted", "done", "reset"):
+                self.hold_reason = event.kind
                 self.platform.hold()
+            elif event.kind == "armed":
+                if self.hold_reason in ("done", "reset"):
+                    self.hold_reason = None
+                    self.platform.release()
+                self._begin_run_recording()
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
-            log.log(level, "run %s at reference time %s %s", event.kind, event.t_sim, event.detail)
+            log.log(
+                level, "run %s %s at reference time %s %s",
+                self.run_state.run_id or "", event.kind, event.t_sim, event.detail,
+            )  # fmt: skip
             self.record(
                 Channel.CONTROL,
                 {
@@ -415,6 +492,34 @@ class AgentRuntime:
                     "detail": event.detail,
                 },
             )
+            if event.kind in ("aborted", "done"):
+                self._end_run_recording()
+
+    # -- each run's recording ----------------------------------------------------------
+    def _begin_run_recording(self) -> None:
+        """A recording of the run just armed under runs_dir (unless --record records all)."""
+        run_id = self.run_state.run_id
+        if self.config.runs_dir is None or self.recorder is not None or run_id is None:
+            return
+        current = self.run_recording
+        if current is not None and current.run_id == run_id:
+            return  # re-armed: the same run
+        self._end_run_recording()
+        try:
+            self.run_recording = RunRecording(
+                self.config.runs_dir, run_id, str(self.me), self.config.record_channels,
+                self.config.model_dump_json(), self.config.experiment,
+                {"role": self.config.role, "follow": self.config.follow,
+                 "latency_compensation": self.config.latency_compensation,
+                 "reference": str(self.reference), "duration": self.run_state.duration},
+            )  # fmt: skip
+        except OSError as error:
+            log.error("cannot record run %s under %s: %s", run_id, self.config.runs_dir, error)
+
+    def _end_run_recording(self, wait: bool = False) -> None:
+        run, self.run_recording = self.run_recording, None
+        if run is not None:
+            run.finish(wait=wait)
 
     def due_for_sync(self, now: float) -> list[AgentId]:
         """The agents due for a sync request at host monotonic time ``now``, each
@@ -456,6 +561,7 @@ class AgentRuntime:
                 with self._lock:
                     payload = peer.client.request(self.clock.now())
                 peer.querier.get(peer.on_reply, payload=payload)
+                self.silence.requested(agent, time.monotonic())
             except Exception as error:  # session closing, or zenoh refusing the query
                 log.warning("sync request to %s failed: %s", agent, error)
 
@@ -466,7 +572,8 @@ class AgentRuntime:
         with self._lock:
             for agent, peer in self.peers.items():
                 if peer.client.sent:  # agents this one has never queried: nothing to say
-                    peers[str(agent)] = peer_status(peer.client, t_exec, peer.alive)
+                    view = peers[str(agent)] = peer_status(peer.client, t_exec, peer.alive)
+                    view.silent = self.silence.silent_for(agent, host) if peer.alive else None
         t_sim = self.sim_time(t_exec)
         received = self.latest_poses.get(self.follow) if self.follow else None
         # Its samples are stamped on its clock: their age is measured on it.
@@ -482,6 +589,10 @@ class AgentRuntime:
             t_sim=t_sim,
             mode=self.run_state.mode,
             run_time=self.run_state.run_time(t_sim),
+            run_id=self.run_state.run_id,
+            duration=self.run_state.duration,
+            ready=self.readiness(t_exec),
+            commands=list(self.command_log),
             platform=self.config.platform,
             follow=None if self.follow is None else str(self.follow),
             hold=self.hold_reason,
@@ -489,7 +600,35 @@ class AgentRuntime:
             pose=list(self.pose),
             peers=peers,
             counters=self.counter_snapshot(),
+            contested=self.contested(),
             loop=self.loop_stats(),
+        )
+
+    def readiness(self, t_exec: float) -> Readiness:
+        """What preflight checks: platform, recording, the reference clock's estimate."""
+        detail = ""
+        if self.hold_reason in ("stale", "aborted"):
+            detail = f"held ({self.hold_reason})"
+        else:
+            chain = getattr(self.platform, "chain", None)
+            reason = getattr(chain, "reason", None)
+            if reason in ("no_fix", "stale_fix"):
+                detail = "no metrology fix yet" if reason == "no_fix" else "metrology fix stale"
+        locked, bound = True, 0.0 if self.reference == self.me else None
+        if self.reference != self.me:
+            peer = self.peers.get(self.reference)
+            with self._lock:
+                estimator = None if peer is None else peer.client.estimator
+                locked = estimator is not None and estimator.locked
+                bound = None if estimator is None else estimator.bound
+        target = self.config.record if self.recorder is not None else self.config.runs_dir
+        return Readiness(
+            platform=not detail,
+            platform_detail=detail,
+            recording=target is not None,
+            recording_to=None if target is None else str(target),
+            reference_locked=locked,
+            reference_bound=bound,
         )
 
     def loop_stats(self) -> dict[str, float]:
@@ -498,7 +637,10 @@ class AgentRuntime:
 
     def counter_snapshot(self) -> dict[str, int]:
         with self._count_lock:
-            return dict(self.counters)
+            counters = dict(self.counters)
+        if self.scenario is not None:  # workspace clamps and holds, relative sensing
+            counters |= self.scenario.counters
+        return counters
 
     def check_delay_margin(self, status: Status) -> None:
         """Warn once when the followed link's delay exceeds a quarter of the loop's delay
@@ -512,14 +654,31 @@ class AgentRuntime:
             log.warning("%s", warning)
         self._delay_warned = warning is not None
 
+    def warn_silent_peers(self, status: Status) -> None:
+        """Log once when a peer alive answers nothing (a link that carries liveliness but
+        not queries), and once when it answers again."""
+        for name, view in status.peers.items():
+            agent = AgentId.parse(name)
+            if view.silent is not None and agent not in self._silent_warned:
+                self._silent_warned.add(agent)
+                self.count("silent_peer_alarms")
+                log.warning("%s is alive but answered nothing for %.1f s", name, view.silent)
+            elif view.silent is None and agent in self._silent_warned:
+                self._silent_warned.discard(agent)
+                log.info("%s answers again", name)
+
     def publish_status(self) -> None:
         status = self.status()
         self.check_delay_margin(status)
+        self.warn_silent_peers(status)
         line = status.model_dump_json()
         self._status_pub.put(line, encoding=zenoh.Encoding.APPLICATION_JSON)
         if self._status_file is not None:
             self._status_file.write(line + "\n")
             self._status_file.flush()
+        run = self.run_recording
+        if run is not None:
+            run.status_line(line)
         self.record(Channel.STATUS, status.model_dump())
 
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------
@@ -527,6 +686,8 @@ class AgentRuntime:
         t2 = self.clock.now()  # read on arrival: the paper's t2
         try:
             payload = query.payload
+            if self._oversized(payload, "sync_requests_oversized"):
+                return
             request = payload.to_bytes() if payload is not None else b""
             try:
                 # The send time rides in the attachment: the payload stays the paper's 64 bytes.
@@ -548,6 +709,9 @@ class AgentRuntime:
             if reply.ok is None:
                 self.count("sync_reply_errors")
                 return
+            if not self._admit_reply(peer, reply, host):
+                return
+            self.silence.answered(peer.agent)
             t2s = None
             if self.config.four_timestamps and reply.ok.attachment is not None:
                 try:
@@ -598,6 +762,8 @@ class AgentRuntime:
         t_recv, host = self.clock.read()
         try:
             parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
+            if not self._admit_pose(sample, parsed, host):
+                return
             try:
                 decoded = wire.decode_pose(sample.payload.to_bytes())
             except wire.DecodeError as error:
@@ -605,6 +771,13 @@ class AgentRuntime:
                 self.rejects("pose sample", f"{sample.key_expr}: {error}")
                 return
             self.count("pose_received")
+            if (
+                parsed is not None
+                and parsed[0] == self.follow
+                and self._stale_on_arrival(decoded.t, t_recv)
+            ):
+                self.count("pose_stale_dropped")  # never reaches the controller
+                return
             if parsed is not None:
                 self.latest_poses[parsed[0]] = decoded
                 self.pose_received_at[parsed[0]] = t_recv
@@ -623,20 +796,57 @@ class AgentRuntime:
         except Exception:
             log.exception("pose sample on %s failed", sample.key_expr)
 
+    def _stale_on_arrival(self, sent: float, t_recv: float) -> bool:
+        """Whether a followed pose (stamped ``sent`` on its sender's clock, arrived at own
+        ``t_recv``) is too old to steer by (a burst queued through a cut); a fresh one
+        measures the link for the stale threshold (:mod:`federation.core.linkwatch`)."""
+        assert self.follow is not None
+        sender_now = self.timebase.peer_time(self.follow, t_recv)
+        peer = self.peers.get(self.follow)
+        delay = peer.client.delay if peer is not None else None
+        if sender_now is not None and self.link_watch.too_old(sender_now - sent, delay):
+            return True
+        self.link_watch.observe(t_recv, sent)
+        return False
+
     def _on_control(self, sample: zenoh.Sample) -> None:
         t_exec, host = self.clock.read()
         try:
+            payload = sample.payload.to_bytes()
             try:
-                command = Command.model_validate_json(sample.payload.to_bytes())
+                command = Command.model_validate_json(payload)
             except ValidationError as error:
                 self.count("control_malformed")
                 self.rejects("control command", f"{sample.key_expr}: {error.errors()[0]['msg']}")
-                return
+                if not is_abort(payload):
+                    return
+                # An abort is honoured even when the rest of it does not validate.
+                command = Command(command="abort", seq=-1, issuer="malformed")
             self.count("control_received")
+            if command.command == "abort":
+                self.platform.hold()  # first, before anything else: every valve closed
+            verdict = self.gate.admit(command.command, command.issuer, command.seq)
+            if not verdict.admitted:
+                if verdict.outcome == "repeat":
+                    self.count("commands_repeated")  # ctl publishes each command 3 times
+                else:
+                    self.count("commands_dropped")
+                    self._command_outcome(command, verdict.outcome, verdict.detail)
+                    log.warning(
+                        "dropped %s from %s: %s (%s)",
+                        command.command, command.issuer, verdict.outcome, verdict.detail,
+                    )  # fmt: skip
+                return
             with self._lock:
                 events = self.run_state.command(command, self.sim_time(t_exec))
                 if command.maneuver is not None and any(e.kind == "armed" for e in events):
                     self.maneuver = _maneuver(command.maneuver)
+            ignored = [e.detail for e in events if e.kind == "ignored"]
+            if ignored:
+                self.count("commands_ignored")
+            self._command_outcome(
+                command, "ignored" if ignored else "applied", "; ".join(ignored)
+            )
             self.record(
                 Channel.CONTROL,
                 {
@@ -654,6 +864,16 @@ class AgentRuntime:
         except Exception:
             log.exception("control sample on %s failed", sample.key_expr)
 
+    def _command_outcome(self, command: Command, outcome: str, detail: str) -> None:
+        """Remember what became of a command: status reports the last few, so ctl can
+        say why an agent did not confirm."""
+        self.command_log.append(
+            CommandOutcome(
+                command=command.command, issuer=command.issuer[:200], seq=command.seq,
+                outcome=outcome, detail=detail,
+            )
+        )  # fmt: skip
+
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         try:
             parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
@@ -667,6 +887,9 @@ class AgentRuntime:
         """Liveliness news of another agent: joined (``alive``) or left."""
         with self._lock:
             peer = self.peers.get(agent)
+            if peer is not None and peer.alive != alive:
+                with self._contest_lock:  # a restarted agent has a new session id
+                    self.contest.forget(str(agent))
             if peer is None:
                 if not alive:
                     return
@@ -676,9 +899,102 @@ class AgentRuntime:
                 )  # fmt: skip
             elif alive and not peer.alive:
                 peer.client.reset()  # a restarted agent has a new clock
+                self.silence.forget(agent)
                 peer.next_sync = self._first_sync(agent, len(self.peers))
             peer.alive = alive
         log.info("agent %s %s", agent, "joined" if alive else "left")
+
+    # -- trust: who speaks for a peer (issue 13, federation.core.contest) -------------
+    def _source_info(self) -> zenoh.SourceInfo:
+        """This session's id on each pose sample: a follower tells two sources apart."""
+        self._pose_sn += 1
+        return zenoh.SourceInfo(self._pose_pub.id, self._pose_sn)
+
+    def _oversized(self, payload: zenoh.ZBytes | None, counter: str) -> bool:
+        """Drop (and count) a payload far larger than any pose or sync message, before
+        it is copied or decoded."""
+        if payload is None or len(payload) <= MAX_SMALL_PAYLOAD:
+            return False
+        self.count(counter)
+        return True
+
+    def _admit_pose(
+        self, sample: zenoh.Sample, parsed: tuple[AgentId, str | None] | None, host: float
+    ) -> bool:
+        """Whether a pose sample may be used: not oversized, and its peer not contested
+        (its source: the publisher's session id in the source info, None without one)."""
+        if self._oversized(sample.payload, "pose_oversized"):
+            return False
+        if parsed is None:
+            return True
+        info = sample.source_info
+        source = None if info is None else str(info.source_id.zid)
+        return self._contest_verdict(parsed[0], "pose", source, host)
+
+    def _admit_reply(self, peer: Peer, reply: zenoh.Reply, host: float) -> bool:
+        """Whether a sync reply may be used: not oversized, and the peer not contested
+        (its source: the replier's session id, which Zenoh sets on every reply)."""
+        assert reply.ok is not None
+        if self._oversized(reply.ok.payload, "sync_replies_oversized"):
+            return False
+        replier = reply.replier_id
+        source = None if replier is None else str(replier.zid)
+        return self._contest_verdict(peer.agent, "sync", source, host)
+
+    def _contest_verdict(
+        self, agent: AgentId, channel: ContestChannel, source: str | None, host: float
+    ) -> bool:
+        with self._contest_lock:
+            outcome = self.contest.observe(str(agent), channel, source, host)
+            reason = self.contest.reason(str(agent), host) if outcome == "contested" else None
+        if outcome == "ok":
+            return True
+        self.count("contested_dropped")
+        if outcome == "contested":
+            self.count("contested")
+            self.latest_poses.pop(agent, None)  # what it sent so far is suspect too
+            with self._lock:
+                peer = self.peers.get(agent)
+                if peer is not None:
+                    peer.client.reset()
+            log.error("%s is contested: %s; nothing from it is used", agent, reason)
+        return False
+
+    def _contest_hold(self, t_exec: float, host: float) -> bool:
+        """Safe hold while the followed agent is contested; once the contest clears,
+        resume only when a pose and a sync exchange have arrived since (True: held)."""
+        assert self.follow is not None
+        with self._contest_lock:
+            reason = self.contest.reason(str(self.follow), host)
+        if reason is not None:
+            self._contest_cleared = None
+            if self.hold_reason != "contested":
+                self.hold_reason = "contested"
+                self.platform.hold()
+                self.count("contested_holds")
+                log.error("followed agent %s contested (%s): safe hold", self.follow, reason)
+                self._event("contested_hold", t_exec, host, reason)
+            return True
+        if self.hold_reason != "contested":
+            return False
+        if self._contest_cleared is None:
+            self._contest_cleared = t_exec
+        received = self.pose_received_at.get(self.follow)
+        peer = self.peers.get(self.follow)
+        last = peer.client.last if peer else None
+        cleared = self._contest_cleared
+        if received is None or received <= cleared or last is None or last.t3 <= cleared:
+            return True
+        self.hold_reason = None
+        self.platform.release()
+        log.warning("contest of %s cleared, pose and sync since: released", self.follow)
+        self._event("contest_cleared", t_exec, host, "")
+        return False
+
+    def contested(self) -> dict[str, str]:
+        """Every contested peer and why (status)."""
+        with self._contest_lock:
+            return self.contest.contested(self.clock.read()[1])
 
     def _first_sync(self, agent: AgentId, index: int) -> float:
         """When the ``index``-th peer seen gets its first request: at once for the ones

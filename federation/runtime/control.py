@@ -1,28 +1,50 @@
-"""Execution control over a federation: start, freeze, resume or abort a run.
+"""Execution control over a federation: start, freeze, resume, abort or reset a run,
+and the preflight table (``fedlab ctl status``).
 
-``start`` syncs with the reference agent (the experiment's leader) exactly as
-agents do, then announces a start at a reference time some seconds ahead;
-every agent begins when its own synchronized clock reaches that instant. The
-other commands act on receipt. Each command is published a few times with the
-same sequence number (agents ignore repeats) and :func:`issue` waits, bounded,
-until every expected agent reports the new mode.
+``start`` first checks every participant (:mod:`federation.core.preflight`:
+present, waiting, synchronized with the reference, platform ready, recording)
+and starts nothing unless all pass (``force`` overrides and says what it
+overrode). It names the run (``run_id``: the experiment's name and the UTC time,
+unless given), syncs with the reference agent (the experiment's leader) exactly
+as agents do, and announces a start at a reference time some seconds ahead,
+with the run's duration; every agent begins when its own synchronized clock
+reaches that instant, and is ``done`` after the duration.
 
-:func:`issue` does it all on an open session and returns a :class:`ControlResult`;
-``fedlab ctl`` (:mod:`federation.cli.ctl`) parses, calls it and prints the table.
+``abort`` is published at once, before anything is discovered or synchronized:
+nothing it needs can be missing. The other commands act on receipt too.
+
+Each :func:`issue` is a new issuer (host, pid and a random tag) numbering its
+commands 1, 2, 3... (:class:`Issuer`): agents order commands per issuer
+(:mod:`federation.core.commands`), so a bad seq or clock elsewhere cannot make
+them ignore this one. Each command is published a few times with the same seq
+(agents ignore repeats), then :func:`issue` waits, bounded, until every expected
+agent reports the command's mode, and says for each one that did not why not
+(its status lists what became of the last commands it received).
 """
 
 from __future__ import annotations
 
+import datetime
 import json
+import os
+import secrets
+import socket
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from federation.core import keys
 from federation.core.clockfilter import ClockFilter
 from federation.core.keys import AgentId
+from federation.core.preflight import (
+    DEFAULT_MAX_BOUND,
+    DEFAULT_STALE_AFTER,
+    Row,
+    blocking,
+    preflight,
+)
 from federation.core.sync import SyncClient
 from federation.runtime.clock import ExecClock
 from federation.runtime.session import ConnectError
@@ -37,28 +59,63 @@ __all__ = [
     "Action",
     "ControlResult",
     "Federation",
+    "Issuer",
+    "PreflightFailed",
     "choose_reference",
     "issue",
+    "make_run_id",
     "reference_now",
     "send",
+    "status",
 ]
 
-Action = Literal["start", "freeze", "resume", "abort"]
+Action = Literal["start", "freeze", "resume", "abort", "reset"]
 
 EXPECTED_MODE: dict[str, frozenset[str]] = {
-    "start": frozenset({"armed", "running"}),
+    "start": frozenset({"armed", "running", "done"}),
     "freeze": frozenset({"frozen"}),
     "resume": frozenset({"running"}),
     "abort": frozenset({"aborted"}),
+    "reset": frozenset({"waiting"}),
 }
 """The modes an agent reports once it has taken each command."""
-ACTIONS: tuple[Action, ...] = ("start", "freeze", "resume", "abort")
+ACTIONS: tuple[Action, ...] = ("start", "freeze", "resume", "abort", "reset")
 DEFAULT_START_IN = 3.0
 """s between the announcement and a start, without an experiment's ``start_delay``."""
 
 
+class PreflightFailed(ConnectionError):
+    """A start refused: a participant is not ready. ``rows`` say who misses what."""
+
+    def __init__(self, rows: list[Row]):
+        self.rows = rows
+        names = ", ".join(f"{r.agent} ({'; '.join(r.missing)})" for r in blocking(rows))
+        super().__init__(f"not started: {names}")
+
+
+class Issuer:
+    """One issuer of commands: a name no other issuer has, and its own count."""
+
+    def __init__(self, kind: str = "ctl"):
+        host = socket.gethostname()[:60]
+        self.name = f"{kind}@{host}:{os.getpid()}:{secrets.token_hex(4)}"
+        self._seq = 0
+        self._lock = threading.Lock()
+
+    def next_seq(self) -> int:
+        with self._lock:
+            self._seq += 1
+            return self._seq
+
+
+def make_run_id(experiment: str | None, now: datetime.datetime | None = None) -> str:
+    """``<experiment>-<UTC time>``, e.g. ``attitude-tracking-20250101T120000Z``."""
+    now = now or datetime.datetime.now(datetime.UTC)
+    return f"{experiment or 'run'}-{now.strftime('%Y%m%dT%H%M%SZ')}"
+
+
 class Federation:
-    """What ctl sees of a federation: every agent's latest status."""
+    """What ctl sees of a federation: every agent's latest status and when it came."""
 
     def __init__(self, session: Any, federation: str):
         import zenoh
@@ -66,6 +123,7 @@ class Federation:
         self.session = session
         self.federation = federation
         self.status: dict[str, dict[str, Any]] = {}
+        self.received: dict[str, float] = {}  # agent -> time.monotonic() of its last status
         self._lock = threading.Lock()
         self._sub = session.declare_subscriber(
             keys.all_of(federation, "status"),
@@ -77,12 +135,18 @@ class Federation:
             status = json.loads(sample.payload.to_bytes())
             with self._lock:
                 self.status[status["agent"]] = status
+                self.received[status["agent"]] = time.monotonic()
         except (ValueError, KeyError, TypeError):
             pass  # a malformed status is the monitor's business, not ctl's
 
     def snapshot(self) -> dict[str, dict[str, Any]]:
         with self._lock:
             return dict(self.status)
+
+    def ages(self) -> dict[str, float]:
+        now = time.monotonic()
+        with self._lock:
+            return {a: now - t for a, t in self.received.items()}
 
     def close(self) -> None:
         self._sub.undeclare()
@@ -93,24 +157,48 @@ class ControlResult:
     """A command as sent and the federation's answer to it."""
 
     command: Command
-    reference: AgentId
+    reference: AgentId | None
     expected: frozenset[str]
     """Agents that had to confirm: the experiment's participants, else every agent seen."""
     modes: dict[str, str]
     """Every expected or seen agent (sorted) and its last reported mode; ``absent``: none."""
     elapsed: float
     """s from the first publication until all confirmed or the wait ran out."""
+    sent_monotonic: float = 0.0
+    """This host's ``time.monotonic()`` at the first publication."""
+    reasons: dict[str, str] = field(default_factory=dict)
+    """Why each pending agent did not confirm, as far as its status tells."""
+    preflight: list[Row] = field(default_factory=list)
+    overridden: list[str] = field(default_factory=list)
+    """With ``force``: the preflight failures a start went ahead despite."""
 
     @property
     def pending(self) -> list[str]:
         """Expected agents that did not report the command's mode in time."""
+        return sorted(a for a in self.expected if a not in self._confirmed())
+
+    def _confirmed(self) -> set[str]:
         want = EXPECTED_MODE[self.command.command]
-        return sorted(a for a in self.expected if self.modes.get(a) not in want)
+        return {a for a, m in self.modes.items() if m in want}
 
     @property
     def ok(self) -> bool:
         """Every expected agent confirmed."""
         return not self.pending
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "command": self.command.model_dump(),
+            "reference": None if self.reference is None else str(self.reference),
+            "ok": self.ok,
+            "elapsed_s": self.elapsed,
+            "sent_monotonic": self.sent_monotonic,
+            "modes": self.modes,
+            "pending": self.pending,
+            "reasons": self.reasons,
+            "overridden": self.overridden,
+            "preflight": [r.as_json() for r in self.preflight],
+        }
 
 
 def reference_now(session: Any, federation: str, reference: AgentId, clock: ExecClock) -> float:
@@ -148,6 +236,36 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
     return t + offset
 
 
+def _accepted(status: dict[str, Any], command: Command) -> bool:
+    """Whether an agent's status shows it in ``command``'s mode (a start: of this run)."""
+    if status.get("mode") not in EXPECTED_MODE[command.command]:
+        return False
+    return command.command != "start" or status.get("run_id") == command.run_id
+
+
+def why_not(status: dict[str, Any] | None, command: Command) -> str:
+    """Why an agent has not confirmed ``command``, from its last status."""
+    if status is None:
+        return "no status received (agent absent or not reachable)"
+    for outcome in reversed(status.get("commands") or []):
+        if outcome.get("issuer") == command.issuer and outcome.get("seq") == command.seq:
+            detail = outcome.get("detail") or ""
+            return f"{outcome.get('outcome')}{': ' + detail if detail else ''}"
+    return f"command not seen (mode {status.get('mode')})"
+
+
+def publish(session: Any, federation: str, command: Command, copies: int = 3) -> float:
+    """Publish ``command`` ``copies`` times (50 ms apart); the monotonic time of the first."""
+    payload = command.model_dump_json()
+    key = keys.control_key(federation)
+    first = time.monotonic()
+    for i in range(copies):
+        if i:
+            time.sleep(0.05)
+        session.put(key, payload)
+    return first
+
+
 def send(
     session: Any,
     federation: str,
@@ -161,22 +279,33 @@ def send(
 
     Returns every expected or seen agent's last mode (``absent`` for none), sorted.
     """
-    payload = command.model_dump_json()
-    key = keys.control_key(federation)
-    for _ in range(3):
-        session.put(key, payload)
-        time.sleep(0.05)
-    want = EXPECTED_MODE[command.command]
+    publish(session, federation, command)
+    return confirm(command, expected, fed, timeout, progress)
+
+
+def confirm(
+    command: Command,
+    expected: set[str] | frozenset[str],
+    fed: Federation,
+    timeout: float,
+    progress: Callable[[str], None],
+) -> dict[str, str]:
+    """Wait (at most ``timeout`` s) until every ``expected`` agent reports ``command``."""
     deadline = time.monotonic() + timeout
     while True:
-        modes = {a: s.get("mode", "?") for a, s in fed.snapshot().items()}
-        pending = {a for a in expected if modes.get(a) not in want}
+        seen = fed.snapshot()
+        pending = {a for a in expected if a not in seen or not _accepted(seen[a], command)}
         if not pending or time.monotonic() > deadline:
             break
-        time.sleep(0.1)
+        time.sleep(0.05)
     if pending:
-        progress(f"no confirmation within {timeout:.0f} s from: {', '.join(sorted(pending))}")
-    return {a: modes.get(a, "absent") for a in sorted(set(expected) | set(modes))}
+        progress(f"no confirmation within {timeout:g} s from: {', '.join(sorted(pending))}")
+    modes = {a: s.get("mode", "?") for a, s in seen.items()}
+    out = {a: modes.get(a, "absent") for a in sorted(set(expected) | set(modes))}
+    for agent in pending:  # a start of another run is not this one's
+        if agent in seen and command.command == "start" and out[agent] in EXPECTED_MODE["start"]:
+            out[agent] = f"{out[agent]} ({seen[agent].get('run_id')})"
+    return out
 
 
 def choose_reference(
@@ -202,6 +331,31 @@ def choose_reference(
     return AgentId.parse(leaders[0])
 
 
+def status(
+    session: Any,
+    *,
+    federation: str = keys.DEFAULT_FEDERATION,
+    experiment: ExperimentConfig | None = None,
+    discover: float = 1.5,
+    max_bound: float = DEFAULT_MAX_BOUND,
+    stale_after: float = DEFAULT_STALE_AFTER,
+    fed: Federation | None = None,
+) -> list[Row]:
+    """The preflight table: every participant (and every other agent seen), each check."""
+    if experiment is not None:
+        federation = experiment.federation
+    own = fed is None
+    fed = fed or Federation(session, federation)
+    try:
+        time.sleep(discover)  # statuses arrive once a second
+        seen = fed.snapshot()
+        participants = [p.agent for p in experiment.participants] if experiment else list(seen)
+        return preflight(participants, seen, fed.ages(), max_bound, stale_after)
+    finally:
+        if own:
+            fed.close()
+
+
 def issue(
     session: Any,
     action: Action,
@@ -212,6 +366,11 @@ def issue(
     start_in: float | None = None,
     wait: float = 5.0,
     discover: float = 1.5,
+    run_id: str | None = None,
+    duration: float | None = None,
+    force: bool = False,
+    max_bound: float = DEFAULT_MAX_BOUND,
+    issuer: Issuer | None = None,
     progress: Callable[[str], None] = lambda text: None,
 ) -> ControlResult:
     r"""Send ``action`` to every agent of a federation and collect their confirmations.
@@ -221,12 +380,12 @@ def issue(
     session
         An open Zenoh session.
     action
-        ``start``, ``freeze``, ``resume`` or ``abort``.
+        ``start``, ``freeze``, ``resume``, ``abort`` or ``reset``.
     federation
         Federation name; an ``experiment``'s own name wins.
     experiment
-        The run: its participants must confirm, its leader is the reference, its
-        maneuver and ``start_delay`` go with a start.
+        The run: its participants must confirm (and pass preflight), its leader is
+        the reference, its maneuver, duration and ``start_delay`` go with a start.
     reference
         Agent whose clock is reference time (default: see :func:`choose_reference`).
     start_in
@@ -235,7 +394,18 @@ def issue(
     wait
         s to wait for confirmations.
     discover
-        s to collect statuses first (agents publish one a second).
+        s to collect statuses first (agents publish one a second); an abort is
+        published before.
+    run_id
+        The run's name (default :func:`make_run_id`).
+    duration
+        s of run time after which agents are done (default: the experiment's).
+    force
+        Start even if preflight fails; the result lists what was overridden.
+    max_bound
+        Preflight's largest accepted error bound of the reference clock's estimate (s).
+    issuer
+        Who issues (default: a new :class:`Issuer`).
     progress
         Called with a line of text on the way (start time, missing confirmations).
 
@@ -248,6 +418,8 @@ def issue(
 
     Raises
     ------
+    PreflightFailed
+        A start with a participant not ready (and no ``force``).
     ConnectError
         No agent seen in the federation, or the reference does not answer.
     ConfigError
@@ -258,37 +430,94 @@ def issue(
     if experiment is not None:
         federation = experiment.federation
     keys.validate_name(federation, "federation name")
+    issuer = issuer or Issuer()
     fed = Federation(session, federation)
     try:
-        time.sleep(discover)  # statuses arrive once a second
+        if action != "start":
+            # On receipt, nothing to look up first: an abort leaves at once.
+            command = Command(
+                command=action, seq=issuer.next_seq(), issuer=issuer.name,
+                experiment=experiment.name if experiment else None,
+            )  # fmt: skip
+            sent = publish(session, federation, command)
+            time.sleep(max(0.0, discover - (time.monotonic() - sent)))
+            seen = fed.snapshot()
+            expected = _expected(experiment, seen)
+            if not expected:
+                raise ConnectError(
+                    f"no agent found in federation {federation!r} within {discover:g} s "
+                    f"({action} was published on {keys.control_key(federation)})"
+                )
+            modes = confirm(command, expected, fed, wait, progress)
+            return _result(command, None, expected, modes, sent, fed)
+        rows = status(
+            session, federation=federation, experiment=experiment, discover=discover,
+            max_bound=max_bound, fed=fed,
+        )  # fmt: skip
         seen = fed.snapshot()
-        if experiment is not None:
-            expected = frozenset(str(p.agent) for p in experiment.participants)
-        else:
-            expected = frozenset(seen)
+        expected = _expected(experiment, seen)
         if not expected:
             raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
+        failed = blocking(rows)
+        overridden = [f"{r.agent}: {m}" for r in failed for m in r.missing]
+        if failed and not force:
+            raise PreflightFailed(rows)
+        for line in overridden:
+            progress(f"--force: starting although {line}")
         ref = choose_reference(reference, experiment, seen)
         clock = ExecClock()
         ref_now = reference_now(session, federation, ref, clock)
         ref_offset = ref_now - clock.now()
-        at = None
-        if action == "start":
-            if start_in is None:
-                start_in = experiment.start_delay if experiment else DEFAULT_START_IN
-            at = ref_now + start_in
-            progress(f"start at reference time {at:.3f} s ({ref}'s clock)")
+        if start_in is None:
+            start_in = experiment.start_delay if experiment else DEFAULT_START_IN
+        at = ref_now + start_in
+        run_id = run_id or make_run_id(experiment.name if experiment else None)
+        progress(f"run {run_id}: start at reference time {at:.3f} s ({ref}'s clock)")
         command = Command(
-            command=action,
+            command="start",
             at=at,
-            seq=time.time_ns() // 1_000_000,
+            seq=issuer.next_seq(),
             issued_at=clock.now() + ref_offset,
-            issuer="ctl",
+            issuer=issuer.name,
             experiment=experiment.name if experiment else None,
             maneuver=experiment.maneuver if experiment else None,
+            run_id=run_id,
+            duration=duration
+            if duration is not None
+            else experiment.duration
+            if experiment
+            else None,
         )
-        sent = time.monotonic()
-        modes = send(session, federation, command, expected, fed, wait, progress)
-        return ControlResult(command, ref, expected, modes, time.monotonic() - sent)
+        sent = publish(session, federation, command)
+        modes = confirm(command, expected, fed, wait, progress)
+        return _result(command, ref, expected, modes, sent, fed, rows, overridden)
     finally:
         fed.close()
+
+
+def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> frozenset[str]:
+    if experiment is not None:
+        return frozenset(str(p.agent) for p in experiment.participants)
+    return frozenset(seen)
+
+
+def _result(
+    command: Command,
+    reference: AgentId | None,
+    expected: frozenset[str],
+    modes: dict[str, str],
+    sent: float,
+    fed: Federation,
+    rows: list[Row] | None = None,
+    overridden: list[str] | None = None,
+) -> ControlResult:
+    seen = fed.snapshot()
+    result = ControlResult(
+        command, reference, expected, modes, time.monotonic() - sent, sent,
+        preflight=rows or [], overridden=overridden or [],
+    )  # fmt: skip
+    reasons = {a: why_not(seen.get(a), command) for a in result.pending}
+    return ControlResult(
+        command, reference, expected, modes, result.elapsed, sent, reasons,
+        result.preflight, result.overridden,
+    )  # fmt: skip

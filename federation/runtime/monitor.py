@@ -55,6 +55,7 @@ from schemas.messages import Status
 
 __all__ = [
     "COLUMNS",
+    "DEFAULT_DROP_AFTER",
     "DEFAULT_STALE_AFTER",
     "MAX_STATUS_BYTES",
     "OPTIONAL_COLUMNS",
@@ -73,6 +74,8 @@ log = logging.getLogger("fedlab.monitor")
 
 DEFAULT_STALE_AFTER = 3.0
 """Seconds without a status after which a row is stale (agents publish once a second)."""
+DEFAULT_DROP_AFTER = 30.0
+"""Seconds without a status (or since its token went) after which a row is dropped."""
 MAX_STATUS_BYTES = 1 << 20
 """A status larger than this is malformed without being parsed."""
 
@@ -100,6 +103,12 @@ class Row:
     rejected: int | None = None
     late_p99_ms: float | None = None
     since_status_s: float | None = None
+    contested: dict[str, str] | None = None  # peer -> why two sources speak for it
+    run_id: str | None = None
+    run_time_s: float | None = None
+    duration_s: float | None = None  # the run's; run_time / duration is its progress
+    hold: str | None = None  # why every valve is held closed (stale, aborted, done, reset)
+    bound_s: float | None = None  # error bound of its estimate of the reference clock
 
 
 @dataclass
@@ -118,10 +127,14 @@ class MonitorModel:
     """
 
     def __init__(
-        self, federation: str = keys.DEFAULT_FEDERATION, stale_after: float = DEFAULT_STALE_AFTER
+        self,
+        federation: str = keys.DEFAULT_FEDERATION,
+        stale_after: float = DEFAULT_STALE_AFTER,
+        drop_after: float = DEFAULT_DROP_AFTER,
     ) -> None:
         self.federation = keys.validate_name(federation, "federation name")
         self.stale_after = stale_after
+        self.drop_after = drop_after
         self.malformed = 0
         self.last_error: str | None = None
         self._agents: dict[AgentId, _Agent] = {}
@@ -177,8 +190,15 @@ class MonitorModel:
         entry.changed_at = now
 
     def rows(self, now: float) -> list[Row]:
-        """Every agent seen, sorted by lab and name."""
+        """Every agent seen, sorted by lab and name; an agent silent (or gone) for
+        ``drop_after`` s is forgotten."""
+        for agent in [a for a, e in self._agents.items() if self._dropped(e, now)]:
+            del self._agents[agent]
         return [self._row(self._agents[a], now) for a in sorted(self._agents)]
+
+    def _dropped(self, entry: _Agent, now: float) -> bool:
+        last = max((t for t in (entry.status_at, entry.changed_at) if t is not None), default=None)
+        return last is not None and now - last > self.drop_after
 
     def _row(self, entry: _Agent, now: float) -> Row:
         since = None if entry.status_at is None else max(0.0, now - entry.status_at)
@@ -230,6 +250,12 @@ class MonitorModel:
             samples=sum(p.samples for p in sync_peers) if sync_peers else None,
             rejected=rejected,
             late_p99_ms=_finite(status.loop.get("late_p99_ms")),
+            contested=dict(status.contested) or None,
+            run_id=status.run_id,
+            run_time_s=_finite(status.run_time),
+            duration_s=_finite(status.duration),
+            hold=status.hold,
+            bound_s=0.0 if is_reference else None if ref is None else _bound(ref),
         )
 
 
@@ -240,6 +266,13 @@ def _first_error(error: ValidationError) -> str:
         return str(error)
     where = ".".join(str(part) for part in details[0]["loc"]) or "payload"
     return f"{where}: {details[0]['msg']}"
+
+
+def _bound(peer: Any) -> float | None:
+    """The error bound status reports of a peer's clock (the estimate's, else the last
+    exchange's)."""
+    bound = _finite(peer.bound)
+    return bound if bound is not None else _finite(peer.error_bound)
 
 
 def _finite(value: float | None) -> float | None:
@@ -272,6 +305,29 @@ def _offset(row: Row) -> Text:
     return Text(_num(row.offset_s, fmt="+.6f"))
 
 
+def _mode(row: Row) -> str | Text:
+    """The run mode; and, in red, the peers this agent finds contested (issue 13)."""
+    if not row.contested:
+        return row.mode or _DASH
+    peers = ", ".join(f"{peer} ({why})" for peer, why in row.contested.items())
+    return Text(f"{row.mode or _DASH}, contested: {peers}", style="red")
+
+
+def _run_time(row: Row) -> str:
+    """``12.3 s / 20 (62 %)``: run time and progress through the run's duration."""
+    if row.run_time_s is None:
+        return _DASH
+    if not row.duration_s:
+        return f"{row.run_time_s:.1f}"
+    return f"{row.run_time_s:.1f}/{row.duration_s:g} ({100 * row.run_time_s / row.duration_s:.0f}%)"
+
+
+def _hold(row: Row) -> Text:
+    if row.hold is None:
+        return Text(_DASH)
+    return Text(row.hold, style="red" if row.hold in ("stale", "aborted") else "yellow")
+
+
 def _rejected(row: Row) -> Text:
     return Text(_int(row.rejected), style="red" if row.rejected else "")
 
@@ -281,10 +337,14 @@ _COLUMNS: dict[str, tuple[str, bool, Callable[[Row], str | Text]]] = {
     "lab": ("lab", False, lambda r: r.lab),
     "name": ("name", False, lambda r: r.name),
     "role": ("role", False, lambda r: r.role or _DASH),
-    "mode": ("mode", False, lambda r: r.mode or _DASH),
+    "mode": ("mode", False, lambda r: _mode(r)),
+    "run": ("run", False, lambda r: r.run_id or _DASH),
+    "run_time": ("run time\ns", True, _run_time),
+    "hold": ("hold", False, _hold),
     "platform": ("platform", False, lambda r: r.platform or _DASH),
     "offset": ("offset\ns", True, _offset),
     "delay": ("delay\nms", True, lambda r: _num(r.delay_s, 1e3)),
+    "bound": ("bound\nms", True, lambda r: _num(r.bound_s, 1e3, ".3f")),
     "pose_age": ("pose age\nms", True, lambda r: _num(r.pose_age_s, 1e3, ".1f")),
     "samples": ("samples", True, lambda r: _int(r.samples)),
     "rejected": ("rejected", True, _rejected),
@@ -293,7 +353,17 @@ _COLUMNS: dict[str, tuple[str, bool, Callable[[Row], str | Text]]] = {
 }
 COLUMNS = tuple(_COLUMNS)
 """Column ids, in display order."""
-OPTIONAL_COLUMNS = ("platform", "late_p99", "samples", "pose_age", "mode")
+OPTIONAL_COLUMNS = (
+    "platform",
+    "late_p99",
+    "samples",
+    "pose_age",
+    "run",
+    "bound",
+    "run_time",
+    "hold",
+    "mode",
+)
 """Columns :func:`fit` leaves out, first to last, when a terminal is too narrow."""
 
 
@@ -354,7 +424,9 @@ def _since(row: Row) -> Text:
     if row.since_status_s is None:
         return Text("waiting", style="yellow")
     text = f"{row.since_status_s:.1f} s"
-    return Text(text, style="yellow" if row.state == "stale" else "")
+    if row.state == "stale":
+        return Text(f"{text} stale", style="yellow")
+    return Text(text)
 
 
 def _footer(rows: Sequence[Row], malformed: int, last_error: str | None) -> Text:

@@ -4,6 +4,11 @@ Every message is JSON on one of the channels of :mod:`federation.core.channels`
 (:class:`~federation.core.channels.Channel`, where their fields are listed); each
 carries ``t_exec`` (the agent's clock) and ``host_monotonic`` (the host's clock
 read at the same instant), so recordings of agents on one machine line up exactly.
+Their JSON schemas type every field, so Foxglove plots them without setup; and each
+pose sent is also written in Foxglove's own types (``/tf``: ``foxglove.FrameTransforms``,
+``fedlab_common`` -> ``LAB/NAME``; ``/pose``: ``foxglove.PoseInFrame``; protobuf, the
+Foxglove SDK's schemas), so Foxglove's 3D panel shows the platform as soon as a
+recording is opened. :func:`read_messages` reads the JSON channels, old and new files.
 
 Recording never blocks the agent and wakes no thread: :meth:`Recorder.record`
 appends the message to a bounded buffer (dropping and counting when full), and
@@ -17,22 +22,39 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from collections import deque
 from pathlib import Path
 from typing import Any
 
+from foxglove.messages import (
+    FrameTransform,
+    FrameTransforms,
+    PoseInFrame,
+    Quaternion,
+    Timestamp,
+    Vector3,
+)
+from foxglove.messages import Pose as FoxglovePose
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from federation.core.channels import CHANNEL_FIELDS, Channel
+from federation.core.channels import (
+    CHANNEL_FIELDS,
+    COMMON_FRAME,
+    FOXGLOVE_CHANNELS,
+    Channel,
+    json_schema,
+)
 
-__all__ = ["Recorder", "read_messages"]
+__all__ = ["Recorder", "read_messages", "read_metadata"]
 
 log = logging.getLogger("fedlab.recorder")
 
 FLUSH_PERIOD = 0.05  # s between writes of the buffered messages
+_TF, _POSE = FOXGLOVE_CHANNELS  # "/tf", "/pose": Foxglove's types, from /pose/sent
 
 
 class Recorder:
@@ -64,21 +86,29 @@ class Recorder:
         self._writer = Writer(self._file, chunk_size=256 * 1024)
         self._writer.start(profile="", library="fedlab")
         self._channels: dict[str, int] = {}
-        for channel, fields in CHANNEL_FIELDS.items():
+        for channel in CHANNEL_FIELDS:
             topic = str(channel)
-            schema = {
-                "title": topic,
-                "type": "object",
-                "properties": {name: {} for name in fields},
-            }
             schema_id = self._writer.register_schema(
                 name=topic.strip("/").replace("/", "."),
                 encoding="jsonschema",
-                data=json.dumps(schema).encode(),
+                data=json.dumps(json_schema(channel)).encode(),
             )
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id, metadata={"agent": agent}
             )
+        # Foxglove's types beside them: the platform in Foxglove's 3D panel without setup.
+        self.frame = agent
+        self._foxglove = Channel.POSE_SENT in self.channels
+        if self._foxglove:
+            for topic, kind in ((_TF, FrameTransforms), (_POSE, PoseInFrame)):
+                schema = kind.get_schema()
+                schema_id = self._writer.register_schema(
+                    name=schema.name, encoding=schema.encoding, data=schema.data
+                )
+                self._channels[topic] = self._writer.register_channel(
+                    topic=topic, message_encoding=schema.encoding, schema_id=schema_id,
+                    metadata={"agent": agent},
+                )  # fmt: skip
         _WRITER.add(self)
 
     def record(self, topic: str, message: dict[str, Any]) -> None:
@@ -89,6 +119,12 @@ class Recorder:
             self.dropped += 1
             return
         self._pending.append((topic, time.time_ns(), message))  # atomic: no lock, no wakeup
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record in the file (a run's id, versions, configuration...)."""
+        with self._write_lock:
+            if not self._closed:
+                self._writer.add_metadata(name, data)
 
     def flush(self) -> None:
         """Encode and write the buffered messages (the writer thread calls it)."""
@@ -102,6 +138,29 @@ class Recorder:
             topic, stamp, message = pending.popleft()
             add(channels[topic], stamp, json.dumps(message).encode(), stamp)
             self.written += 1
+            if topic == Channel.POSE_SENT and self._foxglove:
+                self._write_foxglove(stamp, message)
+
+    def _write_foxglove(self, stamp: int, message: dict[str, Any]) -> None:
+        """The pose sent as Foxglove's transform and pose in frame, stamped as logged."""
+        try:
+            x, y, heading = float(message["x"]), float(message["y"]), float(message["heading"])
+        except (KeyError, TypeError, ValueError):
+            return  # not a pose: nothing to show
+        when = Timestamp(stamp // 1_000_000_000, stamp % 1_000_000_000)
+        where = Vector3(x=x, y=y, z=0.0)
+        turn = Quaternion(x=0.0, y=0.0, z=math.sin(heading / 2), w=math.cos(heading / 2))
+        tf = FrameTransform(
+            timestamp=when, parent_frame_id=COMMON_FRAME, child_frame_id=self.frame,
+            translation=where, rotation=turn,
+        )  # fmt: skip
+        pose = PoseInFrame(
+            timestamp=when, frame_id=COMMON_FRAME,
+            pose=FoxglovePose(position=where, orientation=turn),
+        )  # fmt: skip
+        add, channels = self._writer.add_message, self._channels
+        add(channels[_TF], stamp, FrameTransforms(transforms=[tf]).encode(), stamp)
+        add(channels[_POSE], stamp, pose.encode(), stamp)
 
     def close(self) -> None:
         """Write what is buffered, then finish the file (summary and index)."""
@@ -160,10 +219,19 @@ _WRITER = _WriterThread()
 def read_messages(
     path: str | Path, topics: list[str] | None = None
 ) -> dict[str, list[dict[str, Any]]]:
-    """Every message of a recording by channel, in log-time order."""
+    """Every JSON message of a recording by channel, in log-time order (the channels in
+    Foxglove's types, ``/tf`` and ``/pose``, repeat ``/pose/sent`` and are left out)."""
     out: dict[str, list[dict[str, Any]]] = {str(t): [] for t in (topics or Channel)}
     with Path(path).open("rb") as f:
         reader = make_reader(f)
         for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
+            if channel.message_encoding != "json":  # Foxglove's types: for Foxglove
+                continue
             out.setdefault(channel.topic, []).append(json.loads(message.data))
     return out
+
+
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """A recording's metadata records by name (empty for a file without them)."""
+    with Path(path).open("rb") as f:
+        return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}

@@ -24,10 +24,11 @@ from typing import Any, Protocol, cast
 
 import zenoh
 
+from agents.guidance import Track
 from agents.kinematic import KinematicPlatform
 from federation.core.wire import Pose
 from federation.runtime.agent import AgentRuntime
-from federation.runtime.session import build_config
+from federation.runtime.session import DEFAULT_TIMEOUT, build_config, connect_error, fail_fast
 from schemas.config import AgentConfig, ZenohOptions, validate
 
 __all__ = ["Agent", "PoseSource"]
@@ -54,7 +55,9 @@ class _SourcePlatform(KinematicPlatform):
         self.source = cast(Callable[[float], Pose], method if callable(method) else source)
         self.sim_time = clock
 
-    def step(self, t: float, heading_ref: float, rate_ref: float) -> Pose:
+    def step(
+        self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> Pose:
         if not self.held:
             t_sim = self.sim_time(t)
             self.pose = Pose(*self.source(t if t_sim is None else t_sim))
@@ -65,7 +68,10 @@ class Agent:
     """A virtual agent. ``name`` is ``"lab/name"``; ``pose`` its pose source.
 
     ``reference``: the agent whose clock is simulation time (default: the agent's
-    own). Further keyword arguments are :class:`schemas.config.AgentConfig` fields.
+    own). ``timeout``: seconds to reach the router before ``with`` raises
+    :class:`~federation.runtime.session.ConnectError` naming each endpoint and why
+    (refused, unreachable, TLS). Further keyword arguments are
+    :class:`schemas.config.AgentConfig` fields.
     """
 
     def __init__(
@@ -76,6 +82,7 @@ class Agent:
         federation: str = "default",
         reference: str | None = None,
         rate: float = 20.0,
+        timeout: float = DEFAULT_TIMEOUT,
         **settings: Any,
     ):
         lab, _, agent = name.partition("/")
@@ -86,13 +93,19 @@ class Agent:
         self.config = validate(AgentConfig, data, f"Agent({name!r})")
         self.options = validate(ZenohOptions, {"connect": list(connect)}, f"Agent({name!r})")
         self._source = pose
+        self.timeout = timeout
         self._stop = threading.Event()
         self._session: zenoh.Session | None = None
         self._thread: threading.Thread | None = None
         self.runtime: AgentRuntime | None = None
 
     def __enter__(self) -> Agent:
-        self._session = zenoh.open(build_config(self.options, default_mode="client"))
+        conf = build_config(self.options, default_mode="client")
+        fail_fast(conf, self.timeout)
+        try:
+            self._session = zenoh.open(conf)
+        except zenoh.ZError as error:
+            raise connect_error(conf, error, self.timeout) from None
         runtime = AgentRuntime(self.config, self._session, platform=None)
         runtime.platform = _SourcePlatform(self._source, self.config.pose_rate, runtime.sim_time)
         try:

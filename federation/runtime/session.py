@@ -13,14 +13,26 @@ override them:
 
 from __future__ import annotations
 
+import errno
 import json
+import socket
 from typing import Any
 
 import zenoh
 
 from schemas.config import ZenohOptions
 
-__all__ = ["ConnectError", "ZenohConfigError", "build_config"]
+__all__ = [
+    "DEFAULT_TIMEOUT",
+    "ConnectError",
+    "ZenohConfigError",
+    "build_config",
+    "diagnose",
+    "fail_fast",
+]
+
+DEFAULT_TIMEOUT = 5.0
+"""s a command or the SDK waits for its router before giving up."""
 
 _DEFAULTS: dict[str, Any] = {
     "scouting/multicast/enabled": False,
@@ -99,3 +111,62 @@ def config_value(conf: zenoh.Config, key: str) -> Any:
         return json.loads(conf.get_json(key))
     except Exception:
         return None
+
+
+def fail_fast(conf: zenoh.Config, timeout: float) -> None:
+    """Make ``conf`` give up on its endpoints after ``timeout`` s instead of retrying
+    for ever (commands and the SDK; agents keep waiting for their router)."""
+    _insert(conf, "connect/timeout_ms", json.dumps(max(1, int(timeout * 1000))), "--timeout")
+    _insert(conf, "connect/exit_on_failure", "true", "--timeout")
+
+
+def endpoints(conf: zenoh.Config) -> list[str]:
+    """The endpoints ``conf`` dials."""
+    value = config_value(conf, "connect/endpoints")
+    if isinstance(value, dict):  # per-mode endpoints: {router: [...], peer: [...], ...}
+        return [e for items in value.values() for e in items or []]
+    return [str(e) for e in value or []]
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    address = address.split("#", 1)[0]  # endpoint metadata, e.g. #iface=eth0
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit():
+        return None
+    return host.strip("[]"), int(port)
+
+
+def diagnose(endpoint: str, timeout: float = 2.0) -> str:
+    """Why ``endpoint`` (``tcp/host:port``, ``tls/...``) cannot be reached, probed with a
+    plain TCP connection: refused, unreachable, no answer, unknown host; or, when TCP
+    connects, that the failure is above it (TLS, or not a Zenoh router)."""
+    proto, _, address = endpoint.partition("/")
+    target = _host_port(address)
+    if proto not in ("tcp", "tls", "ws") or target is None:
+        return f"no answer on {endpoint}"
+    try:
+        with socket.create_connection(target, timeout=timeout):
+            pass
+    except socket.gaierror as error:
+        return f"cannot resolve {target[0]} ({error.strerror})"
+    except ConnectionRefusedError:
+        return "connection refused (nothing listens on that port)"
+    except TimeoutError:
+        return f"no answer within {timeout:g} s (host down, or a firewall drops the packets)"
+    except OSError as error:
+        if error.errno in (errno.ENETUNREACH, errno.EHOSTUNREACH):
+            return f"unreachable ({error.strerror})"
+        return f"cannot connect ({error.strerror or error})"
+    if proto == "tls":
+        return (
+            "TCP connects but the TLS session failed (check the CA, the certificate and "
+            "its name)"
+        )
+    return "TCP connects but no Zenoh session opened (is it a Zenoh router?)"
+
+
+def connect_error(conf: zenoh.Config, error: object, timeout: float) -> ConnectError:
+    """A :class:`ConnectError` naming every endpoint and why it failed."""
+    reasons = [f"{e}: {diagnose(e, min(2.0, timeout))}" for e in endpoints(conf)]
+    where = "; ".join(reasons) or "no endpoint to dial (give -e/--connect)"
+    return ConnectError(f"no Zenoh session within {timeout:g} s: {where} [zenoh: {error}]")

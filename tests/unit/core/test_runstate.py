@@ -1,8 +1,9 @@
 """Run modes (federation/core/runstate.py), one transition at a time.
 
 Every edge of the state diagram in the module's docstring, then every command it
-ignores. Commands are plain records: the run state reads only ``command``,
-``seq`` and ``at`` (:class:`schemas.messages.Command` has those and more).
+ignores. Commands are plain records: the run state reads ``command``, ``at``,
+``run_id`` and ``duration`` (:class:`schemas.messages.Command` has those and
+more); which commands reach it is the command gate's business (test_commands.py).
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ from schemas.messages import Command
 @dataclass(frozen=True)
 class Cmd:
     command: str
-    seq: int
+    seq: int = 0
     at: float | None = None
+    run_id: str | None = "run"
+    duration: float | None = None
 
 
 def in_mode(mode: Mode) -> RunState:
@@ -36,11 +39,15 @@ def in_mode(mode: Mode) -> RunState:
     if mode == "frozen":
         state.command(Cmd("freeze", 1, at=8.0), t_sim=8.0)
         return state
+    if mode == "done":
+        state.duration = 2.0
+        state.update(7.0)
+        return state
     state.command(Cmd("abort", 2), t_sim=9.0)
     return state
 
 
-@pytest.mark.parametrize("mode", ["waiting", "armed", "running", "frozen", "aborted"])
+@pytest.mark.parametrize("mode", ["waiting", "armed", "running", "frozen", "done", "aborted"])
 def test_in_mode_reaches_each_mode(mode: Mode) -> None:
     assert in_mode(mode).mode == mode
 
@@ -78,25 +85,10 @@ def test_a_start_without_at_starts_now() -> None:
     assert state.start_at == 3.0 and state.mode == "running"
 
 
-def test_running_freeze_freezes_and_run_time_stops() -> None:
-    state = in_mode("running")
-    assert state.command(Cmd("freeze", 1, at=8.0), t_sim=7.9) == [Event("frozen", 8.0)]
-    assert (state.mode, state.frozen_at) == ("frozen", 8.0)
-    assert state.run_time(20.0) == pytest.approx(3.0)  # held at the freeze
-
-
 def test_a_freeze_without_at_freezes_now() -> None:
     state = in_mode("running")
     assert state.command(Cmd("freeze", 1), t_sim=7.0) == [Event("frozen", 7.0)]
     assert state.frozen_at == 7.0
-
-
-def test_frozen_resume_runs_again_less_the_time_frozen() -> None:
-    state = in_mode("frozen")  # started at 5, frozen at 8
-    assert state.command(Cmd("resume", 2, at=10.0), t_sim=9.9) == [Event("resumed", 10.0)]
-    assert state.mode == "running" and state.frozen_at is None
-    assert state.frozen_total == pytest.approx(2.0)
-    assert state.run_time(12.0) == pytest.approx(5.0)  # 7 s since the start, 2 s frozen
 
 
 def test_a_resume_before_the_freeze_adds_no_frozen_time() -> None:
@@ -105,48 +97,7 @@ def test_a_resume_before_the_freeze_adds_no_frozen_time() -> None:
     assert state.frozen_total == 0.0
 
 
-@pytest.mark.parametrize("mode", ["armed", "running", "frozen"])
-def test_start_re_arms_from_armed_running_or_frozen(mode: Mode) -> None:
-    state = in_mode(mode)
-    assert state.command(Cmd("start", 10, at=30.0), t_sim=12.0) == [Event("armed", 30.0)]
-    assert (state.mode, state.start_at) == ("armed", 30.0)
-    assert (state.frozen_total, state.frozen_at) == (0.0, None)  # a fresh run
-    assert state.update(30.0) == [Event("started", 30.0)]
-    assert state.run_time(31.0) == pytest.approx(1.0)
-
-
-@pytest.mark.parametrize("mode", ["waiting", "armed", "running", "frozen", "aborted"])
-def test_abort_from_any_mode_is_final(mode: Mode) -> None:
-    state = in_mode(mode)
-    assert state.command(Cmd("abort", 10), t_sim=9.5) == [Event("aborted", 9.5)]
-    assert state.mode == "aborted"
-    assert state.update(100.0) == []
-
-
-def test_autostart_is_armed_for_reference_time_zero() -> None:
-    state = RunState(autostart=True)
-    assert (state.mode, state.start_at) == ("armed", 0.0)
-    assert state.update(0.0) == [Event("started", 0.0)]
-
-
 # ------------------------------------------------------------------ ignored commands
-
-
-@pytest.mark.parametrize("seq", [0, 1])
-def test_a_repeated_or_older_seq_does_nothing(seq: int) -> None:
-    state = in_mode("frozen")  # seqs 0 and 1 seen
-    assert state.command(Cmd("abort", seq), t_sim=9.0) == []
-    assert state.command(Cmd("resume", seq, at=9.0), t_sim=9.0) == []
-    assert state.mode == "frozen" and state.last_seq == 1
-
-
-@pytest.mark.parametrize("command", ["start", "freeze", "resume"])
-def test_after_an_abort_everything_but_abort_is_ignored(command: str) -> None:
-    state = in_mode("aborted")
-    assert state.command(Cmd(command, 10, at=20.0), t_sim=9.5) == [
-        Event("ignored", 9.5, f"{command} after abort")
-    ]
-    assert state.mode == "aborted" and state.last_seq == 10
 
 
 def test_start_now_unsynchronized_is_ignored() -> None:
@@ -205,3 +156,146 @@ def test_the_schema_command_is_a_run_command() -> None:
     command: RunCommand = Command(command="start", seq=0, at=5.0)
     state = RunState()
     assert state.command(command, t_sim=1.0) == [Event("armed", 5.0)]
+
+
+# ------------------------------------------------------------------ added with run ends
+
+
+def test_running_freeze_freezes_and_run_time_stops() -> None:
+    state = in_mode("running")
+    assert state.command(Cmd("freeze", 1, at=7.9), t_sim=8.0) == [Event("frozen", 7.9)]
+    assert (state.mode, state.frozen_at) == ("frozen", 7.9)
+    assert state.run_time(20.0) == pytest.approx(2.9)  # held at the freeze
+
+
+def test_a_freeze_or_resume_in_the_future_acts_now() -> None:
+    state = in_mode("running")
+    assert state.command(Cmd("freeze", 1, at=38.0), t_sim=8.0) == [Event("frozen", 8.0)]
+    assert state.command(Cmd("resume", 2, at=40.0), t_sim=10.0) == [Event("resumed", 10.0)]
+    assert state.run_time(12.0) == pytest.approx(5.0)  # 7 s since the start, 2 s frozen
+
+
+def test_frozen_resume_runs_again_less_the_time_frozen() -> None:
+    state = in_mode("frozen")  # started at 5, frozen at 8
+    assert state.command(Cmd("resume", 2, at=10.0), t_sim=10.0) == [Event("resumed", 10.0)]
+    assert state.mode == "running" and state.frozen_at is None
+    assert state.frozen_total == pytest.approx(2.0)
+    assert state.run_time(12.0) == pytest.approx(5.0)
+
+
+def test_start_re_arms_an_armed_run() -> None:
+    state = in_mode("armed")
+    assert state.command(Cmd("start", 10, at=30.0, run_id="b"), t_sim=12.0) == [
+        Event("armed", 30.0)
+    ]
+    assert (state.mode, state.start_at, state.run_id) == ("armed", 30.0, "b")
+
+
+@pytest.mark.parametrize("mode", ["running", "frozen"])
+def test_start_while_running_or_frozen_is_ignored(mode: Mode) -> None:
+    state = in_mode(mode)
+    assert state.command(Cmd("start", 10, at=30.0), t_sim=12.0) == [
+        Event("ignored", 12.0, f"start while {mode}: abort first")
+    ]
+    assert state.mode == mode and state.start_at == 5.0
+
+
+@pytest.mark.parametrize("mode", ["waiting", "armed", "running", "frozen", "done"])
+def test_abort_from_any_mode(mode: Mode) -> None:
+    state = in_mode(mode)
+    assert state.command(Cmd("abort", 10), t_sim=9.5) == [Event("aborted", 9.5)]
+    assert state.mode == "aborted"
+    assert state.update(100.0) == []
+
+
+def test_a_second_abort_does_nothing_more() -> None:
+    state = in_mode("aborted")
+    assert state.command(Cmd("abort", 11), t_sim=9.6) == []
+    assert state.mode == "aborted"
+
+
+@pytest.mark.parametrize("command", ["start", "freeze", "resume"])
+def test_after_an_abort_everything_but_abort_and_reset_is_ignored(command: str) -> None:
+    state = in_mode("aborted")
+    assert state.command(Cmd(command, 10, at=20.0), t_sim=9.5) == [
+        Event("ignored", 9.5, f"{command} after abort: fedlab ctl reset first")
+    ]
+    assert state.mode == "aborted"
+
+
+def test_the_run_is_done_after_its_duration_and_run_time_holds() -> None:
+    state = RunState()
+    state.command(Cmd("start", at=5.0, duration=10.0), t_sim=1.0)
+    state.update(5.0)
+    assert state.update(14.99) == [] and state.mode == "running"
+    assert state.fraction(10.0) == pytest.approx(0.5)
+    assert state.update(15.02) == [Event("done", 15.0)]
+    assert state.mode == "done"
+    assert state.run_time(40.0) == pytest.approx(10.0)
+    assert state.fraction(40.0) == 1.0
+
+
+def test_frozen_time_does_not_count_towards_the_duration() -> None:
+    state = RunState()
+    state.command(Cmd("start", at=0.0, duration=10.0), t_sim=0.0)
+    state.command(Cmd("freeze"), t_sim=4.0)
+    state.command(Cmd("resume"), t_sim=9.0)  # 5 s frozen
+    assert state.update(14.9) == []
+    assert state.update(15.0) == [Event("done", 15.0)]
+
+
+def test_the_agents_duration_applies_when_the_start_gives_none() -> None:
+    state = RunState(duration=3.0)
+    state.command(Cmd("start", at=0.0), t_sim=0.0)
+    assert state.update(3.0) == [Event("done", 3.0)]
+    state.command(Cmd("start", at=10.0, duration=1.0), t_sim=5.0)
+    assert state.duration == 1.0
+
+
+def test_done_waits_for_the_next_start_which_names_a_new_run() -> None:
+    state = RunState(duration=3.0)
+    state.command(Cmd("start", at=0.0, run_id="one"), t_sim=0.0)
+    state.update(3.0)
+    assert state.mode == "done"
+    events = state.command(Cmd("start", at=10.0, run_id="two"), t_sim=5.0)
+    assert events == [Event("armed", 10.0)]
+    assert (state.mode, state.run_id, state.frozen_at, state.frozen_total) == (
+        "armed",
+        "two",
+        None,
+        0.0,
+    )
+    assert state.update(10.0) == [Event("started", 10.0)]
+
+
+@pytest.mark.parametrize("mode", ["aborted", "done", "armed"])
+def test_reset_brings_back_to_waiting(mode: Mode) -> None:
+    state = in_mode(mode)
+    assert state.command(Cmd("reset"), t_sim=20.0) == [Event("reset", 20.0)]
+    assert (state.mode, state.start_at) == ("waiting", None)
+    assert state.update(100.0) == []  # nothing armed any more
+    assert state.command(Cmd("start", at=30.0), t_sim=21.0) == [Event("armed", 30.0)]
+
+
+def test_reset_while_waiting_does_nothing_and_while_running_is_ignored() -> None:
+    assert in_mode("waiting").command(Cmd("reset"), t_sim=1.0) == []
+    state = in_mode("running")
+    assert state.command(Cmd("reset"), t_sim=6.0) == [
+        Event("ignored", 6.0, "reset while running: abort first")
+    ]
+
+
+def test_abort_holds_the_run_time_where_it_was() -> None:
+    state = in_mode("running")  # started at 5
+    state.command(Cmd("abort"), t_sim=9.0)
+    assert state.run_time(50.0) == pytest.approx(4.0)
+    assert in_mode("armed").command(Cmd("abort"), t_sim=2.0) == [Event("aborted", 2.0)]
+
+
+def test_autostart_counts_run_time_from_the_first_reference_time() -> None:
+    """A lone agent whose platform took 7.5 s to build starts then, not at clock zero."""
+    state = RunState(autostart=True)
+    assert state.mode == "armed" and state.start_at is None
+    assert state.update(None) == []
+    assert state.update(7.5) == [Event("started", 7.5)]
+    assert state.run_time(8.0) == pytest.approx(0.5)

@@ -275,7 +275,7 @@ def snapshot_text() -> str:
         malformed=model.malformed,
         last_error=model.last_error,
     )
-    console = Console(record=True, width=120, color_system=None)
+    console = Console(record=True, width=200, color_system=None)
     console.print(table)
     return console.export_text()
 
@@ -291,7 +291,7 @@ def test_render_reads_well() -> None:
     assert "41.2" in lines["pinocchio"] and "0.84" in lines["pinocchio"]
     assert "0.5 s" in lines["pinocchio"]
     assert "left" in lines["ada"]
-    assert "5.0 s" in lines["ghost"]  # stale (dimmed in colour)
+    assert "5.0 s stale" in lines["ghost"]  # marked, and dimmed in colour
     assert "4 agents, 3 present · malformed status: 1" in text
     assert "fedlab/default/rome/pinocchio/status" in text
 
@@ -317,7 +317,7 @@ def test_fit_leaves_out_optional_columns_on_a_narrow_terminal() -> None:
     model.on_status(key(LEADER, "status"), leader_status(), now=0.0)
     model.on_status(key(FOLLOWER, "status"), follower_status(pose_age=0.01), now=0.0)
     rows = model.rows(0.5)
-    wide = Console(record=True, width=140, color_system=None)
+    wide = Console(record=True, width=220, color_system=None)
     assert len(fit(wide, rows).columns) == len(COLUMNS)
     narrow = Console(record=True, width=80, color_system=None)
     table = fit(narrow, rows)
@@ -347,3 +347,31 @@ def test_bad_arguments_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert exit_info.value.code == 2
     assert main(["--json"]) == 2
     assert "--json needs --once" in capsys.readouterr().err
+
+
+def test_rows_show_the_run_its_progress_hold_and_error_bound() -> None:
+    model = MonitorModel()
+    follower = follower_status(mode="running")
+    data = json.loads(follower)
+    data |= {"run_id": "trial-1", "run_time": 5.0, "duration": 20.0, "hold": "stale"}
+    data["peers"][LEADER]["bound"] = 0.00012
+    model.on_status(key(FOLLOWER, "status"), json.dumps(data).encode(), now=0.0)
+    (row,) = model.rows(0.5)
+    assert (row.run_id, row.run_time_s, row.duration_s, row.hold) == ("trial-1", 5.0, 20.0, "stale")
+    assert row.bound_s == 0.00012
+    console = Console(record=True, width=220, color_system=None)
+    console.print(render([row]))
+    text = console.export_text()
+    assert "trial-1" in text and "5.0/20 (25%)" in text and "stale" in text and "0.120" in text
+
+
+def test_rows_silent_for_drop_after_are_dropped() -> None:
+    model = MonitorModel(stale_after=3.0, drop_after=30.0)
+    model.on_status(key(LEADER, "status"), leader_status(), now=0.0)
+    model.on_status(key(FOLLOWER, "status"), follower_status(), now=20.0)
+    assert [(r.agent, r.state) for r in model.rows(29.0)] == [
+        (LEADER, "stale"),
+        (FOLLOWER, "stale"),
+    ]
+    assert [r.agent for r in model.rows(31.0)] == [FOLLOWER]
+    assert model.rows(51.0) == []

@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import math
 import threading
 from pathlib import Path
+from typing import Any
 
+import pytest
+from mcap.reader import make_reader
+
+from federation.core.channels import Channel
 from federation.fleet.launch import wait_for
 from federation.runtime.recorder import Recorder, read_messages
 
@@ -45,3 +52,117 @@ def test_unrecorded_channels_are_skipped_and_a_full_buffer_counts_drops(tmp_path
     rec.close()
     assert rec.dropped == 2 and rec.written == 3
     rec.close()  # twice is harmless
+
+
+def _protobuf_class(schema: Any) -> Any:
+    """The message class of a protobuf schema record (a FileDescriptorSet)."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    files = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    pool = descriptor_pool.DescriptorPool()
+    for proto in files.file:
+        pool.Add(proto)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+
+
+def test_a_recording_carries_the_pose_in_foxglove_types(tmp_path: Path) -> None:
+    path = tmp_path / "kiruna-knatte.mcap"
+    rec = Recorder(path, "kiruna/knatte")
+    poses = [(0.5 * k, -0.25 * k, 0.1 * k) for k in range(5)]
+    try:
+        for k, (x, y, heading) in enumerate(poses):
+            pose = {"x": x, "y": y, "heading": heading, "vx": 0.0, "vy": 0.0, "omega": 0.0}
+            rec.record("/pose/sent", {"t_exec": float(k), "host_monotonic": float(k)} | pose)
+        rec.record("/sync/exchange", {"peer": "rome/pinocchio", "offset": 0.001, "delay": 0.04})
+    finally:
+        rec.close()
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        schemas = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+        assert schemas["/tf"].name == "foxglove.FrameTransforms"
+        assert schemas["/pose"].name == "foxglove.PoseInFrame"
+        assert schemas["/tf"].encoding == "protobuf"
+        # fedlab's own channels: JSON with typed properties, so plots need no setup.
+        sync = json.loads(schemas["/sync/exchange"].data)
+        assert sync["properties"]["offset"] == {"type": "number"}
+        assert sync["properties"]["peer"] == {"type": "string"}
+        decoded: dict[str, list[Any]] = {"/tf": [], "/pose": []}
+        for schema, channel, message in reader.iter_messages(topics=["/tf", "/pose"]):
+            decoded[channel.topic].append(_protobuf_class(schema).FromString(message.data))
+    assert len(decoded["/tf"]) == len(decoded["/pose"]) == len(poses)
+    for (x, y, heading), tfs, pose in zip(poses, decoded["/tf"], decoded["/pose"], strict=True):
+        (tf,) = tfs.transforms
+        assert (tf.parent_frame_id, tf.child_frame_id) == ("fedlab_common", "kiruna/knatte")
+        assert (tf.translation.x, tf.translation.y, tf.translation.z) == (x, y, 0.0)
+        assert tf.rotation.z == pytest.approx(math.sin(heading / 2), abs=1e-15)
+        assert tf.rotation.w == pytest.approx(math.cos(heading / 2), abs=1e-15)
+        assert pose.frame_id == "fedlab_common" and pose.pose.position.x == x
+        q = pose.pose.orientation
+        assert (q.x, q.y, q.z, q.w) == (tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w)
+    # read_messages gives the JSON channels only, as before.
+    messages = read_messages(path)
+    assert "/tf" not in messages and len(messages["/pose/sent"]) == len(poses)
+
+
+def test_without_the_pose_channel_no_foxglove_channels(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    Recorder(path, "lab/a", channels=["/status"]).close()
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert {c.topic for c in summary.channels.values()} == {str(c) for c in Channel}
+
+
+def test_the_report_reads_old_and_new_recordings_alike(tmp_path: Path) -> None:
+    """An old recording (JSON channels, untyped schemas, no Foxglove types) and a new one
+    load the same messages."""
+    from mcap.writer import Writer
+
+    from federation.core.channels import CHANNEL_FIELDS
+    from federation.report.load import load_run
+
+    pose = {"x": 1.0, "y": 2.0, "vx": 0.0, "vy": 0.0, "omega": 0.0}
+    sent = [{"t_exec": float(k), "host_monotonic": float(k), "heading": 0.1 * k} | pose
+            for k in range(10)]  # fmt: skip
+    status = {"agent": "kiruna/knatte", "t_exec": 0.0, "host_monotonic": 0.0, "role": "leader",
+              "peers": {}, "counters": {}}  # fmt: skip
+    old_dir, new_dir = tmp_path / "old", tmp_path / "new"
+    old_dir.mkdir()
+    with (old_dir / "kiruna-knatte.mcap").open("wb") as f:  # the format before /tf and /pose
+        writer = Writer(f)
+        writer.start(profile="", library="fedlab")
+        ids = {}
+        for channel, fields in CHANNEL_FIELDS.items():
+            schema = {
+                "title": str(channel),
+                "type": "object",
+                "properties": {n: {} for n in fields},
+            }
+            sid = writer.register_schema(
+                name=str(channel).strip("/").replace("/", "."), encoding="jsonschema",
+                data=json.dumps(schema).encode(),
+            )  # fmt: skip
+            ids[str(channel)] = writer.register_channel(str(channel), "json", sid)
+        for k, message in enumerate([status, *sent]):
+            topic = "/status" if k == 0 else "/pose/sent"
+            writer.add_message(ids[topic], k, json.dumps(message).encode(), k)
+        writer.finish()  # type: ignore[no-untyped-call]
+    rec = Recorder(new_dir / "kiruna-knatte.mcap", "kiruna/knatte")
+    rec.record("/status", status)
+    for message in sent:
+        rec.record("/pose/sent", message)
+    rec.close()
+    old, new = load_run(old_dir), load_run(new_dir)
+    for run in (old, new):
+        agent = run.agents["kiruna/knatte"]
+        assert agent.role == "leader"
+        assert agent.channel("/pose/sent") == sent
+        assert "/tf" not in agent.messages
+    # A new recording whose end is damaged is read record by record, Foxglove's skipped.
+    new_file = new_dir / "kiruna-knatte.mcap"
+    new_file.write_bytes(new_file.read_bytes() + b"not mcap")
+    recovered = load_run(new_dir)
+    assert any("damaged or unfinished recording; 11 messages" in n for n in recovered.notes)
+    assert recovered.agents["kiruna/knatte"].channel("/pose/sent") == sent

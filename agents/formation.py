@@ -1,0 +1,178 @@
+"""Formation flying across labs: N platforms keep slots around a virtual centre.
+
+The virtual centre follows a circle every agent knows from the experiment
+(:class:`CirclePath`, on run time). No agent commands another: each computes its own
+reference from the others' shared poses (:class:`FormationGuidance`), a consensus on
+where the centre is. Agent :math:`i` with slot :math:`\\mathbf{o}_i` sees the others'
+poses :math:`\\mathbf{p}_j` (stamped on reference time :math:`s_j`; dead-reckoned to
+now when latency compensation is on) and takes
+
+.. math::
+
+    \\hat{\\mathbf{c}}_i = w_0\\,\\mathbf{c}(t) + (1 - w_0)\\,\\frac{1}{|J|}
+        \\sum_{j \\in J} \\big(\\mathbf{p}_j(t) - \\mathbf{o}_j\\big),
+    \\qquad \\mathbf{p}_{ref,i} = \\hat{\\mathbf{c}}_i + \\mathbf{o}_i
+
+with :math:`w_0 = 1 -` ``consensus_weight`` and :math:`J` the others whose pose is
+fresher than ``stale_after`` (none: the path alone). Latency compensation moves each
+shared pose on by its age :math:`a = t - s_j` with its velocity and the centre's
+acceleration, which every member knows from the path:
+:math:`\\mathbf{p}_j + \\mathbf{v}_j a + \tfrac12 \\ddot{\\mathbf{c}} a^2`,
+:math:`\\mathbf{v}_j + \\ddot{\\mathbf{c}} a`. Without compensation every
+received pose is one delay old, and the consensus drags the formation behind the
+path by about :math:`\\frac{1 - w_0}{w_0} v \\tau` for a centre speed :math:`v`
+and a delay :math:`\\tau`.
+
+The formation error of platform :math:`i` is its distance from its slot around the
+path's centre, :math:`|\\mathbf{p}_i - \\mathbf{c}(t) - \\mathbf{o}_i|`
+(:func:`slot_errors`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import NamedTuple
+
+from agents.guidance import Reference, Track
+from agents.relative import dead_reckon
+from federation.core.wire import Pose
+from schemas.scenario import FormationConfig
+
+__all__ = ["CirclePath", "FormationGuidance", "PathPoint", "slot_errors"]
+
+
+class PathPoint(NamedTuple):
+    """The virtual centre: position (m), velocity (m/s), acceleration (m/s^2)."""
+
+    x: float
+    y: float
+    vx: float = 0.0
+    vy: float = 0.0
+    ax: float = 0.0
+    ay: float = 0.0
+
+
+class CirclePath:
+    """The centre's circle, still for ``still`` s, then speeding up over ``ramp`` s:
+
+    .. math::
+
+        \\theta(\\tau) = \\begin{cases} \\omega \\tau^2 / (2 T_r) & 0 \\le \\tau < T_r \\\\
+            \\omega (\\tau - T_r / 2) & \\tau \\ge T_r \\end{cases}, \\qquad
+        \\tau = t - t_{still}, \\quad \\omega = 2\\pi / T
+    """
+
+    def __init__(self, config: FormationConfig):
+        self.c0 = config.centre
+        self.radius = config.radius
+        self.omega = 2.0 * math.pi / config.period
+        self.still = config.still
+        self.ramp = config.ramp
+
+    @property
+    def speed(self) -> float:
+        """The centre's speed on the circle, m/s."""
+        return self.radius * self.omega
+
+    def __call__(self, t: float) -> PathPoint:
+        tau = t - self.still
+        w, r = self.omega, self.radius
+        if tau <= 0:
+            return PathPoint(*self.c0)
+        if tau < self.ramp:
+            th, dth, ddth = w * tau * tau / (2 * self.ramp), w * tau / self.ramp, w / self.ramp
+        else:
+            th, dth, ddth = w * (tau - self.ramp / 2), w, 0.0
+        c, s = math.cos(th), math.sin(th)
+        return PathPoint(
+            self.c0[0] + r * (c - 1.0),
+            self.c0[1] + r * s,
+            -r * s * dth,
+            r * c * dth,
+            -r * s * ddth - r * c * dth * dth,
+            r * c * ddth - r * s * dth * dth,
+        )
+
+
+class FormationGuidance:
+    """One member's reference from the path and the others' shared poses.
+
+    Parameters
+    ----------
+    me : str
+        This agent (``LAB/NAME``), a key of ``config.slots``.
+    config : FormationConfig
+    compensate : bool
+        Dead-reckon the others' poses from their stamps to now.
+    """
+
+    def __init__(self, me: str, config: FormationConfig, compensate: bool = True):
+        if me not in config.slots:
+            raise ValueError(f"{me} has no slot in the formation ({', '.join(config.slots)})")
+        self.me = me
+        self.config = config
+        self.compensate = compensate
+        self.path = CirclePath(config)
+        self.slot = config.slots[me]
+        self.heading = math.radians(config.heading_deg)
+        self.used = 0
+        """How many others the last reference used."""
+
+    def reference(
+        self, t: float | None, run_time: float | None, others: Mapping[str, tuple[float, Pose]]
+    ) -> Reference:
+        """The reference at reference time ``t`` and run time ``run_time`` (s); None
+        before the run: no track (the platform keeps its position)."""
+        if t is None or run_time is None:
+            return Reference(self.heading, 0.0, None)
+        c = self.path(run_time)
+        cfg = self.config
+        sx = sy = svx = svy = 0.0
+        n = 0
+        for agent, (stamp, pose) in others.items():
+            slot = cfg.slots.get(agent)
+            age = t - stamp
+            if slot is None or agent == self.me or age > cfg.stale_after:
+                continue
+            if self.compensate:  # on to now, with the centre's acceleration every member shares
+                dt = min(max(age, 0.0), cfg.stale_after)
+                pose = dead_reckon(pose, dt)._replace(
+                    x=pose.x + pose.vx * dt + 0.5 * c.ax * dt * dt,
+                    y=pose.y + pose.vy * dt + 0.5 * c.ay * dt * dt,
+                    vx=pose.vx + c.ax * dt,
+                    vy=pose.vy + c.ay * dt,
+                )
+            sx += pose.x - slot[0]
+            sy += pose.y - slot[1]
+            svx += pose.vx
+            svy += pose.vy
+            n += 1
+        self.used = n
+        if n == 0:
+            w = 0.0
+        else:
+            w = cfg.consensus_weight
+            sx, sy, svx, svy = sx / n, sy / n, svx / n, svy / n
+        track = Track(
+            (1 - w) * c.x + w * sx + self.slot[0],
+            (1 - w) * c.y + w * sy + self.slot[1],
+            (1 - w) * c.vx + w * svx,
+            (1 - w) * c.vy + w * svy,
+            c.ax,
+            c.ay,
+        )
+        return Reference(self.heading, 0.0, track)
+
+
+def slot_errors(
+    config: FormationConfig, run_time: float, poses: Mapping[str, Pose]
+) -> dict[str, float]:
+    """Each platform's distance from its slot around the path's centre at ``run_time``, m."""
+    c = CirclePath(config)(run_time)
+    out = {}
+    for agent, pose in poses.items():
+        slot = config.slots.get(agent)
+        if slot is not None:
+            out[agent] = math.hypot(pose.x - c.x - slot[0], pose.y - c.y - slot[1])
+    return out

@@ -1,0 +1,372 @@
+"""Scenarios rehearsed in simulated time, in one process: the evidence that does not
+need a network.
+
+Each platform is a :class:`~agents.simulated.SimulatedPlatform` under its
+:class:`~agents.scenario.ScenarioGuidance` (the very objects an agent runs); their
+shared poses go through a modelled link (:class:`DelayLine`: a one-way delay with
+half-normal jitter) at the pose rate, stamped on one common clock (perfect sync:
+the real-process demo adds the sync estimate's error). Everything is seeded, so a
+run is repeatable and a comparison (with and without latency compensation, fixed and
+adaptive gains) sees the same noise.
+
+- :func:`formation_run`: N platforms keep a formation around a circling centre;
+- :func:`docking_run`: a chaser docks with a target from relative measurements;
+- :func:`adaptive_run`: a follower tracks a leader's heading maneuver with fixed or
+  adaptive gains.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from agents.docking import ContactState, contact_state
+from agents.formation import slot_errors
+from agents.guidance import Reference, ReferenceManeuver, track_heading
+from agents.scenario import ScenarioGuidance
+from agents.simulated import SimulatedPlatform
+from federation.core.angles import wrap_angle
+from federation.core.wire import Pose, PoseSample
+from schemas.experiment import ExperimentConfig
+from schemas.platform import load_platform
+from schemas.scenario import AdaptiveConfig, ScenarioPart
+
+__all__ = [
+    "DelayLine",
+    "DockingOutcome",
+    "adaptive_run",
+    "docking_run",
+    "formation_run",
+]
+
+START = 3.0  # s of reference time before the run starts (the filters converge)
+
+
+class DelayLine:
+    """A one-way link: a sample sent at ``t`` arrives at ``t + delay + |N(0, jitter)|``,
+    in order (a sample never overtakes the one before)."""
+
+    def __init__(self, delay: float, jitter: float, rng: np.random.Generator):
+        self.delay, self.jitter, self.rng = delay, jitter, rng
+        self._queue: deque[tuple[float, PoseSample]] = deque()
+        self._last_arrival = -math.inf
+        self.latest: PoseSample | None = None
+
+    def send(self, t: float, sample: PoseSample) -> None:
+        arrival = t + self.delay + abs(float(self.rng.normal(0.0, self.jitter)))
+        self._last_arrival = max(arrival, self._last_arrival)
+        self._queue.append((self._last_arrival, sample))
+
+    def receive(self, t: float) -> PoseSample | None:
+        """The latest sample arrived by ``t``."""
+        while self._queue and self._queue[0][0] <= t:
+            self.latest = self._queue.popleft()[1]
+        return self.latest
+
+
+@dataclass
+class _Member:
+    name: str
+    platform: Any  # SimulatedPlatform, or a FramedPlatform around one
+    guidance: Callable[[float, float | None, Mapping[str, tuple[float, Pose]], Pose], Reference]
+    links: dict[str, DelayLine] = field(default_factory=dict)  # to each other member
+    estimate: Pose = field(default_factory=Pose)
+
+
+def _run(
+    members: list[_Member],
+    duration: float,
+    pose_rate: float,
+    observe: Callable[[float, float, dict[str, _Member]], None],
+    record_every: float = 0.1,
+) -> None:
+    """Step every member at the control rate for ``START + duration`` s of reference time."""
+    rate = members[0].platform.rate
+    tick = 1.0 / rate
+    pose_every = max(1, round(rate / pose_rate))
+    record_steps = max(1, round(record_every * rate))
+    by_name = {m.name: m for m in members}
+    for k in range(round((START + duration) * rate) + 1):
+        t = k * tick
+        run_time = t - START if t >= START else None
+        for m in members:
+            others = {}
+            for other in members:
+                if other is m:
+                    continue
+                got = m.links[other.name].receive(t)
+                if got is not None:
+                    others[other.name] = (got.t, got.pose)
+            ref = m.guidance(t, run_time, others, m.estimate)
+            m.estimate = m.platform.step(t, ref.heading, ref.rate, ref.track)
+        if k % pose_every == 0:
+            for m in members:
+                for other in members:
+                    if other is not m:
+                        other.links[m.name].send(t, PoseSample(t, m.estimate))
+        if run_time is not None and k % record_steps == 0:
+            observe(t, run_time, by_name)
+
+
+def _links(members: list[_Member], delay: float, jitter: float, seed: int) -> None:
+    rngs = iter(np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(64))
+    for m in members:
+        for other in members:
+            if other is not m:
+                m.links[other.name] = DelayLine(delay, jitter, next(rngs))
+
+
+def _scenario_member(
+    name: str, part: ScenarioPart, platform: SimulatedPlatform, compensate: bool
+) -> _Member:
+    scenario = ScenarioGuidance(name, part, platform, compensate=compensate)
+
+    def guidance(
+        t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
+    ) -> Reference:
+        ref = scenario.reference(t, run_time, others, own)
+        return ref if ref is not None else Reference()
+
+    member = _Member(name, scenario.platform, guidance)
+    member.scenario = scenario  # type: ignore[attr-defined]
+    return member
+
+
+def _platforms(experiment: ExperimentConfig, seed: int) -> dict[str, SimulatedPlatform]:
+    out = {}
+    for i, p in enumerate(experiment.participants):
+        config = load_platform(p.platform)
+        out[p.agent] = SimulatedPlatform(config, seed=seed * 100 + i)
+    return out
+
+
+# ---------------------------------------------------------------- formation
+
+
+def formation_run(
+    experiment: ExperimentConfig,
+    delay: float,
+    compensate: bool = True,
+    seed: int = 0,
+    duration: float | None = None,
+    jitter: float = 0.002,
+) -> dict[str, Any]:
+    """The formation experiment in simulated time; returns its figures.
+
+    Returns
+    -------
+    dict
+        ``error_rms_m``, ``error_max_m`` (every platform's distance from its slot
+        around the path's centre, on the truth, every 0.1 s of the run),
+        ``per_platform`` (the same per agent), ``workspace`` (clamps and holds per
+        agent), ``series`` (run time, per-agent errors and common-frame truths).
+    """
+    assert experiment.kind == "formation" and experiment.formation is not None
+    duration = experiment.duration if duration is None else duration
+    platforms = _platforms(experiment, seed)
+    members = []
+    for p in experiment.participants:
+        part = experiment.part(_agent(p.agent))
+        assert part is not None
+        members.append(_scenario_member(p.agent, part, platforms[p.agent], compensate))
+    _links(members, delay, jitter, seed)
+    series: dict[str, list[Any]] = {"run_time": [], "errors": [], "truth": []}
+    formation = experiment.formation
+
+    def observe(t: float, run_time: float, by_name: dict[str, _Member]) -> None:
+        truths = {n: m.platform.truth for n, m in by_name.items()}
+        series["run_time"].append(run_time)
+        series["errors"].append(slot_errors(formation, run_time, truths))
+        series["truth"].append({n: (p.x, p.y, p.heading) for n, p in truths.items()})
+
+    _run(members, duration, 20.0, observe)
+    errors = np.array([[e[m.name] for m in members] for e in series["errors"]])
+    return {
+        "delay_s": delay,
+        "latency_compensation": compensate,
+        "seed": seed,
+        "error_rms_m": float(np.sqrt(np.mean(errors**2))),
+        "error_max_m": float(np.max(errors)),
+        "per_platform": {
+            m.name: {
+                "error_rms_m": float(np.sqrt(np.mean(errors[:, i] ** 2))),
+                "error_max_m": float(np.max(errors[:, i])),
+            }
+            for i, m in enumerate(members)
+        },
+        "workspace": {m.name: dict(m.platform.workspace_counters) for m in members},
+        "series": series,
+    }
+
+
+def _agent(text: str) -> Any:
+    from federation.core.keys import AgentId
+
+    return AgentId.parse(text)
+
+
+# ---------------------------------------------------------------- docking
+
+
+@dataclass
+class DockingOutcome:
+    """A docking attempt scored on the truth at the first contact (:math:`s \\le L`)."""
+
+    success: bool
+    time_s: float | None  # run time of the contact
+    contact: ContactState | None  # at the contact
+    phases: list[tuple[float, str]]
+    counters: dict[str, int]
+    velocity_error_rms_mps: float  # chaser's Kalman velocity estimate vs truth
+    velocity_error_max_mps: float
+    workspace: dict[str, dict[str, int]]
+
+    def summary(self) -> dict[str, Any]:
+        c = self.contact
+        return {
+            "success": self.success,
+            "time_s": self.time_s,
+            "contact_speed_mps": None if c is None else c.closing_speed,
+            "lateral_error_m": None if c is None else abs(c.lateral),
+            "heading_error_deg": None if c is None else math.degrees(abs(c.heading_error)),
+            "chaser_velocity_error_rms_mps": self.velocity_error_rms_mps,
+            "chaser_velocity_error_max_mps": self.velocity_error_max_mps,
+            "phases": self.phases,
+            "counters": self.counters,
+            "workspace": self.workspace,
+        }
+
+
+def docking_run(
+    experiment: ExperimentConfig,
+    delay: float,
+    seed: int = 0,
+    duration: float | None = None,
+    jitter: float = 0.002,
+    compensate: bool = True,
+) -> DockingOutcome:
+    """The docking experiment in simulated time, scored on the truth."""
+    d = experiment.docking
+    assert experiment.kind == "docking" and d is not None
+    duration = experiment.duration if duration is None else duration
+    platforms = _platforms(experiment, seed)
+    members = []
+    for p in experiment.participants:
+        part = experiment.part(_agent(p.agent))
+        assert part is not None
+        sensor = part.relative_sensor.model_copy(update={"seed": part.relative_sensor.seed + seed})
+        part = part.model_copy(update={"relative_sensor": sensor})
+        members.append(_scenario_member(p.agent, part, platforms[p.agent], compensate))
+    _links(members, delay, jitter, seed)
+    chaser = next(m for m in members if m.name == d.chaser)
+    target = next(m for m in members if m.name == d.target)
+    found: dict[str, Any] = {}
+    verr: list[float] = []
+
+    def observe(t: float, run_time: float, by_name: dict[str, _Member]) -> None:
+        truth = chaser.platform.truth
+        est = chaser.platform.frame.to_common(chaser.platform.inner.estimate)
+        verr.append(math.hypot(est.vx - truth.vx, est.vy - truth.vy))
+        if "contact" in found:
+            return
+        state = contact_state(truth, target.platform.truth)
+        if state.axial <= d.contact_distance:
+            found["contact"] = state
+            found["time"] = run_time
+
+    _run(members, duration, 20.0, observe, record_every=0.01)
+    c: ContactState | None = found.get("contact")
+    criteria = d.contact
+    success = (
+        c is not None
+        and c.closing_speed <= criteria.max_speed
+        and abs(c.lateral) <= criteria.max_lateral
+        and math.degrees(abs(c.heading_error)) <= criteria.max_heading_deg
+    )
+    scenario: ScenarioGuidance = chaser.scenario  # type: ignore[attr-defined]
+    guidance = scenario.docking
+    assert guidance is not None
+    return DockingOutcome(
+        success=success,
+        time_s=found.get("time"),
+        contact=c,
+        phases=list(guidance.events),
+        counters=scenario.counters,
+        velocity_error_rms_mps=float(np.sqrt(np.mean(np.square(verr)))) if verr else math.nan,
+        velocity_error_max_mps=float(np.max(verr)) if verr else math.nan,
+        workspace={m.name: dict(m.platform.workspace_counters) for m in members},
+    )
+
+
+# ---------------------------------------------------------------- adaptive gains
+
+
+def adaptive_run(
+    amplitude_deg: float,
+    maneuver_s: float,
+    adaptive: AdaptiveConfig | None,
+    delay: float = 0.04,
+    seed: int = 0,
+    leader: str = "knatte",
+    follower: str = "pinocchio",
+    still: float = 5.0,
+) -> dict[str, Any]:
+    """A leader flies the raised-cosine maneuver (``amplitude_deg`` out and back in
+    ``maneuver_s``); a follower tracks the heading it receives (latency compensated),
+    with its preset's gains (``adaptive`` None) or scheduled ones.
+
+    Returns the follower's heading error against the leader (truth, RMS and max, deg,
+    over the maneuver), its valve-open time (s) and the scale its gains reached."""
+    maneuver = ReferenceManeuver(still, maneuver_s, math.radians(amplitude_deg))
+    lead = SimulatedPlatform(load_platform(leader), seed=seed * 100)
+    follow = SimulatedPlatform(load_platform(follower), seed=seed * 100 + 1)
+    gains = None
+    if adaptive is not None:
+        from agents.adaptive import AdaptiveGains
+
+        gains = AdaptiveGains(adaptive, follow.chain.pid)
+
+    def lead_guidance(
+        t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
+    ) -> Reference:
+        return Reference(*maneuver(run_time)) if run_time is not None else Reference()
+
+    def follow_guidance(
+        t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
+    ) -> Reference:
+        got = others.get("leader")
+        if got is None:
+            return Reference()
+        if gains is not None:
+            gains.observe(got[0], got[1].omega)
+        return Reference(*track_heading(PoseSample(*got), t, compensate=True))
+
+    members = [_Member("leader", lead, lead_guidance), _Member("follower", follow, follow_guidance)]
+    _links(members, delay, 0.002, seed)
+    errors: list[float] = []
+    valve_steps = [0]
+    peak_scale = [1.0]
+
+    def observe(t: float, run_time: float, by_name: dict[str, _Member]) -> None:
+        if still <= run_time <= still + maneuver_s + 5.0:
+            errors.append(wrap_angle(follow.truth.heading - lead.truth.heading))
+            valve_steps[0] += sum(follow.valves)
+            if gains is not None:
+                peak_scale[0] = max(peak_scale[0], gains.scale)
+
+    _run(members, still + maneuver_s + 5.0, 20.0, observe, record_every=0.01)
+    e = np.degrees(np.abs(errors))
+    return {
+        "amplitude_deg": amplitude_deg,
+        "maneuver_s": maneuver_s,
+        "adaptive": adaptive is not None,
+        "heading_error_rms_deg": float(np.sqrt(np.mean(e**2))),
+        "heading_error_max_deg": float(np.max(e)),
+        "valve_open_s": valve_steps[0] * 0.01,
+        "scale_max": peak_scale[0],
+    }

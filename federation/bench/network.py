@@ -1,0 +1,377 @@
+"""``fedlab bench network``: the federation on real network stacks, under loss,
+cuts and a path-MTU black hole.
+
+Each scenario builds a :class:`federation.testbed.Testbed` (Rome behind a
+masquerading gateway with a stateful firewall, Kiruna with its router's ports
+open, the paper's path in between: 40 ms one way, a few ms of jitter), starts both
+lab routers from the shipped configs (``deploy/routers/``), a leader in Kiruna, a
+follower in Rome (clock 26.42 s off) and an outside raw Zenoh subscriber on
+Rome's router, runs, and scores the recordings against the truth (both labs share
+this host's monotonic clock):
+
+- **holds**: safe holds the follower entered (every one is spurious: the leader
+  never stops) and the fraction of time held;
+- **pose latency**: leader's send to follower's arrival, host time;
+- **sync error**: |the follower's live offset estimate - truth| at each exchange
+  after the 10 s sync phase;
+- **heading error**: the follower's reference heading (what its controller is
+  given, dead-reckoned) against the leader's actual heading at the same instant,
+  outside holds;
+- **cut**: the WAN is cut for ``cut`` seconds: time from the cut to the hold,
+  from the return to the first pose, sync exchange and release, and the oldest
+  pose delivered to the controller after the return;
+- **NAT**: direct TCP connections from Kiruna into Rome's lab and to its gateway
+  (both must fail while the federation works);
+- **outside subscriber**: how many leader poses a raw zenoh-python subscriber on
+  Rome's router received, beside the follower's count.
+
+Transports: ``multilink`` (the shipped configs: a TCP link for declarations,
+queries and control, a UDP link beside it for best-effort pose, 512-byte batches,
+15 s lease, and the lab hosts' TCP settings of ``deploy/sysctl/90-fedlab-wan.conf``)
+and ``tcp`` (the previous configs: one TCP link, low-latency transport, 10 s lease,
+the kernel's default TCP settings).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from federation.core import paper
+from federation.fleet.launch import wait_for
+from federation.link.packet import PacketOptions
+from federation.testbed import ADDR, Testbed
+from federation.testbed.topology import parse_sysctl_conf
+
+__all__ = ["SCENARIOS", "TRANSPORTS", "Scenario", "count_samples", "run", "run_one", "score"]
+
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+ROUTERS = DEPLOY / "routers"
+SYSCTL = DEPLOY / "sysctl" / "90-fedlab-wan.conf"
+LEADER, FOLLOWER = "kiruna/knatte", "rome/pinocchio"
+PORT = 7447
+SYNC_PHASE = paper.SYNC_PHASE
+
+TRANSPORTS: dict[str, dict[str, list[str]]] = {
+    # The shipped configs: TCP and UDP links in one transport (max_links 2).
+    "multilink": {
+        "kiruna": ["-l", f"tcp/0.0.0.0:{PORT}", "-l", f"udp/0.0.0.0:{PORT}"],
+        "rome": ["-e", f"tcp/{ADDR.kiruna}:{PORT}", "-e", f"udp/{ADDR.kiruna}:{PORT}"],
+        "ports": ["tcp/7447", "udp/7447"],
+        "sysctl": [str(SYSCTL)],
+    },
+    # The configs before this benchmark: one TCP link, low-latency transport.
+    "tcp": {
+        "kiruna": ["-l", f"tcp/0.0.0.0:{PORT}"],
+        "rome": ["-e", f"tcp/{ADDR.kiruna}:{PORT}"],
+        "ports": ["tcp/7447"],
+        "cfg": [
+            "--cfg", "transport/unicast/lowlatency:true",
+            "--cfg", "transport/unicast/max_links:1",
+            "--cfg", "transport/link/tx/lease:10000",
+            "--cfg", "transport/link/tx/keep_alive:4",
+            "--cfg", "transport/link/tx/batch_size:65535",
+        ],
+    },
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One run's path. Delays in seconds; ``cut`` is (at, length) after the sync phase."""
+
+    name: str
+    loss: float = 0.0
+    loss_burst: float = 1.0
+    mtu: int = 0
+    icmp: bool = True
+    cut: tuple[float, float] | None = None
+    delay: float = paper.ONE_WAY_DELAY
+    jitter: float = 0.003
+
+    def path(self) -> PacketOptions:
+        return PacketOptions(
+            delay=self.delay,
+            jitter=self.jitter,
+            loss=self.loss,
+            loss_burst=self.loss_burst,
+            mtu=self.mtu,
+            icmp=self.icmp,
+        )
+
+
+SCENARIOS = {
+    s.name: s
+    for s in (
+        Scenario("clean"),
+        Scenario("loss1", loss=0.01),
+        Scenario("loss5", loss=0.05),
+        Scenario("loss20", loss=0.20),
+        Scenario("cut10", cut=(15.0, 10.0)),
+        Scenario("mtu576", mtu=576, icmp=False),
+    )
+}
+
+
+# -- the outside subscriber ------------------------------------------------------------
+def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
+    """A raw zenoh-python client subscribing to ``key`` on ``endpoint``, as a third
+    party would (Zenoh's default config, nothing of fedlab's): writes the samples
+    counted per key and per second to ``out`` (JSON) every second."""
+    import threading
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    counts: dict[str, int] = {}
+    arrivals: list[float] = []
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        with lock:
+            k = str(sample.key_expr)
+            counts[k] = counts.get(k, 0) + 1
+            if k.endswith("/pose"):
+                arrivals.append(time.monotonic())
+
+    give_up = time.monotonic() + 20.0  # the router may still be starting
+    while True:
+        try:
+            session = zenoh.open(conf)
+            break
+        except zenoh.ZError:
+            if time.monotonic() > give_up:
+                raise
+            time.sleep(0.5)
+    with session:
+        sub = session.declare_subscriber(key, on_sample)
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            time.sleep(1.0)
+            with lock:
+                data = {"counts": dict(counts), "pose_arrivals": list(arrivals)}
+            tmp = out.with_name(out.name + ".tmp")
+            tmp.write_text(json.dumps(data))
+            tmp.replace(out)
+        sub.undeclare()
+
+
+# -- a run -----------------------------------------------------------------------------
+def _router_args(lab: str, transport: str) -> list[str]:
+    t = TRANSPORTS[transport]
+    listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if lab == "rome" else []
+    return ["router", "-c", str(ROUTERS / f"{lab}.json5"), *listen, *t[lab], *t.get("cfg", [])]
+
+
+def run_one(
+    scenario: Scenario, transport: str, seconds: float, out: Path, seed: int = 1
+) -> dict[str, Any]:
+    """One scenario on one transport; the scores (see :func:`score`)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in out.glob("*.mcap"):
+        stale.unlink()
+    lead, follow = out / "leader.mcap", out / "follower.mcap"
+    subscriber = out / "subscriber.json"
+    path = scenario.path()
+    events: dict[str, Any] = {}
+    t = TRANSPORTS[transport]
+    sysctls: dict[str, str] = {}
+    for conf in t.get("sysctl", []):
+        sysctls |= parse_sysctl_conf(Path(conf).read_text())
+    with Testbed(out, path, kiruna_ports=t["ports"], sysctls=sysctls, seed=seed) as bed:
+        bed.fedlab("kiruna", "router-kiruna", _router_args("kiruna", transport))
+        bed.fedlab("rome", "router-rome", _router_args("rome", transport))
+        run_for = seconds + SYNC_PHASE
+        common = ["-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5"]
+        common += ["--duration", f"{run_for + 5:g}"]
+        bed.fedlab(
+            "kiruna",
+            "leader",
+            ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte",
+             "--record", str(lead), "--status-json", str(out / "leader.jsonl"), *common],
+        )  # fmt: skip
+        bed.fedlab(
+            "rome",
+            "follower",
+            ["agent", "--role", "follower", "--lab", "rome", "--name", "pinocchio",
+             "--follow", LEADER, "--clock-offset", f"{paper.CLOCK_OFFSET}",
+             "--record", str(follow), "--status-json", str(out / "follower.jsonl"), *common],
+        )  # fmt: skip
+        code = (
+            "from pathlib import Path; from federation.bench.network import count_samples; "
+            f"count_samples('tcp/127.0.0.1:{PORT}', 'fedlab/**', Path({str(subscriber)!r}), "
+            f"{run_for + 5:g})"
+        )
+        bed.spawn("rome", "subscriber", [sys.executable, "-c", code])
+        started = time.monotonic()
+        if scenario.cut is not None:
+            at, length = scenario.cut
+            time.sleep(max(0.0, SYNC_PHASE + at - (time.monotonic() - started)))
+            events["cut_at"] = bed.cut()
+            time.sleep(length)
+            events["restored_at"] = bed.restore()
+        time.sleep(max(0.0, run_for - 12 - (time.monotonic() - started)))
+        events["nat_probe"] = {
+            "rome_host": bed.probe("kiruna", ADDR.rome, PORT, 2.0),
+            "rome_gateway": bed.probe("kiruna", ADDR.rome_gw_wan, PORT, 2.0),
+        }
+        wait_for(lambda: not bed.alive("follower"), timeout=run_for + 60, interval=0.5)
+        wait_for(lambda: not bed.alive("leader"), timeout=15, interval=0.2)
+        events["stage"] = bed.stage_stats()
+    sub = json.loads(subscriber.read_text()) if subscriber.exists() else {}
+    result = score(follow, lead, events, sub)
+    return {
+        "scenario": asdict(scenario),
+        "transport": transport,
+        "seconds": seconds,
+        "seed": seed,
+        **result,
+    }
+
+
+def _pct(values: list[float] | np.ndarray, q: float) -> float | None:
+    a = np.asarray(values, dtype=float)
+    return None if a.size == 0 else float(np.percentile(a, q))
+
+
+def score(
+    follower: Path, leader: Path, events: dict[str, Any], subscriber: dict[str, Any]
+) -> dict[str, Any]:
+    """The figures of one run from the two recordings, the cut times and the
+    outside subscriber's counts."""
+    from federation.report.status import clock_line
+    from federation.runtime.recorder import read_messages
+
+    topics = ["/status", "/pose/received", "/sync/exchange", "/control", "/reference"]
+    f = read_messages(follower, topics)
+    lmsg = read_messages(leader, ["/status", "/pose/sent"])
+    a_l, b_l = clock_line(lmsg["/status"])
+
+    def leader_host(t: float) -> float:
+        return (t - a_l) / b_l
+
+    start = f["/sync/exchange"][0]["host_monotonic"] + SYNC_PHASE if f["/sync/exchange"] else 0.0
+    # The run ends when either agent stops: a hold after the leader left is no fault.
+    end = min(f["/status"][-1]["host_monotonic"], lmsg["/pose/sent"][-1]["host_monotonic"])
+    poses = [p for p in f["/pose/received"] if start <= p["host_monotonic"] <= end]
+    latency = [p["host_monotonic"] - leader_host(p["t"]) for p in poses]
+    errors = []
+    for x in f["/sync/exchange"]:
+        if x["host_monotonic"] < start or x.get("estimate") is None:
+            continue
+        truth = (a_l + b_l * x["host_monotonic"]) - x["t3"]  # leader clock - follower clock
+        errors.append(abs(x["estimate"] - truth))
+    holds = [c for c in f["/control"] if c["event"] == "stale_hold" and c["host_monotonic"] < end]
+    resumes = [c for c in f["/control"] if c["event"] == "link_resumed"]
+    held = _held_intervals(holds, resumes, end)
+    held_time = sum(min(b, end) - max(a, start) for a, b in held if b > start)
+    # Heading: the follower's reference against the leader's actual heading.
+    sent = lmsg["/pose/sent"]
+    lh = np.array([s["host_monotonic"] for s in sent])
+    lhead = np.unwrap(np.array([s["heading"] for s in sent]))
+    herr = []
+    for r in f["/reference"]:
+        h = r["host_monotonic"]
+        if h < start or any(a <= h < b for a, b in held):
+            continue
+        actual = float(np.interp(h, lh, lhead))
+        herr.append(abs(math.remainder(r["heading_ref"] - actual, 2 * math.pi)))
+    herr_deg = np.degrees(herr) if herr else np.array([])
+    minutes = max(end - start, 1e-9) / 60
+    out: dict[str, Any] = {
+        "holds": len([h for h in holds if h["host_monotonic"] >= start]),
+        "holds_per_min": len([h for h in holds if h["host_monotonic"] >= start]) / minutes,
+        "held_fraction": held_time / max(end - start, 1e-9),
+        "poses_received": len(poses),
+        "pose_latency_ms": {
+            "p50": _ms(_pct(latency, 50)),
+            "p99": _ms(_pct(latency, 99)),
+            "max": _ms(max(latency) if latency else None),
+        },
+        "sync_error_ms": {
+            "p50": _ms(_pct(errors, 50)),
+            "p95": _ms(_pct(errors, 95)),
+            "max": _ms(max(errors) if errors else None),
+            "n": len(errors),
+        },
+        "heading_error_deg": {
+            "rms": float(np.sqrt(np.mean(herr_deg**2))) if herr else None,
+            "p99": _pct(herr_deg, 99),
+            "max": float(herr_deg.max()) if herr else None,
+        },
+        "counters": f["/status"][-1].get("counters", {}),
+        "nat_probe": events.get("nat_probe"),
+        "stage": events.get("stage"),
+    }
+    leader_key = "fedlab/default/" + LEADER + "/pose"
+    counts = subscriber.get("counts", {})
+    pose_counts = {k: v for k, v in counts.items() if k.endswith(LEADER + "/pose")}
+    arrivals = subscriber.get("pose_arrivals", [])
+    out["outside_subscriber"] = {
+        "leader_poses": sum(pose_counts.values()) if pose_counts else counts.get(leader_key, 0),
+        "last_pose_before_end_s": (end - max(arrivals)) if arrivals else None,
+        "status_samples": sum(v for k, v in counts.items() if k.endswith("/status")),
+        "follower_poses_all_run": len(f["/pose/received"]),
+    }
+    if "cut_at" in events:
+        cut, back = events["cut_at"], events["restored_at"]
+        first_hold = [h["host_monotonic"] for h in holds if h["host_monotonic"] >= cut - 0.5]
+        after = [p for p in f["/pose/received"] if p["host_monotonic"] > back]
+        sync_after = [
+            x["host_monotonic"] for x in f["/sync/exchange"] if x["host_monotonic"] > back
+        ]
+        resumed = [r["host_monotonic"] for r in resumes if r["host_monotonic"] > back]
+        late = [p["host_monotonic"] - leader_host(p["t"]) for p in after[:40]]
+        out["cut"] = {
+            "length_s": back - cut,
+            "hold_after_cut_ms": _ms(first_hold[0] - cut if first_hold else None),
+            "pose_back_after_s": after[0]["host_monotonic"] - back if after else None,
+            "sync_back_after_s": sync_after[0] - back if sync_after else None,
+            "released_after_s": resumed[0] - back if resumed else None,
+            "oldest_pose_after_return_ms": _ms(max(late) if late else None),
+        }
+    return out
+
+
+def _ms(seconds: float | None) -> float | None:
+    return None if seconds is None else round(seconds * 1e3, 3)
+
+
+def _held_intervals(
+    holds: list[dict[str, Any]], resumes: list[dict[str, Any]], end: float
+) -> list[tuple[float, float]]:
+    out = []
+    ends = sorted(r["host_monotonic"] for r in resumes)
+    for h in sorted(x["host_monotonic"] for x in holds):
+        later = [e for e in ends if e > h]
+        out.append((h, later[0] if later else end))
+    return out
+
+
+def run(
+    names: list[str],
+    transports: list[str],
+    seconds: float,
+    out: Path,
+    repeats: int = 1,
+    seed: int = 1,
+) -> list[dict[str, Any]]:
+    """Every scenario on every transport, ``repeats`` times (seeds ``seed``, ``seed+1``...)."""
+    results = []
+    for name in names:
+        for transport in transports:
+            for k in range(repeats):
+                scenario = replace(SCENARIOS[name])
+                where = out / f"{name}-{transport}-{k}"
+                results.append(run_one(scenario, transport, seconds, where, seed + k))
+    return results

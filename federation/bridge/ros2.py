@@ -1,0 +1,442 @@
+"""``fedlab bridge ros2``: the federation on ROS 2 (DDS), and a ROS 2 platform in the federation.
+
+::
+
+    federation (Zenoh)  --- poses, status, sync --->  bridge  --- Odometry, /tf --->  ROS 2 (DDS)
+                        <-- LAB/NAME as an agent ---          <-- --odom TOPIC ---
+
+Federation to ROS 2 (:class:`FederationToRos`)
+    Every agent's pose sample becomes a ``nav_msgs/msg/Odometry`` on
+    ``/fedlab/LAB/NAME/odom`` (frame ``fedlab_common``, child ``LAB/NAME``; twist in the
+    child frame, as ROS has it) and a transform ``fedlab_common -> LAB/NAME`` in a
+    ``tf2_msgs/msg/TFMessage`` on ``/tf``. Stamps are the federation's reference time
+    mapped to this host's wall clock (:mod:`federation.bridge.ros2_core`): the sender's
+    reference offset from its status, this bridge's offset to the reference from its own
+    sync queries (every 0.1 s). Until both are known a sample is not published (counted
+    in ``odom_unmapped``): a pose with a wrong stamp would mislead a ROS consumer.
+A ROS 2 platform joins (``--as LAB/NAME --odom TOPIC``, :class:`Ros2Agent`)
+    An :class:`~federation.runtime.agent.AgentRuntime` whose platform is the latest
+    received odometry (:class:`OdometryPlatform`): sync queryable, liveliness token, pose
+    and status like any agent's. With no valid odometry for ``odom_timeout`` seconds it
+    holds (status ``hold: "stale"``) and publishes no pose, so its followers see the
+    link go quiet and hold too (fail closed); a fresh odometry releases it. A sample
+    that is not finite or not level is dropped and counted (``odom_malformed``).
+QoS, as ROS 2 users expect
+    Odometry and ``/tf`` are written reliable, keep-last (10 and 100, ``tf2_ros``'s
+    depth), volatile: a ROS 2 subscriber with the default profile or the sensor-data
+    profile matches. The platform's odometry is read best effort, which matches a
+    reliable or a best-effort publisher. Samples are XCDR1 (what ROS 2's middlewares
+    exchange). The DDS domain is ``--domain-id`` (ROS_DOMAIN_ID's meaning); Cyclone DDS
+    reads its network configuration from ``CYCLONEDDS_URI`` as it does under ROS 2.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+from pydantic import ValidationError
+
+from agents.guidance import Track
+from agents.kinematic import KinematicPlatform
+from federation.bridge import ros2_core as conv
+from federation.bridge.ros2_types import Odometry, TFMessage, odometry_message, tf_message
+from federation.core import keys, wire
+from federation.core.estimators import make_estimator
+from federation.core.keys import AgentId
+from federation.core.sync import SyncClient
+from federation.runtime.agent import AgentRuntime, RateLimitedLog
+from schemas.config import AgentConfig
+from schemas.messages import Status
+
+__all__ = [
+    "FederationToRos",
+    "OdometryPlatform",
+    "Ros2Agent",
+    "odometry_reader_qos",
+    "odometry_writer_qos",
+    "run_ros2_bridge",
+    "tf_writer_qos",
+]
+
+log = logging.getLogger("fedlab.bridge.ros2")
+
+SYNC_PERIOD = 0.1  # s between the bridge's sync queries to the reference
+SYNC_TIMEOUT = 0.5  # s
+STATUS_MAX_BYTES = 1 << 20
+_XCDR1 = Policy.DataRepresentation(use_cdrv0_representation=True)
+
+
+def odometry_writer_qos() -> Qos:
+    """ROS 2's default profile: reliable, keep last 10, volatile."""
+    return Qos(
+        Policy.Reliability.Reliable(duration(milliseconds=100)),
+        Policy.History.KeepLast(10),
+        Policy.Durability.Volatile,
+        _XCDR1,
+    )
+
+
+def tf_writer_qos() -> Qos:
+    """``tf2_ros``'s broadcaster: reliable, keep last 100, volatile."""
+    return Qos(
+        Policy.Reliability.Reliable(duration(milliseconds=100)),
+        Policy.History.KeepLast(100),
+        Policy.Durability.Volatile,
+        _XCDR1,
+    )
+
+
+def odometry_reader_qos() -> Qos:
+    """Best effort, keep last 10: matches reliable and best-effort publishers."""
+    return Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(10))
+
+
+class FederationToRos:
+    """Every agent's pose from Zenoh to ROS 2 odometry and TF. ``start()``, ``step()``
+    repeatedly, ``close()`` before the session closes."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        participant: DomainParticipant,
+        federation: str = keys.DEFAULT_FEDERATION,
+        monotonic: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
+    ):
+        self.session = session
+        self.participant = participant
+        self.federation = keys.validate_name(federation, "federation name")
+        self.monotonic, self.wall = monotonic, wall
+        self.counters: Counter[str] = Counter()
+        self.rejects = RateLimitedLog(log)
+        self.wake = threading.Event()  # set by a pose arriving
+        self._lock = threading.Lock()
+        self._pending: dict[AgentId, wire.PoseSample] = {}  # newest unpublished sample per agent
+        self._to_reference: dict[AgentId, float] = {}  # reference clock minus the agent's
+        self._reference_of: dict[AgentId, AgentId] = {}  # each agent's reference, by status
+        self.reference: AgentId | None = None
+        self.link: SyncClient | None = None  # this bridge's sync with the reference
+        self._querier: Any = None
+        self._next_sync = 0.0
+        self._writers: dict[AgentId, DataWriter[Odometry]] = {}
+        self._tf: DataWriter[TFMessage] | None = None
+        self._declared: list[Any] = []
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def start(self) -> None:
+        callback = zenoh.handlers.Callback
+        fed = self.federation
+        tf_topic = Topic(self.participant, conv.dds_topic("/tf"), TFMessage)
+        self._tf = DataWriter(self.participant, tf_topic, tf_writer_qos())
+        self._declared.append(
+            self.session.declare_subscriber(
+                keys.all_of(fed, "pose"), callback(self._on_pose, indirect=False)
+            )
+        )
+        self._declared.append(
+            self.session.declare_subscriber(
+                keys.all_of(fed, "status"), callback(self._on_status, indirect=False)
+            )
+        )
+
+    def close(self) -> None:
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception as error:  # a session already closed by zenoh
+                log.debug("undeclare failed: %s", error)
+        self._declared.clear()
+
+    # -- Zenoh callbacks: quick, never raise ----------------------------------------------
+    def _on_pose(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
+            if parsed is None:
+                self.counters["pose_foreign_key"] += 1
+                return
+            try:
+                decoded = wire.decode_pose(sample.payload.to_bytes())
+            except wire.DecodeError as error:
+                self.counters["pose_malformed"] += 1
+                self.rejects("pose sample", f"{sample.key_expr}: {error}")
+                return
+            with self._lock:
+                self._pending[parsed[0]] = decoded
+            self.wake.set()
+        except Exception:
+            log.exception("pose sample on %s failed", sample.key_expr)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
+            payload = sample.payload.to_bytes()
+            if parsed is None or len(payload) > STATUS_MAX_BYTES:
+                self.counters["status_malformed"] += 1
+                return
+            try:
+                status = Status.model_validate_json(payload)
+                reference = AgentId.parse(status.reference)
+            except (ValidationError, ValueError) as error:
+                self.counters["status_malformed"] += 1
+                self.rejects("status", f"{sample.key_expr}: {error}")
+                return
+            if status.agent != str(parsed[0]):
+                self.counters["status_malformed"] += 1
+                return
+            with self._lock:
+                self._reference_of[parsed[0]] = reference
+                if status.t_sim is not None:
+                    self._to_reference[parsed[0]] = status.t_sim - status.t_exec
+                else:
+                    self._to_reference.pop(parsed[0], None)
+        except Exception:
+            log.exception("status sample on %s failed", sample.key_expr)
+
+    def _on_reply(self, link: SyncClient, reply: zenoh.Reply) -> None:
+        t3 = self.monotonic()
+        try:
+            if reply.ok is None:
+                self.counters["sync_reply_errors"] += 1
+                return
+            with self._lock:
+                if link is self.link:
+                    link.receive(reply.ok.payload.to_bytes(), t3)
+        except Exception:
+            log.exception("sync reply failed")
+
+    # -- the bridge's loop -------------------------------------------------------------
+    def sync(self, now: float) -> None:
+        """Follow the federation's reference (named by most statuses) and query it."""
+        with self._lock:
+            named = Counter(self._reference_of.values()).most_common()
+            reference = min(named, key=lambda item: (-item[1], item[0]))[0] if named else None
+            if reference != self.reference:
+                self.reference = reference
+                self.link = None if reference is None else SyncClient(make_estimator("clockfilter"))
+                if self._querier is not None:
+                    self._undeclare_querier()
+                if reference is not None:
+                    log.info("reference time is %s's clock", reference)
+            link = self.link
+        if link is None or self.reference is None or now < self._next_sync:
+            return
+        self._next_sync = now + SYNC_PERIOD
+        try:
+            if self._querier is None:
+                self._querier = self.session.declare_querier(
+                    keys.agent_key(self.federation, self.reference, "sync"),
+                    consolidation=zenoh.ConsolidationMode.NONE,
+                    timeout=SYNC_TIMEOUT,
+                )
+            with self._lock:
+                payload = link.request(self.monotonic())
+            handler: zenoh.handlers.Callback[zenoh.Reply] = zenoh.handlers.Callback(
+                functools.partial(self._on_reply, link), indirect=False
+            )
+            self._querier.get(handler, payload=payload)
+        except Exception as error:  # session closing
+            log.warning("sync request to %s failed: %s", self.reference, error)
+
+    def _undeclare_querier(self) -> None:
+        try:
+            self._querier.undeclare()
+        except Exception as error:
+            log.debug("undeclare failed: %s", error)
+        self._querier = None
+
+    def reference_offset(self, now: float) -> float | None:
+        """Reference clock minus this bridge's monotonic clock; None until synced."""
+        with self._lock:
+            return None if self.link is None else self.link.offset_at(now)
+
+    def publish(self) -> int:
+        """Write every pose received since the last call; returns how many were written."""
+        with self._lock:
+            pending, self._pending = self._pending, {}
+            to_reference = dict(self._to_reference)
+        if not pending:
+            return 0
+        mono, wall = self.monotonic(), self.wall()
+        theta = self.reference_offset(mono)
+        transforms = []
+        for agent, sample in sorted(pending.items()):
+            r = to_reference.get(agent)
+            if theta is None or r is None:
+                self.counters["odom_unmapped"] += 1
+                continue
+            stamp = conv.host_stamp(sample.t, r, theta, mono, wall)
+            writer = self._writers.get(agent)
+            if writer is None:
+                topic = Topic(
+                    self.participant, conv.dds_topic(conv.odometry_topic(agent)), Odometry
+                )
+                writer = self._writers[agent] = DataWriter(
+                    self.participant, topic, odometry_writer_qos()
+                )
+                log.info("%s on ROS 2 topic %s", agent, conv.odometry_topic(agent))
+            writer.write(odometry_message(conv.odometry_fields(agent, sample.pose, stamp)))
+            transforms.append(conv.transform_fields(agent, sample.pose, stamp))
+            self.counters["odom_published"] += 1
+        if transforms and self._tf is not None:
+            self._tf.write(tf_message(transforms))
+            self.counters["tf_published"] += 1
+        return len(transforms)
+
+    def step(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s for poses; sync with the reference; publish."""
+        self.wake.wait(timeout)
+        self.wake.clear()
+        self.sync(self.monotonic())
+        self.publish()
+
+
+class OdometryPlatform(KinematicPlatform):
+    """A platform whose pose is the latest valid odometry read from ``reader``.
+
+    ``stale``: no valid odometry for ``timeout`` seconds of ``clock`` (or none yet).
+    Held (an abort), the pose still follows the odometry: it is a measurement, and a ROS
+    platform's actuators are commanded in ROS, not here.
+    """
+
+    def __init__(
+        self,
+        reader: DataReader[Odometry],
+        timeout: float,
+        rate: float = 20.0,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        super().__init__(rate=rate)
+        if not timeout > 0:
+            raise ValueError(f"odometry timeout must be positive seconds, not {timeout!r}")
+        self.reader, self.timeout, self.clock = reader, timeout, clock
+        self.received_at: float | None = None
+        self.counters: Counter[str] = Counter()
+        self.rejects = RateLimitedLog(log)
+
+    @property
+    def stale(self) -> bool:
+        return self.received_at is None or self.clock() - self.received_at > self.timeout
+
+    def step(
+        self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
+    ) -> wire.Pose:
+        for sample in self.reader.take(N=100):
+            if not isinstance(sample, Odometry):  # an instance state change, no data
+                continue
+            p, v = sample.pose.pose, sample.twist.twist
+            try:
+                pose = conv.pose_from_odometry(
+                    (p.position.x, p.position.y, p.position.z),
+                    (p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w),
+                    (v.linear.x, v.linear.y, v.linear.z),
+                    (v.angular.x, v.angular.y, v.angular.z),
+                )
+            except conv.OdometryError as error:
+                self.counters["odom_malformed"] += 1
+                self.rejects("odometry", str(error))
+                continue
+            self.counters["odom_received"] += 1
+            self.pose = pose
+            self.received_at = self.clock()
+        return self.pose
+
+
+class Ros2Agent(AgentRuntime):
+    """An agent whose pose is a ROS 2 platform's odometry (:class:`OdometryPlatform`).
+
+    Holds (``hold: "stale"``) and publishes no pose while the odometry is stale."""
+
+    platform: OdometryPlatform
+
+    def __init__(self, config: AgentConfig, session: zenoh.Session, platform: OdometryPlatform,
+                 odom_topic: str):  # fmt: skip
+        super().__init__(config, session, platform=platform)
+        self.odom_topic = odom_topic
+
+    def control_step(self) -> None:
+        super().control_step()
+        stale = self.platform.stale
+        if stale and self.hold_reason is None:
+            self.hold_reason = "stale"
+            self.count("odom_stale_holds")
+            log.warning(
+                "no odometry on %s for %.1f s: hold", self.odom_topic, self.platform.timeout
+            )
+        elif not stale and self.hold_reason == "stale":
+            self.hold_reason = None
+            log.info("odometry on %s flows again: released", self.odom_topic)
+
+    def publish_pose(self) -> None:
+        if self.platform.stale:
+            self.count("pose_withheld")  # fail closed: followers see the link go quiet
+            return
+        super().publish_pose()
+
+    def counter_snapshot(self) -> dict[str, int]:
+        return super().counter_snapshot() | dict(self.platform.counters)
+
+    def status(self) -> Status:
+        return super().status().model_copy(update={"platform": f"ros2:{self.odom_topic}"})
+
+
+def run_ros2_bridge(
+    session: zenoh.Session,
+    stop: threading.Event,
+    federation: str = keys.DEFAULT_FEDERATION,
+    domain_id: int = 0,
+    join: AgentConfig | None = None,
+    odom_topic: str | None = None,
+    odom_timeout: float = 0.5,
+    duration_s: float | None = None,
+) -> Counter[str]:
+    """Run the bridge until ``stop`` (or ``duration_s``); with ``join``, the ROS 2 platform
+    reading ``odom_topic`` joins as that agent. Returns the forwarding counters."""
+    participant = DomainParticipant(domain_id)
+    forward = FederationToRos(session, participant, federation)
+    agent: Ros2Agent | None = None
+    thread: threading.Thread | None = None
+    agent_stop = threading.Event()
+    try:
+        if join is not None:
+            if odom_topic is None:
+                raise ValueError("joining a ROS 2 platform needs its odometry topic (--odom)")
+            topic = Topic(participant, conv.dds_topic(odom_topic), Odometry)
+            reader = DataReader(participant, topic, odometry_reader_qos())
+            platform = OdometryPlatform(reader, odom_timeout, rate=join.pose_rate)
+            agent = Ros2Agent(join, session, platform, conv.ros_topic(odom_topic))
+            agent.start()
+            thread = threading.Thread(target=agent.run, args=(agent_stop,), name="ros2-agent")
+            thread.start()
+        forward.start()
+        log.info(
+            "bridge up: federation %s on ROS 2 domain %d%s", federation, domain_id,
+            "" if join is None else f"; {join.agent} from {odom_topic}",
+        )  # fmt: skip
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        last_note = time.monotonic()
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            forward.step(0.05)
+            if time.monotonic() - last_note >= 10.0:
+                last_note = time.monotonic()
+                log.info("forwarded: %s", dict(forward.counters))
+        return forward.counters
+    finally:
+        agent_stop.set()
+        if thread is not None:
+            thread.join(10)
+        forward.close()
+        if agent is not None:
+            agent.close()

@@ -1,0 +1,107 @@
+"""``fedlab deploy generate``: every lab's router config, every agent's and operator's
+Zenoh config, the certificates and the systemd units, from one federation file
+(:mod:`federation.deploy.generate`). It opens no Zenoh session: no Zenoh flags.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from federation.cli.common import Formatter, Subparsers
+from federation.deploy import generate
+from schemas.federation import load_federation
+
+__all__ = ["add", "run"]
+
+
+def add(sub: Subparsers) -> None:
+    p = sub.add_parser(
+        "deploy",
+        help="generate a whole federation's configs and certificates from one file",
+        formatter_class=Formatter,
+        description=(
+            "A federation file (labs, their endpoints and which dials which, agents,\n"
+            "operators, how each lab's agents authenticate) generates every lab's router\n"
+            "config (TLS, per-agent access control), every agent's and operator's Zenoh\n"
+            "config, the certificates and the systemd units. Generating again keeps the CA,\n"
+            "the certificates and the passwords. See docs/deploy.md."
+        ),
+        epilog=(
+            "Examples:\n"
+            "  fedlab deploy generate deploy/federation.example.toml --out federation/\n"
+            "  fedlab deploy generate federation.toml --out /tmp/fed --local   # one host\n"
+            "  fedlab deploy check federation.toml"
+        ),
+    )
+    actions = p.add_subparsers(dest="deploy_command", required=True, metavar="ACTION")
+    q = actions.add_parser(
+        "generate",
+        help="write DIR/ca/ and one folder per lab, DIR/<lab>/, to install as /etc/fedlab",
+        formatter_class=Formatter,
+        description=(
+            "Write DIR/ca/ (the CA and every certificate: keep it offline) and DIR/<lab>/ for\n"
+            "each lab: routers/, agents/, operators/, certs/, systemd/ and, on a password\n"
+            "lab, <lab>.users. Paths inside the files point under --root (/etc/fedlab)."
+        ),
+        epilog="Example: fedlab deploy generate deploy/federation.example.toml --out fed/",
+    )
+    q.add_argument("file", type=Path, help="the federation file (TOML)")
+    q.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    where = q.add_mutually_exclusive_group()
+    where.add_argument(
+        "--root",
+        type=Path,
+        default=generate.DEFAULT_ROOT,
+        metavar="PATH",
+        help="where each lab installs its folder (absolute)",
+    )
+    where.add_argument(
+        "--local",
+        action="store_true",
+        help="point every path at DIR/<lab>/ itself, to run the federation on this host",
+    )
+    q.set_defaults(func=run)
+    q = actions.add_parser(
+        "check",
+        help="validate a federation file; print its labs and links",
+        formatter_class=Formatter,
+        description="Validate a federation file: a bad one fails naming the field.",
+        epilog="Example: fedlab deploy check deploy/federation.example.toml",
+    )
+    q.add_argument("file", type=Path, help="the federation file (TOML)")
+    q.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    fed = load_federation(args.file)  # a ConfigError is reported by main(), exit 2
+    if args.deploy_command == "check":
+        for lab, entry in fed.labs.items():
+            dials = f", dials {', '.join(entry.dial)}" if entry.dial else ""
+            print(
+                f"{lab}: {entry.auth}, {len(entry.agents)} agent(s), "
+                f"{len(entry.operators)} operator(s){dials}"
+            )
+        return 0
+    root: Path = args.root
+    if not args.local and not root.is_absolute():
+        print(f"fedlab deploy: error: --root {root}: give an absolute path", file=sys.stderr)
+        return 2
+    try:
+        done = generate.generate(fed, args.out, root=root, local=args.local)
+    except (ValueError, OSError) as error:  # CertError is a ValueError
+        print(f"fedlab deploy: error: {error}", file=sys.stderr)
+        return 2
+    out = args.out.resolve()
+    for path in done.files:
+        print(path.relative_to(out))
+    for path in done.removed:
+        print(f"removed {path.relative_to(out)}")
+    if done.issued:
+        print(f"issued: {', '.join(done.issued)}")
+    print(
+        f"{len(done.files)} files in {out}: copy {out}/<lab>/ to /etc/fedlab on that lab's "
+        f"hosts; keep {out}/ca/ offline (docs/deploy.md)"
+    )
+    return 0

@@ -1,0 +1,79 @@
+"""``fedlab foxglove``: a live view of a federation in Foxglove (the library:
+:mod:`federation.runtime.foxglove`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from federation.cli.common import (
+    Formatter,
+    Subparsers,
+    add_zenoh_flags,
+    federation_name,
+    open_session,
+    positive,
+    stop_on_signals,
+)
+from federation.core import keys
+
+__all__ = ["add", "run"]
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
+    return value
+
+
+def add(sub: Subparsers) -> None:
+    p = sub.add_parser(
+        "foxglove",
+        help="live view of every agent in Foxglove (WebSocket server)",
+        formatter_class=Formatter,
+        description=(
+            "Serve a live view of a federation to Foxglove (foxglove.websocket.v1): every\n"
+            "agent's pose as transforms fedlab_common -> LAB/NAME on /tf, the platforms'\n"
+            "footprints on /scene, offset, delay and error bound per peer on /fedlab/peers\n"
+            "and /fedlab/sync/..., run mode and run time on /fedlab/run. In Foxglove: Open\n"
+            "connection, Foxglove WebSocket, ws://HOST:PORT; then import the layout\n"
+            "deploy/foxglove/fedlab.json. Subscribes like fedlab monitor."
+        ),
+        epilog=(
+            "Examples:\n"
+            "  fedlab foxglove -e tcp/127.0.0.1:7447\n"
+            "  fedlab foxglove --host 0.0.0.0 --port 8766 --federation demo -e tcp/127.0.0.1:7447"
+        ),
+    )
+    p.add_argument(
+        "--federation", type=federation_name, default=keys.DEFAULT_FEDERATION, metavar="NAME",
+        help="federation name",
+    )  # fmt: skip
+    p.add_argument("--host", default="127.0.0.1", help="address the WebSocket server binds")
+    p.add_argument("--port", type=_port, default=8765, help="its port (0: any free one)")
+    p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds")
+    add_zenoh_flags(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from federation.runtime.foxglove import serve
+
+    stop = stop_on_signals()
+    session = open_session(args, stop)
+    if session is None:
+        return 0
+    with session:
+        try:
+            serve(session, stop, args.federation, args.host, args.port, args.duration)
+        except RuntimeError as error:  # the SDK's server could not bind
+            print(
+                f"fedlab foxglove: error: cannot serve on {args.host}:{args.port}: {error}",
+                file=sys.stderr,
+            )
+            return 1
+    return 0

@@ -1,0 +1,112 @@
+"""Contested peers: two sources speaking for one agent, free of I/O.
+
+Each agent owns its keys: its pose samples come from its one Zenoh session and its
+sync queryable is declared by that session alone. The lab router's access control
+enforces that (docs/deploy.md); this is the second line. If the pose samples on
+one agent's key come from two sources, or two repliers answer its sync queries,
+someone else speaks for it: an impostor inside the lab, a router whose access
+control is off, or two processes started under one name. Which one is genuine
+cannot be told in-band, so the peer is **contested** and nothing from it is used:
+
+- a source is whatever identity the sample carries: the Zenoh session id (zid) of
+  a reply's replier, the session id in a pose sample's source info (``None`` when
+  it carries none); pose and sync are judged separately (a third party's pose
+  publisher may carry no source info, its sync replies always name a replier);
+- **contested** once two different sources of one channel were heard within
+  ``window`` seconds of each other (:math:`|t_a - t_b| \\le t_\\text{window}`);
+- **cleared** once ``quiet`` seconds have passed since two sources were last heard
+  within the window; or at once when the peer leaves or rejoins the federation
+  (its liveliness token: a restarted agent has a new session id), :meth:`forget`.
+
+Times are the caller's monotonic seconds (``now``); nothing here reads a clock.
+The caller decides what "not used" means (a follower holds its platform).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+__all__ = ["Channel", "ContestWatch", "Outcome"]
+
+Channel = Literal["pose", "sync"]
+"""What the source spoke on: pose samples, or replies to this agent's sync queries."""
+
+Outcome = Literal["ok", "contested", "held"]
+"""``ok``: use the sample; ``contested``: the peer just became contested (drop it and
+everything from it so far); ``held``: it was contested already (drop the sample)."""
+
+DEFAULT_WINDOW = 2.0
+"""s: two sources heard this close together contest a peer."""
+DEFAULT_QUIET = 5.0
+"""s without a second source after which a contest clears."""
+
+
+def _short(source: str | None) -> str:
+    return "no source id" if source is None else source[:8]
+
+
+@dataclass
+class _Peer:
+    seen: dict[Channel, dict[str | None, float]] = field(default_factory=dict)
+    reason: str | None = None  # why it is contested, None when it is not
+    conflict_at: float = 0.0  # last time two sources were heard within the window
+
+
+class ContestWatch:
+    """Which peers are contested, from the sources heard for each.
+
+    ``window`` and ``quiet`` in seconds (positive). :attr:`contests` counts the
+    times a peer became contested.
+    """
+
+    def __init__(self, window: float = DEFAULT_WINDOW, quiet: float = DEFAULT_QUIET):
+        if not window > 0 or not quiet > 0:
+            raise ValueError(f"window and quiet must be positive seconds, not {window}, {quiet}")
+        self.window, self.quiet = window, quiet
+        self.contests = 0
+        self._peers: dict[str, _Peer] = {}
+
+    def observe(self, peer: str, channel: Channel, source: str | None, now: float) -> Outcome:
+        """``source`` spoke for ``peer`` on ``channel`` at ``now``: may its sample be used?"""
+        state = self._peers.setdefault(peer, _Peer())
+        seen = state.seen.setdefault(channel, {})
+        seen[source] = now
+        for other in [s for s, t in seen.items() if now - t > self.window]:
+            del seen[other]  # heard too long ago to contest this one
+        if len(seen) > 1:
+            state.conflict_at = now
+            if state.reason is None:
+                names = ", ".join(sorted(_short(s) for s in seen))
+                what = "sync replies" if channel == "sync" else "pose samples"
+                state.reason = f"{what} from {len(seen)} sources ({names})"
+                self.contests += 1
+                return "contested"
+            return "held"
+        if self.reason(peer, now) is not None:
+            return "held"
+        return "ok"
+
+    def reason(self, peer: str, now: float) -> str | None:
+        """Why ``peer`` is contested at ``now``, or None if it is not (clears a contest
+        quiet for ``quiet`` seconds)."""
+        state = self._peers.get(peer)
+        if state is None or state.reason is None:
+            return None
+        if now - state.conflict_at >= self.quiet:
+            state.reason = None
+            return None
+        return state.reason
+
+    def contested(self, now: float) -> dict[str, str]:
+        """Every contested peer and why, at ``now``."""
+        out = {}
+        for peer in list(self._peers):
+            reason = self.reason(peer, now)
+            if reason is not None:
+                out[peer] = reason
+        return out
+
+    def forget(self, peer: str) -> None:
+        """``peer`` left or rejoined: its next session starts with a clean record."""
+        self._peers.pop(peer, None)

@@ -1,0 +1,450 @@
+"""A whole federation from one file: ``fedlab deploy generate federation.toml --out DIR``.
+
+From a :class:`schemas.federation.FederationFile` it writes, for every lab, the folder
+that lab installs as ``/etc/fedlab`` (the ``root``), and beside them the CA::
+
+    DIR/ca/                      the federation CA and every certificate it signed:
+                                 keep it offline, the CA key never goes to a lab
+    DIR/<lab>/routers/<lab>.json5        the lab router (TLS, per-agent access control)
+    DIR/<lab>/agents/<name>.toml         an agent's settings (fedlab agent --agent-config)
+    DIR/<lab>/agents/<name>.json5        its Zenoh client config (certificate or password)
+    DIR/<lab>/operators/<name>.json5     an operator's Zenoh config (fedlab ctl -c ...)
+    DIR/<lab>/certs/                     ca.pem, the lab's pair, its agents' and operators'
+    DIR/<lab>/<lab>.users                user:password lines (password labs only, 0600)
+    DIR/<lab>/systemd/                   fedlab-router@.service, fedlab-agent@.service
+
+Every path inside a generated file is absolute under ``root`` (``/etc/fedlab`` by
+default; ``local=True`` puts each lab's own ``DIR/<lab>`` there, to run a whole
+federation on one host). Generating again keeps the CA, every certificate whose
+names did not change and every password: adding a lab or an agent is one edit of
+the file and one run. Agents and operators no longer in the file lose their
+generated configs and, above all, their access-control entries.
+
+Access control (default deny), enforced by each lab's router on the sessions
+attached to it: an agent may write (put, delete, declare a queryable or a
+liveliness token, reply) only on its own address, ``fedlab/<fed>/<lab>/<name>``
+and below; operators only put on the control key; another lab's router only
+under the labs reached through it, and the control key; every listed identity
+reads the federation's keys. A certificate CN (or user name) no subject lists
+can do nothing.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import secrets
+import shutil
+import textwrap
+import tomllib
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cryptography import x509
+
+from federation.core.keys import control_key
+from federation.deploy import certs
+from schemas.federation import FederationFile, LabEntry
+
+__all__ = [
+    "DEFAULT_ROOT",
+    "SYSTEMD_DIR",
+    "WRITES",
+    "Generated",
+    "agent_zenoh",
+    "generate",
+    "router_config",
+    "router_text",
+    "toml_text",
+]
+
+DEFAULT_ROOT = Path("/etc/fedlab")
+SYSTEMD_DIR = Path(__file__).resolve().parents[2] / "deploy" / "systemd"
+"""The unit templates copied into each lab's folder."""
+
+WRITES = ["put", "delete", "declare_queryable", "liveliness_token", "reply"]
+"""The messages that speak for a key: who may send them under a key owns it."""
+READS = ["declare_subscriber", "query", "declare_liveliness_subscriber", "liveliness_query"]
+ALL_MESSAGES = [
+    "put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+    "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
+]  # fmt: skip
+_PASSWORD_BYTES = 24
+
+
+@dataclass
+class Generated:
+    """What one run wrote: every file, and the certificates issued (not reused) now."""
+
+    files: list[Path] = field(default_factory=list)
+    issued: list[str] = field(default_factory=list)
+    removed: list[Path] = field(default_factory=list)
+
+
+def _prefix(fed: str) -> str:
+    return f"fedlab/{fed}"
+
+
+def _common(limit: int) -> dict[str, Any]:
+    """What routers, agents and operators share: no scouting, the low-latency
+    transport, and the largest message they accept."""
+    return {
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {
+            "unicast": {"lowlatency": True, "qos": {"enabled": False}},
+            "link": {"protocols": ["tls"], "rx": {"max_message_size": limit}},
+        },
+    }
+
+
+def _subject(lab: LabEntry, id_: str, names: list[str]) -> dict[str, Any]:
+    key = "usernames" if lab.auth == "password" else "cert_common_names"
+    return {"id": id_, key: names}
+
+
+def _rule(id_: str, flows: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
+    return {
+        "id": id_,
+        "permission": "allow",
+        "flows": [flows],
+        "messages": messages,
+        "key_exprs": keys,
+    }
+
+
+def access_control(fed: FederationFile, lab: str) -> dict[str, Any]:
+    """Lab ``lab``'s router's ``access_control`` section (see the module docstring)."""
+    entry, prefix = fed.labs[lab], _prefix(fed.federation)
+    control = control_key(fed.federation)
+    rules = [
+        _rule("control", "ingress", ["put"], [control]),
+        _rule("reads", "ingress", READS, [f"{prefix}/**"]),
+        _rule("deliver", "egress", ALL_MESSAGES, [f"{prefix}/**"]),
+    ]
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for other in fed.neighbours(lab):
+        keys = [f"{prefix}/{behind}/**" for behind in fed.behind(lab, other)]
+        rules.append(_rule(f"from-{other}", "ingress", WRITES, [*keys, control]))
+        subjects.append({"id": f"{other}-router", "cert_common_names": [other]})
+        policies.append(
+            {
+                "id": f"{other}-link",
+                "rules": [f"from-{other}", "reads", "deliver"],
+                "subjects": [f"{other}-router"],
+            }
+        )
+    for name in entry.agents:
+        own = f"{prefix}/{lab}/{name}"
+        rules.append(_rule(f"writes-{name}", "ingress", WRITES, [own, f"{own}/**"]))
+        subjects.append(_subject(entry, f"agent-{name}", [f"{lab}/{name}"]))
+        policies.append(
+            {
+                "id": f"agent-{name}",
+                "rules": [f"writes-{name}", "reads", "deliver"],
+                "subjects": [f"agent-{name}"],
+            }
+        )
+    if entry.operators:
+        subjects.append(_subject(entry, "operators", [f"{lab}/{o}" for o in entry.operators]))
+        policies.append(
+            {"id": "operators", "rules": ["control", "reads", "deliver"], "subjects": ["operators"]}
+        )
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def _listen(entry: LabEntry) -> list[str]:
+    """A password lab's listeners take no client certificate (the password says who)."""
+    if entry.auth == "certificate":
+        return list(entry.listen)
+    return [e if "enable_mtls" in e else f"{e}{'&' if '#' in e else '#'}enable_mtls=false"
+            for e in entry.listen]  # fmt: skip
+
+
+def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
+    """Lab ``lab``'s router config (a zenohd config as well as ``fedlab router -c``)."""
+    entry, c = fed.labs[lab], root / "certs"
+    doc: dict[str, Any] = {
+        "mode": "router",
+        "metadata": {"lab": lab, "federation": fed.federation},
+        "listen": {"endpoints": _listen(entry)},
+        "connect": {
+            "endpoints": [fed.labs[o].endpoint for o in entry.dial],
+            "timeout_ms": -1,
+            "exit_on_failure": False,
+        },
+        **_common(fed.message_limit),
+        "access_control": access_control(fed, lab),
+    }
+    doc["transport"]["link"]["tls"] = {
+        "root_ca_certificate": str(c / "ca.pem"),
+        "listen_certificate": str(c / f"{lab}.pem"),
+        "listen_private_key": str(c / f"{lab}.key"),
+        "connect_certificate": str(c / f"{lab}.pem"),
+        "connect_private_key": str(c / f"{lab}.key"),
+        "enable_mtls": True,
+        "verify_name_on_connect": True,
+    }
+    if entry.auth == "password":
+        doc["transport"]["auth"] = {"usrpwd": {"dictionary_file": str(root / f"{lab}.users")}}
+    return doc
+
+
+def agent_zenoh(
+    fed: FederationFile, lab: str, name: str, root: Path, password: str | None
+) -> dict[str, Any]:
+    """The Zenoh client config of agent or operator ``lab/name``: its router, the CA, and
+    its certificate (certificate labs) or user and password (password labs)."""
+    entry, c = fed.labs[lab], root / "certs"
+    doc: dict[str, Any] = {
+        "mode": "client",
+        "connect": {
+            "endpoints": [entry.agents_endpoint()],
+            "timeout_ms": -1,  # an agent waits for its router however long it takes
+            "exit_on_failure": False,
+        },
+        **_common(fed.message_limit),
+    }
+    tls: dict[str, Any] = {"root_ca_certificate": str(c / "ca.pem")}
+    if entry.auth == "certificate":
+        stem = certs.agent_stem(lab, name)
+        tls |= {
+            "connect_certificate": str(c / f"{stem}.pem"),
+            "connect_private_key": str(c / f"{stem}.key"),
+            "enable_mtls": True,  # a client shows its certificate only with this set
+        }
+    else:
+        doc["transport"]["auth"] = {"usrpwd": {"user": f"{lab}/{name}", "password": password}}
+    doc["transport"]["link"]["tls"] = tls
+    return doc
+
+
+def agent_settings(fed: FederationFile, lab: str, name: str) -> dict[str, Any]:
+    """Agent ``lab/name``'s settings file (AgentConfig fields)."""
+    agent = fed.labs[lab].agents[name]
+    data: dict[str, Any] = {"federation": fed.federation, "lab": lab, "name": name}
+    data |= {"role": agent.role, "platform": agent.platform}
+    if agent.follow is not None:
+        data["follow"] = agent.follow
+    return data | agent.settings
+
+
+def _header(fed: FederationFile, lab: str) -> str:
+    return (
+        f"Generated by `fedlab deploy generate` for lab {lab} of federation "
+        f"{fed.federation}:\nedit the federation file and generate again, not this file."
+    )
+
+
+def router_text(fed: FederationFile, lab: str, root: Path = DEFAULT_ROOT) -> str:
+    """Lab ``lab``'s router config file as generated (deploy/routers/tls/ holds the
+    example federation's)."""
+    entry = fed.labs[lab]
+    dials = ", ".join(entry.dial) or "nothing (other labs dial it)"
+    about = (
+        f"\nLab {lab}: listens on {', '.join(entry.listen)}; dials {dials}; its agents and "
+        f"operators authenticate by {entry.auth}.\nEach agent writes only under "
+        f"fedlab/{fed.federation}/{lab}/<name>/**; operators publish control; see "
+        "docs/deploy.md."
+    )
+    return json5_text(router_config(fed, lab, root), _header(fed, lab) + about)
+
+
+# -- writing ---------------------------------------------------------------------------
+def toml_text(data: dict[str, Any], header: str = "") -> str:
+    """TOML for plain settings (strings, numbers, booleans, lists of them, one level of
+    tables); checked by reading it back."""
+    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
+    lines += [f"{k} = {_toml_value(v)}" for k, v in data.items() if k not in tables]
+    for key, table in tables.items():
+        lines += ["", f"[{key}]", *(f"{k} = {_toml_value(v)}" for k, v in table.items())]
+    text = "\n".join(lines) + "\n"
+    if tomllib.loads(text) != data:
+        raise ValueError(f"cannot write these settings as TOML: {data!r}")
+    return text
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise ValueError(f"cannot write {value!r} as a TOML value")
+
+
+def json5_text(doc: dict[str, Any], header: str) -> str:
+    """JSON (valid json5) under a ``//`` comment header; what fits on a line stays on one."""
+    lines = [part for line in header.splitlines() for part in textwrap.wrap(line, 86) or [""]]
+    comment = "".join(f"// {line}".rstrip() + "\n" for line in lines)
+    return comment + _json(doc, 0) + "\n"
+
+
+def _json(value: Any, indent: int) -> str:
+    flat = json.dumps(value)
+    if not isinstance(value, dict | list) or indent + len(flat) <= 88:
+        return flat
+    pad, inner = " " * indent, " " * (indent + 2)
+    if isinstance(value, list):
+        items = [inner + _json(v, indent + 2) for v in value]
+        return "[\n" + ",\n".join(items) + f"\n{pad}]"
+    items = [f"{inner}{json.dumps(k)}: {_json(v, indent + 2)}" for k, v in value.items()]
+    return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+
+
+def _write(path: Path, text: str, mode: int, out: Generated) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.chmod(mode)
+    tmp.replace(path)
+    out.files.append(path)
+
+
+def _passwords(users: Path) -> dict[str, str]:
+    """The ``user:password`` lines of an existing dictionary file (kept when regenerating)."""
+    if not users.exists():
+        return {}
+    out = {}
+    for line in users.read_text(encoding="utf-8").splitlines():
+        user, sep, password = line.partition(":")
+        if sep and user and password:
+            out[user] = password
+    return out
+
+
+def _sans(path: Path) -> set[str]:
+    cert = x509.load_pem_x509_certificate(path.read_bytes())
+    try:
+        ext = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return set()
+    names = {str(v) for v in ext.get_values_for_type(x509.DNSName)}
+    return names | {str(v) for v in ext.get_values_for_type(x509.IPAddress)}
+
+
+def _normal(host: str) -> str:
+    try:
+        return str(ipaddress.ip_address(host))
+    except ValueError:
+        return host
+
+
+def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
+    """The CA if missing, each lab's certificate (again if its names changed) and each
+    certificate lab's agents' and operators' (if missing)."""
+    if not (ca / "ca.pem").exists():
+        certs.init_ca(ca, fed.federation)
+        out.issued.append(certs.ca_common_name(fed.federation))
+    for lab, entry in fed.labs.items():
+        hosts = entry.cert_hosts() or list(certs.DEFAULT_HOSTS)
+        existing = ca / f"{lab}.pem"
+        if not existing.exists() or _sans(existing) != {_normal(h) for h in hosts}:
+            certs.issue_lab(ca, lab, hosts, force=True)
+            out.issued.append(lab)
+        if entry.auth == "certificate":
+            for name in [*entry.agents, *entry.operators]:
+                if not (ca / f"{certs.agent_stem(lab, name)}.pem").exists():
+                    certs.issue_agent(ca, lab, name)
+                    out.issued.append(certs.agent_common_name(lab, name))
+
+
+def _copy(src: Path, dst: Path, out: Generated) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dst)
+    dst.chmod(0o600 if src.suffix == ".key" else 0o644)
+    out.files.append(dst)
+
+
+def _prune(folder: Path, keep: Iterable[Path], suffixes: tuple[str, ...], out: Generated) -> None:
+    """Remove generated files (``suffixes``) of agents or operators no longer listed."""
+    wanted = set(keep)
+    if not folder.is_dir():
+        return
+    for path in sorted(folder.iterdir()):
+        if path.suffix in suffixes and path not in wanted:
+            path.unlink()
+            out.removed.append(path)
+
+
+def generate(
+    fed: FederationFile, out_dir: Path, *, root: Path = DEFAULT_ROOT, local: bool = False
+) -> Generated:
+    """Write the federation's files into ``out_dir`` (see the module docstring).
+
+    ``root`` is where each lab installs its folder; ``local`` makes it each lab's own
+    folder under ``out_dir`` (absolute), to run the federation on this host.
+    """
+    out = Generated()
+    out_dir = out_dir.resolve()
+    ca = out_dir / "ca"
+    _issue_certificates(fed, ca, out)
+    for lab, entry in fed.labs.items():
+        folder = out_dir / lab
+        lab_root = folder if local else root
+        header = _header(fed, lab)
+        users = folder / f"{lab}.users"
+        passwords = _passwords(users) if entry.auth == "password" else {}
+        for name in [*entry.agents, *entry.operators]:
+            if entry.auth == "password":
+                passwords.setdefault(f"{lab}/{name}", secrets.token_urlsafe(_PASSWORD_BYTES))
+        wanted = {f"{lab}/{n}" for n in [*entry.agents, *entry.operators]}
+        passwords = {u: p for u, p in passwords.items() if u in wanted}
+        if entry.auth == "password":
+            _write(users, "".join(f"{u}:{p}\n" for u, p in passwords.items()), 0o600, out)
+        elif users.exists():
+            users.unlink()
+            out.removed.append(users)
+
+        router = folder / "routers" / f"{lab}.json5"
+        _write(router, router_text(fed, lab, lab_root), 0o644, out)
+        _prune(folder / "routers", [router], (".json5",), out)
+
+        kept: list[Path] = []
+        for name in entry.agents:
+            conf = folder / "agents" / f"{name}.json5"
+            doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
+            _write(conf, json5_text(doc, header), 0o600, out)
+            settings = folder / "agents" / f"{name}.toml"
+            _write(settings, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
+            kept += [conf, settings]
+        _prune(folder / "agents", kept, (".json5", ".toml"), out)
+        kept = []
+        for name in entry.operators:
+            conf = folder / "operators" / f"{name}.json5"
+            doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
+            _write(conf, json5_text(doc, header), 0o600, out)
+            kept.append(conf)
+        _prune(folder / "operators", kept, (".json5",), out)
+
+        stems = ["ca", lab]
+        if entry.auth == "certificate":
+            stems += [certs.agent_stem(lab, n) for n in [*entry.agents, *entry.operators]]
+        kept = []
+        for stem in stems:
+            for suffix in (".pem", ".key"):
+                if stem == "ca" and suffix == ".key":
+                    continue  # the CA key stays in DIR/ca
+                dst = folder / "certs" / f"{stem}{suffix}"
+                _copy(ca / f"{stem}{suffix}", dst, out)
+                kept.append(dst)
+        _prune(folder / "certs", kept, (".pem", ".key"), out)
+
+        for unit in sorted(SYSTEMD_DIR.glob("*.service")):
+            text = unit.read_text(encoding="utf-8")
+            if lab_root != DEFAULT_ROOT:
+                text = text.replace(str(DEFAULT_ROOT), str(lab_root))
+            _write(folder / "systemd" / unit.name, text, 0o644, out)
+    return out

@@ -1,0 +1,417 @@
+"""A run's recordings, fetched from every lab over the federation (``fedlab collect``).
+
+Each agent records a run into ``<runs_dir>/<run-id>/`` on its own host and, once
+the run is finalized, writes ``<lab>-<name>.manifest.json`` there (its files,
+their sizes and SHA-256; :func:`finalize`). :class:`RecordingServer` answers
+queries on ``fedlab/<fed>/<lab>/<name>/recordings`` with that manifest or with a
+chunk of a listed file (the protocol is in :mod:`federation.core.chunking`); it
+reads from disk on its own thread, never on Zenoh's.
+
+:func:`collect` asks every agent for the run's manifest, then fetches each file
+chunk by chunk into ``<out>/<name>.part``: each chunk's length and digest are
+checked and a bad one fetched again (``retries`` times); the whole file's SHA-256
+is checked before the ``.part`` is renamed. An interrupted collection resumes
+where its ``.part`` files end; files already complete are not fetched again.
+Memory holds one chunk at a time, whatever the file's size.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import queue
+import threading
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from pydantic import ValidationError
+
+from federation.core import keys
+from federation.core.chunking import (
+    ChunkRequest,
+    RequestError,
+    check_chunk,
+    chunk_attachment,
+    format_request,
+    parse_request,
+    resume_offset,
+)
+from federation.runtime.session import ConnectError
+from schemas.messages import CHUNK_SIZE, FileEntry, Manifest
+
+__all__ = [
+    "CollectError",
+    "CollectResult",
+    "Fetch",
+    "RecordingServer",
+    "collect",
+    "describe",
+    "finalize",
+    "manifest_name",
+    "sha256_file",
+    "zenoh_fetch",
+]
+
+log = logging.getLogger("fedlab.collect")
+
+TOPIC = "recordings"
+QUEUE_SIZE = 64  # queries waiting for the reader thread; more are refused (busy)
+WINDOW = 16  # chunk requests a collector keeps in flight
+
+
+class CollectError(ConnectionError):
+    """A file that could not be collected: which, from whom, and why."""
+
+
+def manifest_name(stem: str) -> str:
+    """``kiruna-knatte`` -> ``kiruna-knatte.manifest.json``."""
+    return f"{stem}.manifest.json"
+
+
+def sha256_file(path: Path, block: int = CHUNK_SIZE) -> str:
+    """A file's SHA-256 (hex), read a block at a time."""
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        while data := f.read(block):
+            digest.update(data)
+    return digest.hexdigest()
+
+
+def finalize(run_dir: Path, agent: str, run_id: str, files: list[Path]) -> Path:
+    """Write the manifest of an agent's finished ``files`` of a run; returns its path.
+    Written to a temporary name and renamed: a manifest is never seen half-written."""
+    entries = [
+        FileEntry(name=p.name, size=p.stat().st_size, sha256=sha256_file(p))
+        for p in files
+        if p.exists()
+    ]
+    manifest = Manifest(agent=agent, run_id=run_id, files=entries)
+    path = run_dir / manifest_name(agent.replace("/", "-"))
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(manifest.model_dump_json(indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+class RecordingServer:
+    """Serves one agent's finished recordings under ``runs_dir`` to ``fedlab collect``."""
+
+    def __init__(
+        self, session: zenoh.Session, federation: str, agent: keys.AgentId, runs_dir: Path
+    ):
+        self.runs_dir = Path(runs_dir)
+        self.agent = agent
+        self.stem = f"{agent.lab}-{agent.name}"
+        self.served = 0
+        self.refused = 0
+        self._queue: queue.Queue[zenoh.Query | None] = queue.Queue(QUEUE_SIZE)
+        self._thread = threading.Thread(target=self._run, name="recordings", daemon=True)
+        self._thread.start()
+        self._queryable = session.declare_queryable(
+            keys.agent_key(federation, agent, TOPIC),
+            zenoh.handlers.Callback(self._on_query, indirect=False),
+        )
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            self._queue.put_nowait(query)
+        except queue.Full:
+            self.refused += 1
+            try:
+                query.reply_err(b"busy: try again")
+            finally:
+                query.drop()  # type: ignore[no-untyped-call]
+
+    def _run(self) -> None:
+        while (query := self._queue.get()) is not None:
+            try:
+                self._serve(query)
+            except Exception:
+                log.exception("serving %s failed", query.selector)
+            finally:
+                query.drop()  # type: ignore[no-untyped-call]
+
+    def _serve(self, query: zenoh.Query) -> None:
+        try:
+            request = parse_request(str(query.parameters))
+        except RequestError as error:
+            self.refused += 1
+            query.reply_err(f"bad request: {error}".encode())
+            return
+        run_dir = self.runs_dir / request.run
+        manifest_path = run_dir / manifest_name(self.stem)
+        if not manifest_path.exists():
+            query.reply_err(f"{self.agent}: no finished run {request.run}".encode())
+            return
+        if request.file is None:
+            query.reply(query.key_expr, manifest_path.read_bytes())
+            self.served += 1
+            return
+        manifest = Manifest.model_validate_json(manifest_path.read_bytes())
+        if request.file not in {f.name for f in manifest.files}:
+            query.reply_err(f"{self.agent}: {request.file} is not in run {request.run}".encode())
+            return
+        with (run_dir / request.file).open("rb") as f:
+            f.seek(request.offset)
+            data = f.read(request.length)
+        query.reply(query.key_expr, data, attachment=chunk_attachment(request.offset, data))
+        self.served += 1
+
+    def close(self) -> None:
+        self._queryable.undeclare()  # type: ignore[no-untyped-call]
+        self._queue.put(None)
+        self._thread.join(5)
+
+
+Fetch = Callable[[str, str, float], list[tuple[bytes, bytes | None, str | None]]]
+"""``fetch(key, parameters, timeout)``: every reply to one query as (payload,
+attachment, error text); the collector's one network call (a test may wrap it)."""
+
+
+def zenoh_fetch(session: zenoh.Session) -> Fetch:
+    """:data:`Fetch` over a Zenoh session."""
+
+    def fetch(
+        key: str, parameters: str, timeout: float
+    ) -> list[tuple[bytes, bytes | None, str | None]]:
+        out: list[tuple[bytes, bytes | None, str | None]] = []
+        replies = session.get(
+            f"{key}?{parameters}", timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                attachment = reply.ok.attachment
+                out.append(
+                    (
+                        reply.ok.payload.to_bytes(),
+                        None if attachment is None else attachment.to_bytes(),
+                        None,
+                    )
+                )
+            elif reply.err is not None:
+                out.append((b"", None, reply.err.payload.to_string()))
+        return out
+
+    return fetch
+
+
+@dataclass
+class CollectResult:
+    """What a collection got: per agent, the files written (or why not)."""
+
+    run_id: str
+    out: Path
+    files: dict[str, list[str]] = field(default_factory=dict)  # agent -> file names
+    refetched: dict[str, int] = field(default_factory=dict)  # why -> chunks fetched again
+    resumed: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # already complete
+    missing: list[str] = field(default_factory=list)  # expected agents with no manifest
+    errors: list[str] = field(default_factory=list)
+    bytes_fetched: int = 0
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def count(self, why: str) -> None:
+        """One more chunk fetched again because of ``why`` (from any fetching thread)."""
+        with self._lock:
+            self.refetched[why] = self.refetched.get(why, 0) + 1
+
+    @property
+    def ok(self) -> bool:
+        return not self.missing and not self.errors
+
+
+def collect(
+    session: zenoh.Session | None,
+    federation: str,
+    run_id: str,
+    out: Path,
+    *,
+    expected: set[str] | None = None,
+    timeout: float = 5.0,
+    retries: int = 5,
+    fetch: Fetch | None = None,
+    progress: Callable[[str], None] = lambda text: None,
+) -> CollectResult:
+    """Fetch every agent's finished files of ``run_id`` into ``out``.
+
+    ``expected``: agents (``LAB/NAME``) that must answer (an experiment's
+    participants); the others that answer are collected too. Raises
+    :class:`~federation.runtime.session.ConnectError` when no agent has the run.
+    """
+    if fetch is None:
+        if session is None:
+            raise ValueError("collect needs a session or a fetch function")
+        fetch = zenoh_fetch(session)
+    out.mkdir(parents=True, exist_ok=True)
+    result = CollectResult(run_id, out)
+    manifests: dict[str, Manifest] = {}
+    for payload, _attachment, error in fetch(
+        keys.all_of(federation, TOPIC), format_request(ChunkRequest(run_id)), timeout
+    ):
+        if error is not None:
+            log.debug("manifest query: %s", error)
+            continue
+        try:
+            manifest = Manifest.model_validate_json(payload)
+        except ValidationError as problem:
+            result.errors.append(f"a malformed manifest: {problem.errors()[0]['msg']}")
+            continue
+        if manifest.run_id == run_id:
+            manifests[manifest.agent] = manifest
+    result.missing = sorted((expected or set()) - set(manifests))
+    if not manifests:
+        raise ConnectError(
+            f"no agent of federation {federation!r} has a finished run {run_id!r} "
+            f"(asked {keys.all_of(federation, TOPIC)} for {timeout:g} s)"
+        )
+    for agent, manifest in sorted(manifests.items()):
+        key = keys.agent_key(federation, keys.AgentId.parse(agent), TOPIC)
+        result.files[agent] = []
+        for entry in manifest.files:
+            try:
+                _fetch_file(
+                    fetch, key, run_id, entry, manifest.chunk_size, out, timeout, retries, result
+                )
+                result.files[agent].append(entry.name)
+                progress(f"{agent}: {entry.name} ({entry.size} bytes)")
+            except CollectError as error:
+                result.errors.append(str(error))
+        (out / manifest_name(agent.replace("/", "-"))).write_text(
+            manifest.model_dump_json(indent=1) + "\n", encoding="utf-8"
+        )
+    return result
+
+
+def _fetch_file(
+    fetch: Fetch,
+    key: str,
+    run_id: str,
+    entry: FileEntry,
+    chunk: int,
+    out: Path,
+    timeout: float,
+    retries: int,
+    result: CollectResult,
+    window: int = WINDOW,
+) -> None:
+    target = out / entry.name
+    if (
+        target.exists()
+        and target.stat().st_size == entry.size
+        and sha256_file(target) == entry.sha256
+    ):
+        result.skipped.append(entry.name)
+        return
+    part = out / f"{entry.name}.part"
+    offset = resume_offset(part.stat().st_size if part.exists() else 0, entry.size, chunk)
+    digest = hashlib.sha256()
+    with part.open("r+b" if part.exists() else "w+b") as f:
+        if offset:
+            result.resumed.append(entry.name)
+            f.seek(0)
+            remaining = offset
+            while remaining:  # the digest of what is already here
+                data = f.read(min(chunk, remaining))
+                digest.update(data)
+                remaining -= len(data)
+        f.seek(offset)
+        f.truncate(offset)
+        # A window of requests in flight (the path's round trip, not one per chunk), each
+        # chunk written in order as it comes: at most ``window`` chunks in memory.
+        offsets = iter(range(offset, entry.size, chunk))
+        with ThreadPoolExecutor(max_workers=window, thread_name_prefix="collect") as pool:
+            pending: deque[Future[bytes]] = deque()
+
+            def submit() -> None:
+                at = next(offsets, None)
+                if at is not None:
+                    length = min(chunk, entry.size - at)
+                    pending.append(
+                        pool.submit(
+                            _fetch_chunk,
+                            fetch,
+                            key,
+                            run_id,
+                            entry.name,
+                            at,
+                            length,
+                            timeout,
+                            retries,
+                            result,
+                        )
+                    )
+
+            for _ in range(window):
+                submit()
+            try:
+                while pending:
+                    data = pending.popleft().result()
+                    f.write(data)
+                    digest.update(data)
+                    result.bytes_fetched += len(data)
+                    submit()
+            finally:
+                for future in pending:
+                    future.cancel()
+    if digest.hexdigest() != entry.sha256:
+        part.unlink()
+        raise CollectError(
+            f"{key}: {entry.name}: SHA-256 of the whole file does not match the manifest; "
+            "partial download removed, collect again"
+        )
+    os.replace(part, target)
+
+
+def _fetch_chunk(
+    fetch: Fetch,
+    key: str,
+    run_id: str,
+    name: str,
+    offset: int,
+    length: int,
+    timeout: float,
+    retries: int,
+    result: CollectResult,
+) -> bytes:
+    parameters = format_request(ChunkRequest(run_id, name, offset, length))
+    problem = "no reply"
+    for _ in range(retries + 1):
+        replies = fetch(key, parameters, timeout)
+        good = [(p, a) for p, a, e in replies if e is None]
+        errors = [e for _, _, e in replies if e is not None]
+        if not good:
+            problem = errors[0] if errors else f"no reply within {timeout:g} s"
+            result.count("error reply" if errors else "no reply")
+            continue
+        data, attachment = good[0]
+        problem_or_none = check_chunk(data, attachment, offset, length)
+        if problem_or_none is None:
+            return data
+        problem = problem_or_none
+        result.count(problem)
+        log.warning("%s: %s at %d: %s; fetching it again", key, name, offset, problem)
+    raise CollectError(
+        f"{key}: {name}: chunk at byte {offset} failed {retries + 1} times (last: {problem})"
+    )
+
+
+def describe(result: CollectResult) -> dict[str, Any]:
+    """A collection's result as JSON-ready data."""
+    return {
+        "run_id": result.run_id,
+        "out": str(result.out),
+        "files": result.files,
+        "refetched": result.refetched,
+        "resumed": result.resumed,
+        "skipped": result.skipped,
+        "missing": result.missing,
+        "errors": result.errors,
+        "bytes_fetched": result.bytes_fetched,
+        "ok": result.ok,
+    }

@@ -1,0 +1,425 @@
+"""A live view of a federation in Foxglove (``fedlab foxglove``), on the Foxglove SDK's
+WebSocket server (protocol ``foxglove.websocket.v1``).
+
+It subscribes as ``fedlab monitor`` does (every agent's status, and liveliness with
+history) and to every agent's pose, and logs on these channels:
+
+===================================  =========================  ==========================
+topic                                schema                     what
+===================================  =========================  ==========================
+``/tf``                              foxglove.FrameTransforms   ``fedlab_common`` ->
+                                                                ``LAB/NAME``, every pose
+``/scene``                           foxglove.SceneUpdate       each platform's footprint
+                                                                and name (frame-locked to
+                                                                its frame), once a second
+``/fedlab/peers``                    JSON (``PEERS_SCHEMA``)    one row per agent and peer:
+                                                                offset, delay, error bound
+``/fedlab/sync/LAB/NAME/PLAB/PNAME`` JSON (``SYNC_SCHEMA``)     LAB/NAME's view of one peer,
+                                                                for plots (ms)
+``/fedlab/run``                      JSON (``RUN_SCHEMA``)      one row per agent: role,
+                                                                mode, run time, hold
+===================================  =========================  ==========================
+
+Times: each message is stamped with this host's wall clock when it arrived (a live
+view; recordings carry the agents' own clocks). The footprint is a square of side
+``2 * moment_arm`` (the thrusters' lines of action) of the platform's preset, or
+``DEFAULT_FOOTPRINT`` m when the status names no preset (kinematic, a ROS 2 platform).
+A status that does not validate, or names another agent than its key, is counted in
+``malformed`` and dropped, as in the monitor.
+
+The parts that decide what is shown take data and return rows
+(:func:`peer_rows`, :func:`run_row`, :func:`footprint`); :class:`LiveView` moves them
+from Zenoh to the SDK.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import foxglove
+import zenoh
+from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
+from foxglove.messages import (
+    Color,
+    CubePrimitive,
+    FrameTransform,
+    FrameTransforms,
+    Pose,
+    Quaternion,
+    SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
+    SceneUpdate,
+    TextPrimitive,
+    Timestamp,
+    Vector3,
+)
+from pydantic import ValidationError
+
+from federation.core import keys, wire
+from federation.core.keys import AgentId
+from schemas.config import ConfigError
+from schemas.messages import Status
+from schemas.platform import load_platform
+
+__all__ = [
+    "COMMON_FRAME",
+    "DEFAULT_FOOTPRINT",
+    "PEERS_SCHEMA",
+    "RUN_SCHEMA",
+    "SYNC_SCHEMA",
+    "LiveView",
+    "footprint",
+    "peer_rows",
+    "run_row",
+    "sync_topic",
+]
+
+log = logging.getLogger("fedlab.foxglove")
+
+COMMON_FRAME = "fedlab_common"
+DEFAULT_FOOTPRINT = 0.3  # m, side of the square drawn for a platform with no preset
+SCENE_PERIOD = 1.0  # s between scene updates (a client that joins late gets one soon)
+MAX_STATUS_BYTES = 1 << 20
+
+_NUMBER = {"type": ["number", "null"]}
+SYNC_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "offset_ms": _NUMBER | {"description": "peer clock minus the agent's, ms"},
+        "delay_ms": _NUMBER | {"description": "median one-way delay, ms"},
+        "error_bound_ms": _NUMBER | {"description": "worst-case offset error, ms"},
+        "samples": {"type": "integer"},
+        "alive": {"type": "boolean"},
+    },
+}
+PEERS_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "rows": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "agent": {"type": "string"},
+                    "peer": {"type": "string"},
+                    **SYNC_SCHEMA["properties"],
+                },
+            },
+        }
+    },
+}
+RUN_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "rows": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "agent": {"type": "string"},
+                    "role": {"type": "string"},
+                    "mode": {"type": "string"},
+                    "run_time": _NUMBER | {"description": "s since the start"},
+                    "t_sim": _NUMBER | {"description": "reference time, s"},
+                    "hold": {"type": ["string", "null"]},
+                    "alive": {"type": "boolean"},
+                },
+            },
+        }
+    },
+}
+
+
+def _ms(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else value * 1e3
+
+
+def peer_rows(status: Status) -> list[dict[str, Any]]:
+    """One row per peer of ``status``: offset, delay and error bound (ms), samples, alive."""
+    return [
+        {
+            "agent": status.agent,
+            "peer": peer,
+            "offset_ms": _ms(view.offset),
+            "delay_ms": _ms(view.delay),
+            "error_bound_ms": _ms(view.error_bound),
+            "samples": view.samples,
+            "alive": view.alive,
+        }
+        for peer, view in sorted(status.peers.items())
+    ]
+
+
+def run_row(status: Status, alive: bool = True) -> dict[str, Any]:
+    """An agent's run: role, mode, run time, reference time, hold."""
+    return {
+        "agent": status.agent,
+        "role": status.role,
+        "mode": status.mode,
+        "run_time": status.run_time,
+        "t_sim": status.t_sim,
+        "hold": status.hold,
+        "alive": alive,
+    }
+
+
+def sync_topic(agent: str, peer: str) -> str:
+    """The plot topic of ``agent``'s view of ``peer``: ``/fedlab/sync/LAB/NAME/PLAB/PNAME``."""
+    return f"/fedlab/sync/{agent}/{peer}"
+
+
+@functools.lru_cache(maxsize=64)
+def footprint(platform: str) -> float:
+    """Side of the square drawn for a platform (m): twice its preset's moment arm, or
+    :data:`DEFAULT_FOOTPRINT` for a pose source with no preset."""
+    if platform == "kinematic" or ":" in platform:
+        return DEFAULT_FOOTPRINT
+    try:
+        return 2.0 * load_platform(platform).moment_arm
+    except ConfigError:
+        return DEFAULT_FOOTPRINT
+
+
+def _stamp(ns: int) -> Timestamp:
+    return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def _rotation(heading: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(heading / 2), w=math.cos(heading / 2))
+
+
+def frame_transform(agent: AgentId, pose: wire.Pose, ns: int) -> FrameTransform:
+    """``fedlab_common`` -> ``LAB/NAME`` at wall-clock ``ns``."""
+    return FrameTransform(
+        timestamp=_stamp(ns),
+        parent_frame_id=COMMON_FRAME,
+        child_frame_id=str(agent),
+        translation=Vector3(x=pose.x, y=pose.y, z=0.0),
+        rotation=_rotation(pose.heading),
+    )
+
+
+def _entity(agent: str, side: float, ns: int) -> SceneEntity:
+    """A platform's footprint and name, locked to its frame."""
+    half = 0.5 * side
+    return SceneEntity(
+        timestamp=_stamp(ns),
+        frame_id=agent,
+        id=f"platform:{agent}",
+        frame_locked=True,
+        cubes=[
+            CubePrimitive(
+                pose=Pose(position=Vector3(z=0.025), orientation=_rotation(0.0)),
+                size=Vector3(x=side, y=side, z=0.05),
+                color=Color(r=0.2, g=0.55, b=0.9, a=0.8),
+            ),
+            # A nose on the body's +x: the heading at a glance.
+            CubePrimitive(
+                pose=Pose(position=Vector3(x=half, z=0.05), orientation=_rotation(0.0)),
+                size=Vector3(x=0.3 * side, y=0.1 * side, z=0.05),
+                color=Color(r=0.95, g=0.45, b=0.1, a=1.0),
+            ),
+        ],
+        texts=[
+            TextPrimitive(
+                pose=Pose(position=Vector3(z=0.3), orientation=_rotation(0.0)),
+                billboard=True,
+                font_size=14.0,
+                scale_invariant=True,
+                color=Color(r=1.0, g=1.0, b=1.0, a=1.0),
+                text=agent,
+            )
+        ],
+    )
+
+
+class LiveView:
+    """Every agent of ``federation`` on ``session``, logged to ``context``'s channels.
+    ``start()``, ``step()`` about every 0.1 s, ``close()`` before the session closes."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        context: foxglove.Context,
+        federation: str = keys.DEFAULT_FEDERATION,
+        wall_ns: Callable[[], int] = time.time_ns,
+    ):
+        self.session = session
+        self.context = context
+        self.federation = keys.validate_name(federation, "federation name")
+        self.wall_ns = wall_ns
+        self.malformed = 0
+        self.poses = 0
+        self._lock = threading.Lock()
+        self._status: dict[AgentId, Status] = {}
+        self._alive: dict[AgentId, bool] = {}
+        self._gone: list[str] = []  # agents whose footprint is to be deleted
+        self._sync: dict[str, foxglove.Channel] = {}
+        self._declared: list[Any] = []
+        self._next_scene = 0
+        self.tf = FrameTransformsChannel("/tf", context=context)
+        self.scene = SceneUpdateChannel("/scene", context=context)
+        self.peers = foxglove.Channel("/fedlab/peers", schema=PEERS_SCHEMA, context=context)
+        self.run = foxglove.Channel("/fedlab/run", schema=RUN_SCHEMA, context=context)
+
+    def start(self) -> None:
+        callback = zenoh.handlers.Callback
+        fed, s = self.federation, self.session
+        try:
+            self._declared.append(
+                s.declare_subscriber(
+                    keys.all_of(fed, "pose"), callback(self._on_pose, indirect=False)
+                )
+            )
+            self._declared.append(
+                s.declare_subscriber(
+                    keys.all_of(fed, "status"), callback(self._on_status, indirect=False)
+                )
+            )
+            self._declared.append(
+                s.liveliness().declare_subscriber(
+                    keys.all_agents(fed),
+                    callback(self._on_liveliness, indirect=False),
+                    history=True,
+                )
+            )
+        except Exception:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception as error:  # a session already closed by zenoh
+                log.debug("undeclare failed: %s", error)
+        self._declared.clear()
+
+    # -- Zenoh callbacks: quick, never raise ---------------------------------------------
+    def _on_pose(self, sample: zenoh.Sample) -> None:
+        ns = self.wall_ns()
+        try:
+            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
+            try:
+                decoded = wire.decode_pose(sample.payload.to_bytes())
+            except wire.DecodeError:
+                with self._lock:
+                    self.malformed += 1
+                return
+            if parsed is None:
+                return
+            transforms = FrameTransforms(transforms=[frame_transform(parsed[0], decoded.pose, ns)])
+            self.tf.log(transforms, log_time=ns)
+            with self._lock:
+                self.poses += 1
+        except Exception:
+            log.exception("pose sample on %s failed", sample.key_expr)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        ns = self.wall_ns()
+        try:
+            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
+            payload = sample.payload.to_bytes()
+            status = None
+            if parsed is not None and parsed[1] == "status" and len(payload) <= MAX_STATUS_BYTES:
+                try:
+                    status = Status.model_validate_json(payload)
+                except ValidationError:
+                    status = None
+            if status is None or parsed is None or status.agent != str(parsed[0]):
+                with self._lock:
+                    self.malformed += 1
+                return
+            with self._lock:
+                self._status[parsed[0]] = status
+                self._alive.setdefault(parsed[0], True)
+            for row in peer_rows(status):
+                topic = sync_topic(row["agent"], row["peer"])
+                channel = self._sync.get(topic)
+                if channel is None:
+                    channel = self._sync[topic] = foxglove.Channel(
+                        topic, schema=SYNC_SCHEMA, context=self.context
+                    )
+                channel.log({k: v for k, v in row.items() if k not in ("agent", "peer")},
+                            log_time=ns)  # fmt: skip
+            self._log_tables(ns)
+        except Exception:
+            log.exception("status sample on %s failed", sample.key_expr)
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        try:
+            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
+            if parsed is None or parsed[1] is not None:
+                return
+            alive = sample.kind == zenoh.SampleKind.PUT
+            with self._lock:
+                self._alive[parsed[0]] = alive
+                if not alive:
+                    self._gone.append(str(parsed[0]))
+        except Exception:
+            log.exception("liveliness sample on %s failed", sample.key_expr)
+
+    # -- logging -----------------------------------------------------------------------
+    def _log_tables(self, ns: int) -> None:
+        with self._lock:
+            known = sorted(self._status.items())
+            alive = dict(self._alive)
+        rows = [r for _, status in known for r in peer_rows(status)]
+        self.peers.log({"rows": rows}, log_time=ns)
+        runs = [run_row(status, alive.get(agent, True)) for agent, status in known]
+        self.run.log({"rows": runs}, log_time=ns)
+
+    def step(self) -> None:
+        """Log the scene if it is due: footprints of the agents present, deletions of
+        those that left."""
+        ns = self.wall_ns()
+        if ns < self._next_scene:
+            return
+        self._next_scene = ns + int(SCENE_PERIOD * 1e9)
+        with self._lock:
+            present = [
+                (str(a), s.platform) for a, s in sorted(self._status.items()) if self._alive.get(a)
+            ]
+            gone, self._gone = self._gone, []
+        entities = [_entity(agent, footprint(platform), ns) for agent, platform in present]
+        deletions = [
+            SceneEntityDeletion(
+                timestamp=_stamp(ns), type=SceneEntityDeletionType.MatchingId, id=f"platform:{a}"
+            )
+            for a in gone
+        ]
+        self.scene.log(SceneUpdate(deletions=deletions, entities=entities), log_time=ns)
+
+
+def serve(
+    session: zenoh.Session,
+    stop: threading.Event,
+    federation: str = keys.DEFAULT_FEDERATION,
+    host: str = "127.0.0.1",
+    port: int = 8765,
+    duration: float | None = None,
+) -> None:
+    """Serve the live view on ``host:port`` until ``stop`` (or ``duration`` seconds)."""
+    context = foxglove.Context()
+    server = foxglove.start_server(name="fedlab", host=host, port=port, context=context)
+    view = LiveView(session, context, federation)
+    try:
+        view.start()
+        log.info(
+            "Foxglove live view of federation %s on ws://%s:%d (open it in Foxglove: "
+            "Open connection, Foxglove WebSocket)", federation, host, server.port,
+        )  # fmt: skip
+        deadline = math.inf if duration is None else time.monotonic() + duration
+        while not stop.is_set() and time.monotonic() < deadline:
+            view.step()
+            stop.wait(0.1)
+    finally:
+        view.close()
+        server.stop()

@@ -1,0 +1,275 @@
+"""The testbed: real network stacks for two labs on this host, and everything
+started in them stopped by pid and removed, even on failure.
+
+``with Testbed(out, path=PacketOptions(delay=0.04)) as bed:`` builds the
+namespaces of :mod:`federation.testbed.topology` (names prefixed per testbed, so
+two testbeds never meet), starts the packet stage in the WAN namespace and
+returns; ``bed.fedlab("rome", "router-rome", [...])`` runs a fedlab command in a
+namespace; ``bed.cut()`` / ``bed.restore()`` cut the WAN; on exit every process
+is stopped by pid (SIGTERM, then SIGKILL) and every namespace deleted. A
+finalizer deletes the namespaces too if the object is dropped without ``close``.
+
+Needs root (CAP_NET_ADMIN and CAP_SYS_ADMIN), ``ip`` (iproute2), ``nft``
+(nftables) and ``/dev/net/tun``: :func:`missing` says which is absent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import weakref
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from federation.fleet.launch import Fleet, wait_for
+from federation.link.packet import PacketOptions
+from federation.testbed.topology import (
+    ADDR,
+    LABS,
+    TUN,
+    build_commands,
+    gateway_ruleset,
+    lab_ruleset,
+)
+
+__all__ = ["PREFIX", "Testbed", "TestbedError", "leftover_namespaces", "missing", "probe_tcp"]
+
+PREFIX = "fltb"
+"""Every testbed namespace's name starts with this (then the pid and a counter)."""
+
+_counter = itertools.count()
+
+
+class TestbedError(RuntimeError):
+    """The testbed could not be built or a command in it failed; says which."""
+
+    __test__ = False  # not a pytest class
+
+
+def missing() -> str | None:
+    """Why a testbed cannot be built here (None: it can)."""
+    if os.geteuid() != 0:
+        return "needs root (network namespaces, nftables, TUN)"
+    for tool in ("ip", "nft"):
+        if shutil.which(tool) is None:
+            package = "iproute2" if tool == "ip" else "nftables"
+            return f"needs {tool!r} (Debian package {package})"
+    if not os.path.exists("/dev/net/tun"):
+        return "needs /dev/net/tun"
+    probe = f"{PREFIX}probe{os.getpid()}"
+    made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
+    if made.returncode != 0:
+        return f"cannot create a network namespace: {made.stderr.strip()}"
+    subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+    return None
+
+
+def leftover_namespaces(prefix: str = PREFIX) -> list[str]:
+    """Namespaces whose name starts with ``prefix`` (a test checks none leaked)."""
+    out = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    return [line.split()[0] for line in out.splitlines() if line.startswith(prefix)]
+
+
+def _delete_namespaces(names: Sequence[str]) -> None:
+    for name in names:
+        subprocess.run(["ip", "netns", "del", name], capture_output=True)
+
+
+def _run(cmd: Sequence[str], stdin: str | None = None, timeout: float = 10.0) -> str:
+    try:
+        done = subprocess.run(
+            list(cmd), input=stdin, capture_output=True, text=True, timeout=timeout
+        )
+    except subprocess.TimeoutExpired:
+        raise TestbedError(f"{' '.join(cmd)}: no answer in {timeout:g} s") from None
+    if done.returncode != 0:
+        raise TestbedError(f"{' '.join(cmd)}: {done.stderr.strip() or done.returncode}")
+    return done.stdout
+
+
+def probe_tcp(namespace: str, host: str, port: int, timeout: float = 2.0) -> str:
+    """Try a TCP connection from ``namespace`` to ``host:port``: "connected",
+    "refused", "timeout" or the error's name."""
+    code = (
+        "import socket,sys\n"
+        f"s=socket.socket(); s.settimeout({timeout!r})\n"
+        "try:\n"
+        f"    s.connect(({host!r},{port})); print('connected')\n"
+        "except ConnectionRefusedError: print('refused')\n"
+        "except TimeoutError: print('timeout')\n"
+        "except OSError as e: print(type(e).__name__)\n"
+    )
+    out = _run(["ip", "netns", "exec", namespace, sys.executable, "-c", code], timeout=timeout + 10)
+    return out.strip()
+
+
+class Testbed:
+    """Two labs' network stacks, the WAN between them and the processes in them.
+
+    Parameters
+    ----------
+    out : Path
+        Folder for the processes' logs and the stage's counters.
+    path : PacketOptions
+        The WAN towards Kiruna (forward); ``backward`` the way back (default: the same).
+    kiruna_ports : sequence of str
+        Ports Kiruna's firewall opens (``tcp/7447``, ``udp/7447``).
+    sysctls : mapping
+        Settings of both lab hosts' network stacks (e.g. TCP's).
+    seed : int
+        The stage's random seed.
+    """
+
+    __test__ = False  # not a pytest class
+
+    def __init__(
+        self,
+        out: str | Path,
+        path: PacketOptions | None = None,
+        backward: PacketOptions | None = None,
+        *,
+        kiruna_ports: Sequence[str] = ("tcp/7447",),
+        sysctls: Mapping[str, str] | None = None,
+        seed: int = 1,
+    ):
+        self.out = Path(out)
+        self.path = path or PacketOptions()
+        self.backward = backward
+        self.kiruna_ports = tuple(kiruna_ports)
+        self.sysctls = dict(sysctls or {})
+        self.seed = seed
+        tag = f"{PREFIX}{os.getpid()}x{next(_counter)}"
+        self.ns = {lab: f"{tag}-{lab}" for lab in LABS}
+        self.fleet = Fleet(self.out / "logs")
+        self.stats_path = self.out / "stage.json"
+        self._made: list[str] = []
+        # Namespaces go even if close() is never called (the test crashed hard).
+        self._finalizer = weakref.finalize(self, _delete_namespaces, self._made)
+
+    # -- lifecycle -------------------------------------------------------------------
+    def __enter__(self) -> Testbed:
+        try:
+            self.build()
+            self.start_stage()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def build(self) -> None:
+        """Namespaces, wires, addresses, routes, sysctls and firewalls."""
+        for cmd in build_commands(self.ns, self.sysctls):
+            if cmd[:3] == ["ip", "netns", "add"]:
+                self._made.append(cmd[3])
+            _run(cmd)
+        self.nft("rome-gw", gateway_ruleset())
+        self.nft("kiruna", lab_ruleset(self.kiruna_ports))
+
+    def start_stage(self, timeout: float = 10.0) -> None:
+        """The packet stage on the WAN's TUN device, with :attr:`path`'s impairments."""
+        args = ["link", "--tun", TUN, "--forward-net", ADDR.kiruna_net, "--router", ADDR.wan_rome]
+        args += ["--seed", str(self.seed), "--stats-json", str(self.stats_path)]
+        args += _stage_flags(self.path, "")
+        if self.backward is not None:
+            args += _stage_flags(self.backward, "backward-")
+        self.stats_path.unlink(missing_ok=True)
+        self.fedlab("wan", "stage", args)
+        if not wait_for(self.stats_path.exists, timeout, 0.05):
+            raise TestbedError(f"the packet stage did not start: {self.log('stage')[-2000:]}")
+
+    def close(self) -> None:
+        """Stop every process by pid, then delete every namespace (idempotent)."""
+        try:
+            self.fleet.stop_all()
+        finally:
+            _delete_namespaces(self._made)
+            self._made.clear()
+
+    # -- running things --------------------------------------------------------------
+    def run(self, lab: str, *cmd: str, stdin: str | None = None) -> str:
+        """Run a command in ``lab``'s namespace to completion; its output."""
+        return _run(["ip", "netns", "exec", self.ns[lab], *cmd], stdin=stdin)
+
+    def nft(self, lab: str, ruleset: str) -> None:
+        self.run(lab, "nft", "-f", "-", stdin=ruleset)
+
+    def spawn(self, lab: str, name: str, argv: Sequence[str]) -> subprocess.Popen[bytes]:
+        """Start ``argv`` in ``lab``'s namespace as a tracked process (``ip netns exec``
+        execs the command, so the pid is the command's own)."""
+        return self.fleet.spawn(name, ["ip", "netns", "exec", self.ns[lab], *argv])
+
+    def fedlab(self, lab: str, name: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
+        """Start ``fedlab ARGS`` in ``lab``'s namespace."""
+        return self.spawn(lab, name, [sys.executable, "-m", "federation", *args])
+
+    def stop(self, name: str) -> int | None:
+        return self.fleet.stop(name)
+
+    def alive(self, name: str) -> bool:
+        return self.fleet.alive(name)
+
+    def log(self, name: str) -> str:
+        path = self.fleet.log_path(name)
+        return path.read_text(errors="replace") if path.exists() else ""
+
+    # -- the WAN ---------------------------------------------------------------------
+    def _signal_stage(self, sig: int) -> float:
+        proc = self.fleet.procs.get("stage")
+        if proc is None or proc.poll() is not None:
+            raise TestbedError("the packet stage is not running")
+        at = time.monotonic()
+        os.kill(proc.pid, sig)
+        return at
+
+    def cut(self) -> float:
+        """Cut the WAN both ways; the host monotonic time of the cut (s)."""
+        return self._signal_stage(signal.SIGUSR1)
+
+    def restore(self) -> float:
+        """End a cut; the host monotonic time (s)."""
+        return self._signal_stage(signal.SIGUSR2)
+
+    def stage_stats(self) -> dict[str, Any]:
+        """The stage's counters as last written (every second)."""
+        with contextlib.suppress(OSError, ValueError):
+            data: dict[str, Any] = json.loads(self.stats_path.read_text())
+            return data
+        return {}
+
+    def probe(self, lab: str, host: str, port: int, timeout: float = 2.0) -> str:
+        """A TCP connection attempt from ``lab`` (see :func:`probe_tcp`)."""
+        return probe_tcp(self.ns[lab], host, port, timeout)
+
+
+def _stage_flags(p: PacketOptions, prefix: str) -> list[str]:
+    """``fedlab link --tun`` flags for one direction's options."""
+    flags = [
+        f"--{prefix}delay-ms", f"{p.delay * 1e3:g}",
+        f"--{prefix}jitter-ms", f"{p.jitter * 1e3:g}",
+        f"--{prefix}loss", f"{p.loss:g}",
+    ]  # fmt: skip
+    if prefix:
+        return flags
+    flags += ["--jitter-dist", p.jitter_dist, "--loss-burst", f"{p.loss_burst:g}"]
+    if p.reorder:
+        flags += ["--reorder", f"{p.reorder:g}", "--reorder-extra-ms", f"{p.reorder_extra * 1e3:g}"]
+    if p.rate:
+        flags += ["--rate-kbit", f"{p.rate * 8 / 1e3:g}", "--queue-kib", f"{p.queue / 1024:g}"]
+    if p.mtu:
+        flags += ["--mtu", str(p.mtu)]
+    if not p.icmp:
+        flags.append("--no-icmp")
+    for at, length in p.cuts:
+        flags += ["--cut", f"{at:g}:{length:g}"]
+    return flags

@@ -1,0 +1,262 @@
+"""The federation file: one description of a whole federation, from which
+``fedlab deploy generate`` writes every lab's router config, every agent's and
+operator's Zenoh config, the certificates and the systemd units
+(:mod:`federation.deploy.generate`). Example: ``deploy/federation.example.toml``.
+
+::
+
+    federation = "default"
+
+    [labs.kiruna]                       # listens: other labs' routers dial it
+    auth = "certificate"
+    listen = ["tls/[::]:7447"]
+    endpoint = "tls/kiruna.example.org:7447"
+    agents.knatte = { role = "leader", platform = "knatte" }
+    operators = ["ctl"]
+
+    [labs.rome]                         # dials Kiruna; opens no inbound port
+    auth = "password"
+    listen = ["tls/10.1.0.2:7447"]
+    dial = ["kiruna"]
+    agents.pinocchio = { role = "follower", follow = "kiruna/knatte" }
+
+A bad file fails at load naming the field, e.g.
+``federation.toml: field 'labs.rome.dial': lab 'lund' is not in labs``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import AfterValidator, Field, ValidationError, model_validator
+
+from federation.core.keys import DEFAULT_FEDERATION
+from schemas import base
+from schemas.base import ConfigError, load_model
+from schemas.config import AgentConfig
+from schemas.messages import CHUNK_SIZE
+
+__all__ = ["AgentEntry", "FederationFile", "LabEntry", "endpoint_host", "load_federation"]
+
+Name = Annotated[str, base.name("name")]
+
+
+def endpoint_host(endpoint: str) -> str:
+    """The host of a ``tls/HOST:PORT[#options]`` endpoint (brackets of IPv6 removed)."""
+    address = endpoint.partition("/")[2].split("#", 1)[0]
+    host = address.rpartition(":")[0]
+    return host[1:-1] if host.startswith("[") and host.endswith("]") else host
+
+
+def _tls_endpoint(value: str) -> str:
+    proto, sep, address = value.partition("/")
+    if proto != "tls" or not sep:
+        raise ValueError(
+            f"invalid endpoint {value!r}: every link of a federation is TLS, e.g. "
+            "tls/kiruna.example.org:7447"
+        )
+    host, colon, port = address.split("#", 1)[0].rpartition(":")
+    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"invalid endpoint {value!r}: expected tls/HOST:PORT")
+    return value
+
+
+TlsEndpoint = Annotated[str, AfterValidator(_tls_endpoint)]
+
+
+def _is_wildcard(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_unspecified
+    except ValueError:
+        return False
+
+
+class AgentEntry(base.Model):
+    """One agent of a lab: its fedlab address is ``<lab>/<name>``, the Common Name of its
+    certificate (or its user name on a password lab), and the only keys it may write."""
+
+    role: Literal["leader", "follower", "member"] = Field(
+        "member", description="leader runs the maneuver; follower tracks follow"
+    )
+    follow: str | None = Field(None, description="LAB/NAME of the agent a follower tracks")
+    platform: str = Field("kinematic", description="pose source (see AgentConfig.platform)")
+    settings: dict[str, Any] = Field(
+        default_factory=dict,
+        description="any other AgentConfig field, written to the agent's TOML as is",
+    )
+
+
+class LabEntry(base.Model):
+    """One lab: its router, how its agents authenticate, and its agents and operators."""
+
+    auth: Literal["certificate", "password"] = Field(
+        "certificate",
+        description="how this lab's agents and operators prove who they are: a client "
+        "certificate (CN lab/name), or a user name lab/name and a password over TLS",
+    )
+    listen: list[TlsEndpoint] = Field(
+        min_length=1,
+        description="where this lab's router listens: its agents attach there, and so do "
+        "the routers of the labs that dial it",
+    )
+    endpoint: TlsEndpoint | None = Field(
+        None,
+        description="the address other labs' routers dial to reach this router (its host "
+        "goes into the lab certificate); needed when another lab dials this one",
+    )
+    agent_endpoint: TlsEndpoint | None = Field(
+        None,
+        description="the address this lab's agents and operators dial; default: endpoint, "
+        "else the first listen endpoint",
+    )
+    hosts: list[str] = Field(
+        default_factory=list,
+        description="extra names and addresses for the lab certificate; the hosts of "
+        "endpoint and agent_endpoint are always in it",
+    )
+    dial: list[Name] = Field(
+        default_factory=list, description="labs whose routers this lab's router dials (outbound)"
+    )
+    agents: dict[Name, AgentEntry] = Field(
+        default_factory=dict, description="this lab's agents by name"
+    )
+    operators: list[Name] = Field(
+        default_factory=list,
+        description="who may publish control commands (fedlab ctl) from this lab",
+    )
+
+    def agents_endpoint(self) -> str:
+        """What this lab's agents dial."""
+        return self.agent_endpoint or self.endpoint or self.listen[0]
+
+    def cert_hosts(self) -> list[str]:
+        """The lab certificate's names: hosts of endpoint and agent_endpoint, then hosts."""
+        out: list[str] = []
+        dialled = [self.endpoint, self.agents_endpoint()]
+        for host in [endpoint_host(e) for e in dialled if e is not None] + self.hosts:
+            if host and not _is_wildcard(host) and host not in out:
+                out.append(host)
+        return out
+
+
+class FederationFile(base.Model):
+    """A whole federation: its labs, which dials which, their agents and operators."""
+
+    federation: Name = Field(DEFAULT_FEDERATION, description="the federation's name (keys, CA)")
+    max_message_size: int = Field(
+        0,
+        ge=0,
+        description="bytes: the largest message a router or agent accepts; 0: what fedlab's "
+        "largest message needs (a recording chunk, 1 MiB, plus 64 KiB)",
+    )
+    labs: dict[Name, LabEntry] = Field(min_length=1, description="the labs by name")
+
+    @model_validator(mode="after")
+    def _topology(self) -> FederationFile:
+        for lab, entry in self.labs.items():
+            for i, other in enumerate(entry.dial):
+                if other not in self.labs:
+                    raise _field_error(f"labs.{lab}.dial.{i}", f"lab {other!r} is not in labs")
+                if other == lab:
+                    raise _field_error(f"labs.{lab}.dial.{i}", "a lab cannot dial itself")
+                target = self.labs[other]
+                if target.endpoint is None:
+                    raise _field_error(
+                        f"labs.{other}.endpoint",
+                        f"missing: {lab} dials {other}, so give the address it dials",
+                    )
+                if target.auth == "password":
+                    raise _field_error(
+                        f"labs.{other}.auth",
+                        f"'password' on a lab other routers dial ({lab} dials it): a password "
+                        "dictionary applies to every session, the dialling router's too; use "
+                        "'certificate'",
+                    )
+                if lab in target.dial:
+                    raise _field_error(
+                        f"labs.{lab}.dial.{i}", f"{other} dials {lab} already: one link per pair"
+                    )
+            clash = sorted(set(entry.agents) & set(entry.operators))
+            if clash:
+                raise _field_error(
+                    f"labs.{lab}.operators", f"{', '.join(clash)}: already an agent's name"
+                )
+            if len(set(entry.operators)) != len(entry.operators):
+                raise _field_error(f"labs.{lab}.operators", "a name is listed twice")
+            for name, agent in entry.agents.items():
+                data = {**agent.settings, "federation": self.federation, "lab": lab, "name": name}
+                data |= {"role": agent.role, "follow": agent.follow, "platform": agent.platform}
+                try:
+                    AgentConfig.model_validate(data)
+                except ValidationError as error:
+                    raise _field_error(
+                        f"labs.{lab}.agents.{name}", base.format_validation_error("agent", error)
+                    ) from None
+                if agent.follow is not None and not self.has_agent(agent.follow):
+                    raise _field_error(
+                        f"labs.{lab}.agents.{name}.follow", f"{agent.follow} is not an agent here"
+                    )
+        unreachable = sorted(set(self.labs) - self.reachable(next(iter(self.labs))))
+        if unreachable:
+            raise _field_error(
+                "labs",
+                f"{', '.join(unreachable)} linked to no other lab: give each lab a dial "
+                "entry or have another lab dial it",
+            )
+        return self
+
+    def has_agent(self, address: str) -> bool:
+        lab, _, name = address.partition("/")
+        return lab in self.labs and name in self.labs[lab].agents
+
+    def neighbours(self, lab: str) -> list[str]:
+        """The labs whose routers share a link with ``lab``'s (either way round)."""
+        out = list(self.labs[lab].dial)
+        out += [other for other, e in self.labs.items() if lab in e.dial and other not in out]
+        return out
+
+    def reachable(self, start: str, without: str | None = None) -> set[str]:
+        """The labs reached from ``start`` over router links, not passing ``without``."""
+        seen, todo = {start}, [start]
+        while todo:
+            for other in self.neighbours(todo.pop()):
+                if other != without and other not in seen:
+                    seen.add(other)
+                    todo.append(other)
+        return seen
+
+    def behind(self, lab: str, neighbour: str) -> list[str]:
+        """The labs whose traffic may reach ``lab`` over its link with ``neighbour``."""
+        return sorted(self.reachable(neighbour, without=lab))
+
+    @property
+    def message_limit(self) -> int:
+        """Bytes: :attr:`max_message_size`, or fedlab's largest message."""
+        return self.max_message_size or CHUNK_SIZE + 64 * 1024
+
+
+def _field_error(where: str, message: str) -> ValueError:
+    return ValueError(f"{where}: {message}")
+
+
+def load_federation(path: str | Path) -> FederationFile:
+    """Load and check a federation file; a :class:`ConfigError` names the file and field."""
+    try:
+        return load_model(FederationFile, path)
+    except ConfigError as error:
+        raise ConfigError(_lift(str(error))) from None
+
+
+def _lift(message: str) -> str:
+    """``file: field '(top level)': Value error, labs.x.dial.0: reason`` becomes
+    ``file: field 'labs.x.dial.0': reason``."""
+    lines = []
+    for line in message.splitlines():
+        head, marker, rest = line.partition(": field '(top level)': Value error, ")
+        if marker:
+            where, _, reason = rest.partition(": ")
+            line = f"{head}: field '{where}': {reason}"
+        lines.append(line)
+    return "\n".join(lines)

@@ -1,0 +1,206 @@
+"""Scenario settings beyond attitude: lab frames, formation, docking, the relative sensor
+and adaptive gains (issue 14).
+
+An experiment file (:mod:`schemas.experiment`) holds them; each agent gets its own part,
+a :class:`ScenarioPart`, in its :class:`~schemas.config.AgentConfig`
+(``fedlab agent --experiment FILE`` fills it in). Units are in every field's description.
+
+Frames: every lab's table has its own frame (x, y on the table, heading from its x
+axis); a lab declares where that frame sits in the federation's common frame
+(:class:`LabFrame`). Poses on the wire are in the common frame.
+
+Rule: imports :mod:`schemas.base` only, so :mod:`schemas.config` and
+:mod:`schemas.experiment` can both build on it.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from schemas.base import Model
+
+__all__ = [
+    "AdaptiveConfig",
+    "ContactCriteria",
+    "DockingConfig",
+    "FormationConfig",
+    "LabFrame",
+    "RelativeSensorConfig",
+    "ScenarioKind",
+    "ScenarioPart",
+]
+
+ScenarioKind = Literal["attitude-tracking", "formation", "docking"]
+"""What an experiment rehearses."""
+
+Vec2 = tuple[float, float]
+
+
+class LabFrame(Model):
+    """Where a lab's table frame sits in the common frame:
+    :math:`p_c = R(\\theta) p_t + o`, :math:`\\psi_c = \\psi_t + \\theta`."""
+
+    origin: Vec2 = Field(
+        (0.0, 0.0), description="the table frame's origin in the common frame (x, y), m"
+    )
+    rotation_deg: float = Field(
+        0.0, ge=-180, le=180, description="the table's x axis from the common x axis, degrees"
+    )
+
+
+class RelativeSensorConfig(Model):
+    """An emulated relative sensor (paper section 3.2) on the body's +x axis: range,
+    bearing and relative heading of another platform, with noise growing with range."""
+
+    rate: float = Field(10.0, gt=0, le=1000, description="measurements per second, Hz")
+    range_noise: float = Field(0.002, ge=0, description="range noise at zero range, 1 sigma, m")
+    range_noise_per_m: float = Field(
+        0.004, ge=0, description="range noise growth, 1 sigma, m per m of range"
+    )
+    bearing_noise_deg: float = Field(
+        0.1, ge=0, description="bearing noise at zero range, 1 sigma, degrees"
+    )
+    bearing_noise_per_m_deg: float = Field(
+        0.1, ge=0, description="bearing noise growth, 1 sigma, degrees per m of range"
+    )
+    heading_noise_deg: float = Field(
+        0.2, ge=0, description="relative heading noise, 1 sigma, degrees"
+    )
+    fov_deg: float = Field(
+        60.0, gt=0, le=360, description="field of view, full angle about the body x axis, degrees"
+    )
+    max_range: float = Field(4.0, gt=0, description="largest range measured, m")
+    dropout: float = Field(
+        0.02, ge=0, lt=1, description="probability that a due measurement is lost"
+    )
+    horizon: float = Field(
+        1.0, gt=0, le=10, description="longest dead reckoning of the other's shared pose, s"
+    )
+    seed: int = Field(0, ge=0, description="seed of the noise and dropouts")
+
+
+class FormationConfig(Model):
+    """N platforms keep slots around a virtual centre that follows a circle:
+
+    .. math::
+
+        c(t) = c_0 + R(\\cos\\theta(t) - 1,\\ \\sin\\theta(t)), \\qquad
+        \\dot\\theta = 2\\pi / T \\text{ after a ramp of } T_r
+
+    Each agent's reference is its slot around a blend of the path's centre and the
+    centre implied by the others' shared poses (decentralized consensus)."""
+
+    centre: Vec2 = Field((0.0, 0.0), description="the virtual centre at the start, common frame, m")
+    radius: float = Field(0.4, ge=0, description="radius of the centre's circle, m")
+    period: float = Field(50.0, gt=0, description="seconds per turn of the circle")
+    still: float = Field(5.0, ge=0, description="seconds still after the start")
+    ramp: float = Field(10.0, gt=0, description="seconds to reach the circle's speed")
+    heading_deg: float = Field(0.0, ge=-180, le=180, description="every member's heading, degrees")
+    consensus_weight: float = Field(
+        0.7,
+        ge=0,
+        lt=1,
+        description="share of the centre estimate taken from the others' shared poses",
+    )
+    stale_after: float = Field(
+        1.0, gt=0, le=10, description="seconds after which another's pose is left out"
+    )
+    slots: dict[str, Vec2] = Field(
+        default_factory=dict,
+        description="LAB/NAME -> slot offset from the virtual centre, common frame, m",
+    )
+
+
+class ContactCriteria(Model):
+    """When a contact counts as a successful docking (on the relative truth)."""
+
+    max_speed: float = Field(0.02, gt=0, description="largest closing speed, m/s")
+    max_lateral: float = Field(0.02, gt=0, description="largest lateral offset, m")
+    max_heading_deg: float = Field(2.0, gt=0, description="largest heading error, degrees")
+
+
+class DockingConfig(Model):
+    """A chaser docks on a target's port (the target's body +x axis) from emulated
+    relative measurements alone: approach, hold point, final approach, contact."""
+
+    target: str = Field(description="LAB/NAME of the target")
+    chaser: str = Field(description="LAB/NAME of the chaser")
+    contact_distance: float = Field(
+        0.5, gt=0, description="centre-to-centre distance at contact along the axis, m"
+    )
+    hold_distance: float = Field(
+        0.3, gt=0, description="the hold point's distance beyond contact along the axis, m"
+    )
+    hold_time: float = Field(8.0, ge=0, description="seconds settled at the hold point", le=600)
+    hold_tolerance: float = Field(
+        0.01, gt=0, description="position error at the hold point that counts as settled, m"
+    )
+    approach_speed: float = Field(0.03, gt=0, le=0.5, description="approach speed, m/s")
+    final_speed: float = Field(0.01, gt=0, le=0.5, description="final approach speed, m/s")
+    corridor_deg: float = Field(
+        15.0, gt=0, lt=90, description="approach corridor half-angle about the axis, degrees"
+    )
+    lost_after: float = Field(
+        2.0, gt=0, le=60, description="seconds without a measurement before backing off, s"
+    )
+    target_rate_deg: float = Field(
+        0.0, ge=-10, le=10, description="the target's constant heading rate, degrees/s"
+    )
+    target_drift: Vec2 = Field(
+        (0.0, 0.0), description="the target's constant drift velocity, common frame, m/s"
+    )
+    contact: ContactCriteria = Field(default_factory=ContactCriteria)
+
+    @model_validator(mode="after")
+    def _speeds(self) -> DockingConfig:
+        if self.final_speed >= self.contact.max_speed:
+            raise ValueError(
+                f"final_speed ({self.final_speed} m/s) must be below the contact criterion "
+                f"({self.contact.max_speed} m/s)"
+            )
+        if self.target == self.chaser:
+            raise ValueError("the chaser cannot dock with itself")
+        return self
+
+
+class AdaptiveConfig(Model):
+    """A follower's gain schedule from the leader's dynamic range it observes:
+
+    .. math::
+
+        s = \\mathrm{clip}(\\hat\\omega_{peak} / \\omega_{nominal}, 1, s_{max}), \\quad
+        K_p' = s^2 K_p, \\quad K_d' = s K_d, \\quad K_i' = s^3 K_i
+
+    (the closed loop's natural frequency scales with :math:`s`, its damping stays)."""
+
+    nominal_rate_deg: float = Field(
+        3.0,
+        gt=0,
+        description="leader's peak heading rate the preset's gains are tuned for, deg/s "
+        "(the paper's maneuver peaks at 2.4, its estimate's noise on top)",
+    )
+    max_scale: float = Field(2.5, ge=1, le=10, description="largest frequency scale s")
+    window: float = Field(20.0, gt=0, le=600, description="seconds of received samples watched")
+
+
+class ScenarioPart(Model):
+    """One agent's part of a scenario (filled in from the experiment file)."""
+
+    kind: ScenarioKind = "attitude-tracking"
+    frame: LabFrame = Field(default_factory=LabFrame, description="this lab's table frame")
+    formation: FormationConfig | None = None
+    docking: DockingConfig | None = None
+    relative_sensor: RelativeSensorConfig = Field(default_factory=RelativeSensorConfig)
+    adaptive: AdaptiveConfig | None = Field(
+        None, description="schedule the heading gains from the leader's dynamic range"
+    )
+
+    @model_validator(mode="after")
+    def _kind(self) -> ScenarioPart:
+        if self.kind == "formation" and self.formation is None:
+            raise ValueError("a formation part needs 'formation'")
+        if self.kind == "docking" and self.docking is None:
+            raise ValueError("a docking part needs 'docking'")
+        return self

@@ -1,0 +1,202 @@
+"""``fedlab foxglove``: a WebSocket client speaking Foxglove's protocol sees the federation.
+
+Real processes on loopback (two routers, a leader, a follower and ``fedlab foxglove``
+through the ``labs`` fixture); the client is the ``websockets`` library speaking
+Foxglove's WebSocket protocol as Foxglove does: it reads the server's channel advertisement,
+subscribes, and decodes the binary message frames (opcode 1, subscription id, time,
+payload) with the schema the server advertised (protobuf for Foxglove's types, via
+the ``protobuf`` library; JSON for fedlab's tables).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import struct
+import threading
+import time
+from typing import Any
+
+import pytest
+import zenoh
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from loopback import FOLLOWER, LEADER, Agent, Labs, client_config
+from websockets.sync.client import ClientConnection, connect
+
+from federation.core import wire
+from federation.fleet.launch import free_port, wait_for
+
+# Foxglove's WebSocket protocol; SDK 0.30's server names it foxglove.sdk.v1 (the protocol
+# of foxglove.websocket.v1, renamed) and refuses a client offering only the old name.
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+
+
+class PoseTap:
+    """The leader's pose samples as published on Zenoh (at most 10 000)."""
+
+    def __init__(self, endpoint: str, key: str):
+        self.samples: list[wire.PoseSample] = []
+        self._lock = threading.Lock()
+        self.session = zenoh.open(client_config(endpoint))
+        self.sub = self.session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            if len(self.samples) < 10_000:
+                self.samples.append(wire.decode_pose(sample.payload.to_bytes()))
+
+    def received(self) -> list[wire.PoseSample]:
+        with self._lock:
+            return list(self.samples)
+
+    def close(self) -> None:
+        self.sub.undeclare()  # type: ignore[no-untyped-call]
+        self.session.close()  # type: ignore[no-untyped-call]
+
+
+def protobuf_class(channel: dict[str, Any]) -> Any:
+    """The message class of an advertised protobuf channel, from its FileDescriptorSet."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for proto in files.file:
+        pool.Add(proto)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+class FoxgloveClient:
+    """A client of ``foxglove.websocket.v1``: channels by topic, subscribe, read frames."""
+
+    def __init__(self, ws: ClientConnection):
+        self.ws = ws
+        self.channels: dict[str, dict[str, Any]] = {}
+        self.subscriptions: dict[int, dict[str, Any]] = {}
+
+    def read(self, timeout: float) -> tuple[dict[str, Any], bytes] | None:
+        """The next message frame (its channel and payload) within ``timeout`` s; text
+        frames (advertisements) are taken in on the way."""
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                frame = self.ws.recv(timeout=left)
+            except TimeoutError:
+                return None
+            if isinstance(frame, str):
+                op = json.loads(frame)
+                if op.get("op") == "advertise":
+                    self.channels.update({c["topic"]: c for c in op["channels"]})
+                continue
+            if frame[0] == 0x01:  # messageData: subscription id, log time (ns), payload
+                sub_id, _log_time = struct.unpack_from("<IQ", frame, 1)
+                return self.subscriptions[sub_id], frame[13:]
+        return None
+
+    def wait_channel(self, topic: str, timeout: float) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        while topic not in self.channels and time.monotonic() < deadline:
+            self.read(0.1)
+        assert topic in self.channels, sorted(self.channels)
+        return self.channels[topic]
+
+    def subscribe(self, channel: dict[str, Any]) -> None:
+        sub_id = len(self.subscriptions) + 1
+        self.subscriptions[sub_id] = channel
+        subscription = {"id": sub_id, "channelId": channel["id"]}
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [subscription]}))
+
+
+def open_client(port: int, timeout: float) -> ClientConnection:
+    """Connect to the server once it listens (bounded)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return connect(
+                f"ws://127.0.0.1:{port}",
+                subprotocols=SUBPROTOCOLS,  # type: ignore[arg-type]
+                open_timeout=2,
+            )
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def yaw(q: Any) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+@pytest.mark.integration
+def test_a_foxglove_client_sees_the_leaders_transform_and_the_sync(labs: Labs) -> None:
+    pair = labs.pair()
+    leader = labs.leader(pair.kiruna, "--platform", "knatte")  # a noisy, moving pose
+    follower = labs.follower(pair.rome)
+    port = free_port()
+    view = Agent(
+        labs.fleet, "foxglove",
+        ["foxglove", "--port", str(port), "-e", pair.rome.endpoint], who="foxglove",
+    )  # fmt: skip
+    view.start()
+    leader.wait_status(timeout=10)
+    tap = PoseTap(pair.kiruna.endpoint, f"fedlab/default/{LEADER}/pose")
+    try:
+        with open_client(port, timeout=15) as ws:
+            check_view(ws, tap, follower)
+    finally:
+        tap.close()
+    assert view.alive()
+
+
+def check_view(ws: ClientConnection, tap: PoseTap, follower: Agent) -> None:
+    """The leader's transform within 1 s of subscribing, and the follower's sync row."""
+    assert ws.subprotocol in SUBPROTOCOLS
+    client = FoxgloveClient(ws)
+    tf = client.wait_channel("/tf", timeout=5)
+    assert tf["schemaName"] == "foxglove.FrameTransforms"
+    decode = protobuf_class(tf)
+    client.subscribe(tf)
+    subscribed = time.monotonic()
+    transform = None
+    while transform is None and time.monotonic() - subscribed < 1.0:
+        frame = client.read(1.0 - (time.monotonic() - subscribed))
+        if frame is None or frame[0]["topic"] != "/tf":
+            continue
+        message = decode.FromString(frame[1])
+        found = [t for t in message.transforms if t.child_frame_id == LEADER]
+        transform = found[0] if found else None
+    assert transform is not None, "no transform of the leader within 1 s"
+    within = time.monotonic() - subscribed
+    assert transform.parent_frame_id == "fedlab_common"
+    tr = transform.translation
+    published = [
+        s.pose
+        for s in tap.received()
+        if abs(s.pose.x - tr.x) <= 1e-9 and abs(s.pose.y - tr.y) <= 1e-9
+    ]
+    assert published, (tr, tap.received()[-3:])
+    heading = yaw(transform.rotation)
+    assert any(abs(math.remainder(p.heading - heading, math.tau)) < 1e-9 for p in published)
+    print(f"leader's transform {within * 1e3:.0f} ms after subscribing ({ws.subprotocol})")
+
+    # Offset, delay and error bound per peer: the follower's view of the leader.
+    follower.wait_samples(LEADER, 10, timeout=15)
+    peers = client.wait_channel("/fedlab/peers", timeout=5)
+    assert peers["encoding"] == "json"
+    client.subscribe(peers)
+    rows: list[dict[str, Any]] = []
+
+    def follower_row() -> bool:
+        frame = client.read(0.5)
+        if frame is not None and frame[0]["topic"] == "/fedlab/peers":
+            rows[:] = json.loads(frame[1])["rows"]
+        return any(
+            r["agent"] == FOLLOWER and r["peer"] == LEADER and r["offset_ms"] is not None
+            for r in rows
+        )
+
+    assert wait_for(follower_row, timeout=5, interval=0), rows
+    row = next(r for r in rows if r["agent"] == FOLLOWER and r["peer"] == LEADER)
+    line = follower.latest()["peers"][LEADER]
+    assert row["delay_ms"] > 0 and row["error_bound_ms"] >= 0
+    assert row["offset_ms"] == pytest.approx(line["offset"] * 1e3, abs=5.0)
+    assert "/fedlab/run" in client.channels and "/scene" in client.channels
+    assert client.channels["/scene"]["schemaName"] == "foxglove.SceneUpdate"

@@ -1,0 +1,379 @@
+"""``fedlab bridge ros2``: the federation's poses on ROS 2, and a ROS 2 platform as an agent.
+
+Real processes on loopback (routers, agents and the bridge through the ``labs`` fixture)
+and a DDS reader and writer in the test. The ROS 2 types below are written here from
+ROS 2's IDL (``rosidl``'s ``pkg::msg::dds_::Type_``), not imported from fedlab, so the test
+checks the bridge against the types a ROS 2 node uses. Cyclone DDS is confined to the
+loopback interface (no multicast; unicast discovery on 127.0.0.1) on a domain of this
+test's own. The conversions, time passed in, are tested in tests/unit/bridge/.
+"""
+
+import math
+import os
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+import pytest
+import zenoh
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl import types as t
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+from loopback import LEADER, Agent, Labs, client_config
+
+from federation.core import wire
+from federation.fleet.launch import wait_for
+
+ROVER = "ros2lab/rover"
+FOLLOWER = "rome/pinocchio"
+ROVER_POSE = (1.5, -0.25, 0.3)  # x, y, heading the test's ROS 2 platform reports
+
+
+# -- ROS 2 types from their IDL (builtin_interfaces, std_msgs, geometry_msgs, nav_msgs, tf2_msgs)
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces.msg.dds_.Time_"):
+    sec: t.int32 = 0
+    nanosec: t.uint32 = 0
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs.msg.dds_.Header_"):
+    stamp: Time = field(default_factory=Time)
+    frame_id: str = ""
+
+
+@dataclass
+class Vec3(IdlStruct, typename="geometry_msgs.msg.dds_.Vector3_"):
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs.msg.dds_.Point_"):
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+
+
+@dataclass
+class Quat(IdlStruct, typename="geometry_msgs.msg.dds_.Quaternion_"):
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    w: float = 1.0
+
+
+@dataclass
+class PoseMsg(IdlStruct, typename="geometry_msgs.msg.dds_.Pose_"):
+    position: Point = field(default_factory=Point)
+    orientation: Quat = field(default_factory=Quat)
+
+
+Cov = Annotated[Sequence[float], t.array(t.float64, 36)]
+
+
+@dataclass
+class PoseCov(IdlStruct, typename="geometry_msgs.msg.dds_.PoseWithCovariance_"):
+    pose: PoseMsg = field(default_factory=PoseMsg)
+    covariance: Cov = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class TwistMsg(IdlStruct, typename="geometry_msgs.msg.dds_.Twist_"):
+    linear: Vec3 = field(default_factory=Vec3)
+    angular: Vec3 = field(default_factory=Vec3)
+
+
+@dataclass
+class TwistCov(IdlStruct, typename="geometry_msgs.msg.dds_.TwistWithCovariance_"):
+    twist: TwistMsg = field(default_factory=TwistMsg)
+    covariance: Cov = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs.msg.dds_.Odometry_"):
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    pose: PoseCov = field(default_factory=PoseCov)
+    twist: TwistCov = field(default_factory=TwistCov)
+
+
+@dataclass
+class TransformMsg(IdlStruct, typename="geometry_msgs.msg.dds_.Transform_"):
+    translation: Vec3 = field(default_factory=Vec3)
+    rotation: Quat = field(default_factory=Quat)
+
+
+@dataclass
+class TransformStamped(IdlStruct, typename="geometry_msgs.msg.dds_.TransformStamped_"):
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    transform: TransformMsg = field(default_factory=TransformMsg)
+
+
+Transforms = Annotated[Sequence[TransformStamped], t.sequence(TransformStamped)]
+
+
+@dataclass
+class TFMessage(IdlStruct, typename="tf2_msgs.msg.dds_.TFMessage_"):
+    transforms: Transforms = field(default_factory=list)
+
+
+# -- fixtures ------------------------------------------------------------------------
+LOOPBACK_DDS = (
+    "<CycloneDDS><Domain Id='any'><General><Interfaces><NetworkInterface name='lo'/>"
+    "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery>"
+    "<ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>20"
+    "</MaxAutoParticipantIndex><Peers><Peer address='127.0.0.1'/></Peers></Discovery>"
+    "</Domain></CycloneDDS>"
+)
+
+
+@pytest.fixture
+def dds(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[DomainParticipant]:
+    """A participant on a domain of this test's own, loopback only; the bridge processes
+    started in the test inherit the same CYCLONEDDS_URI and ROS_DOMAIN_ID."""
+    config = tmp_path / "cyclonedds.xml"
+    config.write_text(LOOPBACK_DDS)
+    domain = 10 + os.getpid() % 200
+    monkeypatch.setenv("CYCLONEDDS_URI", config.as_uri())
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    participant = DomainParticipant(domain)
+    yield participant
+    del participant  # cyclonedds deletes the entity when its last reference goes
+
+
+def start_bridge(labs: Labs, *args: str, who: str = "bridge") -> Agent:
+    status = labs.tmp / "bridge.jsonl"
+    argv = ["bridge", "ros2", *args, "--status-json", str(status), "--status-period", "0.5"]
+    bridge = Agent(labs.fleet, "bridge-ros2", argv, who=who, status=status)
+    bridge.start()
+    return bridge
+
+
+class PoseTap:
+    """The leader's pose samples as published on Zenoh (at most 10 000)."""
+
+    def __init__(self, endpoint: str, key: str):
+        self.samples: list[wire.PoseSample] = []
+        self._lock = threading.Lock()
+        self.session = zenoh.open(client_config(endpoint))
+        self.sub = self.session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            if len(self.samples) < 10_000:
+                self.samples.append(wire.decode_pose(sample.payload.to_bytes()))
+
+    def received(self) -> list[wire.PoseSample]:
+        with self._lock:
+            return list(self.samples)
+
+    def close(self) -> None:
+        self.sub.undeclare()  # type: ignore[no-untyped-call]
+        self.session.close()  # type: ignore[no-untyped-call]
+
+
+def yaw(q: Quat) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def matching(samples: list[wire.PoseSample], odom: Odometry) -> wire.PoseSample | None:
+    """The published sample whose pose this odometry carries (1e-9 tolerance)."""
+    p, q = odom.pose.pose.position, odom.pose.pose.orientation
+    for sample in reversed(samples):
+        pose = sample.pose
+        if (
+            abs(pose.x - p.x) <= 1e-9
+            and abs(pose.y - p.y) <= 1e-9
+            and abs(math.remainder(pose.heading - yaw(q), math.tau)) <= 1e-9
+        ):
+            return sample
+    return None
+
+
+# -- tests ---------------------------------------------------------------------------
+@pytest.mark.integration
+def test_every_agent_is_on_ros2_as_odometry_and_tf(labs: Labs, dds: DomainParticipant) -> None:
+    pair = labs.pair()
+    # A simulated KNATTE: its navigated pose is noisy, so every sample differs.
+    leader = labs.leader(pair.kiruna, "--platform", "knatte")
+    follower = labs.follower(pair.rome)
+    bridge = start_bridge(labs, "-e", pair.rome.endpoint)
+    leader.wait_status(timeout=10)
+    tap = PoseTap(pair.kiruna.endpoint, f"fedlab/default/{LEADER}/pose")
+    try:
+        follower.wait_samples(LEADER, 5, timeout=15)
+        # The bridge publishes once it knows the leader's place on reference time.
+        assert wait_for(lambda: "kiruna/knatte on ROS 2 topic" in bridge.log(), timeout=15), (
+            bridge.log()[-2000:]
+        )
+
+        odom_topic = Topic(dds, "rt/fedlab/kiruna/knatte/odom", Odometry)
+        tf_topic = Topic(dds, "rt/tf", TFMessage)
+        reliable = Qos(
+            Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(10)
+        )
+        odom_reader = DataReader(dds, odom_topic, reliable)
+        tf_reader = DataReader(dds, tf_topic, reliable)
+        created = time.monotonic()
+        received: list[Odometry] = []
+
+        def got_odometry() -> bool:
+            received.extend(s for s in odom_reader.take(N=100) if isinstance(s, Odometry))
+            return bool(received)
+
+        assert wait_for(got_odometry, timeout=1.0, interval=0.01), "no odometry within 1 s"
+        first_after = time.monotonic() - created
+        odom = received[0]
+
+        # The pose the leader published, in the common frame, within 1e-9.
+        sample = matching(tap.received(), odom)
+        assert sample is not None, (odom, tap.received()[-3:])
+        assert odom.header.frame_id == "fedlab_common"
+        assert odom.child_frame_id == "kiruna/knatte"
+        assert odom.pose.pose.position.z == 0.0
+        q = odom.pose.pose.orientation
+        assert math.sqrt(q.x**2 + q.y**2 + q.z**2 + q.w**2) == pytest.approx(1.0, abs=1e-12)
+        # Twist in the child (body) frame: the common-frame velocity rotated by -heading.
+        h = sample.pose.heading
+        v = odom.twist.twist
+        assert v.linear.x == pytest.approx(
+            math.cos(h) * sample.pose.vx + math.sin(h) * sample.pose.vy, abs=1e-9
+        )
+        assert v.linear.y == pytest.approx(
+            -math.sin(h) * sample.pose.vx + math.cos(h) * sample.pose.vy, abs=1e-9
+        )
+        assert v.angular.z == pytest.approx(sample.pose.omega, abs=1e-9)
+
+        # Stamped on reference time (the leader's clock) mapped to this host's wall clock.
+        line = leader.latest()
+        leader_minus_host = line["t_exec"] - line["host_monotonic"]
+        wall_minus_mono = time.time() - time.monotonic()
+        expected = sample.t - leader_minus_host + wall_minus_mono
+        stamp = odom.header.stamp.sec + odom.header.stamp.nanosec * 1e-9
+        assert abs(stamp - expected) < 0.005, (stamp, expected)
+
+        # TF: fedlab_common -> kiruna/knatte, and the follower's frame too.
+        frames: dict[str, TransformStamped] = {}
+
+        def got_frames() -> bool:
+            for message in tf_reader.take(N=100):
+                if isinstance(message, TFMessage):
+                    frames.update({tf.child_frame_id: tf for tf in message.transforms})
+            return {"kiruna/knatte", FOLLOWER} <= set(frames)
+
+        assert wait_for(got_frames, timeout=3, interval=0.02), sorted(frames)
+        tf = frames["kiruna/knatte"]
+        assert tf.header.frame_id == "fedlab_common"
+        assert matching(tap.received(), _as_odometry(tf)) is not None
+        print(f"first odometry {first_after * 1e3:.0f} ms after the reader was created")
+    finally:
+        tap.close()
+    assert bridge.alive()
+
+
+def _as_odometry(tf: TransformStamped) -> Odometry:
+    """A transform's pose in an odometry, to compare with the published samples."""
+    tr = tf.transform.translation
+    return Odometry(
+        pose=PoseCov(PoseMsg(Point(tr.x, tr.y, tr.z), tf.transform.rotation)),
+    )
+
+
+class OdometryWriter:
+    """The test's ROS 2 platform: odometry at 20 Hz on ``topic`` while ``running``."""
+
+    def __init__(self, participant: DomainParticipant, topic: str):
+        qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(10))
+        self.writer = DataWriter(participant, Topic(participant, topic, Odometry), qos)
+        self.running = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self.sent = 0
+
+    def _run(self) -> None:
+        x, y, heading = ROVER_POSE
+        q = Quat(0.0, 0.0, math.sin(heading / 2), math.cos(heading / 2))
+        for _ in range(20 * 120):  # bounded: two minutes at 20 Hz
+            if self._stop.wait(0.05):
+                return
+            if not self.running.is_set():
+                continue
+            now = time.time()
+            stamp = Time(int(now), int((now % 1) * 1e9))
+            self.writer.write(
+                Odometry(
+                    Header(stamp, "odom"), "base_link",
+                    PoseCov(PoseMsg(Point(x, y, 0.0), q)), TwistCov(),
+                )
+            )  # fmt: skip
+            self.sent += 1
+
+    def start(self) -> None:
+        self.running.set()
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+
+@pytest.mark.integration
+def test_a_ros2_platform_joins_and_a_fedlab_follower_follows_it(
+    labs: Labs, dds: DomainParticipant
+) -> None:
+    pair = labs.pair()
+    platform = OdometryWriter(dds, "rt/rover/odom")
+    platform.start()
+    rover = start_bridge(
+        labs, "--as", ROVER, "--odom", "/rover/odom", "--odom-timeout", "0.5",
+        "-e", pair.kiruna.endpoint, who=ROVER,
+    )  # fmt: skip
+    follower = labs.follower(pair.rome, follow=ROVER)
+    try:
+        # It is an agent: sync queryable (the follower's samples), pose and status.
+        follower.wait_samples(ROVER, 10, timeout=20)
+        line = follower.until(
+            lambda s: s["pose_age"] is not None and abs(s["pose"][2] - ROVER_POSE[2]) < 1e-6,
+            timeout=10,
+            what="the follower on the rover's heading",
+        )
+        assert line["hold"] is None
+        status = rover.until(lambda s: s["hold"] is None, timeout=5, what="rover status")
+        assert status["agent"] == ROVER and status["platform"] == "ros2:/rover/odom"
+        assert status["pose"][:3] == pytest.approx(list(ROVER_POSE), abs=1e-12)
+        assert status["counters"]["odom_received"] > 0
+        holds = status["counters"].get("odom_stale_holds", 0)  # one before the first odometry
+
+        # The topic goes stale: the rover holds and publishes no pose, its follower holds.
+        platform.running.clear()
+        rover.until(lambda s: s["hold"] == "stale", timeout=3, what="the rover on hold")
+        follower.until(lambda s: s["hold"] == "stale", timeout=3, what="the follower on hold")
+        # Odometry again: both released.
+        platform.running.set()
+        rover.until(lambda s: s["hold"] is None, timeout=3, what="the rover released")
+        follower.until(lambda s: s["hold"] is None, timeout=5, what="the follower released")
+        assert rover.latest()["counters"]["odom_stale_holds"] == holds + 1
+    finally:
+        platform.close()
+    assert rover.alive()
+
+
+def test_types_here_are_named_as_ros2_names_them() -> None:
+    """The test's own types carry ROS 2's DDS names (what the bridge must match)."""
+    names: dict[type[Any], str] = {
+        Odometry: "nav_msgs::msg::dds_::Odometry_",
+        TFMessage: "tf2_msgs::msg::dds_::TFMessage_",
+    }
+    for cls, name in names.items():
+        assert cls.__idl__.idl_transformed_typename == name  # type: ignore[attr-defined]

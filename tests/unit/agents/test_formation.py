@@ -1,0 +1,86 @@
+"""Formation guidance (agents/formation.py): the path, the consensus, the slot error."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from agents.formation import CirclePath, FormationGuidance, slot_errors
+from federation.core.wire import Pose
+from schemas.scenario import FormationConfig
+
+SLOTS = {"a/x": (0.0, 1.0), "b/y": (-1.0, 0.0), "c/z": (1.0, 0.0)}
+CONFIG = FormationConfig(slots=SLOTS, radius=0.4, period=50.0, still=5.0, ramp=10.0)
+
+
+def test_path_is_still_then_ramps_to_the_circle_speed_smoothly() -> None:
+    path = CirclePath(CONFIG)
+    assert path(0.0) == path(5.0) == (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert math.hypot(path(30.0).vx, path(30.0).vy) == pytest.approx(path.speed)
+    assert path.speed == pytest.approx(0.4 * 2 * math.pi / 50)
+    # velocity is the derivative of position (and continuous through the ramp's end)
+    for t in (7.0, 14.999, 15.0, 40.0):
+        h = 1e-5
+        a, b = path(t - h), path(t + h)
+        assert ((b.x - a.x) / (2 * h), (b.y - a.y) / (2 * h)) == pytest.approx(
+            (path(t).vx, path(t).vy), abs=1e-6
+        )
+        if t != 15.0:  # the acceleration steps where the ramp ends
+            assert ((b.vx - a.vx) / (2 * h), (b.vy - a.vy) / (2 * h)) == pytest.approx(
+                (path(t).ax, path(t).ay), abs=1e-5
+            )
+
+
+def test_no_track_before_the_run() -> None:
+    g = FormationGuidance("a/x", CONFIG)
+    assert g.reference(None, None, {}).track is None
+    assert g.reference(3.0, None, {}).track is None
+
+
+def test_alone_it_takes_its_slot_around_the_path() -> None:
+    g = FormationGuidance("a/x", CONFIG)
+    ref = g.reference(100.0, 30.0, {})
+    c = CirclePath(CONFIG)(30.0)
+    assert ref.track is not None
+    assert (ref.track.x, ref.track.y) == pytest.approx((c.x, c.y + 1.0))
+    assert g.used == 0
+
+
+def test_the_others_pull_the_centre_estimate() -> None:
+    g = FormationGuidance("a/x", CONFIG, compensate=False)
+    # both others 10 cm to +x of their slots, at the start (path centre at 0, 0)
+    others = {"b/y": (10.0, Pose(-0.9, 0.0)), "c/z": (10.0, Pose(1.1, 0.0))}
+    ref = g.reference(10.0, 0.0, others)
+    assert ref.track is not None
+    assert ref.track.x == pytest.approx(0.7 * 0.1)
+    assert g.used == 2
+
+
+def test_stale_poses_are_left_out_and_own_pose_ignored() -> None:
+    g = FormationGuidance("a/x", CONFIG)
+    others = {"b/y": (8.0, Pose(-0.5, 0.0)), "a/x": (10.0, Pose(5.0, 5.0))}
+    ref = g.reference(10.0, 0.0, others)  # b's pose is 2 s old (stale after 1 s)
+    assert g.used == 0 and ref.track is not None and ref.track.x == pytest.approx(0.0)
+
+
+def test_compensation_moves_a_delayed_pose_to_now() -> None:
+    moving = {
+        "b/y": (9.75, Pose(-1.0, 0.0, 0.0, 0.04, 0.0)),
+        "c/z": (9.75, Pose(1.0, 0.0, 0.0, 0.04, 0.0)),
+    }
+    raw = FormationGuidance("a/x", CONFIG, compensate=False).reference(10.0, 0.0, moving)
+    comp = FormationGuidance("a/x", CONFIG, compensate=True).reference(10.0, 0.0, moving)
+    assert raw.track is not None and comp.track is not None
+    assert comp.track.x - raw.track.x == pytest.approx(0.7 * 0.04 * 0.25)
+
+
+def test_unknown_member_is_refused() -> None:
+    with pytest.raises(ValueError, match="no slot"):
+        FormationGuidance("d/w", CONFIG)
+
+
+def test_slot_errors() -> None:
+    c = CirclePath(CONFIG)(30.0)
+    errors = slot_errors(CONFIG, 30.0, {"a/x": Pose(c.x + 0.03, c.y + 1.04), "q/q": Pose()})
+    assert errors == {"a/x": pytest.approx(0.05)}
