@@ -86,7 +86,8 @@ def add(sub: Subparsers) -> None:
         formatter_class=Formatter,
         description=(
             "Issue an agent's client certificate, signed by the CA in --dir. Its CN is\n"
-            "'<lab>/<name>': list it in the lab router's access_control subjects."
+            "'<lab>/<name>': list it in the lab router's access_control subjects (fedlab\n"
+            "deploy generate issues every certificate and writes the ACL from one file)."
         ),
         epilog="Example: fedlab certs issue-agent kiruna knatte --dir /etc/fedlab/certs",
     )

@@ -186,8 +186,8 @@ def run(args: argparse.Namespace) -> int:
             )
         except control.PreflightFailed as failed:
             if args.json:
-                table = [r.as_json() for r in failed.rows]
-                print(json.dumps({"ok": False, "started": False, "preflight": table}, indent=1))
+                rows_json = [r.as_json() for r in failed.rows]
+                print(json.dumps({"ok": False, "started": False, "preflight": rows_json}, indent=1))
             else:
                 console.print(preflight_table(failed.rows, "not started: preflight failed"))
                 console.print("nothing was started; fix the above or use --force")

@@ -477,7 +477,7 @@ class AgentRuntime:
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(
                 level, "run %s %s at reference time %s %s",
-                self.run_state.run_id or "", event.kind, event.t_sim, event.detail,
+                self.run_state.run_id or "-", event.kind, event.t_sim, event.detail,
             )  # fmt: skip
             self.record(
                 Channel.CONTROL,

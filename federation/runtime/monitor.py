@@ -27,8 +27,14 @@ pose age        ``status.pose_age`` (followers; how old the followed pose is)
 samples         accepted sync exchanges with the sync peers
 rejected        rejected sync replies (all peers) + every counter ending ``_malformed``
 late p99        control loop lateness, 99th percentile (``status.loop.late_p99_ms``)
-last status     seconds since its last valid status; ``left`` once its liveliness
-                token is gone (the row is kept, dimmed); dimmed when stale
+run             ``status.run_id``: the run started last
+run time        ``status.run_time`` / ``status.duration`` (progress, %)
+hold            ``status.hold``: why every valve is closed (stale, aborted, done, reset)
+bound           error bound of its estimate of the reference clock (``peers[reference]
+                .bound``, else the last exchange's ``error_bound``); 0 on the reference
+last status     seconds since its last valid status, marked ``stale`` after
+                ``stale_after``; ``left`` once its liveliness token is gone (dimmed);
+                a row silent (or gone) for ``drop_after`` s is dropped
 ==============  ==================================================================
 """
 

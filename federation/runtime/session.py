@@ -27,7 +27,9 @@ __all__ = [
     "ConnectError",
     "ZenohConfigError",
     "build_config",
+    "connect_error",
     "diagnose",
+    "endpoints",
     "fail_fast",
 ]
 

@@ -38,9 +38,11 @@ def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None
     }  # fmt: skip
 
     agents["rome/pinocchio"].until(
-        lambda line: line["t_sim"] is not None and line["mode"] == "waiting",
-        timeout=20,
-        what="synced, waiting for the start",
+        lambda line: (
+            (line.get("ready") or {}).get("reference_locked") and line["mode"] == "waiting"
+        ),
+        timeout=30,
+        what="locked on the reference clock (preflight), waiting for the start",
     )
     started = ctl("start", "--experiment", str(EXPERIMENT), "--in", "2", "-e", pair.rome.endpoint)
     assert started.returncode == 0, started.stdout + started.stderr
