@@ -26,7 +26,8 @@ def add(sub: Subparsers) -> None:
             "  fedlab bench sync --duration 60 --scenario drift\n"
             "  fedlab bench latency --seconds 30 --rate 100 --json\n"
             "  fedlab bench scale --agents 2 --agents 8 --seconds 20\n"
-            "  fedlab bench network --scenario loss5 --transport multilink --seconds 60"
+            "  fedlab bench network --scenario loss5 --transport multilink --seconds 60\n"
+            "  fedlab bench scenarios --json > benchmarks/scenarios.json"
         ),
     )
     benches = p.add_subparsers(dest="bench", required=True, metavar="BENCH")
@@ -34,13 +35,14 @@ def add(sub: Subparsers) -> None:
     _add_latency(benches)
     _add_scale(benches)
     _add_network(benches)
+    _add_scenarios(benches)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark named by ``args.bench`` and print its results."""
     runs = {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}
-    return (runs | {"network": _run_network})[args.bench](args)
+    return (runs | {"network": _run_network, "scenarios": _run_scenarios})[args.bench](args)
 
 
 # -- sync ----------------------------------------------------------------------------
@@ -305,3 +307,73 @@ def _run_network(args: argparse.Namespace) -> int:
 
 def _num(value: float | None, digits: int = 1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
+
+
+# -- scenarios -----------------------------------------------------------------------
+def _add_scenarios(benches: Subparsers) -> None:
+    from federation.bench import scenarios
+
+    p = benches.add_parser(
+        "scenarios",
+        help="formation, docking and adaptive gains in simulated time (exact comparisons)",
+        formatter_class=Formatter,
+        description=(scenarios.__doc__ or "").split("\n\n")[0],
+        epilog="Example: fedlab bench scenarios --seeds 3 --docking-seeds 10 --json",
+    )
+    p.add_argument(
+        "--experiments", type=Path, default=Path("deploy/experiments"), metavar="DIR",
+        help="folder holding formation.toml and docking.toml",
+    )  # fmt: skip
+    p.add_argument("--seeds", type=int, default=3, metavar="N", help="formation seeds")
+    p.add_argument("--docking-seeds", type=int, default=10, metavar="N", help="docking seeds")
+    p.add_argument("--json", action="store_true", help="print JSON instead of tables")
+
+
+def _run_scenarios(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from federation.bench import scenarios
+
+    if args.seeds < 1 or args.docking_seeds < 1:
+        print("fedlab bench scenarios: error: --seeds and --docking-seeds must be >= 1")
+        return 2
+    result = scenarios.run(args.experiments, args.seeds, args.docking_seeds)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    console = Console()
+    table = Table(title=f"formation error, {args.seeds} seeds (cm)")
+    for col in ("one-way delay (ms)", "compensation", "RMS per seed", "max per seed", "workspace"):
+        table.add_column(col)
+    for row in result["formation"]:
+        table.add_row(
+            f"{row['delay_s'] * 1e3:.0f}",
+            "on" if row["latency_compensation"] else "off",
+            ", ".join(f"{v * 100:.2f}" for v in row["error_rms_m"]),
+            ", ".join(f"{v * 100:.2f}" for v in row["error_max_m"]),
+            str(sum(row["workspace_events"])),
+        )
+    console.print(table)
+    d = result["docking"]
+    table = Table(
+        title=f"docking over {d['delay_s'] * 1e3:.0f} ms: {d['successes']} of {d['seeds']}"
+    )
+    for col in ("figure", "median", "worst"):
+        table.add_column(col)
+    for key, stats in d["stats"].items():
+        table.add_row(key, f"{stats['median']:.4g}", f"{stats['max']:.4g}")
+    console.print(table)
+    table = Table(title="adaptive gains: follower heading error (deg)")
+    for col in ("maneuver", "fixed RMS / max", "adaptive RMS / max", "scale"):
+        table.add_column(col)
+    for row in result["adaptive"]:
+        f, a = row["fixed"], row["adaptive"]
+        table.add_row(
+            f"{row['amplitude_deg']:.0f} deg in {row['maneuver_s']:.0f} s",
+            f"{f['heading_error_rms_deg']:.2f} / {f['heading_error_max_deg']:.2f}",
+            f"{a['heading_error_rms_deg']:.2f} / {a['heading_error_max_deg']:.2f}",
+            f"{a['scale_max']:.2f}",
+        )
+    console.print(table)
+    return 0
