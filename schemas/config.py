@@ -104,8 +104,14 @@ class AgentConfig(_Model):
     sync_with: list[AgentRef] = Field(
         default_factory=list,
         description="LAB/NAME of the agents to query for sync every sync_period; empty: the "
-        "reference and the followed agent every sync_period, every other agent seen alive "
-        "every sync_others_period",
+        "reference and the followed agent every sync_period (the reference agent itself, or "
+        "any with sync_all, also every other agent seen alive every sync_others_period)",
+    )
+    sync_all: bool = Field(
+        False,
+        description="sync pairwise with every agent alive every sync_others_period; default: "
+        "only the reference and the followed agent, others' poses being placed on reference "
+        "time by the stamp they carry (O(N) sync traffic)",
     )
     sync_period: float = Field(0.1, gt=0, le=10, description="seconds between sync requests")
     sync_others_period: float = Field(

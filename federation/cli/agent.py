@@ -67,7 +67,15 @@ def add(sub: Subparsers) -> None:
         default=[],
         metavar="LAB/NAME",
         help="sync only with these agents (default: the reference and the followed agent "
-        "every --sync-period, every other agent alive every --sync-others-period)",
+        "every --sync-period; the reference, or with --sync-all anyone, also every other "
+        "agent alive every --sync-others-period)",
+    )
+    p.add_argument(
+        "--sync-all",
+        action="store_const",
+        const=True,
+        help="sync pairwise with every agent alive, not only with the reference and the "
+        "followed agent (others' poses carry their reference time: not needed by default)",
     )
     p.add_argument(
         "--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)"
@@ -125,9 +133,7 @@ def add(sub: Subparsers) -> None:
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
-    p.add_argument(
-        "--record", type=Path, metavar="FILE", help="record everything to one MCAP file"
-    )
+    p.add_argument("--record", type=Path, metavar="FILE", help="record everything to one MCAP file")
     p.add_argument(
         "--runs-dir",
         type=Path,
@@ -152,6 +158,7 @@ _AGENT_FLAGS = (
     "role",
     "follow",
     "sync_with",
+    "sync_all",
     "sync_period",
     "sync_others_period",
     "sync_timeout",

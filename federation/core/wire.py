@@ -18,28 +18,56 @@ pose       8-48    pose   x, y, heading, vx, vy, omega
 Sizes: request 8 bytes, reply 64 bytes, pose sample 56 bytes. Decoders accept
 exactly these sizes and finite values only; anything else raises
 :class:`DecodeError` (a ``ValueError``) saying what was wrong.
+
+A pose sample's Zenoh *attachment* (24 bytes, little-endian; the payload stays the
+paper's 56 bytes, so a receiver that ignores attachments loses nothing) carries the
+sender's reference stamp: the pose's ``t`` on reference (simulation) time, so that
+a receiver places it without syncing with the sender.
+
+=========  ======  ========  ==============================================
+field      offset  type      meaning
+=========  ======  ========  ==============================================
+version    0       u8        1
+flags      1       u8        bit 0: ``t_ref`` and ``bound`` are valid (sender
+                             synchronized with its reference); others 0
+reserved   2       u16       0
+ref_id     4       u32       CRC-32 of the reference agent's ``lab/name``
+t_ref      8       f64       reference time (s) of the pose's ``t``
+bound      16      f64       error bound of ``t_ref`` (s, >= 0): the sender's
+                             one-way delay to the reference; 0 on it
+=========  ======  ========  ==============================================
+
+The sample's Zenoh source info (session id, sequence number) names its publisher
+(issue 13's contest watch); it is Zenoh metadata, not part of the attachment.
 """
 
 from __future__ import annotations
 
 import math
 import struct
+import zlib
 from typing import NamedTuple
 
 __all__ = [
     "POSE_SIZE",
+    "STAMP_SIZE",
+    "STAMP_VERSION",
     "REPLY_SIZE",
     "REQUEST_SIZE",
     "DecodeError",
     "Pose",
     "PoseSample",
+    "RefStamp",
     "SyncReply",
     "decode_pose",
     "decode_reply",
     "decode_request",
+    "decode_stamp",
     "encode_pose",
     "encode_reply",
     "encode_request",
+    "encode_stamp",
+    "reference_id",
 ]
 
 _REQUEST = struct.Struct("<d")
@@ -48,6 +76,10 @@ _POSE = struct.Struct("<7d")
 REQUEST_SIZE = _REQUEST.size  # 8
 REPLY_SIZE = _REPLY.size  # 64
 POSE_SIZE = _POSE.size  # 56
+_STAMP = struct.Struct("<BBHIdd")
+STAMP_SIZE = _STAMP.size  # 24
+STAMP_VERSION = 1
+_STAMPED = 0x01
 
 
 class DecodeError(ValueError):
@@ -127,3 +159,46 @@ def encode_pose(t: float, pose: Pose) -> bytes:
 def decode_pose(payload: bytes | bytearray | memoryview) -> PoseSample:
     v = _unpack(_POSE, payload, "pose sample")
     return PoseSample(v[0], Pose(*v[1:]))
+
+
+class RefStamp(NamedTuple):
+    """A pose sample's reference stamp (its attachment): ``t_ref`` and ``bound`` are
+    None when the sender was not yet synchronized with its reference."""
+
+    ref_id: int
+    t_ref: float | None
+    bound: float | None
+
+
+def reference_id(agent: str) -> int:
+    """The ``ref_id`` of a reference agent ``"lab/name"``: CRC-32 of its UTF-8 name."""
+    return zlib.crc32(agent.encode())
+
+
+def encode_stamp(ref_id: int, t_ref: float | None, bound: float | None) -> bytes:
+    """A pose sample's attachment (24 bytes); ``t_ref`` None: not yet synchronized."""
+    if not 0 <= ref_id < 2**32:
+        raise ValueError(f"reference stamp: ref_id {ref_id!r} is not a 32-bit unsigned integer")
+    if t_ref is None or bound is None:
+        return _STAMP.pack(STAMP_VERSION, 0, 0, ref_id, 0.0, 0.0)
+    _check_finite((t_ref, bound), "reference stamp")
+    if bound < 0:
+        raise ValueError(f"reference stamp: bound {bound!r} is negative")
+    return _STAMP.pack(STAMP_VERSION, _STAMPED, 0, ref_id, t_ref, bound)
+
+
+def decode_stamp(attachment: bytes | bytearray | memoryview) -> RefStamp:
+    """Read a pose sample's attachment; :class:`DecodeError` if it is not one."""
+    if len(attachment) != STAMP_SIZE:
+        raise DecodeError(f"reference stamp: expected {STAMP_SIZE} bytes, got {len(attachment)}")
+    version, flags, reserved, ref_id, t_ref, bound = _STAMP.unpack(attachment)
+    if version != STAMP_VERSION:
+        raise DecodeError(f"reference stamp: version {version}, this reader knows {STAMP_VERSION}")
+    if flags & ~_STAMPED or reserved:
+        raise DecodeError(f"reference stamp: unknown flags {flags:#04x} or reserved {reserved}")
+    if not flags & _STAMPED:
+        return RefStamp(ref_id, None, None)
+    _check_finite((t_ref, bound), "reference stamp", DecodeError)
+    if bound < 0:
+        raise DecodeError(f"reference stamp: bound {bound!r} is negative")
+    return RefStamp(ref_id, t_ref, bound)

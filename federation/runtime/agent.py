@@ -29,7 +29,7 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -156,6 +156,16 @@ class AgentRuntime:
         self.close_sync = self.explicit_sync or {
             a for a in (self.reference, self.follow) if a is not None and a != self.me
         }
+        # One reference time (issue 17): every pose carries its reference time
+        # (wire.encode_stamp), so an agent syncs only with its reference and the agent it
+        # follows; the reference itself (a monitor of every clock) or one with sync_all
+        # also queries every other agent each sync_others_period. Sync traffic is O(N).
+        self.sync_all = config.sync_all or self.reference == self.me
+        self.ref_id = wire.reference_id(str(self.reference))
+        self.pairwise: set[AgentId] = set()  # senders of poses without our reference stamp
+        # The latest stamped pose of each peer: (its t, t_ref, bound).
+        self.latest_ref: dict[AgentId, tuple[float, float, float]] = {}
+        self._next_sync_due = 0.0  # host monotonic: no peer is due before it
         self.run_state = RunState(autostart=not config.wait_start, duration=config.run_duration)
         self.gate = CommandGate()  # which commands to act on: per issuer, aborts always
         self.command_log: deque[CommandOutcome] = deque(maxlen=8)
@@ -276,12 +286,18 @@ class AgentRuntime:
                 )
 
     def others(self) -> dict[str, tuple[float, wire.Pose]]:
-        """Every other agent's latest pose, stamped on simulation (reference) time:
-        its own clock mapped through this agent's offset estimates (Eq. 5)."""
+        """Every other agent's latest pose, stamped on simulation (reference) time: the
+        reference stamp it carries (its sender's estimate, no sync with the sender
+        needed) or, for a sender that does not stamp, its own clock mapped through this
+        agent's offset estimates (Eq. 5)."""
         out = {}
         t_exec = self.clock.now()
         for agent, sample in list(self.latest_poses.items()):
             if agent == self.me:  # watching every pose, its own comes back too
+                continue
+            stamped = self.latest_ref.get(agent)
+            if stamped is not None and stamped[0] == sample.t:  # the sender's own stamp
+                out[str(agent)] = (stamped[1], sample.pose)
                 continue
             t_sim = self.timebase.peer_to_sim(agent, sample.t, t_exec)
             if t_sim is not None:
@@ -433,7 +449,11 @@ class AgentRuntime:
 
     def publish_pose(self) -> None:
         t_exec, host = self.clock.read()
-        self._pose_pub.put(wire.encode_pose(t_exec, self.pose), source_info=self._source_info())
+        self._pose_pub.put(
+            wire.encode_pose(t_exec, self.pose),
+            source_info=self._source_info(),
+            attachment=self.reference_stamp(t_exec),
+        )
         if self.recorder is not None or self.run_recording is not None:
             stamp = {"t_exec": t_exec, "host_monotonic": host}
             self.record(Channel.POSE_SENT, stamp | self.pose._asdict())
@@ -524,21 +544,33 @@ class AgentRuntime:
     def due_for_sync(self, now: float) -> list[AgentId]:
         """The agents due for a sync request at host monotonic time ``now``, each
         scheduled for its next one: those in ``sync_with`` (or, when it is empty, the
-        reference and the followed agent) every ``sync_period``; with an empty
-        ``sync_with``, every other agent alive every ``sync_others_period`` on its own
-        phase."""
+        reference and the followed agent) every ``sync_period``; senders of poses
+        without this agent's reference stamp, and with ``sync_all`` (or on the
+        reference) every other agent alive, every ``sync_others_period`` on its own
+        phase. Walks only those agents, and none before the earliest is due."""
+        if now < self._next_sync_due:
+            return []
         cfg = self.config
+        if self.explicit_sync:
+            targets: Iterable[AgentId] = self.explicit_sync | self.pairwise
+        elif self.sync_all:
+            targets = list(self.peers)  # liveliness may add one meanwhile
+        else:
+            targets = self.close_sync | self.pairwise
         due = []
-        for agent, peer in list(self.peers.items()):  # liveliness may add one meanwhile
-            if not peer.alive or (self.explicit_sync and agent not in self.explicit_sync):
+        earliest = math.inf
+        for agent in targets:
+            peer = self.peers.get(agent)
+            if peer is None or not peer.alive:
                 continue
-            if peer.next_sync > now:
-                continue
-            if agent in self.close_sync:
-                peer.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
-            else:
-                peer.next_sync = next_tick(peer.next_sync, cfg.sync_others_period, now)
-            due.append(agent)
+            if peer.next_sync <= now:
+                if agent in self.close_sync:
+                    peer.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
+                else:
+                    peer.next_sync = next_tick(peer.next_sync, cfg.sync_others_period, now)
+                due.append(agent)
+            earliest = min(earliest, peer.next_sync)
+        self._next_sync_due = earliest
         return due
 
     def send_sync_requests(self, now: float | None = None) -> None:
@@ -770,6 +802,12 @@ class AgentRuntime:
                 self.count("pose_malformed")
                 self.rejects("pose sample", f"{sample.key_expr}: {error}")
                 return
+            try:
+                stamp = self._read_stamp(sample)
+            except wire.DecodeError as error:
+                self.count("pose_stamp_malformed")
+                self.rejects("pose stamp", f"{sample.key_expr}: {error}")
+                return
             self.count("pose_received")
             if (
                 parsed is not None
@@ -779,6 +817,7 @@ class AgentRuntime:
                 self.count("pose_stale_dropped")  # never reaches the controller
                 return
             if parsed is not None:
+                self._place(parsed[0], decoded.t, stamp)
                 self.latest_poses[parsed[0]] = decoded
                 self.pose_received_at[parsed[0]] = t_recv
             if not self.recording(Channel.POSE_RECEIVED):
@@ -844,9 +883,7 @@ class AgentRuntime:
             ignored = [e.detail for e in events if e.kind == "ignored"]
             if ignored:
                 self.count("commands_ignored")
-            self._command_outcome(
-                command, "ignored" if ignored else "applied", "; ".join(ignored)
-            )
+            self._command_outcome(command, "ignored" if ignored else "applied", "; ".join(ignored))
             self.record(
                 Channel.CONTROL,
                 {
@@ -902,7 +939,47 @@ class AgentRuntime:
                 self.silence.forget(agent)
                 peer.next_sync = self._first_sync(agent, len(self.peers))
             peer.alive = alive
+            self._next_sync_due = 0.0  # due_for_sync looks again
         log.info("agent %s %s", agent, "joined" if alive else "left")
+
+    # -- one reference time: the pose's reference stamp (issue 17) ---------------------
+    def reference_stamp(self, t_exec: float) -> bytes:
+        """The attachment of a pose stamped ``t_exec`` (wire.encode_stamp): its reference
+        time and error bound (this agent's one-way delay to the reference)."""
+        if self.reference == self.me:
+            return wire.encode_stamp(self.ref_id, t_exec, 0.0)
+        peer = self.peers.get(self.reference)
+        offset = None if peer is None else peer.client.offset_at(t_exec)
+        bound = None if peer is None else peer.client.delay
+        if offset is None or bound is None:
+            return wire.encode_stamp(self.ref_id, None, None)
+        return wire.encode_stamp(self.ref_id, t_exec + offset, bound)
+
+    def _read_stamp(self, sample: zenoh.Sample) -> wire.RefStamp | None:
+        """A pose sample's reference stamp; None without one or on another reference
+        (wire.DecodeError if malformed)."""
+        attachment = sample.attachment
+        if attachment is None:
+            return None
+        stamp = wire.decode_stamp(attachment.to_bytes())
+        if stamp.ref_id != self.ref_id:
+            self.count("pose_other_reference")
+            return None
+        return stamp
+
+    def _place(self, agent: AgentId, t: float, stamp: wire.RefStamp | None) -> None:
+        """Remember where a peer's pose stamped ``t`` sits on reference time; a sender
+        that does not stamp on this agent's reference is synced with pairwise."""
+        if stamp is None:
+            self.latest_ref.pop(agent, None)
+            if agent != self.me and agent not in self.pairwise:
+                self.pairwise.add(agent)
+                self._next_sync_due = 0.0
+                log.info("%s sends no reference stamp: synced pairwise", agent)
+        elif stamp.t_ref is not None and stamp.bound is not None:
+            self.latest_ref[agent] = (t, stamp.t_ref, stamp.bound)
+        else:  # a stamping sender not yet synchronized: not placed until it is
+            self.latest_ref.pop(agent, None)
 
     # -- trust: who speaks for a peer (issue 13, federation.core.contest) -------------
     def _source_info(self) -> zenoh.SourceInfo:

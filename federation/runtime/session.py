@@ -161,8 +161,7 @@ def diagnose(endpoint: str, timeout: float = 2.0) -> str:
         return f"cannot connect ({error.strerror or error})"
     if proto == "tls":
         return (
-            "TCP connects but the TLS session failed (check the CA, the certificate and "
-            "its name)"
+            "TCP connects but the TLS session failed (check the CA, the certificate and its name)"
         )
     return "TCP connects but no Zenoh session opened (is it a Zenoh router?)"
 

@@ -58,7 +58,8 @@ def test_four_agents_in_two_labs_find_each_other_by_name(labs: Labs) -> None:
         "rome/ada": pair.rome,
     }
     agents = {
-        who: labs.leader(at) if who == LEADER else labs.follower(at, who=who)
+        # --sync-all: pairwise sync with everyone (the default syncs with the reference only)
+        who: labs.leader(at) if who == LEADER else labs.follower(at, "--sync-all", who=who)
         for who, at in names.items()
     }
 

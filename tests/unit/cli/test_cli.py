@@ -215,7 +215,7 @@ def test_network_failure_is_not_a_config_error() -> None:
     def refuse(conf: Any) -> Any:
         raise RuntimeError("no route")
 
-    with pytest.raises(ConnectError, match="cannot open a Zenoh session.*: no route"):
+    with pytest.raises(ConnectError, match=r"cannot open a Zenoh session.*: no route"):
         open_interruptible(refuse, None, threading.Event())
 
 

@@ -363,3 +363,76 @@ def test_encode_refuses_non_finite_in_every_field(kind: str, position: int, bad:
 def test_all_exports_exist() -> None:
     for name in wire.__all__:
         assert hasattr(wire, name), name
+
+
+# -- the pose sample's reference stamp (its attachment) ------------------------------
+def test_stamp_bytes_are_the_documented_layout() -> None:
+    ref_id = wire.reference_id("kiruna/knatte")
+    encoded = wire.encode_stamp(ref_id, 12.5, 0.00025)
+    assert len(encoded) == wire.STAMP_SIZE == 24
+    assert encoded == bytes([1, 1, 0, 0]) + struct.pack("<I", ref_id) + struct.pack(
+        "<dd", 12.5, 0.00025
+    )
+    assert wire.decode_stamp(encoded) == wire.RefStamp(ref_id, 12.5, 0.00025)
+
+
+def test_stamp_literal_hex() -> None:
+    # version 1, flags 1, reserved 0, ref_id 0x04030201, t_ref 1.0, bound 0.5
+    literal = bytes.fromhex("01010000" "01020304" "000000000000f03f" "000000000000e03f")
+    assert wire.decode_stamp(literal) == wire.RefStamp(0x04030201, 1.0, 0.5)
+    assert wire.encode_stamp(0x04030201, 1.0, 0.5) == literal
+
+
+def test_reference_id_is_crc32_of_the_name() -> None:
+    import zlib
+
+    assert wire.reference_id("lab0/a0") == zlib.crc32(b"lab0/a0")
+    assert wire.reference_id("lab0/a0") != wire.reference_id("lab0/a1")
+
+
+def test_unsynchronized_sender_stamps_without_time() -> None:
+    encoded = wire.encode_stamp(7, None, None)
+    assert encoded == bytes([1, 0, 0, 0, 7, 0, 0, 0]) + bytes(16)
+    assert wire.decode_stamp(encoded) == wire.RefStamp(7, None, None)
+
+
+@given(st.integers(0, 2**32 - 1), finite, st.floats(0, 1e6))
+def test_stamp_round_trip(ref_id: int, t_ref: float, bound: float) -> None:
+    assert wire.decode_stamp(wire.encode_stamp(ref_id, t_ref, bound)) == (ref_id, t_ref, bound)
+
+
+@pytest.mark.parametrize(
+    ("attachment", "says"),
+    [
+        pytest.param(b"", "expected 24 bytes, got 0", id="empty"),
+        pytest.param(bytes(23), "expected 24 bytes, got 23", id="short"),
+        pytest.param(bytes(25), "expected 24 bytes, got 25", id="long"),
+        pytest.param(bytes([2, 1, 0, 0]) + bytes(20), "version 2", id="version"),
+        pytest.param(bytes([1, 3, 0, 0]) + bytes(20), "unknown flags", id="flags"),
+        pytest.param(bytes([1, 1, 1, 0]) + bytes(20), "reserved 1", id="reserved"),
+        pytest.param(
+            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", math.nan, 0.0), "field 0",
+            id="nan time",
+        ),
+        pytest.param(
+            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", 1.0, math.inf), "field 1",
+            id="inf bound",
+        ),
+        pytest.param(
+            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", 1.0, -0.1), "negative",
+            id="negative bound",
+        ),
+    ],
+)
+def test_malformed_stamps_are_refused_saying_why(attachment: bytes, says: str) -> None:
+    with pytest.raises(DecodeError, match=says):
+        wire.decode_stamp(attachment)
+
+
+@pytest.mark.parametrize(
+    ("ref_id", "t_ref", "bound"),
+    [(-1, 1.0, 0.0), (2**32, 1.0, 0.0), (0, math.nan, 0.0), (0, 1.0, math.inf), (0, 1.0, -1e-3)],
+)
+def test_encoding_a_bad_stamp_fails(ref_id: int, t_ref: float, bound: float) -> None:
+    with pytest.raises(ValueError):
+        wire.encode_stamp(ref_id, t_ref, bound)
