@@ -1,24 +1,35 @@
 """``fedlab bench scale``: N agents over 4 labs, pose at 20 Hz and sync at 10 Hz.
 
-Four lab routers in a star (``lab0`` listens, the others dial it, as labs behind
-firewalls would). Agent 0 (``lab0/a0``) leads; every other agent follows it,
-syncs with it at 10 Hz and publishes its own pose at 20 Hz; the leader queries
-each of them once a second (the default for agents it does not follow). Each lab
-runs its agents in one worker process on one Zenoh session (this machine has 2
-cores), as a lab's gateway process would: one shared pose subscription per key
+Lab routers in a star (``lab0`` listens, the others dial it, as labs behind
+firewalls would). Agent 0 (``lab0/a0``) leads and is the reference; every other
+agent follows it and publishes its own pose at 20 Hz. Each lab runs its agents in
+one worker process on one Zenoh session (this machine has 2 cores), as a lab's
+gateway process would: one shared pose subscription per key
 (:class:`federation.runtime.fanout.Fanout`), the start-up heap frozen
 (:mod:`federation.runtime.heap`), all agents' loops on one thread
 (:func:`federation.runtime.agent.run_together`).
 
-For each N: CPU of all processes (routers and workers, in cores), p50/p99
-one-way pose latency leader to followers (host monotonic clock on both ends;
-the leader's clock is mapped to it exactly through its status lines), loss
-(leader samples sent while a follower listened that it never received), and
-sync exchanges completed per second.
+Three configurations, run one after the other on the same hosting:
+
+- ``default``: no ``sync_with`` anywhere. Each follower syncs with the leader (its
+  reference) at 10 Hz and places others' poses by their reference stamps; the
+  leader queries every other agent once a second. O(N) sync traffic.
+- ``tuned``: every follower's ``sync_with`` names the leader (the same traffic
+  now; before issue 17 the default was every pair, O(N^2)).
+- ``bare``: the floor, :mod:`federation.bench.baselines.zenoh_scale`: bare
+  zenoh-python agents with the same declarations and messages per agent.
+
+For each: CPU of all processes (routers and workers, in cores, and per agent),
+p50/p99 one-way pose latency leader to followers (host monotonic clock on both
+ends; the leader's clock is mapped to it exactly through its status lines), loss
+(leader samples sent while a follower listened that it never received), sync
+exchanges completed per second (all agents), and the workers' resident memory
+after warm-up and at the end.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import threading
@@ -31,9 +42,23 @@ import numpy as np
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 
-__all__ = ["DEFAULT_AGENTS", "LABS", "run", "run_one", "worker"]
+__all__ = [
+    "DEFAULT_AGENTS",
+    "LABS",
+    "MODES",
+    "STATUS_BYTES",
+    "ratios",
+    "run",
+    "run_one",
+    "summary",
+    "worker",
+]
 
 LABS = 4
+MODES = ("default", "tuned", "bare")
+STATUS_BYTES = 1500
+"""Bytes of a bare agent's status message: about a fedlab follower's status line."""
+BARE = Path(__file__).with_name("baselines") / "zenoh_scale.py"
 SETTLE = 3.0  # s after start before samples count (discovery, routes)
 DEFAULT_AGENTS = (2, 8, 16, 32, 64)
 """Agent counts run when none is given."""
@@ -46,46 +71,129 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _agents(n: int) -> list[tuple[int, str]]:
+def _rss_mib(pid: int) -> float:
+    """Resident memory of a process (MiB, Linux /proc)."""
+    with open(f"/proc/{pid}/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _agents(n: int, labs: int = LABS) -> list[tuple[int, str]]:
     """(lab index, agent name) for n agents, round-robin over the labs."""
-    return [(i % LABS, f"lab{i % LABS}/a{i}") for i in range(n)]
+    return [(i % labs, f"lab{i % labs}/a{i}") for i in range(n)]
 
 
-def run_one(n: int, seconds: float, out: Path) -> dict[str, Any]:
-    """Run ``n`` agents (at least 2: a leader and a follower) for ``seconds``; returns
-    ``n``, ``cpu_cores``, ``p50_ms``, ``p99_ms``, ``loss``, ``samples`` and ``sync_per_s``."""
+def run_one(
+    n: int, seconds: float, out: Path, mode: str = "default", labs: int = LABS
+) -> dict[str, Any]:
+    """Run ``n`` agents (at least 2: a leader and a follower) over ``labs`` labs for
+    ``seconds`` in configuration ``mode`` (:data:`MODES`); returns ``n``, ``mode``,
+    ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_per_agent``,
+    ``p50_ms``, ``p99_ms``, ``loss``, ``samples``, ``sync_per_s`` and the workers'
+    total ``rss_mib`` sampled every few seconds (the first after a quarter of the run)."""
     if n < 2:
         raise ValueError(f"{n} agents: at least 2 are needed (a leader and a follower)")
-    out = out / f"n{n}"
+    if mode not in MODES:
+        raise ValueError(f"mode {mode!r}: one of {', '.join(MODES)}")
+    if labs < 1:
+        raise ValueError(f"{labs} labs: at least one is needed")
+    out = out / f"n{n}-{mode}"
     out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob("*.mcap"):
+    for old in [*out.glob("*.mcap"), *out.glob("bare-*.json")]:
         old.unlink()
-    endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(LABS)]
-    agents = _agents(n)
+    endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(labs)]
+    agents = _agents(n, labs)
+    leader = agents[0][1]
     with Fleet(out / "logs") as fleet:
         for lab, ep in enumerate(endpoints):
             args = ["router", "--lab", f"lab{lab}", "-l", ep]
             if lab:
                 args += ["-e", endpoints[0]]
             fleet.start(f"router-lab{lab}", args)
-        for lab in range(LABS):
+        for lab in range(labs):
             mine = [name for (i, name) in agents if i == lab]
             if not mine:
                 continue
-            fleet.spawn(
-                f"worker-lab{lab}",
-                [sys.executable, "-m", "federation.bench.scale", "worker", endpoints[lab],
-                 f"{seconds + SETTLE}", str(out), *mine],
-            )  # fmt: skip
+            if mode == "bare":
+                argv = [sys.executable, str(BARE), endpoints[lab], f"{seconds + SETTLE}",
+                        str(out), str(STATUS_BYTES), leader, *mine]  # fmt: skip
+            else:
+                argv = [sys.executable, "-m", "federation.bench.scale", "worker", endpoints[lab],
+                        f"{seconds + SETTLE}", str(out), mode, *mine]  # fmt: skip
+            fleet.spawn(f"worker-lab{lab}", argv)
         time.sleep(SETTLE)
+        workers = [name for name in fleet.procs if name.startswith("worker")]
         cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
         t0 = time.monotonic()
-        time.sleep(max(1.0, seconds - 1.0))  # workers run seconds + SETTLE: still alive here
-        cpu = sum(_cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items())
+        end = t0 + max(1.0, seconds - 1.0)  # workers run seconds + SETTLE: still alive then
+        rss: list[tuple[float, float]] = []
+        while (left := end - time.monotonic()) > 0:
+            time.sleep(min(5.0, left))
+            if time.monotonic() - t0 >= seconds / 4:
+                total = sum(_rss_mib(fleet.procs[w].pid) for w in workers)
+                rss.append((round(time.monotonic() - t0, 1), round(total, 1)))
+        cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
         wall = time.monotonic() - t0
-        workers = [name for name in fleet.procs if name.startswith("worker")]
         wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
-    return {"n": n, **_score(out, agents, seconds), "cpu_cores": cpu / wall, "seconds": seconds}
+    scores = _score_bare(out, leader) if mode == "bare" else _score(out, agents, seconds)
+    total = sum(cpu.values()) / wall
+    return {
+        "n": n,
+        "labs": labs,
+        "mode": mode,
+        **scores,
+        "cpu_cores": total,
+        "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
+        "cpu_per_agent": total / n,
+        "rss_mib": rss,
+        "seconds": seconds,
+    }
+
+
+def _latency_and_loss(
+    sent: list[float], received: list[list[tuple[float, float]]], to_host: Any
+) -> dict[str, Any]:
+    """Pose latency (ms) and loss from the leader's sent stamps and each follower's
+    (stamp, host arrival) pairs; ``to_host`` maps a leader stamp to host time."""
+    sent_t = np.asarray(sent)
+    latencies: list[float] = []
+    lost = expected = 0
+    for got in received:
+        if not got:
+            expected += len(sent_t)
+            lost += len(sent_t)
+            continue
+        t_recv = np.array([g[0] for g in got])
+        first = t_recv.min() + SETTLE  # count from when routes had settled
+        window = sent_t[(sent_t >= first) & (sent_t <= t_recv.max())]
+        arrived = set(t_recv.tolist())
+        expected += len(window)
+        lost += sum(1 for t in window.tolist() if t not in arrived)
+        latencies += [h - to_host(t) for t, h in got if t >= first]
+    lat = np.asarray(latencies) * 1e3 if latencies else np.asarray([np.nan])
+    return {
+        "p50_ms": float(np.percentile(lat, 50)),
+        "p99_ms": float(np.percentile(lat, 99)),
+        "loss": lost / expected if expected else float("nan"),
+        "samples": len(latencies),
+    }
+
+
+def _score_bare(out: Path, leader: str) -> dict[str, Any]:
+    sent: list[float] = []
+    received: list[list[tuple[float, float]]] = []
+    replies = 0
+    seconds = 0.0
+    for path in sorted(out.glob("bare-*.json")):
+        data = json.loads(path.read_text())
+        sent += data["sent"]
+        received += [[(t, h) for t, h in pairs] for pairs in data["received"].values()]
+        replies += sum(data["replies"].values())
+        seconds = data["seconds"]
+    scores = _latency_and_loss(sent, received, lambda t: t)
+    return {**scores, "sync_per_s": replies / seconds if seconds else float("nan")}
 
 
 def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str, Any]:
@@ -94,45 +202,86 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     leader = agents[0][1]
     lead = read_messages(out / f"{leader.replace('/', '-')}.mcap", ["/status", "/pose/sent"])
     a, b = clock_line(lead["/status"])
-    sent_t = np.array([r["t_exec"] for r in lead["/pose/sent"]])
-    latencies: list[float] = []
-    lost = expected = 0
-    syncs = 0
+    sent = [r["t_exec"] for r in lead["/pose/sent"]]
+    syncs = sum(p.get("samples", 0) for p in lead["/status"][-1]["peers"].values())
+    received = []
     for _, name in agents[1:]:
         mine = read_messages(out / f"{name.replace('/', '-')}.mcap", ["/status", "/pose/received"])
-        got = [
-            (r["t"], r["host_monotonic"]) for r in mine["/pose/received"] if r["agent"] == leader
-        ]
+        received.append(
+            [(r["t"], r["host_monotonic"]) for r in mine["/pose/received"] if r["agent"] == leader]
+        )
         if mine["/status"]:
-            syncs += mine["/status"][-1]["peers"].get(leader, {}).get("samples", 0)
-        if not got:
-            expected += len(sent_t)
-            lost += len(sent_t)
+            syncs += sum(p.get("samples", 0) for p in mine["/status"][-1]["peers"].values())
+    scores = _latency_and_loss(sent, received, lambda t: (t - a) / b)
+    return {**scores, "sync_per_s": syncs / (seconds + SETTLE)}
+
+
+def run(
+    ns: list[int],
+    seconds: float,
+    out: Path,
+    modes: tuple[str, ...] = MODES,
+    labs: int = LABS,
+    runs: int = 1,
+) -> list[dict[str, Any]]:
+    """:func:`run_one` for each of ``runs`` repeats, agent count in ``ns`` and
+    configuration in ``modes`` (interleaved, so that the host's load falls on all
+    alike); each row gets its repeat's index as ``run``."""
+    return [
+        {**run_one(n, seconds, out, mode, labs), "run": k}
+        for k in range(runs)
+        for n in ns
+        for mode in modes
+    ]
+
+
+def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median and spread (min, max) over the repeats, per agent count and
+    configuration, of CPU per agent, pose p50/p99, loss and sync exchanges per
+    second; and per agent count the ratios fedlab over bare (CPU per agent, p99),
+    each taken within one repeat, then their median and spread."""
+
+    def spread(values: list[float]) -> dict[str, float]:
+        return {"median": float(np.median(values)), "min": min(values), "max": max(values)}
+
+    table: dict[str, Any] = {}
+    for n in sorted({r["n"] for r in rows}):
+        mine = [r for r in rows if r["n"] == n]
+        entry: dict[str, Any] = {}
+        for mode in sorted({r["mode"] for r in mine}):
+            of = [r for r in mine if r["mode"] == mode]
+            entry[mode] = {
+                key: spread([r[key] for r in of])
+                for key in ("cpu_per_agent", "cpu_cores", "p50_ms", "p99_ms", "loss", "sync_per_s")
+            }
+        per_run: dict[str, list[float]] = {}
+        for k in sorted({r.get("run", 0) for r in mine}):
+            for key, value in ratios([r for r in mine if r.get("run", 0) == k]).get(n, {}).items():
+                per_run.setdefault(key, []).append(value)
+        entry["ratios"] = {key: spread(values) for key, values in per_run.items()}
+        table[str(n)] = entry
+    return table
+
+
+def ratios(rows: list[dict[str, Any]]) -> dict[int, dict[str, float]]:
+    """Per agent count: fedlab (each configuration) over the bare floor, for CPU per
+    agent and pose p99, from rows of one repeat (:func:`run`)."""
+    out: dict[int, dict[str, float]] = {}
+    for n in sorted({r["n"] for r in rows}):
+        bare = next((r for r in rows if r["n"] == n and r["mode"] == "bare"), None)
+        if bare is None:
             continue
-        t_recv = np.array([g[0] for g in got])
-        first = t_recv.min() + SETTLE  # count from when routes had settled
-        window = sent_t[(sent_t >= first) & (sent_t <= t_recv.max())]
-        received = set(t_recv.tolist())
-        expected += len(window)
-        lost += sum(1 for t in window.tolist() if t not in received)
-        latencies += [h - (t - a) / b for t, h in got if t >= first]
-    lat = np.asarray(latencies) * 1e3 if latencies else np.asarray([np.nan])
-    return {
-        "p50_ms": float(np.percentile(lat, 50)),
-        "p99_ms": float(np.percentile(lat, 99)),
-        "loss": lost / expected if expected else float("nan"),
-        "samples": len(latencies),
-        "sync_per_s": syncs / (seconds + SETTLE),
-    }
-
-
-def run(ns: list[int], seconds: float, out: Path) -> list[dict[str, Any]]:
-    """:func:`run_one` for each agent count in ``ns``."""
-    return [run_one(n, seconds, out) for n in ns]
+        for r in rows:
+            if r["n"] == n and r["mode"] != "bare":
+                out.setdefault(n, {})[f"cpu_{r['mode']}_over_bare"] = (
+                    r["cpu_per_agent"] / bare["cpu_per_agent"]
+                )
+                out[n][f"p99_{r['mode']}_over_bare"] = r["p99_ms"] / bare["p99_ms"]
+    return out
 
 
 # -- worker: several agents in one process ------------------------------------------
-def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
+def worker(endpoint: str, seconds: float, out: Path, mode: str, names: list[str]) -> None:
     """Run ``names`` as agents in this process on one session, as a lab's gateway
     process would."""
     import zenoh
@@ -158,7 +307,7 @@ def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
                     name=agent,
                     role=role,
                     follow=None if role == "leader" else leader,
-                    sync_with=[] if role == "leader" else [leader],
+                    sync_with=[] if role == "leader" or mode == "default" else [leader],
                     duration=seconds,
                     status_period=1.0,
                     record=out / f"{lab}-{agent}.mcap",
@@ -186,4 +335,4 @@ def worker(endpoint: str, seconds: float, out: Path, names: list[str]) -> None:
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:
-    worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5:])
+    worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5], sys.argv[6:])

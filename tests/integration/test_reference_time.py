@@ -33,9 +33,7 @@ def test_a_third_agent_places_everyones_pose_on_reference_time_without_pairwise_
 ) -> None:
     pair = labs.pair()
     leader = labs.leader(pair.kiruna, "--clock-offset", "3.0")
-    follower = labs.follower(
-        pair.rome, "--clock-offset", "26.42", "--clock-drift-ppm", "40"
-    )
+    follower = labs.follower(pair.rome, "--clock-offset", "26.42", "--clock-drift-ppm", "40")
     follower.wait_samples(LEADER, 30, timeout=20)  # its estimate of the reference settled
 
     settings = {"clock_offset": -7.5, "clock_drift_ppm": -25.0}
@@ -48,7 +46,10 @@ def test_a_third_agent_places_everyones_pose_on_reference_time_without_pairwise_
             runtime.counter_snapshot(),
         )
         # A few seconds of samples from both, each scored against the truth.
-        stamps: dict[AgentId, set[tuple[float, float, float]]] = {leader_id: set(), follower_id: set()}
+        stamps: dict[AgentId, set[tuple[float, float, float]]] = {
+            leader_id: set(),
+            follower_id: set(),
+        }
         deadline = time.monotonic() + 3.0
         while time.monotonic() < deadline:
             for agent, kept in stamps.items():
