@@ -25,11 +25,12 @@ this host's monotonic clock):
 - **outside subscriber**: how many leader poses a raw zenoh-python subscriber on
   Rome's router received, beside the follower's count.
 
-Transports: ``multilink`` (the shipped configs: a TCP link for declarations,
-queries and control, a UDP link beside it for best-effort pose, 512-byte batches,
-15 s lease, and the lab hosts' TCP settings of ``deploy/sysctl/90-fedlab-wan.conf``)
-and ``tcp`` (the previous configs: one TCP link, low-latency transport, 10 s lease,
-the kernel's default TCP settings).
+Transports (:data:`TRANSPORTS`): ``multilink`` (deploy/routers/multilink/: a TCP
+link for declarations, queries and control, a UDP link beside it for best-effort
+pose, 512-byte batches, 15 s lease, hosts with deploy/sysctl/90-fedlab-wan.conf),
+``tcp`` (deploy/routers/, the default: one TCP link, low-latency transport, the
+kernel's default TCP settings) and ``tcp-tuned`` (the default routers on hosts with
+the sysctl file).
 """
 
 from __future__ import annotations
@@ -60,27 +61,30 @@ PORT = 7447
 SYNC_PHASE = paper.SYNC_PHASE
 
 TRANSPORTS: dict[str, dict[str, list[str]]] = {
-    # The shipped configs: TCP and UDP links in one transport (max_links 2).
+    # deploy/routers/multilink/: TCP and UDP links in one transport (max_links 2),
+    # 512-byte batches, 15 s lease; the lab hosts with deploy/sysctl's TCP settings.
     "multilink": {
+        "config": ["multilink"],
         "kiruna": ["-l", f"tcp/0.0.0.0:{PORT}", "-l", f"udp/0.0.0.0:{PORT}"],
         "rome": ["-e", f"tcp/{ADDR.kiruna}:{PORT}", "-e", f"udp/{ADDR.kiruna}:{PORT}"],
         "ports": ["tcp/7447", "udp/7447"],
         "sysctl": [str(SYSCTL)],
     },
-    # The configs before this benchmark: one TCP link, low-latency transport.
+    # deploy/routers/ (the default): one TCP link, low-latency transport; the lab
+    # hosts with the kernel's default TCP settings.
     "tcp": {
         "kiruna": ["-l", f"tcp/0.0.0.0:{PORT}"],
         "rome": ["-e", f"tcp/{ADDR.kiruna}:{PORT}"],
         "ports": ["tcp/7447"],
-        "cfg": [
-            "--cfg", "transport/unicast/lowlatency:true",
-            "--cfg", "transport/unicast/max_links:1",
-            "--cfg", "transport/link/tx/lease:10000",
-            "--cfg", "transport/link/tx/keep_alive:4",
-            "--cfg", "transport/link/tx/batch_size:65535",
-        ],
     },
-}  # fmt: skip
+    # The default router configs on hosts with deploy/sysctl's TCP settings.
+    "tcp-tuned": {
+        "kiruna": ["-l", f"tcp/0.0.0.0:{PORT}"],
+        "rome": ["-e", f"tcp/{ADDR.kiruna}:{PORT}"],
+        "ports": ["tcp/7447"],
+        "sysctl": [str(SYSCTL)],
+    },
+}
 
 
 @dataclass(frozen=True)
@@ -170,7 +174,8 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
 def _router_args(lab: str, transport: str) -> list[str]:
     t = TRANSPORTS[transport]
     listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if lab == "rome" else []
-    return ["router", "-c", str(ROUTERS / f"{lab}.json5"), *listen, *t[lab], *t.get("cfg", [])]
+    config = ROUTERS.joinpath(*t.get("config", []), f"{lab}.json5")
+    return ["router", "-c", str(config), *listen, *t[lab]]
 
 
 def run_one(

@@ -90,7 +90,8 @@ def run_one(
 ) -> dict[str, Any]:
     """Run ``n`` agents (at least 2: a leader and a follower) over ``labs`` labs for
     ``seconds`` in configuration ``mode`` (:data:`MODES`); returns ``n``, ``mode``,
-    ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_per_agent``,
+    ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
+    ``cpu_per_agent`` (all processes' over ``n``),
     ``p50_ms``, ``p99_ms``, ``loss``, ``samples``, ``sync_per_s`` and the workers'
     total ``rss_mib`` sampled every few seconds (the first after a quarter of the run)."""
     if n < 2:
@@ -146,6 +147,7 @@ def run_one(
         **scores,
         "cpu_cores": total,
         "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
+        "cpu_routers_cores": sum(v for k, v in cpu.items() if k not in workers) / wall,
         "cpu_per_agent": total / n,
         "rss_mib": rss,
         "seconds": seconds,

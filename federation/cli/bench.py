@@ -190,9 +190,36 @@ def _add_scale(benches: Subparsers) -> None:
     )  # fmt: skip
     p.add_argument("--seconds", type=positive, default=20.0, metavar="S", help="seconds per N")
     p.add_argument(
+        "--mode", action="append", choices=scale.MODES,
+        help="configurations to run (repeatable; default all: default = no sync_with, "
+        "tuned = followers sync_with the leader, bare = bare zenoh-python, the floor)",
+    )  # fmt: skip
+    p.add_argument(
+        "--labs", type=_agents, default=scale.LABS, metavar="L",
+        help=f"labs (routers and worker processes; default {scale.LABS})",
+    )  # fmt: skip
+    p.add_argument(
+        "--runs", type=_agents_or_one, default=1, metavar="K",
+        help="repeats of the whole set, interleaved (medians and spread over them)",
+    )  # fmt: skip
+    p.add_argument(
         "--out", type=Path, default=Path("runs/bench-scale"), metavar="DIR", help="run folder"
     )
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument(
+        "--json", action="store_true",
+        help="print JSON (the rows, and with several runs or modes the summary) instead of a table",
+    )  # fmt: skip
+
+
+def _agents_or_one(text: str) -> int:
+    """Argument type: a count of at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"at least 1, not {text!r}")
+    return n
 
 
 def _run_scale(args: argparse.Namespace) -> int:
@@ -200,28 +227,46 @@ def _run_scale(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     console = Console(stderr=True)
+    modes = tuple(args.mode or scale.MODES)
     results = []
-    for n in args.agents or scale.DEFAULT_AGENTS:
-        console.print(f"{n} agents: running {args.seconds:.0f} s")
-        results.append(scale.run_one(n, args.seconds, args.out))
+    for k in range(args.runs):
+        for n in args.agents or scale.DEFAULT_AGENTS:
+            for mode in modes:
+                console.print(f"run {k + 1}/{args.runs}: {n} agents, {mode}: {args.seconds:.0f} s")
+                row = scale.run_one(n, args.seconds, args.out, mode, args.labs)
+                results.append({**row, "run": k})
     if args.json:
-        print(json.dumps(results, indent=1))
+        if args.runs == 1 and len(modes) == 1:
+            print(json.dumps(results, indent=1))
+        else:
+            print(json.dumps({"rows": results, "summary": scale.summary(results)}, indent=1))
         return 0
-    table = Table(title=f"N agents over {scale.LABS} labs (pose 20 Hz, sync 10 Hz)")
-    for col in ("agents", "CPU (cores)", "p50 (ms)", "p99 (ms)", "loss", "sync/s"):
+    table = Table(title=f"N agents over {args.labs} labs (pose 20 Hz, sync 10 Hz)")
+    cols = ("run", "agents", "mode", "CPU (cores)", "CPU/agent", "p50 (ms)", "p99 (ms)",
+            "loss", "sync/s", "RSS MiB (first, last)")  # fmt: skip
+    for col in cols:
         table.add_column(col, justify="right")
     for r in results:
+        rss = r["rss_mib"]
         table.add_row(
-            str(r["n"]), f"{r['cpu_cores']:.2f}", f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}",
+            str(r["run"] + 1), str(r["n"]), r["mode"], f"{r['cpu_cores']:.2f}",
+            f"{r['cpu_per_agent'] * 1e3:.1f} m", f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}",
             f"{r['loss']:.4f}", f"{r['sync_per_s']:.0f}",
+            f"{rss[0][1]:.0f}, {rss[-1][1]:.0f}" if rss else "-",
         )  # fmt: skip
     Console().print(table)
+    for n, entry in scale.summary(results).items():
+        for key, value in entry["ratios"].items():
+            Console().print(
+                f"{n} agents: {key} median {value['median']:.2f} "
+                f"({value['min']:.2f}-{value['max']:.2f})"
+            )
     return 0
 
 
 # -- network -------------------------------------------------------------------------
 _NETWORK_SCENARIOS = ("clean", "loss1", "loss5", "loss20", "cut10", "mtu576")
-_NETWORK_TRANSPORTS = ("multilink", "tcp")
+_NETWORK_TRANSPORTS = ("multilink", "tcp", "tcp-tuned")
 
 
 def _add_network(benches: Subparsers) -> None:
@@ -247,8 +292,8 @@ def _add_network(benches: Subparsers) -> None:
     )  # fmt: skip
     p.add_argument(
         "--transport", action="append", choices=_NETWORK_TRANSPORTS, metavar="NAME",
-        help="multilink: the shipped configs (TCP + UDP links); tcp: the previous ones "
-        "(repeatable; default multilink)",
+        help="multilink: deploy/routers/multilink (TCP + UDP links); tcp: deploy/routers; "
+        "tcp-tuned: deploy/routers on hosts with deploy/sysctl (repeatable; default tcp-tuned)",
     )  # fmt: skip
     p.add_argument(
         "--seconds", type=positive, default=60.0, metavar="S",
@@ -277,7 +322,7 @@ def _run_network(args: argparse.Namespace) -> int:
     if why is not None:
         raise SystemExit(f"fedlab bench network: {why}")
     names = args.scenario or list(_NETWORK_SCENARIOS)
-    transports = args.transport or ["multilink"]
+    transports = args.transport or ["tcp-tuned"]
     results = network.run(names, transports, args.seconds, args.out, args.repeats, args.seed)
     document = {"command": shlex.join(["fedlab", *sys.argv[1:]]), "results": results}
     if args.json_out is not None:

@@ -50,10 +50,10 @@ from typing import NamedTuple
 
 __all__ = [
     "POSE_SIZE",
-    "STAMP_SIZE",
-    "STAMP_VERSION",
     "REPLY_SIZE",
     "REQUEST_SIZE",
+    "STAMP_SIZE",
+    "STAMP_VERSION",
     "DecodeError",
     "Pose",
     "PoseSample",

@@ -166,6 +166,7 @@ class AgentRuntime:
         # The latest stamped pose of each peer: (its t, t_ref, bound).
         self.latest_ref: dict[AgentId, tuple[float, float, float]] = {}
         self._next_sync_due = 0.0  # host monotonic: no peer is due before it
+        self._pose_keys: dict[str, tuple[AgentId, str | None] | None] = {}
         self.run_state = RunState(autostart=not config.wait_start, duration=config.run_duration)
         self.gate = CommandGate()  # which commands to act on: per issuer, aborts always
         self.command_log: deque[CommandOutcome] = deque(maxlen=8)
@@ -454,9 +455,11 @@ class AgentRuntime:
             source_info=self._source_info(),
             attachment=self.reference_stamp(t_exec),
         )
-        if self.recorder is not None or self.run_recording is not None:
-            stamp = {"t_exec": t_exec, "host_monotonic": host}
+        # Only the messages of recorded channels are built (issue 17: a lean agent).
+        stamp = {"t_exec": t_exec, "host_monotonic": host}
+        if self.recording(Channel.POSE_SENT):
             self.record(Channel.POSE_SENT, stamp | self.pose._asdict())
+        if self.recording(Channel.REFERENCE):
             # The reference as computed at the last control step, stamped with that step's time.
             g_exec, g_host, g_sim, g_run = self.guidance_at
             self.record(
@@ -473,9 +476,9 @@ class AgentRuntime:
                 }
                 | ({} if self.scenario is None else self.scenario.fields()),
             )
-            truth = getattr(self.platform, "truth", None)
-            if truth is not None:
-                self.record(Channel.TRUTH, stamp | truth._asdict())
+        truth = getattr(self.platform, "truth", None)
+        if truth is not None and self.recording(Channel.TRUTH):
+            self.record(Channel.TRUTH, stamp | truth._asdict())
 
     def step(self) -> None:
         """One control step, then publish the pose."""
@@ -711,7 +714,8 @@ class AgentRuntime:
         run = self.run_recording
         if run is not None:
             run.status_line(line)
-        self.record(Channel.STATUS, status.model_dump())
+        if self.recording(Channel.STATUS):
+            self.record(Channel.STATUS, status.model_dump())
 
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------
     def _on_sync_query(self, query: zenoh.Query) -> None:
@@ -793,7 +797,7 @@ class AgentRuntime:
     def _on_pose(self, sample: zenoh.Sample) -> None:
         t_recv, host = self.clock.read()
         try:
-            parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
+            parsed = self._pose_key(str(sample.key_expr))
             if not self._admit_pose(sample, parsed, host):
                 return
             try:
@@ -943,6 +947,16 @@ class AgentRuntime:
         log.info("agent %s %s", agent, "joined" if alive else "left")
 
     # -- one reference time: the pose's reference stamp (issue 17) ---------------------
+    def _pose_key(self, key: str) -> tuple[AgentId, str | None] | None:
+        """``keys.parse_agent_key`` of a pose key, remembered: every sample of a sender
+        has the same key, and parsing validates (and allocates) an AgentId each time."""
+        cache = self._pose_keys
+        if key not in cache:
+            if len(cache) >= 4096:  # a flood of made-up keys: start over, stay bounded
+                cache.clear()
+            cache[key] = keys.parse_agent_key(self.config.federation, key)
+        return cache[key]
+
     def reference_stamp(self, t_exec: float) -> bytes:
         """The attachment of a pose stamped ``t_exec`` (wire.encode_stamp): its reference
         time and error bound (this agent's one-way delay to the reference)."""

@@ -11,9 +11,12 @@
         time.sleep(10)
         print(ghost.others())             # {"kiruna/knatte": (t_sim, Pose(...)), ...}
 
-The agent joins by name, answers sync queries, syncs with every agent alive,
-publishes its pose at ``rate`` Hz and status once a second, exactly like
-``fedlab agent``; it runs in a background thread until the ``with`` block ends.
+The agent joins by name, answers sync queries, publishes its pose at ``rate`` Hz
+(stamped with its reference time) and status once a second, exactly like ``fedlab
+agent``; it runs in a background thread until the ``with`` block ends. Given a
+``reference`` (the federation's reference agent, e.g. the leader) it syncs with that
+agent only and places every other agent's pose by the reference stamp the pose
+carries; without one it is its own reference and syncs with every agent alive.
 """
 
 from __future__ import annotations
@@ -134,7 +137,9 @@ class Agent:
         return self.runtime
 
     def others(self) -> dict[str, tuple[float, Pose]]:
-        """Every other agent's latest pose on simulation time: {"lab/name": (t, Pose)}."""
+        """Every other agent's latest pose on simulation time: {"lab/name": (t, Pose)};
+        ``t`` is the sender's own reference stamp when it shares this agent's reference,
+        else its clock mapped through this agent's pairwise offset estimate."""
         return self._running().others()
 
     def offset(self, agent: str) -> float | None:

@@ -38,12 +38,24 @@ def test_latency_short(tmp_path: Path) -> None:
 
 
 def test_scale_short(tmp_path: Path) -> None:
-    rows = bench("scale", "--agents", "2", "--agents", "6", "--seconds", "5",
-                 "--out", str(tmp_path), timeout=180)  # fmt: skip
-    assert isinstance(rows, list) and [r["n"] for r in rows] == [2, 6]
+    out = bench("scale", "--agents", "2", "--agents", "6", "--seconds", "5", "--mode", "default",
+                "--mode", "bare", "--out", str(tmp_path), timeout=240)  # fmt: skip
+    assert isinstance(out, dict)
+    rows = out["rows"]
+    assert [(r["n"], r["mode"]) for r in rows] == [(2, "default"), (2, "bare"), (6, "default"),
+                                                   (6, "bare")]  # fmt: skip
     for r in rows:
-        assert r["samples"] > 0 and r["p50_ms"] > 0
+        assert r["samples"] > 0 and r["p50_ms"] > 0, r
         assert r["loss"] < 0.01, r
-        assert r["cpu_cores"] > 0
-    # Five followers sync with the leader at 10 Hz: about 50 exchanges a second.
-    assert rows[1]["sync_per_s"] > rows[0]["sync_per_s"] * 2
+        assert r["cpu_cores"] > 0 and r["cpu_per_agent"] == pytest.approx(r["cpu_cores"] / r["n"])
+        assert r["rss_mib"], r  # sampled after warm-up
+    default = {r["n"]: r for r in rows if r["mode"] == "default"}
+    bare = {r["n"]: r for r in rows if r["mode"] == "bare"}
+    # Five followers sync with the leader at 10 Hz: about 50 exchanges a second, and the
+    # leader queries each once a second; the bare agents send the same.
+    assert default[6]["sync_per_s"] > default[2]["sync_per_s"] * 2
+    assert bare[6]["sync_per_s"] == pytest.approx(default[6]["sync_per_s"], rel=0.25)
+    ratios = out["summary"]["6"]["ratios"]
+    assert ratios["cpu_default_over_bare"]["median"] == pytest.approx(
+        default[6]["cpu_per_agent"] / bare[6]["cpu_per_agent"]
+    )

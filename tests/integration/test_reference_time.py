@@ -12,16 +12,18 @@ reference.
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import pytest
 import zenoh
 from loopback import FOLLOWER, LEADER, Labs, client_config
 
-from federation import Agent, Pose
 from federation.core import wire
 from federation.core.keys import AgentId
+from federation.core.wire import Pose
 from federation.fleet.launch import wait_for
 from federation.report.status import clock_line
+from federation.runtime.sdk import Agent
 
 pytestmark = pytest.mark.integration
 
@@ -36,7 +38,7 @@ def test_a_third_agent_places_everyones_pose_on_reference_time_without_pairwise_
     follower = labs.follower(pair.rome, "--clock-offset", "26.42", "--clock-drift-ppm", "40")
     follower.wait_samples(LEADER, 30, timeout=20)  # its estimate of the reference settled
 
-    settings = {"clock_offset": -7.5, "clock_drift_ppm": -25.0}
+    settings: dict[str, Any] = {"clock_offset": -7.5, "clock_drift_ppm": -25.0}
     with Agent(THIRD, lambda t: Pose(), connect=[pair.rome.endpoint], reference=LEADER,
                **settings) as third:  # fmt: skip
         runtime = third._running()

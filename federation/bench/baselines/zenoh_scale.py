@@ -80,7 +80,7 @@ class BareAgent:
         (t1,) = REQUEST.unpack(payload.to_bytes() if payload is not None else bytes(8))
         reply = REPLY.pack(t1, t2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         query.reply(query.key_expr, reply, attachment=REQUEST.pack(time.monotonic()))
-        query.drop()  # type: ignore[no-untyped-call]
+        query.drop()
 
     def reply(self, reply: zenoh.Reply) -> None:
         if reply.ok is not None:
@@ -136,6 +136,8 @@ def main() -> None:
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("transport/unicast/lowlatency", "true")
     conf.insert_json5("transport/unicast/qos/enabled", "false")
+    conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router, as fedlab agents do
+    conf.insert_json5("connect/exit_on_failure", "false")
     stop = threading.Event()
     with zenoh.open(conf) as session:
         agents = [BareAgent(session, name, leader, status_bytes) for name in names]

@@ -378,7 +378,7 @@ def test_stamp_bytes_are_the_documented_layout() -> None:
 
 def test_stamp_literal_hex() -> None:
     # version 1, flags 1, reserved 0, ref_id 0x04030201, t_ref 1.0, bound 0.5
-    literal = bytes.fromhex("01010000" "01020304" "000000000000f03f" "000000000000e03f")
+    literal = bytes.fromhex("0101000001020304000000000000f03f000000000000e03f")
     assert wire.decode_stamp(literal) == wire.RefStamp(0x04030201, 1.0, 0.5)
     assert wire.encode_stamp(0x04030201, 1.0, 0.5) == literal
 
@@ -411,15 +411,18 @@ def test_stamp_round_trip(ref_id: int, t_ref: float, bound: float) -> None:
         pytest.param(bytes([1, 3, 0, 0]) + bytes(20), "unknown flags", id="flags"),
         pytest.param(bytes([1, 1, 1, 0]) + bytes(20), "reserved 1", id="reserved"),
         pytest.param(
-            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", math.nan, 0.0), "field 0",
+            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", math.nan, 0.0),
+            "field 0",
             id="nan time",
         ),
         pytest.param(
-            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", 1.0, math.inf), "field 1",
+            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", 1.0, math.inf),
+            "field 1",
             id="inf bound",
         ),
         pytest.param(
-            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", 1.0, -0.1), "negative",
+            bytes([1, 1, 0, 0, 0, 0, 0, 0]) + struct.pack("<dd", 1.0, -0.1),
+            "negative",
             id="negative bound",
         ),
     ],
