@@ -175,7 +175,7 @@ def _router_args(lab: str, transport: str) -> list[str]:
     t = TRANSPORTS[transport]
     listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if lab == "rome" else []
     config = ROUTERS.joinpath(*t.get("config", []), f"{lab}.json5")
-    return ["router", "-c", str(config), *listen, *t[lab]]
+    return ["router", "-c", str(config), *listen, *t[lab], *t.get("cfg", [])]
 
 
 def run_one(
