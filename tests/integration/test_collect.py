@@ -15,11 +15,11 @@ import time
 from pathlib import Path
 
 import pytest
+from lifecycle import fedlab, participants, runs_dir, write_experiment
 from loopback import LEADER, Labs, client_config
 
 from federation.core.chunking import resume_offset
 from federation.runtime.collect import collect, finalize, sha256_file, zenoh_fetch
-from runs import fedlab, participants, runs_dir, write_experiment
 from schemas.messages import CHUNK_SIZE
 
 pytestmark = pytest.mark.integration

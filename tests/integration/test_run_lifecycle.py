@@ -10,12 +10,12 @@ import time
 from pathlib import Path
 
 import pytest
+from lifecycle import as_json, fedlab, participants, runs_dir, write_experiment
 from loopback import FOLLOWER, LEADER, Labs
 
 from federation.core import keys
 from federation.fleet.launch import free_port, wait_for
 from federation.runtime.recorder import read_messages, read_metadata
-from runs import as_json, fedlab, participants, runs_dir, write_experiment
 
 pytestmark = pytest.mark.integration
 
