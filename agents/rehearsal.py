@@ -148,6 +148,23 @@ def _platforms(experiment: ExperimentConfig, seed: int) -> dict[str, SimulatedPl
 # ---------------------------------------------------------------- formation
 
 
+def _scenario_members(
+    experiment: ExperimentConfig, delay: float, jitter: float, seed: int, compensate: bool
+) -> list[_Member]:
+    """Every participant as a linked member; ``seed`` shifts its platform's and its
+    relative sensor's seeds, so runs with one seed repeat and runs with others differ."""
+    platforms = _platforms(experiment, seed)
+    members = []
+    for p in experiment.participants:
+        part = experiment.part(_agent(p.agent))
+        assert part is not None
+        sensor = part.relative_sensor.model_copy(update={"seed": part.relative_sensor.seed + seed})
+        part = part.model_copy(update={"relative_sensor": sensor})
+        members.append(_scenario_member(p.agent, part, platforms[p.agent], compensate))
+    _links(members, delay, jitter, seed)
+    return members
+
+
 def formation_run(
     experiment: ExperimentConfig,
     delay: float,
@@ -168,13 +185,7 @@ def formation_run(
     """
     assert experiment.kind == "formation" and experiment.formation is not None
     duration = experiment.duration if duration is None else duration
-    platforms = _platforms(experiment, seed)
-    members = []
-    for p in experiment.participants:
-        part = experiment.part(_agent(p.agent))
-        assert part is not None
-        members.append(_scenario_member(p.agent, part, platforms[p.agent], compensate))
-    _links(members, delay, jitter, seed)
+    members = _scenario_members(experiment, delay, jitter, seed, compensate)
     series: dict[str, list[Any]] = {"run_time": [], "errors": [], "truth": []}
     formation = experiment.formation
 
@@ -254,15 +265,7 @@ def docking_run(
     d = experiment.docking
     assert experiment.kind == "docking" and d is not None
     duration = experiment.duration if duration is None else duration
-    platforms = _platforms(experiment, seed)
-    members = []
-    for p in experiment.participants:
-        part = experiment.part(_agent(p.agent))
-        assert part is not None
-        sensor = part.relative_sensor.model_copy(update={"seed": part.relative_sensor.seed + seed})
-        part = part.model_copy(update={"relative_sensor": sensor})
-        members.append(_scenario_member(p.agent, part, platforms[p.agent], compensate))
-    _links(members, delay, jitter, seed)
+    members = _scenario_members(experiment, delay, jitter, seed, compensate)
     chaser = next(m for m in members if m.name == d.chaser)
     target = next(m for m in members if m.name == d.target)
     found: dict[str, Any] = {}

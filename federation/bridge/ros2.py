@@ -58,6 +58,7 @@ from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.agent import AgentRuntime, RateLimitedLog
+from federation.runtime.session import undeclare_all
 from schemas.config import AgentConfig
 from schemas.messages import Status
 
@@ -153,12 +154,7 @@ class FederationToRos:
         )
 
     def close(self) -> None:
-        for entity in reversed(self._declared):
-            try:
-                entity.undeclare()
-            except Exception as error:  # a session already closed by zenoh
-                log.debug("undeclare failed: %s", error)
-        self._declared.clear()
+        undeclare_all(self._declared)
 
     # -- Zenoh callbacks: quick, never raise ----------------------------------------------
     def _on_pose(self, sample: zenoh.Sample) -> None:

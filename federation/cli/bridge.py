@@ -16,6 +16,7 @@ from federation.cli.common import (
     add_zenoh_flags,
     agent_id,
     federation_name,
+    integer_in,
     open_interruptible,
     open_session,
     positive,
@@ -121,14 +122,7 @@ _ROS2_EXAMPLE = (
 )
 
 
-def _ros_domain(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 0 <= value <= 232:
-        raise argparse.ArgumentTypeError(f"a ROS 2 domain id is 0 to 232, not {value}")
-    return value
+_ros_domain = integer_in(0, 232, "a ROS 2 domain id")
 
 
 def _add_ros2(kinds: Any) -> None:

@@ -13,14 +13,13 @@ from pathlib import Path
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_federation_flag,
     add_timeout_flag,
     add_zenoh_flags,
-    federation_name,
     open_session,
+    run_id,
     stop_on_signals,
 )
-from federation.cli.ctl import _run_id
-from federation.core import keys
 
 __all__ = ["add", "run"]
 
@@ -45,17 +44,12 @@ def add(sub: Subparsers) -> None:
             "  fedlab report runs/collected"
         ),
     )
-    p.add_argument("run_id", type=_run_id, metavar="RUN_ID", help="the run (ctl start names it)")
+    p.add_argument("run_id", type=run_id, metavar="RUN_ID", help="the run (ctl start names it)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder to write to")
     p.add_argument(
         "--experiment", type=Path, metavar="FILE", help="its participants must all answer"
     )
-    p.add_argument(
-        "--federation",
-        type=federation_name,
-        default=keys.DEFAULT_FEDERATION,
-        help="federation name (an experiment's own wins)",
-    )
+    add_federation_flag(p, "federation name (an experiment's own wins)")
     p.add_argument(
         "--retries",
         type=int,

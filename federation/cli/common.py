@@ -28,15 +28,18 @@ from schemas.config import ZenohOptions, validate
 __all__ = [
     "Formatter",
     "Subparsers",
+    "add_federation_flag",
     "add_timeout_flag",
     "add_zenoh_flags",
     "agent_id",
     "federation_name",
+    "integer_in",
     "nonnegative",
     "open_interruptible",
     "open_session",
     "positive",
     "probability",
+    "run_id",
     "signal_handlers_kept",
     "stop_on_signals",
     "zenoh_options",
@@ -204,6 +207,24 @@ def federation_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def add_federation_flag(parser: argparse.ArgumentParser, help: str = "federation name") -> None:
+    """``--federation NAME``, a checked federation name (default: the default federation)."""
+    parser.add_argument(
+        "--federation", type=federation_name, default=keys.DEFAULT_FEDERATION, metavar="NAME",
+        help=help,
+    )  # fmt: skip
+
+
+def run_id(text: str) -> str:
+    """Argument type: a run's name, safe as a folder name."""
+    from federation.core.chunking import RequestError, safe_name
+
+    try:
+        return safe_name(text, "run id")
+    except RequestError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def agent_id(text: str) -> keys.AgentId:
     """Argument type: an agent's address, ``LAB/NAME``."""
     try:
@@ -244,3 +265,18 @@ def probability(text: str) -> float:
     if value > 1:
         raise argparse.ArgumentTypeError(f"must be a probability in [0, 1], not {text!r}")
     return value
+
+
+def integer_in(low: int, high: int, what: str) -> Callable[[str], int]:
+    """Argument type: a whole number from ``low`` to ``high``, a ``what`` (for messages)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{what} is {low} to {high}, not {value}")
+        return value
+
+    return parse

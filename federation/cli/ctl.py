@@ -15,29 +15,20 @@ from typing import Any
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_federation_flag,
     add_timeout_flag,
     add_zenoh_flags,
     agent_id,
-    federation_name,
     nonnegative,
     open_session,
     positive,
+    run_id,
     stop_on_signals,
 )
-from federation.core import keys
 from federation.core.preflight import CHECKS, DEFAULT_MAX_BOUND, Row, blocking
 from federation.runtime import control
 
 __all__ = ["add", "run"]
-
-
-def _run_id(text: str) -> str:
-    from federation.core.chunking import RequestError, safe_name
-
-    try:
-        return safe_name(text, "run id")
-    except RequestError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def add(sub: Subparsers) -> None:
@@ -74,12 +65,7 @@ def add(sub: Subparsers) -> None:
         help="start at a common instant; freeze, resume, abort, reset on receipt; status",
     )
     p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
-    p.add_argument(
-        "--federation",
-        type=federation_name,
-        default=keys.DEFAULT_FEDERATION,
-        help="federation name (an experiment's own wins)",
-    )
+    add_federation_flag(p, "federation name (an experiment's own wins)")
     p.add_argument(
         "--reference", type=agent_id, metavar="LAB/NAME", help="agent whose clock is reference time"
     )
@@ -91,7 +77,7 @@ def add(sub: Subparsers) -> None:
         help="start this many seconds ahead "
         f"(default: the experiment's start_delay, else {control.DEFAULT_START_IN:g})",
     )
-    p.add_argument("--run-id", type=_run_id, metavar="ID", help="name of the run (start)")
+    p.add_argument("--run-id", type=run_id, metavar="ID", help="name of the run (start)")
     p.add_argument(
         "--duration",
         type=positive,

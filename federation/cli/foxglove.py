@@ -9,25 +9,18 @@ import sys
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_federation_flag,
     add_zenoh_flags,
-    federation_name,
+    integer_in,
     open_session,
     positive,
     stop_on_signals,
 )
-from federation.core import keys
 
 __all__ = ["add", "run"]
 
 
-def _port(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is 0 to 65535, not {value}")
-    return value
+_port = integer_in(0, 65535, "a port number")
 
 
 def add(sub: Subparsers) -> None:
@@ -49,10 +42,7 @@ def add(sub: Subparsers) -> None:
             "  fedlab foxglove --host 0.0.0.0 --port 8766 --federation demo -e tcp/127.0.0.1:7447"
         ),
     )
-    p.add_argument(
-        "--federation", type=federation_name, default=keys.DEFAULT_FEDERATION, metavar="NAME",
-        help="federation name",
-    )  # fmt: skip
+    add_federation_flag(p)
     p.add_argument("--host", default="127.0.0.1", help="address the WebSocket server binds")
     p.add_argument("--port", type=_port, default=8765, help="its port (0: any free one)")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds")

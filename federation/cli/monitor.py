@@ -14,14 +14,13 @@ import sys
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_federation_flag,
     add_timeout_flag,
     add_zenoh_flags,
-    federation_name,
     nonnegative,
     open_session,
     stop_on_signals,
 )
-from federation.core import keys
 
 __all__ = ["add", "run"]
 
@@ -46,13 +45,7 @@ def add(sub: Subparsers) -> None:
             "  fedlab monitor -e tcp/127.0.0.1:7447 --once --wait 3 --json"
         ),
     )
-    p.add_argument(
-        "--federation",
-        type=federation_name,
-        default=keys.DEFAULT_FEDERATION,
-        metavar="NAME",
-        help="federation name",
-    )
+    add_federation_flag(p)
     p.add_argument(
         "--duration", type=nonnegative, default=None, metavar="S", help="stop after S seconds"
     )

@@ -113,26 +113,24 @@ def scenario_summary(run: Run) -> dict[str, Any]:
         out["notes"] = ["the platforms' truths do not overlap after the start"]
         return out
     link = (run.meta or {}).get("link") or {}
-    if experiment.kind == "formation":
-        out["formation"] = _formation(experiment, present, origin, start, end)
-        out["formation"]["delay_ms"] = link.get("delay_ms")
+    formation = experiment.kind == "formation"
+    host = np.arange(start, end, GRID_S if formation else CONTACT_GRID_S)
+    at = {a: _at(v, host) for a, v in present.items()}
+    if formation:
+        figures = _formation(experiment, at, host, origin)
     else:
-        out["docking"] = _docking(run, experiment, present, origin, start, end)
-        out["docking"]["delay_ms"] = link.get("delay_ms")
+        figures = _docking(run, experiment, at, host, origin)
+    figures["delay_ms"] = link.get("delay_ms")
+    out["formation" if formation else "docking"] = figures
     return out
 
 
 def _formation(
-    experiment: ExperimentConfig,
-    truths: dict[str, dict[str, Array]],
-    origin: float,
-    start: float,
-    end: float,
+    experiment: ExperimentConfig, at: dict[str, dict[str, Array]], host: Array, origin: float
 ) -> dict[str, Any]:
+    """Formation figures from the truths ``at`` the host times ``host``."""
     f = experiment.formation
     assert f is not None
-    host = np.arange(start, end, GRID_S)
-    at = {a: _at(v, host) for a, v in truths.items()}
     names = list(at)
     errors = np.zeros((len(host), len(names)))
     for k, h in enumerate(host):
@@ -162,15 +160,14 @@ def _formation(
 def _docking(
     run: Run,
     experiment: ExperimentConfig,
-    truths: dict[str, dict[str, Array]],
+    at: dict[str, dict[str, Array]],
+    host: Array,
     origin: float,
-    start: float,
-    end: float,
 ) -> dict[str, Any]:
+    """Docking figures from the truths ``at`` the host times ``host``."""
     d = experiment.docking
     assert d is not None
-    host = np.arange(start, end, CONTACT_GRID_S)
-    c, t = _at(truths[d.chaser], host), _at(truths[d.target], host)
+    c, t = at[d.chaser], at[d.target]
     keys = ("x", "y", "heading", "vx", "vy", "omega")
     contact = None
     ranges = []

@@ -58,6 +58,7 @@ from federation.runtime.fanout import Fanout
 from federation.runtime.loop import Schedule, run_together
 from federation.runtime.recorder import Recorder
 from federation.runtime.runs import RunRecording
+from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
 from schemas.messages import Command, CommandOutcome, Readiness, Status, is_abort
@@ -312,12 +313,7 @@ class AgentRuntime:
             self.platform.close()  # a serial platform sends all-closed and releases its port
         except Exception as error:
             log.warning("closing the platform failed: %s", error)
-        for entity in reversed(self._declared):
-            try:
-                entity.undeclare()
-            except Exception as error:  # a session already closed by zenoh
-                log.debug("undeclare failed: %s", error)
-        self._declared.clear()
+        undeclare_all(self._declared)
         if self.recording_server is not None:
             self.recording_server.close()
             self.recording_server = None

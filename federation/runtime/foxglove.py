@@ -64,6 +64,7 @@ from pydantic import ValidationError
 
 from federation.core import keys, wire
 from federation.core.keys import AgentId
+from federation.runtime.session import undeclare_all
 from schemas.config import ConfigError
 from schemas.messages import Status
 from schemas.platform import load_platform
@@ -99,42 +100,26 @@ SYNC_SCHEMA: dict[str, Any] = {
         "alive": {"type": "boolean"},
     },
 }
-PEERS_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "properties": {
-        "rows": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {
-                    "agent": {"type": "string"},
-                    "peer": {"type": "string"},
-                    **SYNC_SCHEMA["properties"],
-                },
-            },
-        }
-    },
-}
-RUN_SCHEMA: dict[str, Any] = {
-    "type": "object",
-    "properties": {
-        "rows": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {
-                    "agent": {"type": "string"},
-                    "role": {"type": "string"},
-                    "mode": {"type": "string"},
-                    "run_time": _NUMBER | {"description": "s since the start"},
-                    "t_sim": _NUMBER | {"description": "reference time, s"},
-                    "hold": {"type": ["string", "null"]},
-                    "alive": {"type": "boolean"},
-                },
-            },
-        }
-    },
-}
+
+
+def _rows_schema(**columns: Any) -> dict[str, Any]:
+    """The JSON schema of a table: ``{"rows": [{column: value, ...}, ...]}``."""
+    row = {"type": "object", "properties": columns}
+    return {"type": "object", "properties": {"rows": {"type": "array", "items": row}}}
+
+
+PEERS_SCHEMA = _rows_schema(
+    agent={"type": "string"}, peer={"type": "string"}, **SYNC_SCHEMA["properties"]
+)
+RUN_SCHEMA = _rows_schema(
+    agent={"type": "string"},
+    role={"type": "string"},
+    mode={"type": "string"},
+    run_time=_NUMBER | {"description": "s since the start"},
+    t_sim=_NUMBER | {"description": "reference time, s"},
+    hold={"type": ["string", "null"]},
+    alive={"type": "boolean"},
+)
 
 
 def _ms(value: float | None) -> float | None:
@@ -295,12 +280,7 @@ class LiveView:
             raise
 
     def close(self) -> None:
-        for entity in reversed(self._declared):
-            try:
-                entity.undeclare()
-            except Exception as error:  # a session already closed by zenoh
-                log.debug("undeclare failed: %s", error)
-        self._declared.clear()
+        undeclare_all(self._declared)
 
     # -- Zenoh callbacks: quick, never raise ---------------------------------------------
     def _on_pose(self, sample: zenoh.Sample) -> None:

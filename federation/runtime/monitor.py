@@ -57,6 +57,7 @@ from rich.text import Text
 
 from federation.core import keys
 from federation.core.keys import AgentId
+from federation.runtime.session import undeclare_all
 from schemas.messages import Status
 
 __all__ = [
@@ -484,18 +485,9 @@ def subscribe(
             )
         )
     except Exception:
-        _undeclare(declared)
+        undeclare_all(declared)
         raise
     return declared
-
-
-def _undeclare(declared: list[Any]) -> None:
-    for entity in reversed(declared):
-        try:
-            entity.undeclare()
-        except Exception as error:  # a session already closed by zenoh
-            log.debug("undeclare failed: %s", error)
-    declared.clear()
 
 
 @dataclass(frozen=True)
@@ -555,7 +547,7 @@ class Watch:
             )
 
     def close(self) -> None:
-        _undeclare(self._declared)
+        undeclare_all(self._declared)
 
     def __enter__(self) -> Watch:
         return self

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import errno
 import json
+import logging
 import socket
 from typing import Any
 
@@ -31,7 +32,10 @@ __all__ = [
     "diagnose",
     "endpoints",
     "fail_fast",
+    "undeclare_all",
 ]
+
+log = logging.getLogger("fedlab.session")
 
 DEFAULT_TIMEOUT = 5.0
 """s a command or the SDK waits for its router before giving up."""
@@ -171,3 +175,17 @@ def connect_error(conf: zenoh.Config, error: object, timeout: float) -> ConnectE
     reasons = [f"{e}: {diagnose(e, min(2.0, timeout))}" for e in endpoints(conf)]
     where = "; ".join(reasons) or "no endpoint to dial (give -e/--connect)"
     return ConnectError(f"no Zenoh session within {timeout:g} s: {where} [zenoh: {error}]")
+
+
+def undeclare_all(declared: list[Any]) -> None:
+    """Undeclare Zenoh entities, the last declared first, and empty the list.
+
+    One that fails (its session already closed by Zenoh) is logged and skipped, so a
+    close after a failed start or a lost session still releases the rest.
+    """
+    for entity in reversed(declared):
+        try:
+            entity.undeclare()
+        except Exception as error:  # a session already closed by zenoh
+            log.debug("undeclare failed: %s", error)
+    declared.clear()

@@ -18,6 +18,7 @@ its log when the test fails.
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,10 +26,21 @@ from typing import Any
 
 import zenoh
 
+from federation.core import wire
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import last_status, read_status
 
-__all__ = ["FOLLOWER", "LEADER", "Agent", "LabPair", "Labs", "Link", "Router", "client_config"]
+__all__ = [
+    "FOLLOWER",
+    "LEADER",
+    "Agent",
+    "LabPair",
+    "Labs",
+    "Link",
+    "PoseTap",
+    "Router",
+    "client_config",
+]
 
 LEADER = "kiruna/knatte"
 FOLLOWER = "rome/pinocchio"
@@ -42,6 +54,29 @@ def client_config(endpoint: str) -> zenoh.Config:
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     return conf
+
+
+class PoseTap:
+    """The leader's pose samples as published on Zenoh (at most 10 000)."""
+
+    def __init__(self, endpoint: str, key: str):
+        self.samples: list[wire.PoseSample] = []
+        self._lock = threading.Lock()
+        self.session = zenoh.open(client_config(endpoint))
+        self.sub = self.session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            if len(self.samples) < 10_000:
+                self.samples.append(wire.decode_pose(sample.payload.to_bytes()))
+
+    def received(self) -> list[wire.PoseSample]:
+        with self._lock:
+            return list(self.samples)
+
+    def close(self) -> None:
+        self.sub.undeclare()  # type: ignore[no-untyped-call]
+        self.session.close()  # type: ignore[no-untyped-call]
 
 
 @dataclass

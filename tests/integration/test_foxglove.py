@@ -14,45 +14,19 @@ import base64
 import json
 import math
 import struct
-import threading
 import time
 from typing import Any
 
 import pytest
-import zenoh
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from loopback import FOLLOWER, LEADER, Agent, Labs, client_config
+from loopback import FOLLOWER, LEADER, Agent, Labs, PoseTap
 from websockets.sync.client import ClientConnection, connect
 
-from federation.core import wire
 from federation.fleet.launch import free_port, wait_for
 
 # Foxglove's WebSocket protocol; SDK 0.30's server names it foxglove.sdk.v1 (the protocol
 # of foxglove.websocket.v1, renamed) and refuses a client offering only the old name.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-
-
-class PoseTap:
-    """The leader's pose samples as published on Zenoh (at most 10 000)."""
-
-    def __init__(self, endpoint: str, key: str):
-        self.samples: list[wire.PoseSample] = []
-        self._lock = threading.Lock()
-        self.session = zenoh.open(client_config(endpoint))
-        self.sub = self.session.declare_subscriber(key, self._on_sample)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        with self._lock:
-            if len(self.samples) < 10_000:
-                self.samples.append(wire.decode_pose(sample.payload.to_bytes()))
-
-    def received(self) -> list[wire.PoseSample]:
-        with self._lock:
-            return list(self.samples)
-
-    def close(self) -> None:
-        self.sub.undeclare()  # type: ignore[no-untyped-call]
-        self.session.close()  # type: ignore[no-untyped-call]
 
 
 def protobuf_class(channel: dict[str, Any]) -> Any:

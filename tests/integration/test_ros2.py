@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import pytest
-import zenoh
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
@@ -27,7 +26,7 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
-from loopback import LEADER, Agent, Labs, client_config
+from loopback import LEADER, Agent, Labs, PoseTap
 
 from federation.core import wire
 from federation.fleet.launch import wait_for
@@ -158,29 +157,6 @@ def start_bridge(labs: Labs, *args: str, who: str = "bridge") -> Agent:
     bridge = Agent(labs.fleet, "bridge-ros2", argv, who=who, status=status)
     bridge.start()
     return bridge
-
-
-class PoseTap:
-    """The leader's pose samples as published on Zenoh (at most 10 000)."""
-
-    def __init__(self, endpoint: str, key: str):
-        self.samples: list[wire.PoseSample] = []
-        self._lock = threading.Lock()
-        self.session = zenoh.open(client_config(endpoint))
-        self.sub = self.session.declare_subscriber(key, self._on_sample)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        with self._lock:
-            if len(self.samples) < 10_000:
-                self.samples.append(wire.decode_pose(sample.payload.to_bytes()))
-
-    def received(self) -> list[wire.PoseSample]:
-        with self._lock:
-            return list(self.samples)
-
-    def close(self) -> None:
-        self.sub.undeclare()  # type: ignore[no-untyped-call]
-        self.session.close()  # type: ignore[no-untyped-call]
 
 
 def yaw(q: Quat) -> float:
