@@ -388,8 +388,10 @@ def test_three_labs_generated_from_one_file_sync_and_follow(
     started = time.monotonic()
     leader = start_agent(labs, fed, LEADER)
     followers = [
-        start_agent(labs, fed, who, "--clock-offset", offset)
-        for who, offset in ((FOLLOWER, "26.42"), ("lund/ghost", "-3.7"))
+        # Rome syncs with every agent (--sync-all), so its status shows Lund: by default
+        # it would sync only with its reference and place Lund's poses by their stamps.
+        start_agent(labs, fed, FOLLOWER, "--clock-offset", "26.42", "--sync-all"),
+        start_agent(labs, fed, "lund/ghost", "--clock-offset", "-3.7"),
     ]
     for follower in followers:
         follower.wait_samples(LEADER, 20, timeout=40)
