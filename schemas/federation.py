@@ -16,7 +16,7 @@ operator's Zenoh config, the certificates and the systemd units
 
     [labs.rome]                         # dials Kiruna; opens no inbound port
     auth = "password"
-    listen = ["tls/10.1.0.2:7447"]
+    listen = ["tls/192.0.2.2:7447"]
     dial = ["kiruna"]
     agents.pinocchio = { role = "follower", follow = "kiruna/knatte" }
 
