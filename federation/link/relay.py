@@ -12,6 +12,7 @@ wake-up latency (see :mod:`federation.link.runner` for why the loop uses select)
 
 from __future__ import annotations
 
+import abc
 import asyncio
 import heapq
 import math
@@ -55,7 +56,7 @@ def endpoint_error(field: str, endpoint: str, reason: str, error: OSError) -> Co
 T = TypeVar("T")
 
 
-class TimedQueue(Generic[T]):
+class TimedQueue(abc.ABC, Generic[T]):
     """Items of one direction held until their delivery time, then passed to
     :meth:`deliver`; equal times leave in the order they came.
 
@@ -123,14 +124,14 @@ class TimedQueue(Generic[T]):
         self.queued = 0
         self.heap.clear()
 
+    @abc.abstractmethod
     def deliver(self, item: T, data: bytes) -> None:
         """Write ``data`` out now."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def hold_source(self, hold: bool) -> None:
         """Stop (``True``) or resume (``False``) reading the source: the queue is over
         the cap, or back under half of it."""
-        raise NotImplementedError
 
     def drained(self) -> None:
         """The timer found the queue empty after delivering."""
