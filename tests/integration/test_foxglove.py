@@ -113,6 +113,9 @@ def test_a_foxglove_client_sees_the_leaders_transform_and_the_sync(labs: Labs) -
     leader.wait_status(timeout=10)
     tap = PoseTap(pair.kiruna.endpoint, f"fedlab/default/{LEADER}/pose")
     try:
+        # The tap's subscription reaches the router before the view's, so each pose the
+        # view can show is one the tap saw (it may arrive a moment after the view's).
+        assert wait_for(lambda: len(tap.received()) >= 3, timeout=10), "tap got no poses"
         with open_client(port, timeout=15) as ws:
             check_view(ws, tap, follower)
     finally:
@@ -141,14 +144,17 @@ def check_view(ws: ClientConnection, tap: PoseTap, follower: Agent) -> None:
     within = time.monotonic() - subscribed
     assert transform.parent_frame_id == "fedlab_common"
     tr = transform.translation
-    published = [
-        s.pose
-        for s in tap.received()
-        if abs(s.pose.x - tr.x) <= 1e-9 and abs(s.pose.y - tr.y) <= 1e-9
-    ]
-    assert published, (tr, tap.received()[-3:])
+
+    def published() -> list[Any]:
+        return [
+            s.pose
+            for s in tap.received()
+            if abs(s.pose.x - tr.x) <= 1e-9 and abs(s.pose.y - tr.y) <= 1e-9
+        ]
+
+    assert wait_for(lambda: bool(published()), timeout=2), (tr, tap.received()[-3:])
     heading = yaw(transform.rotation)
-    assert any(abs(math.remainder(p.heading - heading, math.tau)) < 1e-9 for p in published)
+    assert any(abs(math.remainder(p.heading - heading, math.tau)) < 1e-9 for p in published())
     print(f"leader's transform {within * 1e3:.0f} ms after subscribing ({ws.subprotocol})")
 
     # Offset, delay and error bound per peer: the follower's view of the leader.
