@@ -27,6 +27,7 @@ from agents.guidance import Reference
 from agents.interface import Platform
 from agents.workspace import Frame, FramedPlatform
 from federation.core.wire import Pose
+from schemas.messages import Workspace
 from schemas.scenario import ScenarioPart
 
 __all__ = ["ScenarioGuidance", "make_scenario"]
@@ -129,6 +130,16 @@ class ScenarioGuidance:
     @property
     def hold_reason(self) -> str | None:
         return self.platform.hold_reason if isinstance(self.platform, FramedPlatform) else None
+
+    def workspace(self) -> Workspace | None:
+        """The lab's frame and the area the platform is kept in, as the status publishes
+        them (None: no area is kept)."""
+        area = self.platform.area if isinstance(self.platform, FramedPlatform) else None
+        if area is None:
+            return None
+        return Workspace(
+            frame=self.part.frame, area=(area.x_min, area.x_max, area.y_min, area.y_max)
+        )
 
     def fields(self) -> dict[str, float | str | None]:
         """What the agent records beside its heading reference: the position reference

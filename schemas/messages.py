@@ -4,11 +4,13 @@ on ``.../status`` and appends to ``--status-json``."""
 from __future__ import annotations
 
 import json
+import math
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.config import ManeuverConfig
+from schemas.scenario import LabFrame
 
 __all__ = [
     "CHUNK_SIZE",
@@ -19,6 +21,7 @@ __all__ = [
     "PeerStatus",
     "Readiness",
     "Status",
+    "Workspace",
     "is_abort",
 ]
 
@@ -54,6 +57,27 @@ class PeerStatus(BaseModel):
         description="alarm: seconds the peer, alive, has answered no sync request (over 2 s); "
         "none while it answers",
     )
+
+
+class Workspace(BaseModel):
+    """Where an agent's platform may go, for a view to draw: its lab's table frame in the
+    common frame (:math:`p_c = R(\\theta) p_t + o`) and the usable area in that table
+    frame. Published by an agent that keeps its platform inside an area (formation,
+    docking)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    frame: LabFrame = Field(description="the lab's table frame in the common frame")
+    area: tuple[float, float, float, float] = Field(
+        description="usable area, table frame: x_min, x_max, y_min, y_max, m"
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Workspace:
+        x_min, x_max, y_min, y_max = self.area
+        if not (math.isfinite(x_min + x_max + y_min + y_max) and x_min < x_max and y_min < y_max):
+            raise ValueError(f"area {self.area}: not x_min < x_max, y_min < y_max (finite)")
+        return self
 
 
 class Readiness(BaseModel):
@@ -135,6 +159,9 @@ class Status(BaseModel):
         default_factory=dict,
         description="LAB/NAME -> why that agent is contested (two sources speak for it): "
         "nothing from it is used; a follower of it holds",
+    )
+    workspace: Workspace | None = Field(
+        None, description="its lab's frame and usable area, when it keeps one (formation, docking)"
     )
 
 

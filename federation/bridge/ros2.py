@@ -28,6 +28,9 @@ QoS, as ROS 2 users expect
     reliable or a best-effort publisher. Samples are XCDR1 (what ROS 2's middlewares
     exchange). The DDS domain is ``--domain-id`` (ROS_DOMAIN_ID's meaning); Cyclone DDS
     reads its network configuration from ``CYCLONEDDS_URI`` as it does under ROS 2.
+    Every reader and writer announces its type's hash in USER_DATA
+    (``typehash=RIHS01_...;``, :mod:`federation.bridge.ros2_typehash`), as ROS 2 nodes
+    since Iron do.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ from pydantic import ValidationError
 from agents.guidance import Track
 from agents.kinematic import KinematicPlatform
 from federation.bridge import ros2_core as conv
+from federation.bridge.ros2_typehash import ODOMETRY, TF_MESSAGE, user_data
 from federation.bridge.ros2_types import Odometry, TFMessage, odometry_message, tf_message
 from federation.core import keys, wire
 from federation.core.estimators import make_estimator
@@ -80,29 +84,36 @@ STATUS_MAX_BYTES = 1 << 20
 _XCDR1 = Policy.DataRepresentation(use_cdrv0_representation=True)
 
 
+def _type_hash(name: str) -> Any:
+    """USER_DATA ``typehash=RIHS01_...;``, as ROS 2 (Iron and later) announces its types."""
+    return Policy.Userdata(data=user_data(name))
+
+
 def odometry_writer_qos() -> Qos:
-    """ROS 2's default profile: reliable, keep last 10, volatile."""
+    """ROS 2's default profile: reliable, keep last 10, volatile; Odometry's type hash."""
     return Qos(
         Policy.Reliability.Reliable(duration(milliseconds=100)),
         Policy.History.KeepLast(10),
         Policy.Durability.Volatile,
         _XCDR1,
+        _type_hash(ODOMETRY),
     )
 
 
 def tf_writer_qos() -> Qos:
-    """``tf2_ros``'s broadcaster: reliable, keep last 100, volatile."""
+    """``tf2_ros``'s broadcaster: reliable, keep last 100, volatile; TFMessage's type hash."""
     return Qos(
         Policy.Reliability.Reliable(duration(milliseconds=100)),
         Policy.History.KeepLast(100),
         Policy.Durability.Volatile,
         _XCDR1,
+        _type_hash(TF_MESSAGE),
     )
 
 
 def odometry_reader_qos() -> Qos:
     """Best effort, keep last 10: matches reliable and best-effort publishers."""
-    return Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(10))
+    return Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(10), _type_hash(ODOMETRY))
 
 
 class FederationToRos:

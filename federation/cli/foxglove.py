@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from federation.cli.common import (
     Formatter,
@@ -31,14 +32,17 @@ def add(sub: Subparsers) -> None:
         description=(
             "Serve a live view of a federation to Foxglove (foxglove.websocket.v1): every\n"
             "agent's pose as transforms fedlab_common -> LAB/NAME on /tf, the platforms'\n"
-            "footprints on /scene, offset, delay and error bound per peer on /fedlab/peers\n"
-            "and /fedlab/sync/..., run mode and run time on /fedlab/run. In Foxglove: Open\n"
-            "connection, Foxglove WebSocket, ws://HOST:PORT; then import the layout\n"
-            "deploy/foxglove/fedlab.json. Subscribes like fedlab monitor."
+            "footprints and the labs' work areas on /scene, offset, delay and error bound\n"
+            "per peer on /fedlab/peers and /fedlab/sync/..., run mode and run time on\n"
+            "/fedlab/run. In Foxglove: Open connection, Foxglove WebSocket, ws://HOST:PORT;\n"
+            "then import a layout: --layout FILE writes one for the agents seen (plots per\n"
+            "peer; rewritten as agents appear), deploy/foxglove/fedlab.json has the panels\n"
+            "of any federation. Subscribes like fedlab monitor."
         ),
         epilog=(
             "Examples:\n"
             "  fedlab foxglove -e tcp/127.0.0.1:7447\n"
+            "  fedlab foxglove --layout fedlab-layout.json -e tcp/127.0.0.1:7447\n"
             "  fedlab foxglove --host 0.0.0.0 --port 8766 --federation demo -e tcp/127.0.0.1:7447"
         ),
     )
@@ -46,20 +50,35 @@ def add(sub: Subparsers) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address the WebSocket server binds")
     p.add_argument("--port", type=_port, default=8765, help="its port (0: any free one)")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds")
+    p.add_argument(
+        "--layout",
+        type=Path,
+        metavar="FILE",
+        help="write a Foxglove layout of the agents seen to FILE (rewritten as they appear)",
+    )
     add_zenoh_flags(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from federation.runtime.foxglove import serve
+    from federation.runtime.foxglove import serve, write_layout
 
+    if args.layout is not None:
+        try:  # before waiting for a router: a bad path fails at once
+            write_layout(args.layout, ())
+        except OSError as error:
+            print(f"fedlab foxglove: error: cannot write the layout: {error}", file=sys.stderr)
+            return 1
     stop = stop_on_signals()
     session = open_session(args, stop)
     if session is None:
         return 0
     with session:
         try:
-            serve(session, stop, args.federation, args.host, args.port, args.duration)
+            serve(session, stop, args.federation, args.host, args.port, args.duration, args.layout)
+        except OSError as error:
+            print(f"fedlab foxglove: error: cannot write the layout: {error}", file=sys.stderr)
+            return 1
         except RuntimeError as error:  # the SDK's server could not bind
             print(
                 f"fedlab foxglove: error: cannot serve on {args.host}:{args.port}: {error}",

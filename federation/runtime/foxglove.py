@@ -11,7 +11,9 @@ topic                                schema                     what
                                                                 ``LAB/NAME``, every pose
 ``/scene``                           foxglove.SceneUpdate       each platform's footprint
                                                                 and name (frame-locked to
-                                                                its frame), once a second
+                                                                its frame), and each work
+                                                                area's outline (common
+                                                                frame), once a second
 ``/fedlab/peers``                    JSON (``PEERS_SCHEMA``)    one row per agent and peer:
                                                                 offset, delay, error bound
 ``/fedlab/sync/LAB/NAME/PLAB/PNAME`` JSON (``SYNC_SCHEMA``)     LAB/NAME's view of one peer,
@@ -24,12 +26,16 @@ Times: each message is stamped with this host's wall clock when it arrived (a li
 view; recordings carry the agents' own clocks). The footprint is a square of side
 ``2 * moment_arm`` (the thrusters' lines of action) of the platform's preset, or
 ``DEFAULT_FOOTPRINT`` m when the status names no preset (kinematic, a ROS 2 platform).
-A status that does not validate, or names another agent than its key, is counted in
-``malformed`` and dropped, as in the monitor.
+An agent that keeps its platform inside an area (formation, docking) publishes its
+lab's frame and that area in its status (``workspace``): the area's corners,
+:math:`p_c = R(\\theta) p_t + o`, are drawn as a closed line in ``fedlab_common``
+(:func:`area_corners`), labelled ``LAB work area``. A status that does not validate, or
+names another agent than its key, is counted in ``malformed`` and dropped, as in the
+monitor.
 
 The parts that decide what is shown take data and return rows
-(:func:`peer_rows`, :func:`run_row`, :func:`footprint`); :class:`LiveView` moves them
-from Zenoh to the SDK.
+(:func:`peer_rows`, :func:`run_row`, :func:`footprint`, :func:`area_corners`,
+:func:`scene`, :func:`layout`); :class:`LiveView` moves them from Zenoh to the SDK.
 """
 
 from __future__ import annotations
@@ -37,12 +43,15 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import foxglove
+import foxglove.layouts as fl
 import zenoh
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from foxglove.messages import (
@@ -50,6 +59,9 @@ from foxglove.messages import (
     CubePrimitive,
     FrameTransform,
     FrameTransforms,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Point3,
     Pose,
     Quaternion,
     SceneEntity,
@@ -62,11 +74,12 @@ from foxglove.messages import (
 )
 from pydantic import ValidationError
 
+from agents.workspace import Frame
 from federation.core import keys, wire
 from federation.core.keys import AgentId
 from federation.runtime.session import undeclare_all
 from schemas.config import ConfigError
-from schemas.messages import Status
+from schemas.messages import Status, Workspace
 from schemas.platform import load_platform
 
 __all__ = [
@@ -76,9 +89,13 @@ __all__ = [
     "RUN_SCHEMA",
     "SYNC_SCHEMA",
     "LiveView",
+    "area_corners",
     "footprint",
+    "layout",
+    "layout_topics",
     "peer_rows",
     "run_row",
+    "scene",
     "sync_topic",
 ]
 
@@ -172,6 +189,90 @@ def footprint(platform: str) -> float:
         return DEFAULT_FOOTPRINT
 
 
+def area_corners(workspace: Workspace) -> list[tuple[float, float]]:
+    """The usable area's corners in the common frame (m), counter-clockwise from
+    (x_min, y_min) of the table frame: :math:`p_c = R(\\theta) p_t + o`."""
+    x_min, x_max, y_min, y_max = workspace.area
+    frame = Frame.from_config(workspace.frame)
+    table = [(x_min, y_min), (x_max, y_min), (x_max, y_max), (x_min, y_max)]
+    return [frame.point_to_common(x, y) for x, y in table]
+
+
+def _plot(title: str, field: str, sync_topics: Sequence[str]) -> fl.PlotPanel:
+    def label(topic: str) -> str:  # /fedlab/sync/L/N/PL/PN: L/N -> PL/PN
+        parts = topic.removeprefix("/fedlab/sync/").split("/")
+        return "/".join(parts[:2]) + " -> " + "/".join(parts[2:])
+
+    series = [fl.PlotSeries(value=f"{t}.{field}", label=label(t)) for t in sync_topics]
+    return fl.PlotPanel(title=title, config=fl.PlotConfig(paths=series, show_legend=True))
+
+
+def layout(sync_topics: Sequence[str] = ()) -> fl.Layout:
+    """The Foxglove layout of this view: 3D in ``fedlab_common`` (transforms, footprints,
+    work areas), the run and per-peer tables and, for the given plot topics
+    (:func:`sync_topic`), plots of offset, delay and error bound, one series per topic.
+    With no topics, the panels every federation has (``deploy/foxglove/fedlab.json``)."""
+    three_d = fl.ThreeDeePanel(
+        title="Platforms and work areas in the common frame",
+        config=fl.ThreeDeeConfig(
+            fixed_frame=COMMON_FRAME,
+            follow_tf=COMMON_FRAME,
+            topics={"/scene": fl.BaseRendererSceneUpdateTopicSettings(visible=True)},
+        ),
+    )
+    panels: list[fl.Content] = [
+        fl.TablePanel(title="Run", config=fl.TableConfig(topic_path="/fedlab/run.rows")),
+        fl.TablePanel(
+            title="Sync per peer", config=fl.TableConfig(topic_path="/fedlab/peers.rows")
+        ),
+    ]
+    if sync_topics:
+        panels += [
+            _plot("Offset, peer minus agent (ms)", "offset_ms", sync_topics),
+            _plot("One-way delay (ms)", "delay_ms", sync_topics),
+            _plot("Offset error bound (ms)", "error_bound_ms", sync_topics),
+        ]
+    right = fl.SplitContainer(
+        direction="column", items=[fl.SplitItem(proportion=1, content=p) for p in panels]
+    )
+    return fl.Layout(
+        content=fl.SplitContainer(
+            direction="row",
+            items=[
+                fl.SplitItem(proportion=3, content=three_d),
+                fl.SplitItem(proportion=2, content=right),
+            ],
+        )
+    )
+
+
+def layout_topics(layout_json: Any) -> set[str]:
+    """Every topic a layout (parsed JSON) reads: tables' ``topicPath``, plot series'
+    ``value`` (the topic before the first ``.``), and the 3D panel's ``topics``."""
+    found: set[str] = set()
+    stack = [layout_json]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, list):
+            stack.extend(node)
+        elif isinstance(node, dict):
+            for key, value in node.items():
+                if key in ("topicPath", "value") and isinstance(value, str):
+                    found.add(value.split(".")[0])
+                elif key == "topics" and isinstance(value, dict):
+                    found.update(value)
+                else:
+                    stack.append(value)
+    return found
+
+
+def write_layout(path: Path, sync_topics: Sequence[str]) -> None:
+    """Write :func:`layout` to ``path`` whole (a reader never sees half a file)."""
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(layout(sync_topics).to_json() + "\n", encoding="utf-8")
+    os.replace(partial, path)
+
+
 def _stamp(ns: int) -> Timestamp:
     return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
@@ -225,6 +326,56 @@ def _entity(agent: str, side: float, ns: int) -> SceneEntity:
     )
 
 
+def _area_entity(agent: str, corners: list[tuple[float, float]], ns: int) -> SceneEntity:
+    """A work area's outline in the common frame (a closed line on the floor), labelled
+    with its lab at its first corner."""
+    identity = Pose(position=Vector3(), orientation=_rotation(0.0))
+    x0, y0 = corners[0]
+    return SceneEntity(
+        timestamp=_stamp(ns),
+        frame_id=COMMON_FRAME,
+        id=f"area:{agent}",
+        lines=[
+            LinePrimitive(
+                type=LinePrimitiveLineType.LineLoop,
+                pose=identity,
+                thickness=0.02,
+                scale_invariant=False,
+                points=[Point3(x=x, y=y, z=0.0) for x, y in corners],
+                color=Color(r=0.3, g=0.85, b=0.4, a=1.0),
+            )
+        ],
+        texts=[
+            TextPrimitive(
+                pose=Pose(position=Vector3(x=x0, y=y0, z=0.05), orientation=_rotation(0.0)),
+                billboard=True,
+                font_size=12.0,
+                scale_invariant=True,
+                color=Color(r=0.3, g=0.85, b=0.4, a=1.0),
+                text=f"{agent.split('/')[0]} work area",
+            )
+        ],
+    )
+
+
+def scene(
+    present: Sequence[tuple[str, Status]], gone: Sequence[str], drawn: set[str], ns: int
+) -> tuple[SceneUpdate, set[str]]:
+    """The scene at wall-clock ``ns``: the footprint of every agent ``present`` (LAB/NAME
+    and its last status) and the work area of those that publish one; deletions of the
+    footprints of the agents ``gone`` and of the areas ``drawn`` before but no longer
+    published. Returns the update and the agents whose area is now drawn."""
+    entities = [_entity(agent, footprint(status.platform), ns) for agent, status in present]
+    areas = {a: s.workspace for a, s in present if s.workspace is not None}
+    entities += [_area_entity(a, area_corners(w), ns) for a, w in areas.items()]
+    ids = [f"platform:{a}" for a in gone] + [f"area:{a}" for a in sorted(drawn - set(areas))]
+    deletions = [
+        SceneEntityDeletion(timestamp=_stamp(ns), type=SceneEntityDeletionType.MatchingId, id=i)
+        for i in ids
+    ]
+    return SceneUpdate(deletions=deletions, entities=entities), set(areas)
+
+
 class LiveView:
     """Every agent of ``federation`` on ``session``, logged to ``context``'s channels.
     ``start()``, ``step()`` about every 0.1 s, ``close()`` before the session closes."""
@@ -246,7 +397,9 @@ class LiveView:
         self._status: dict[AgentId, Status] = {}
         self._alive: dict[AgentId, bool] = {}
         self._gone: list[str] = []  # agents whose footprint is to be deleted
+        self._areas_drawn: set[str] = set()  # agents whose work area is on the scene
         self._sync: dict[str, foxglove.Channel] = {}
+        self._sync_topics: set[str] = set()
         self._declared: list[Any] = []
         self._next_scene = 0
         self.tf = FrameTransformsChannel("/tf", context=context)
@@ -327,6 +480,8 @@ class LiveView:
                     channel = self._sync[topic] = foxglove.Channel(
                         topic, schema=SYNC_SCHEMA, context=self.context
                     )
+                    with self._lock:
+                        self._sync_topics.add(topic)
                 channel.log({k: v for k, v in row.items() if k not in ("agent", "peer")},
                             log_time=ns)  # fmt: skip
             self._log_tables(ns)
@@ -346,6 +501,11 @@ class LiveView:
         except Exception:
             log.exception("liveliness sample on %s failed", sample.key_expr)
 
+    def sync_topics(self) -> list[str]:
+        """The per-peer plot topics advertised so far, sorted."""
+        with self._lock:
+            return sorted(self._sync_topics)
+
     # -- logging -----------------------------------------------------------------------
     def _log_tables(self, ns: int) -> None:
         with self._lock:
@@ -357,25 +517,17 @@ class LiveView:
         self.run.log({"rows": runs}, log_time=ns)
 
     def step(self) -> None:
-        """Log the scene if it is due: footprints of the agents present, deletions of
-        those that left."""
+        """Log the scene if it is due: footprints and work areas of the agents present,
+        deletions of those that left (and of areas no longer published)."""
         ns = self.wall_ns()
         if ns < self._next_scene:
             return
         self._next_scene = ns + int(SCENE_PERIOD * 1e9)
         with self._lock:
-            present = [
-                (str(a), s.platform) for a, s in sorted(self._status.items()) if self._alive.get(a)
-            ]
+            present = [(str(a), s) for a, s in sorted(self._status.items()) if self._alive.get(a)]
             gone, self._gone = self._gone, []
-        entities = [_entity(agent, footprint(platform), ns) for agent, platform in present]
-        deletions = [
-            SceneEntityDeletion(
-                timestamp=_stamp(ns), type=SceneEntityDeletionType.MatchingId, id=f"platform:{a}"
-            )
-            for a in gone
-        ]
-        self.scene.log(SceneUpdate(deletions=deletions, entities=entities), log_time=ns)
+        update, self._areas_drawn = scene(present, gone, self._areas_drawn, ns)
+        self.scene.log(update, log_time=ns)
 
 
 def serve(
@@ -385,8 +537,14 @@ def serve(
     host: str = "127.0.0.1",
     port: int = 8765,
     duration: float | None = None,
+    layout_file: Path | None = None,
 ) -> None:
-    """Serve the live view on ``host:port`` until ``stop`` (or ``duration`` seconds)."""
+    """Serve the live view on ``host:port`` until ``stop`` (or ``duration`` seconds);
+    with ``layout_file``, keep a layout of the agents seen there (rewritten when a new
+    agent or peer appears). Raises OSError if ``layout_file`` cannot be written."""
+    topics: list[str] = []
+    if layout_file is not None:
+        write_layout(layout_file, topics)  # before serving: a bad path fails at once
     context = foxglove.Context()
     server = foxglove.start_server(name="fedlab", host=host, port=port, context=context)
     view = LiveView(session, context, federation)
@@ -399,6 +557,10 @@ def serve(
         deadline = math.inf if duration is None else time.monotonic() + duration
         while not stop.is_set() and time.monotonic() < deadline:
             view.step()
+            if layout_file is not None and view.sync_topics() != topics:
+                topics = view.sync_topics()
+                write_layout(layout_file, topics)
+                log.info("layout for %d peer views written to %s", len(topics), layout_file)
             stop.wait(0.1)
     finally:
         view.close()

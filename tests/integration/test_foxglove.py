@@ -5,7 +5,10 @@ through the ``labs`` fixture); the client is the ``websockets`` library speaking
 Foxglove's WebSocket protocol as Foxglove does: it reads the server's channel advertisement,
 subscribes, and decodes the binary message frames (opcode 1, subscription id, time,
 payload) with the schema the server advertised (protobuf for Foxglove's types, via
-the ``protobuf`` library; JSON for fedlab's tables).
+the ``protobuf`` library; JSON for fedlab's tables). It sees the leader's transform and
+the follower's sync row; with the docking experiment, each lab's work area on ``/scene``
+in the common frame (checked against the experiment and platform files) and a layout
+(``--layout``) that reads only topics the server advertises.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import json
 import math
 import struct
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -23,6 +27,10 @@ from loopback import FOLLOWER, LEADER, Agent, Labs, PoseTap
 from websockets.sync.client import ClientConnection, connect
 
 from federation.fleet.launch import free_port, wait_for
+from federation.runtime.foxglove import layout_topics
+from schemas.experiment import load_experiment
+from schemas.platform import load_platform
+from schemas.scenario import LabFrame
 
 # Foxglove's WebSocket protocol; SDK 0.30's server names it foxglove.sdk.v1 (the protocol
 # of foxglove.websocket.v1, renamed) and refuses a client offering only the old name.
@@ -110,7 +118,9 @@ def test_a_foxglove_client_sees_the_leaders_transform_and_the_sync(labs: Labs) -
         ["foxglove", "--port", str(port), "-e", pair.rome.endpoint], who="foxglove",
     )  # fmt: skip
     view.start()
-    leader.wait_status(timeout=10)
+    # A start-up wait, not a latency: with other suites on the 2 cores, five processes
+    # starting at once were seen to take 10 s to come up (routers included).
+    leader.wait_status(timeout=30)
     tap = PoseTap(pair.kiruna.endpoint, f"fedlab/default/{LEADER}/pose")
     try:
         # The tap's subscription reaches the router before the view's, so each pose the
@@ -180,3 +190,81 @@ def check_view(ws: ClientConnection, tap: PoseTap, follower: Agent) -> None:
     assert row["offset_ms"] == pytest.approx(line["offset"] * 1e3, abs=5.0)
     assert "/fedlab/run" in client.channels and "/scene" in client.channels
     assert client.channels["/scene"]["schemaName"] == "foxglove.SceneUpdate"
+
+
+DOCKING = Path(__file__).resolve().parents[2] / "deploy" / "experiments" / "docking.toml"
+
+
+def expected_corners(lab: str, platform: str) -> list[tuple[float, float]]:
+    """A lab's work area in the common frame, from the experiment and platform files:
+    (x, y) of the table frame rotated by the lab's rotation, then moved to its origin."""
+    frame = load_experiment(DOCKING).frames.get(lab, LabFrame())
+    x_min, x_max, y_min, y_max = load_platform(platform).usable_area
+    c, s = math.cos(math.radians(frame.rotation_deg)), math.sin(math.radians(frame.rotation_deg))
+    ox, oy = frame.origin
+    table = [(x_min, y_min), (x_max, y_min), (x_max, y_max), (x_min, y_max)]
+    return [(c * x - s * y + ox, s * x + c * y + oy) for x, y in table]
+
+
+@pytest.mark.integration
+def test_each_labs_work_area_is_drawn_and_the_layout_reads_advertised_topics(
+    labs: Labs,
+) -> None:
+    """The docking experiment (Rome's table turned 180 deg, 1.3 m away): both agents keep
+    their platforms in an area; the view draws each area in the common frame, and the
+    layout it writes reads only topics it advertises, a per-peer plot among them."""
+    pair = labs.pair()
+    experiment = ["--experiment", str(DOCKING), "--runs-dir", str(labs.tmp / "runs")]
+    leader = labs.agent(LEADER, pair.kiruna, *experiment)
+    follower = labs.agent(FOLLOWER, pair.rome, *experiment)
+    port, layout_file = free_port(), labs.tmp / "layout.json"
+    view = Agent(
+        labs.fleet, "foxglove",
+        ["foxglove", "--port", str(port), "--layout", str(layout_file), "-e", pair.rome.endpoint],
+        who="foxglove",
+    )  # fmt: skip
+    view.start()
+    for agent in (leader, follower):  # each publishes its lab's frame and area
+        agent.until(lambda line: line.get("workspace") is not None, 30, "a workspace")
+    with open_client(port, timeout=15) as ws:
+        client = FoxgloveClient(ws)
+        scene = client.wait_channel("/scene", timeout=5)
+        assert scene["schemaName"] == "foxglove.SceneUpdate"
+        decode = protobuf_class(scene)
+        client.subscribe(scene)
+        areas: dict[str, Any] = {}
+
+        def both_areas() -> bool:
+            frame = client.read(0.5)
+            if frame is not None and frame[0]["topic"] == "/scene":
+                update = decode.FromString(frame[1])
+                areas.update({e.id: e for e in update.entities if e.id.startswith("area:")})
+            return {f"area:{LEADER}", f"area:{FOLLOWER}"} <= set(areas)
+
+        assert wait_for(both_areas, timeout=10, interval=0), sorted(areas)
+        for agent, platform in ((LEADER, "knatte"), (FOLLOWER, "pinocchio")):
+            entity = areas[f"area:{agent}"]
+            assert entity.frame_id == "fedlab_common"
+            (line,) = entity.lines
+            got = [(p.x, p.y) for p in line.points]
+            expected = expected_corners(agent.split("/")[0], platform)
+            assert got == [pytest.approx(e, abs=1e-9) for e in expected], (agent, got, expected)
+        print("work areas (common frame):", {a: [(p.x, p.y) for p in e.lines[0].points]
+                                             for a, e in areas.items()})  # fmt: skip
+
+        # The layout names the follower's view of the leader once the view has seen it.
+        sync = f"/fedlab/sync/{FOLLOWER}/{LEADER}"
+        topics: set[str] = set()
+
+        def layout_has_plot() -> bool:
+            client.read(0.2)  # take in advertisements meanwhile
+            if layout_file.exists():
+                topics.clear()
+                topics.update(layout_topics(json.loads(layout_file.read_text())))
+            return sync in topics
+
+        assert wait_for(layout_has_plot, timeout=15, interval=0), sorted(topics)
+        client.wait_channel(sync, timeout=5)
+        assert topics <= set(client.channels), sorted(topics - set(client.channels))
+        assert {"/scene", "/fedlab/run", "/fedlab/peers"} <= topics
+    assert view.alive()

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import pytest
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, DcpsEndpoint
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
@@ -34,6 +35,10 @@ from federation.fleet.launch import wait_for
 ROVER = "ros2lab/rover"
 FOLLOWER = "rome/pinocchio"
 ROVER_POSE = (1.5, -0.25, 0.3)  # x, y, heading the test's ROS 2 platform reports
+# Published RIHS01 hashes (in the *__description.c that rosidl_generator_c writes into
+# public ROS 2 workspaces): what a ROS 2 endpoint of each type announces in USER_DATA.
+ODOMETRY_HASH = "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0"
+TF_MESSAGE_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
 
 
 # -- ROS 2 types from their IDL (builtin_interfaces, std_msgs, geometry_msgs, nav_msgs, tf2_msgs)
@@ -185,7 +190,9 @@ def test_every_agent_is_on_ros2_as_odometry_and_tf(labs: Labs, dds: DomainPartic
     leader = labs.leader(pair.kiruna, "--platform", "knatte")
     follower = labs.follower(pair.rome)
     bridge = start_bridge(labs, "-e", pair.rome.endpoint)
-    leader.wait_status(timeout=10)
+    # A start-up wait, not a latency: with other suites on the 2 cores, five processes
+    # starting at once were seen to take 10 s to come up (routers included).
+    leader.wait_status(timeout=30)
     tap = PoseTap(pair.kiruna.endpoint, f"fedlab/default/{LEADER}/pose")
     try:
         follower.wait_samples(LEADER, 5, timeout=15)
@@ -253,9 +260,31 @@ def test_every_agent_is_on_ros2_as_odometry_and_tf(labs: Labs, dds: DomainPartic
         assert tf.header.frame_id == "fedlab_common"
         assert matching(tap.received(), _as_odometry(tf)) is not None
         print(f"first odometry {first_after * 1e3:.0f} ms after the reader was created")
+
+        # The type hashes ROS 2 (Iron and later) announces, in the writers' USER_DATA.
+        announced = publications(dds, {"rt/fedlab/kiruna/knatte/odom", "rt/tf"})
+        assert announced == {
+            "rt/fedlab/kiruna/knatte/odom": f"typehash={ODOMETRY_HASH};".encode(),
+            "rt/tf": f"typehash={TF_MESSAGE_HASH};".encode(),
+        }
     finally:
         tap.close()
     assert bridge.alive()
+
+
+def publications(dds: DomainParticipant, topics: set[str]) -> dict[str, bytes]:
+    """The USER_DATA of the remote writers on ``topics``, from DDS discovery (bounded)."""
+    reader = BuiltinDataReader(dds, BuiltinTopicDcpsPublication)
+    found: dict[str, bytes] = {}
+
+    def seen() -> bool:
+        for endpoint in reader.take(N=100):
+            if isinstance(endpoint, DcpsEndpoint) and endpoint.topic_name in topics:
+                found[endpoint.topic_name] = endpoint.qos[Policy.Userdata].data
+        return set(found) == topics
+
+    assert wait_for(seen, timeout=3, interval=0.05), found
+    return found
 
 
 def _as_odometry(tf: TransformStamped) -> Odometry:

@@ -18,6 +18,7 @@ from federation.core.keys import AgentId
 from federation.core.wire import Pose
 from schemas.base import ConfigError, validate
 from schemas.experiment import ExperimentConfig, load_experiment
+from schemas.messages import Workspace
 from schemas.platform import load_platform
 
 EXPERIMENTS = Path("deploy/experiments")
@@ -88,6 +89,9 @@ def test_formation_part_wraps_the_platform_in_its_lab_frame() -> None:
     pose = g.platform.step(0.0, ref.heading, ref.rate, ref.track)
     assert (pose.x, pose.y) == pytest.approx((-3.5, -2.0), abs=0.01)  # its table's centre
     assert g.fields()["x_ref"] == pytest.approx(-3.5)
+    # What its status publishes for a view to draw: its lab's frame and its usable area.
+    assert g.workspace() == Workspace(frame=part.frame, area=platform.config.usable_area)
+    assert part.frame.origin == (-3.5, -2.0)
 
 
 def test_docking_chaser_sees_the_target_only_through_its_sensor() -> None:
@@ -104,6 +108,7 @@ def test_docking_chaser_sees_the_target_only_through_its_sensor() -> None:
     g.reference(1.2, 0.2, {"kiruna/knatte": (1.2, Pose())}, own)
     assert g.counters["relative_given"] == 1
     assert g.fields()["phase"] == "approach"
+    assert g.workspace() is None  # a kinematic platform has no area: none is kept or shown
 
 
 def test_adaptive_gains_need_a_gnc_chain() -> None:
