@@ -65,8 +65,37 @@ def test_commands_exist() -> None:
 
 
 def test_every_command_module_adds_and_runs() -> None:
-    for module in cli.COMMANDS:
+    for name in cli.COMMANDS:
+        module = cli.command_module(name)
         assert callable(module.add) and callable(module.run), module.__name__
+    assert sorted(cli.COMMANDS) == COMMANDS
+
+
+@pytest.mark.parametrize(
+    ("argv", "command"),
+    [
+        (["router", "--lab", "x"], "router"),
+        (["--log-level", "debug", "ctl", "status"], "ctl"),
+        (["--log-level=debug", "emulate-device"], "emulate-device"),
+        (["--version"], None),
+        (["nosuch", "router"], None),
+        (["--log-level", "router"], None),  # "router" is the level here (refused later)
+    ],
+)
+def test_the_command_is_found_before_parsing(argv: list[str], command: str | None) -> None:
+    assert cli.chosen_command(argv) == command
+
+
+def test_a_router_command_line_does_not_import_the_gnc_or_the_report() -> None:
+    code = (
+        "import sys, federation.cli as c; c.build_parser(('router',)); "
+        "print(sorted(m for m in ('filterpy', 'agents.gnc', 'federation.report', "
+        "'matplotlib', 'cryptography') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    assert out.stdout.strip() == "[]", out.stdout
 
 
 @pytest.mark.parametrize(
@@ -225,7 +254,7 @@ def test_connect_error_exits_1_with_a_clear_message(
     def unreachable(args: argparse.Namespace, stop: threading.Event) -> Any:
         raise ConnectError("cannot open a Zenoh session: router unreachable")
 
-    monkeypatch.setattr(cli.ctl, "open_session", unreachable)
+    monkeypatch.setattr(cli.command_module("ctl"), "open_session", unreachable)
     assert main(["ctl", "abort", "-e", "tcp/127.0.0.1:9"]) == 1
     assert "fedlab ctl: error: cannot open a Zenoh session" in capsys.readouterr().err
 
@@ -240,7 +269,7 @@ def test_main_puts_signal_handlers_back(monkeypatch: pytest.MonkeyPatch) -> None
     def stops(args: argparse.Namespace, stop: threading.Event) -> None:
         return None  # as if a signal stopped it before the router answered
 
-    monkeypatch.setattr(cli.monitor, "open_session", stops)
+    monkeypatch.setattr(cli.command_module("monitor"), "open_session", stops)
     assert main(["monitor", "--once", "-e", "tcp/127.0.0.1:9"]) == 0
     assert signal.getsignal(signal.SIGTERM) is before
 
