@@ -33,10 +33,11 @@ class KinematicPlatform:
     ) -> Pose:
         """The pose is the reference: heading and rate, and the track's position and
         velocity if one is given (else the position stays)."""
+        p = self.pose  # built directly: NamedTuple._replace costs several times more
         if self.held:
-            self.pose = self.pose._replace(vx=0.0, vy=0.0, omega=0.0)
+            self.pose = Pose(p.x, p.y, p.heading, 0.0, 0.0, 0.0)
         elif track is None:
-            self.pose = self.pose._replace(heading=heading_ref, omega=rate_ref)
+            self.pose = Pose(p.x, p.y, heading_ref, p.vx, p.vy, rate_ref)
         else:
             self.pose = Pose(track.x, track.y, heading_ref, track.vx, track.vy, rate_ref)
         return self.pose

@@ -43,7 +43,6 @@ estimate may carry it unseen (up to half the minimum round trip).
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,7 +106,7 @@ class ClockFilter:
         self.reset()
 
     def reset(self) -> None:
-        self._window: deque[tuple[float, float, float]] = deque()  # (t_mid, offset, rtt)
+        self._window = _Rows()  # (t_mid, offset, rtt) of the exchanges in the horizon
         self._first: float | None = None
         self._fit: Fit | None = None
         self._fitted_at = -math.inf  # t_mid of the newest exchange in the last fit
@@ -116,9 +115,8 @@ class ClockFilter:
         t = exchange.t_mid
         if self._first is None:
             self._first = t
-        self._window.append((t, exchange.offset, exchange.rtt))
-        while self._window and t - self._window[0][0] > self.horizon:
-            self._window.popleft()
+        self._window.append(t, exchange.offset, exchange.rtt)
+        self._window.drop_older(t, self.horizon)
         # Refit on the data's own clock, not on demand: once a second of client time
         # (always while the window is young). Live agents and offline replays thus
         # compute identical fits, and a leader with 60 peers is not refitting 600
@@ -135,7 +133,7 @@ class ClockFilter:
     def _compute(self) -> Fit | None:
         if not self._window:
             return None
-        data = np.asarray(self._window)
+        data = self._window.rows()
         t_ref = float(data[-1, 0])
         x, offset, rtt = data[:, 0] - t_ref, data[:, 1], data[:, 2]
         excess = rtt - rtt.min()
@@ -187,5 +185,48 @@ class ClockFilter:
         return (
             self._first is not None
             and bool(self._window)
-            and self._window[-1][0] - self._first >= self.lock_after
+            and self._window.last_t() - self._first >= self.lock_after
         )
+
+
+class _Rows:
+    """The window's exchanges as rows of one float array, oldest first: 24 bytes an
+    exchange (a tuple of three floats cost about 150) and no conversion at each fit
+    (issue 17). Rows are appended at the end and dropped from the front; the live
+    rows move back to the start when the array's end is reached, and the array
+    doubles when they fill more than half of it."""
+
+    def __init__(self, capacity: int = 64):
+        self._data = np.empty((capacity, 3))
+        self._start = 0
+        self._end = 0
+
+    def __len__(self) -> int:
+        return self._end - self._start
+
+    def append(self, t: float, offset: float, rtt: float) -> None:
+        if self._end == len(self._data):
+            live = self._data[self._start : self._end]
+            if 2 * len(live) > len(self._data):
+                grown = np.empty((2 * len(self._data), 3))
+                grown[: len(live)] = live
+                self._data = grown
+            else:
+                self._data[: len(live)] = live.copy()
+            self._start, self._end = 0, len(live)
+        self._data[self._end] = (t, offset, rtt)
+        self._end += 1
+
+    def drop_older(self, t: float, horizon: float) -> None:
+        """Forget the rows more than ``horizon`` seconds before client time ``t``."""
+        data, start, end = self._data, self._start, self._end
+        while start < end and t - data[start, 0] > horizon:
+            start += 1
+        self._start = start
+
+    def rows(self) -> np.ndarray:
+        """The live rows, (t_mid, offset, rtt), a view: valid until the next append."""
+        return self._data[self._start : self._end]
+
+    def last_t(self) -> float:
+        return float(self._data[self._end - 1, 0])

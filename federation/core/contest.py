@@ -69,8 +69,15 @@ class ContestWatch:
 
     def observe(self, peer: str, channel: Channel, source: str | None, now: float) -> Outcome:
         """``source`` spoke for ``peer`` on ``channel`` at ``now``: may its sample be used?"""
-        state = self._peers.setdefault(peer, _Peer())
-        seen = state.seen.setdefault(channel, {})
+        state = self._peers.get(peer)
+        if state is None:
+            state = self._peers[peer] = _Peer()
+        seen = state.seen.get(channel)
+        if seen is None:
+            seen = state.seen[channel] = {}
+        elif state.reason is None and len(seen) == 1 and source in seen:
+            seen[source] = now  # the usual case: the one source heard again, no contest
+            return "ok"
         seen[source] = now
         for other in [s for s, t in seen.items() if now - t > self.window]:
             del seen[other]  # heard too long ago to contest this one

@@ -58,6 +58,7 @@ final), so the caller stops consulting it then.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Hashable
@@ -133,6 +134,15 @@ class LinkWatch:
         self._last: tuple[float, float] | None = None  # (arrived, sent) of the last pose
         self._gaps: deque[tuple[float, float]] = deque(maxlen=WINDOW)  # (send, arrival) gaps
         self._fresh = 0
+        # The window's statistics, kept as gaps come and go (issue 17: a lean agent):
+        # the send gaps sorted (their median is the period) and the sums of the
+        # jitter less a shift near its mean (no cancellation), summed afresh every
+        # WINDOW gaps so that rounding does not accumulate.
+        self._sends: list[float] = []
+        self._shift = 0.0
+        self._sum = 0.0  # sum of (jitter - shift)
+        self._sumsq = 0.0  # sum of (jitter - shift)^2
+        self._since_exact = 0
 
     # -- measuring the link ----------------------------------------------------------
     def observe(self, arrived_at: float, sent_at: float) -> None:
@@ -144,23 +154,53 @@ class LinkWatch:
         self._last = (arrived_at, sent_at)
         if last is None:
             return
-        self._gaps.append((sent_at - last[1], arrived_at - last[0]))
+        self._add((sent_at - last[1], arrived_at - last[0]))
         self._fresh += 1
         if self._fresh >= 20 and len(self._gaps) >= MIN_SAMPLES:
             self._fresh = 0
             self._measure()
 
+    def _add(self, gap: tuple[float, float]) -> None:
+        """Append a (send, arrival) gap to the window, the oldest leaving a full one."""
+        gaps, sends = self._gaps, self._sends
+        if len(gaps) == WINDOW:
+            send, arrival = gaps[0]
+            del sends[bisect.bisect_left(sends, send)]
+            d = arrival - send - self._shift
+            self._sum -= d
+            self._sumsq -= d * d
+        gaps.append(gap)
+        bisect.insort(sends, gap[0])
+        self._since_exact += 1
+        if self._since_exact >= WINDOW:
+            self._exact_sums()
+        else:
+            d = gap[1] - gap[0] - self._shift
+            self._sum += d
+            self._sumsq += d * d
+
+    def _exact_sums(self) -> None:
+        """The jitter sums recomputed from the window, shifted by its mean."""
+        jitter = [a - s for s, a in self._gaps]
+        self._shift = math.fsum(jitter) / len(jitter) if jitter else 0.0
+        self._sum = math.fsum(j - self._shift for j in jitter)
+        self._sumsq = math.fsum((j - self._shift) ** 2 for j in jitter)
+        self._since_exact = 0
+
     def _measure(self) -> None:
-        sends = sorted(g[0] for g in self._gaps)
-        period = sends[len(sends) // 2]  # the median: most gaps are one period
+        """Period, loss and delay variation of the window (see the module), from the
+        statistics kept by :meth:`_add`: no pass over the whole window."""
+        sends, n = self._sends, len(self._sends)
+        period = sends[n // 2]  # the median: most gaps are one period
         if not period > 0:
             return
-        slots = [max(1, round(s / period)) for s, _ in self._gaps]
-        expected = sum(slots)
-        self.loss = (expected - len(slots)) / expected
-        jitter = [a - s for s, a in self._gaps]
-        mean = sum(jitter) / len(jitter)
-        self.sigma = math.sqrt(sum((j - mean) ** 2 for j in jitter) / len(jitter))
+        # A gap's slots are max(1, round(gap / period)): one for every gap below 1.4
+        # periods, so only the longer ones (the losses) are looked at.
+        tail = bisect.bisect_left(sends, 1.4 * period)
+        expected = tail + sum(max(1, round(s / period)) for s in sends[tail:])
+        self.loss = (expected - n) / expected
+        mean = self._sum / n
+        self.sigma = math.sqrt(max(0.0, self._sumsq / n - mean * mean))
         self.period = period
         self.threshold = stale_threshold(
             period, self.loss, self.sigma, self.stale_after, self.ceiling

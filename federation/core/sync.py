@@ -251,6 +251,7 @@ class SyncClient:
         self._suspects: list[Exchange] = []
         self._recent: deque[tuple[float, float]] = deque(maxlen=8)  # (offset, error bound)
         self._delays: deque[float] = deque(maxlen=delay_window)
+        self._delay: float | None = None  # their median, None: to be computed
         self._pending: OrderedDict[float, None] = OrderedDict()
         self._answered: OrderedDict[float, None] = OrderedDict()
         self._expired: OrderedDict[float, None] = OrderedDict()
@@ -315,6 +316,7 @@ class SyncClient:
         self.accepted += 1
         self.last = exchange
         self._delays.append(exchange.delay)
+        self._delay = None
         self.estimator.add(exchange)
         return reply
 
@@ -348,12 +350,14 @@ class SyncClient:
         suspects, self._suspects = self._suspects, []
         self.estimator.reset()
         self._delays.clear()
+        self._delay = None
         self._recent.clear()
         for ex in suspects:
             self._recent.append((ex.offset, ex.error_bound))
         for ex in suspects[:-1]:  # the caller feeds the last one
             self.accepted += 1
             self._delays.append(ex.delay)
+            self._delay = None
             self.estimator.add(ex)
 
     def _reject(self, reason: str) -> None:
@@ -369,8 +373,11 @@ class SyncClient:
 
     @property
     def delay(self) -> float | None:
-        """Median one-way delay of the recent exchanges (seconds)."""
-        return statistics.median(self._delays) if self._delays else None
+        """Median one-way delay of the recent exchanges (seconds); computed once per
+        accepted exchange, not at every read (a follower reads it for every pose)."""
+        if self._delay is None and self._delays:
+            self._delay = statistics.median(self._delays)
+        return self._delay
 
     @property
     def pending(self) -> int:
@@ -380,6 +387,7 @@ class SyncClient:
         """Forget all estimates (after a clock step); counters are kept."""
         self.estimator.reset()
         self._delays.clear()
+        self._delay = None
         self._pending.clear()
         self._recent.clear()
         self._suspects.clear()

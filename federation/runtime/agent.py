@@ -54,7 +54,7 @@ from federation.core.sync import SyncClient, read_send_time, serve
 from federation.core.timebase import TimeBase
 from federation.runtime.clock import ExecClock
 from federation.runtime.collect import RecordingServer
-from federation.runtime.fanout import Fanout
+from federation.runtime.fanout import Fanout, Received
 from federation.runtime.loop import Schedule, run_together
 from federation.runtime.recorder import Recorder
 from federation.runtime.runs import RunRecording
@@ -133,6 +133,7 @@ class AgentRuntime:
         )
         self.maneuver = maneuver or _maneuver(config.maneuver)
         self.follow = AgentId.parse(config.follow) if config.follow else None
+        self._follow_name = None if self.follow is None else str(self.follow)
         # Issue 14's hook: a formation, docking or adaptive-gain part (agents.scenario)
         # gives the 3-DOF reference; its platform takes and gives the common frame.
         self.scenario: ScenarioGuidance | None = None
@@ -190,7 +191,7 @@ class AgentRuntime:
         self._contest_cleared: float | None = None  # own time a followed contest cleared
         self._pose_sn = 0  # sequence number in the pose samples' source info
         self.silence = SilenceWatch()  # peers alive that answer no sync request
-        self._silent_warned: set[AgentId] = set()
+        self._silent_warned: set[str] = set()  # peers' names
         self._clock_stepped = False
         self._left_area = False  # the scenario's platform left its area (held for good)
         self.counters: Counter[str] = Counter()
@@ -208,6 +209,7 @@ class AgentRuntime:
         self._declared: list[Any] = []
         self._status_file: IO[str] | None = None
         self._pose_pub: Any = None
+        self._pose_pub_id: Any = None
         self._status_pub: Any = None
 
     def count(self, name: str) -> None:
@@ -251,6 +253,7 @@ class AgentRuntime:
         )
         self._status_pub = s.declare_publisher(self.key(self.me, "status"))
         self._declared += [self._pose_pub, self._status_pub]
+        self._pose_pub_id = self._pose_pub.id  # read once: each read builds a new object
         watched = keys.all_of(fed, "pose") if self.config.watch_all else None
         if watched is None and self.follow is not None:
             watched = self.key(self.follow, "pose")
@@ -258,7 +261,7 @@ class AgentRuntime:
             self._declared.append(
                 self.fanout.subscribe(watched, self._on_pose)
                 if self.fanout is not None
-                else s.declare_subscriber(watched, callback(self._on_pose, indirect=False))
+                else s.declare_subscriber(watched, callback(self._on_pose_sample, indirect=False))
             )
         self._declared.append(
             s.declare_subscriber(keys.control_key(fed), callback(self._on_control, indirect=False))
@@ -632,6 +635,7 @@ class AgentRuntime:
             peers=peers,
             counters=self.counter_snapshot(),
             contested=self.contested(),
+            workspace=None if self.scenario is None else self.scenario.workspace(),
             loop=self.loop_stats(),
         )
 
@@ -689,13 +693,12 @@ class AgentRuntime:
         """Log once when a peer alive answers nothing (a link that carries liveliness but
         not queries), and once when it answers again."""
         for name, view in status.peers.items():
-            agent = AgentId.parse(name)
-            if view.silent is not None and agent not in self._silent_warned:
-                self._silent_warned.add(agent)
+            if view.silent is not None and name not in self._silent_warned:
+                self._silent_warned.add(name)
                 self.count("silent_peer_alarms")
                 log.warning("%s is alive but answered nothing for %.1f s", name, view.silent)
-            elif view.silent is None and agent in self._silent_warned:
-                self._silent_warned.discard(agent)
+            elif view.silent is None and name in self._silent_warned:
+                self._silent_warned.discard(name)
                 log.info("%s answers again", name)
 
     def publish_status(self) -> None:
@@ -790,23 +793,32 @@ class AgentRuntime:
         except Exception:
             log.exception("sync reply from %s failed", peer.key)
 
-    def _on_pose(self, sample: zenoh.Sample) -> None:
+    def _on_pose_sample(self, sample: zenoh.Sample) -> None:
+        """A pose sample from this agent's own subscriber (no :class:`Fanout`)."""
+        try:
+            received = Received(sample)
+        except Exception:
+            log.exception("pose sample on %s unreadable", sample.key_expr)
+            return
+        self._on_pose(received)
+
+    def _on_pose(self, sample: Received) -> None:
         t_recv, host = self.clock.read()
         try:
-            parsed = self._pose_key(str(sample.key_expr))
+            parsed = self._pose_key(sample.key)
             if not self._admit_pose(sample, parsed, host):
                 return
             try:
-                decoded = wire.decode_pose(sample.payload.to_bytes())
+                decoded = sample.pose()
             except wire.DecodeError as error:
                 self.count("pose_malformed")
-                self.rejects("pose sample", f"{sample.key_expr}: {error}")
+                self.rejects("pose sample", f"{sample.key}: {error}")
                 return
             try:
                 stamp = self._read_stamp(sample)
             except wire.DecodeError as error:
                 self.count("pose_stamp_malformed")
-                self.rejects("pose stamp", f"{sample.key_expr}: {error}")
+                self.rejects("pose stamp", f"{sample.key}: {error}")
                 return
             self.count("pose_received")
             if (
@@ -825,7 +837,7 @@ class AgentRuntime:
             self.record(
                 Channel.POSE_RECEIVED,
                 {
-                    "agent": str(parsed[0]) if parsed else str(sample.key_expr),
+                    "agent": str(parsed[0]) if parsed else sample.key,
                     "t": decoded.t,
                     "t_recv": t_recv,
                     "host_monotonic": host,
@@ -833,7 +845,7 @@ class AgentRuntime:
                 },
             )
         except Exception:
-            log.exception("pose sample on %s failed", sample.key_expr)
+            log.exception("pose sample on %s failed", sample.key)
 
     def _stale_on_arrival(self, sent: float, t_recv: float) -> bool:
         """Whether a followed pose (stamped ``sent`` on its sender's clock, arrived at own
@@ -965,13 +977,12 @@ class AgentRuntime:
             return wire.encode_stamp(self.ref_id, None, None)
         return wire.encode_stamp(self.ref_id, t_exec + offset, bound)
 
-    def _read_stamp(self, sample: zenoh.Sample) -> wire.RefStamp | None:
+    def _read_stamp(self, sample: Received) -> wire.RefStamp | None:
         """A pose sample's reference stamp; None without one or on another reference
         (wire.DecodeError if malformed)."""
-        attachment = sample.attachment
-        if attachment is None:
+        stamp = sample.stamp()
+        if stamp is None:
             return None
-        stamp = wire.decode_stamp(attachment.to_bytes())
         if stamp.ref_id != self.ref_id:
             self.count("pose_other_reference")
             return None
@@ -995,7 +1006,7 @@ class AgentRuntime:
     def _source_info(self) -> zenoh.SourceInfo:
         """This session's id on each pose sample: a follower tells two sources apart."""
         self._pose_sn += 1
-        return zenoh.SourceInfo(self._pose_pub.id, self._pose_sn)
+        return zenoh.SourceInfo(self._pose_pub_id, self._pose_sn)
 
     def _oversized(self, payload: zenoh.ZBytes | None, counter: str) -> bool:
         """Drop (and count) a payload far larger than any pose or sync message, before
@@ -1006,17 +1017,16 @@ class AgentRuntime:
         return True
 
     def _admit_pose(
-        self, sample: zenoh.Sample, parsed: tuple[AgentId, str | None] | None, host: float
+        self, sample: Received, parsed: tuple[AgentId, str | None] | None, host: float
     ) -> bool:
         """Whether a pose sample may be used: not oversized, and its peer not contested
         (its source: the publisher's session id in the source info, None without one)."""
-        if self._oversized(sample.payload, "pose_oversized"):
+        if sample.size > MAX_SMALL_PAYLOAD:
+            self.count("pose_oversized")
             return False
         if parsed is None:
             return True
-        info = sample.source_info
-        source = None if info is None else str(info.source_id.zid)
-        return self._contest_verdict(parsed[0], "pose", source, host)
+        return self._contest_verdict(parsed[0], "pose", sample.source(), host)
 
     def _admit_reply(self, peer: Peer, reply: zenoh.Reply, host: float) -> bool:
         """Whether a sync reply may be used: not oversized, and the peer not contested
@@ -1031,9 +1041,10 @@ class AgentRuntime:
     def _contest_verdict(
         self, agent: AgentId, channel: ContestChannel, source: str | None, host: float
     ) -> bool:
+        name = str(agent)
         with self._contest_lock:
-            outcome = self.contest.observe(str(agent), channel, source, host)
-            reason = self.contest.reason(str(agent), host) if outcome == "contested" else None
+            outcome = self.contest.observe(name, channel, source, host)
+            reason = self.contest.reason(name, host) if outcome == "contested" else None
         if outcome == "ok":
             return True
         self.count("contested_dropped")
@@ -1052,7 +1063,7 @@ class AgentRuntime:
         resume only when a pose and a sync exchange have arrived since (True: held)."""
         assert self.follow is not None
         with self._contest_lock:
-            reason = self.contest.reason(str(self.follow), host)
+            reason = self.contest.reason(self._follow_name or "", host)
         if reason is not None:
             self._contest_cleared = None
             if self.hold_reason != "contested":

@@ -10,8 +10,10 @@ and sends what it sends:
 - pose at 20 Hz: 56 bytes, the 24-byte reference stamp as attachment, source info,
   express and best effort;
 - status once a second: ``STATUS_BYTES`` bytes of JSON;
-- a follower: one shared subscriber on the leader's pose, a sync query to the
-  leader every 0.1 s; the leader: a sync query to every other agent once a second.
+- a follower: one shared subscriber on the leader's pose (each sample decoded once
+  for the session, as fedlab's Fanout does, and handed to every follower, which
+  reads its own arrival time), a sync query to the leader every 0.1 s; the leader:
+  a sync query to every other agent once a second.
 
 Clocks are the host's monotonic clock, so a follower's latency is its arrival time
 minus the stamp. At the end each process writes ``OUT/bare-<lab>.json``: the leader's
@@ -87,13 +89,9 @@ class BareAgent:
             REPLY.unpack(reply.ok.payload.to_bytes())
             self.replies += 1
 
-    def on_pose(self, sample: zenoh.Sample) -> None:
-        arrived = time.monotonic()
-        t = POSE.unpack(sample.payload.to_bytes())[0]
-        attachment = sample.attachment
-        if attachment is not None:
-            STAMP.unpack(attachment.to_bytes())
-        self.received.append((t, arrived))
+    def on_pose(self, t: float) -> None:
+        """A pose stamped ``t`` (decoded once for the session, as fedlab's Fanout does)."""
+        self.received.append((t, time.monotonic()))
 
     def publish_pose(self) -> None:
         now = time.monotonic()
@@ -146,8 +144,12 @@ def main() -> None:
         if followers:  # one shared subscriber per session, as fedlab's Fanout
 
             def deliver(sample: zenoh.Sample) -> None:
+                t = POSE.unpack(sample.payload.to_bytes())[0]
+                attachment = sample.attachment
+                if attachment is not None:
+                    STAMP.unpack(attachment.to_bytes())
                 for agent in followers:
-                    agent.on_pose(sample)
+                    agent.on_pose(t)
 
             subscriber = session.declare_subscriber(
                 f"{FEDERATION}/{leader}/pose", zenoh.handlers.Callback(deliver, indirect=False)

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import random
+from collections import deque
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from federation.core.clockfilter import ClockFilter
+from federation.core.clockfilter import ClockFilter, Fit
 from federation.core.estimators import ESTIMATORS, make_estimator
 from federation.core.sync import Exchange, PaperEstimator
 
@@ -135,3 +139,51 @@ def test_bad_parameters(bad: dict[str, float]) -> None:
 def test_unknown_estimator() -> None:
     with pytest.raises(ValueError, match="clockfilter"):
         make_estimator("kalman")
+
+
+class _DequeFilter(ClockFilter):
+    """The window as it was before issue 17: a deque of tuples, converted at each fit."""
+
+    def reset(self) -> None:
+        super().reset()
+        self._tuples: deque[tuple[float, float, float]] = deque()
+
+    def add(self, exchange: Exchange) -> None:
+        self._tuples.append((exchange.t_mid, exchange.offset, exchange.rtt))
+        while self._tuples and exchange.t_mid - self._tuples[0][0] > self.horizon:
+            self._tuples.popleft()
+        super().add(exchange)
+
+    def _compute(self) -> Fit | None:
+        rows = self._window.rows()
+        assert np.array_equal(rows, np.asarray(self._tuples).reshape(-1, 3))  # the same window
+        return super()._compute()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(0.01, 3.0),  # seconds since the previous exchange
+            st.floats(0.0, 0.05),  # round trip
+            st.floats(-0.01, 0.01),  # offset noise
+        ),
+        min_size=1,
+        max_size=400,
+    ),
+    st.sampled_from([5.0, 30.0, 120.0]),
+)
+def test_the_array_window_holds_what_the_deque_held(
+    steps: list[tuple[float, float, float]], horizon: float
+) -> None:
+    """Rows appended, dropped, moved back and grown: always the horizon's exchanges in
+    order, and the fits those of the straightforward window."""
+    ours, theirs = ClockFilter(horizon=horizon), _DequeFilter(horizon=horizon)
+    t = 1000.0
+    for dt, rtt, noise in steps:
+        t += dt
+        ex = Exchange(t, t + rtt / 2 + 3.0 + noise, t + rtt)
+        ours.add(ex)
+        theirs.add(ex)
+        assert ours.fit == theirs.fit
+        assert ours.locked == theirs.locked

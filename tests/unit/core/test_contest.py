@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from federation.core.contest import ContestWatch
+from federation.core.contest import Channel, ContestWatch, Outcome
 
 LEADER, EVIL = "a1" * 16, "e7" * 16  # session ids as Zenoh prints them
 
@@ -87,3 +89,62 @@ def test_forget_starts_a_rejoined_peer_clean() -> None:
 def test_bad_parameters_are_refused(window: float, quiet: float) -> None:
     with pytest.raises(ValueError, match="positive"):
         ContestWatch(window, quiet)
+
+
+class _Reference:
+    """The contest rule written out with no shortcut: every observation prunes the
+    sources heard too long ago, and two left contest the peer."""
+
+    def __init__(self, window: float, quiet: float):
+        self.window, self.quiet = window, quiet
+        self.seen: dict[tuple[str, str], dict[str | None, float]] = {}
+        self.reason: dict[str, str | None] = {}
+        self.conflict_at: dict[str, float] = {}
+
+    def observe(self, peer: str, channel: str, source: str | None, now: float) -> Outcome:
+        seen = self.seen.setdefault((peer, channel), {})
+        seen[source] = now
+        for other in [s for s, t in seen.items() if now - t > self.window]:
+            del seen[other]
+        if len(seen) > 1:
+            self.conflict_at[peer] = now
+            if self.reason.get(peer) is None:
+                self.reason[peer] = "contested"
+                return "contested"
+            return "held"
+        if self.contested(peer, now):
+            return "held"
+        return "ok"
+
+    def contested(self, peer: str, now: float) -> bool:
+        if self.reason.get(peer) is None:
+            return False
+        if now - self.conflict_at[peer] >= self.quiet:
+            self.reason[peer] = None
+            return False
+        return True
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["a/x", "b/y"]),
+            st.sampled_from(["pose", "sync"]),
+            st.sampled_from([LEADER, EVIL, None]),
+            st.floats(0.0, 4.0),  # time since the previous observation (s)
+        ),
+        max_size=80,
+    )
+)
+def test_observe_agrees_with_the_rule_written_out(
+    events: list[tuple[str, Channel, str | None, float]],
+) -> None:
+    """The one-source shortcut (issue 17) changes no outcome."""
+    watch, reference = ContestWatch(window=2.0, quiet=5.0), _Reference(2.0, 5.0)
+    now = 0.0
+    for peer, channel, source, dt in events:
+        now += dt
+        assert watch.observe(peer, channel, source, now) == reference.observe(
+            peer, channel, source, now
+        )
+        assert (watch.reason(peer, now) is not None) == reference.contested(peer, now)

@@ -805,3 +805,32 @@ def test_serve_refuses_a_malformed_request(request_: bytes) -> None:
 def test_read_send_time_refuses_what_is_not_a_time() -> None:
     with pytest.raises(wire.DecodeError):
         read_send_time(bytes(3))
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(0.0, 0.2),  # round trip (s)
+            st.sampled_from(["reply", "reset", "step"]),
+        ),
+        min_size=1,
+        max_size=120,
+    )
+)
+def test_delay_is_the_median_of_the_recent_exchanges_after_every_change(
+    events: list[tuple[float, str]],
+) -> None:
+    """The median is kept between reads, not recomputed at each (issue 17): it must
+    follow every exchange accepted, a reset and a clock step's restart."""
+    client = make_client(timeout=1.0, delay_window=7)
+    now, offset = 100.0, 5.0
+    for rtt, what in events:
+        if what == "reset":
+            client.reset()
+        elif what == "step":
+            offset += 3.0  # the server's clock jumps: a step after STEP_CONFIRM replies
+        request = client.request(now)
+        client.receive(reply_to(request, now + rtt / 2 + offset), now=now + rtt)
+        expected = statistics.median(client._delays) if client._delays else None
+        assert client.delay == expected
+        now += 0.5

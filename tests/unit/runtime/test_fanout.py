@@ -5,13 +5,14 @@ from __future__ import annotations
 import gc
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 import zenoh
 
+from federation.core import wire
 from federation.fleet.launch import wait_for
-from federation.runtime.fanout import Fanout
+from federation.runtime.fanout import Fanout, Received
 from federation.runtime.heap import freeze_startup_heap
 
 
@@ -30,21 +31,21 @@ def test_every_handler_gets_every_sample_even_if_one_raises(session: zenoh.Sessi
     got: dict[str, list[bytes]] = {"a": [], "b": []}
     done = threading.Event()
 
-    def broken(sample: zenoh.Sample) -> None:
+    def broken(sample: Received) -> None:
         raise RuntimeError("a handler that raises")
 
-    def handler(name: str) -> object:
-        def on(sample: zenoh.Sample) -> None:
-            got[name].append(sample.payload.to_bytes())
+    def handler(name: str) -> Callable[[Received], None]:
+        def on(sample: Received) -> None:
+            got[name].append(sample.payload())
             if len(got["b"]) == 3:
                 done.set()
 
         return on
 
     subs = [
-        fanout.subscribe("fed/x/pose", handler("a")),  # type: ignore[arg-type]
+        fanout.subscribe("fed/x/pose", handler("a")),
         fanout.subscribe("fed/x/pose", broken),
-        fanout.subscribe("fed/x/pose", handler("b")),  # type: ignore[arg-type]
+        fanout.subscribe("fed/x/pose", handler("b")),
     ]
     for i in range(3):
         session.put("fed/x/pose", bytes([i]))
@@ -59,6 +60,44 @@ def test_every_handler_gets_every_sample_even_if_one_raises(session: zenoh.Sessi
     assert got["a"][-1] == b"\x02"  # undeclared: no more samples
     subs[2].undeclare()
     assert fanout._subscribers == {} and fanout._handlers == {}
+
+
+def test_a_sample_is_decoded_once_for_every_agent(session: zenoh.Session) -> None:
+    """Every handler gets the same Received: its pose and stamp decoded once, a
+    malformed part raising the same error for each."""
+    fanout = Fanout(session)
+    seen: list[tuple[Received, object, object]] = []
+    done = threading.Event()
+
+    def on(sample: Received) -> None:
+        try:
+            pose: object = sample.pose()
+        except wire.DecodeError as error:
+            pose = error
+        try:
+            stamp: object = sample.stamp()
+        except wire.DecodeError as error:
+            stamp = error
+        seen.append((sample, pose, stamp))
+        if len(seen) == 4:
+            done.set()
+
+    subs = [fanout.subscribe("fed/x/pose", on), fanout.subscribe("fed/x/pose", on)]
+    good = wire.encode_pose(12.5, wire.Pose(x=1.0))
+    session.put("fed/x/pose", good, attachment=wire.encode_stamp(7, 12.25, 0.001))
+    session.put("fed/x/pose", b"short", attachment=b"junk")
+    assert done.wait(5)
+    for sub in subs:
+        sub.undeclare()
+    (a, pose_a, stamp_a), (b, pose_b, stamp_b) = seen[:2]
+    assert a is b and pose_a is pose_b and stamp_a is stamp_b  # decoded once
+    assert pose_a == wire.PoseSample(12.5, wire.Pose(x=1.0))
+    assert stamp_a == wire.RefStamp(7, 12.25, 0.001)
+    assert a.size == len(good) and a.key == "fed/x/pose"
+    assert a.source() is None  # put without source info
+    (c, pose_c, stamp_c), (d, pose_d, _) = seen[2:]
+    assert c is d and pose_c is pose_d
+    assert isinstance(pose_c, wire.DecodeError) and isinstance(stamp_c, wire.DecodeError)
 
 
 def test_the_start_up_heap_is_frozen() -> None:

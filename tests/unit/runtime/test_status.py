@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from federation.core.clockfilter import ClockFilter
 from federation.core.sync import PaperEstimator, SyncClient, serve
@@ -51,3 +53,16 @@ def test_loop_stats() -> None:
     assert stats["late_p50_ms"] == pytest.approx(51.0)
     assert stats["late_p99_ms"] == pytest.approx(100.0)
     assert stats["late_max_ms"] == pytest.approx(100.0)
+
+
+@given(st.lists(st.floats(-1.0, 10.0), max_size=2500))
+def test_loop_stats_order_statistics_equal_a_full_sort(lateness: list[float]) -> None:
+    """Partitioned, not sorted (issue 17): the same three order statistics."""
+    late = sorted(lateness)
+    n = len(late)
+    stats = loop_stats(20.0, lateness)
+    assert stats["ticks"] == float(n)
+    if n:
+        assert stats["late_p50_ms"] == late[n // 2] * 1e3
+        assert stats["late_p99_ms"] == late[min(n - 1, int(0.99 * n))] * 1e3
+        assert stats["late_max_ms"] == late[-1] * 1e3
