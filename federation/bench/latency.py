@@ -52,8 +52,9 @@ def _client_config(endpoint: str) -> zenoh.Config:
         ("mode", '"client"'),
         ("connect/endpoints", f'["{endpoint}"]'),
         ("scouting/multicast/enabled", "false"),
-        ("transport/unicast/lowlatency", "true"),
-        ("transport/unicast/qos/enabled", "false"),
+        # fedlab's transport defaults (federation/runtime/session.py).
+        ("transport/unicast/lowlatency", "false"),
+        ("transport/unicast/qos/enabled", "true"),
     ):
         conf.insert_json5(key, value)
     return conf

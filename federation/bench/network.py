@@ -28,7 +28,7 @@ this host's monotonic clock):
 Transports (:data:`TRANSPORTS`): ``multilink`` (deploy/routers/multilink/: a TCP
 link for declarations, queries and control, a UDP link beside it for best-effort
 pose, 512-byte batches, 15 s lease, hosts with deploy/sysctl/90-fedlab-wan.conf),
-``tcp`` (deploy/routers/, the default: one TCP link, low-latency transport, the
+``tcp`` (deploy/routers/, the default: one TCP link, universal transport with QoS, the
 kernel's default TCP settings) and ``tcp-tuned`` (the default routers on hosts with
 the sysctl file).
 """
@@ -39,6 +39,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -48,7 +49,7 @@ import numpy as np
 from federation.core import paper
 from federation.fleet.launch import wait_for
 from federation.link.packet import PacketOptions
-from federation.testbed import ADDR, Testbed
+from federation.testbed import ADDR, Testbed, TestbedError
 from federation.testbed.topology import parse_sysctl_conf
 
 __all__ = ["SCENARIOS", "TRANSPORTS", "Scenario", "count_samples", "run", "run_one", "score"]
@@ -70,7 +71,7 @@ TRANSPORTS: dict[str, dict[str, list[str]]] = {
         "ports": ["tcp/7447", "udp/7447"],
         "sysctl": [str(SYSCTL)],
     },
-    # deploy/routers/ (the default): one TCP link, low-latency transport; the lab
+    # deploy/routers/ (the default): one TCP link, universal transport with QoS; the lab
     # hosts with the kernel's default TCP settings.
     "tcp": {
         "kiruna": ["-l", f"tcp/0.0.0.0:{PORT}"],
@@ -129,6 +130,7 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
     """A raw zenoh-python client subscribing to ``key`` on ``endpoint``, as a third
     party would (Zenoh's default config, nothing of fedlab's): writes the samples
     counted per key and per second to ``out`` (JSON) every second."""
+    import signal
     import threading
 
     import zenoh
@@ -157,31 +159,54 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
             if time.monotonic() > give_up:
                 raise
             time.sleep(0.5)
+
+    def save() -> None:
+        with lock:
+            data = {"counts": dict(counts), "pose_arrivals": list(arrivals)}
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(json.dumps(data))
+        tmp.replace(out)
+
+    # Stopped by the testbed (SIGTERM) before its time: save what arrived since the
+    # last second's save, or the run's end would seem to have gone unheard.
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with session:
         sub = session.declare_subscriber(key, on_sample)
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            time.sleep(1.0)
-            with lock:
-                data = {"counts": dict(counts), "pose_arrivals": list(arrivals)}
-            tmp = out.with_name(out.name + ".tmp")
-            tmp.write_text(json.dumps(data))
-            tmp.replace(out)
+        while time.monotonic() < end and not stop.wait(1.0):
+            save()
         sub.undeclare()
+    save()
 
 
 # -- a run -----------------------------------------------------------------------------
-def _router_args(lab: str, transport: str) -> list[str]:
+def _router_args(lab: str, transport: str, cfg: Sequence[str] = ()) -> list[str]:
     t = TRANSPORTS[transport]
     listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if lab == "rome" else []
     config = ROUTERS.joinpath(*t.get("config", []), f"{lab}.json5")
-    return ["router", "-c", str(config), *listen, *t[lab], *t.get("cfg", [])]
+    return ["router", "-c", str(config), *listen, *t[lab], *_cfg_flags(cfg)]
+
+
+def _cfg_flags(cfg: Sequence[str]) -> list[str]:
+    return [flag for item in cfg for flag in ("--cfg", item)]
 
 
 def run_one(
-    scenario: Scenario, transport: str, seconds: float, out: Path, seed: int = 1
+    scenario: Scenario,
+    transport: str,
+    seconds: float,
+    out: Path,
+    seed: int = 1,
+    cfg: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """One scenario on one transport; the scores (see :func:`score`)."""
+    """One scenario on one transport; the scores (see :func:`score`).
+
+    ``cfg`` (``KEY:VALUE`` Zenoh settings) is given to both routers and both agents,
+    never to the outside subscriber, which keeps Zenoh's defaults as a third party's
+    client would: e.g. ``transport/unicast/lowlatency:true`` with
+    ``transport/unicast/qos/enabled:false`` measures the configs used before.
+    """
     out.mkdir(parents=True, exist_ok=True)
     for stale in out.glob("*.mcap"):
         stale.unlink()
@@ -194,11 +219,11 @@ def run_one(
     for conf in t.get("sysctl", []):
         sysctls |= parse_sysctl_conf(Path(conf).read_text())
     with Testbed(out, path, kiruna_ports=t["ports"], sysctls=sysctls, seed=seed) as bed:
-        bed.fedlab("kiruna", "router-kiruna", _router_args("kiruna", transport))
-        bed.fedlab("rome", "router-rome", _router_args("rome", transport))
+        bed.fedlab("kiruna", "router-kiruna", _router_args("kiruna", transport, cfg))
+        bed.fedlab("rome", "router-rome", _router_args("rome", transport, cfg))
         run_for = seconds + SYNC_PHASE
         common = ["-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5"]
-        common += ["--duration", f"{run_for + 5:g}"]
+        common += ["--duration", f"{run_for + 5:g}", *_cfg_flags(cfg)]
         bed.fedlab(
             "kiruna",
             "leader",
@@ -238,6 +263,7 @@ def run_one(
     return {
         "scenario": asdict(scenario),
         "transport": transport,
+        "cfg": list(cfg),
         "seconds": seconds,
         "seed": seed,
         **result,
@@ -340,6 +366,7 @@ def score(
         out["cut"] = {
             "length_s": back - cut,
             "hold_after_cut_ms": _ms(first_hold[0] - cut if first_hold else None),
+            "holds_from_cut": len(first_hold),  # 1: the cut's, none flapping after it
             "pose_back_after_s": after[0]["host_monotonic"] - back if after else None,
             "sync_back_after_s": sync_after[0] - back if sync_after else None,
             "released_after_s": resumed[0] - back if resumed else None,
@@ -370,13 +397,31 @@ def run(
     out: Path,
     repeats: int = 1,
     seed: int = 1,
+    cfg: Sequence[str] = (),
+    progress: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> list[dict[str, Any]]:
-    """Every scenario on every transport, ``repeats`` times (seeds ``seed``, ``seed+1``...)."""
-    results = []
+    """Every scenario on every transport, ``repeats`` times (seeds ``seed``, ``seed+1``...);
+    ``cfg`` as in :func:`run_one`. A run whose testbed cannot be built is kept as
+    ``{"error": ...}`` and the others go on; ``progress`` gets the results so far after
+    every run (to save them)."""
+    results: list[dict[str, Any]] = []
     for name in names:
         for transport in transports:
             for k in range(repeats):
                 scenario = replace(SCENARIOS[name])
                 where = out / f"{name}-{transport}-{k}"
-                results.append(run_one(scenario, transport, seconds, where, seed + k))
+                try:
+                    result = run_one(scenario, transport, seconds, where, seed + k, cfg)
+                except TestbedError as error:
+                    result = {
+                        "scenario": asdict(scenario),
+                        "transport": transport,
+                        "cfg": list(cfg),
+                        "seconds": seconds,
+                        "seed": seed + k,
+                        "error": str(error),
+                    }
+                results.append(result)
+                if progress is not None:
+                    progress(results)
     return results

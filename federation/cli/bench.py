@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from federation.bench import latency, scale, sync
 from federation.cli.common import Formatter, Subparsers, positive
@@ -299,6 +300,11 @@ def _add_network(benches: Subparsers) -> None:
         "--seconds", type=positive, default=60.0, metavar="S",
         help="seconds scored per run, after the 10 s sync phase",
     )  # fmt: skip
+    p.add_argument(
+        "--cfg", action="append", default=[], metavar="KEY:VALUE",
+        help="a Zenoh setting for both routers and both agents, not the outside subscriber "
+        "(repeatable), e.g. transport/unicast/lowlatency:true",
+    )  # fmt: skip
     p.add_argument("--repeats", type=int, default=1, metavar="N", help="runs per scenario")
     p.add_argument("--seed", type=int, default=1, help="the packet stage's first seed")
     p.add_argument(
@@ -323,11 +329,22 @@ def _run_network(args: argparse.Namespace) -> int:
         raise SystemExit(f"fedlab bench network: {why}")
     names = args.scenario or list(_NETWORK_SCENARIOS)
     transports = args.transport or ["tcp-tuned"]
-    results = network.run(names, transports, args.seconds, args.out, args.repeats, args.seed)
-    document = {"command": shlex.join(["fedlab", *sys.argv[1:]]), "results": results}
-    if args.json_out is not None:
-        args.json_out.parent.mkdir(parents=True, exist_ok=True)
-        args.json_out.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+    for item in args.cfg:
+        if ":" not in item.strip(":"):
+            raise SystemExit(f"fedlab bench network: --cfg {item!r}: expected KEY:VALUE")
+    command = shlex.join(["fedlab", *sys.argv[1:]])
+
+    def save(results: list[dict[str, Any]]) -> None:
+        if args.json_out is not None:  # after every run: a long bench keeps what it measured
+            args.json_out.parent.mkdir(parents=True, exist_ok=True)
+            document = {"command": command, "results": results}
+            args.json_out.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+
+    results = network.run(
+        names, transports, args.seconds, args.out, args.repeats, args.seed, args.cfg, save
+    )
+    save(results)
+    document = {"command": command, "results": results}
     if args.json:
         print(json.dumps(document, indent=1))
         return 0
@@ -337,6 +354,9 @@ def _run_network(args: argparse.Namespace) -> int:
     for col in cols:
         table.add_column(col, justify="left" if col in cols[:2] else "right")
     for r in results:
+        if "error" in r:
+            table.add_row(r["scenario"]["name"], r["transport"], f"failed: {r['error'][:80]}")
+            continue
         cut = r.get("cut") or {}
         back = [cut.get(k) for k in ("pose_back_after_s", "sync_back_after_s")]
         table.add_row(

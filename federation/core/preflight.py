@@ -14,6 +14,9 @@ synced      the reference itself, or its estimate of the reference clock is
 platform    ``ready.platform``: not in a fault hold (stale link, aborted), its
             measurements fresh
 recording   ``ready.recording``: the run will be recorded
+peers       no peer it syncs with is alive but silent (``peers.<agent>.silent``:
+            a peer whose liveliness token is up but that has answered no sync
+            request for 2 s); the silent ones are named with how long
 ==========  ================================================================
 
 A check that fails says why in its cell (``absent``, ``mode running``,
@@ -34,9 +37,10 @@ __all__ = [
     "Row",
     "blocking",
     "preflight",
+    "silent_peers",
 ]
 
-CHECKS = ("present", "waiting", "synced", "platform", "recording")
+CHECKS = ("present", "waiting", "synced", "platform", "recording", "peers")
 DEFAULT_MAX_BOUND = 0.010
 """s: the largest error bound of the reference clock's estimate accepted for a start."""
 DEFAULT_STALE_AFTER = 3.0
@@ -95,6 +99,27 @@ def _synced(status: Mapping[str, Any], max_bound: float) -> Check:
     return Check(True, f"bound {bound * 1e3:.2f} ms")
 
 
+def silent_peers(status: Mapping[str, Any]) -> dict[str, float]:
+    """The peers ``status`` reports alive but silent, and for how long (s)."""
+    peers = status.get("peers")
+    if not isinstance(peers, Mapping):
+        return {}
+    out = {}
+    for name, peer in peers.items():
+        silent = peer.get("silent") if isinstance(peer, Mapping) else None
+        if isinstance(silent, int | float) and not isinstance(silent, bool):
+            out[str(name)] = float(silent)
+    return out
+
+
+def _peers(status: Mapping[str, Any]) -> Check:
+    silent = silent_peers(status)
+    if silent:
+        named = ", ".join(f"{name} {s:.1f} s" for name, s in sorted(silent.items()))
+        return Check(False, f"alive but silent: {named}")
+    return Check(True, "none silent")
+
+
 def _row(
     agent: str, status: Mapping[str, Any] | None, age: float | None, limits: tuple[float, float]
 ) -> Row:
@@ -115,6 +140,7 @@ def _row(
         "recording": Check(
             bool(ready.get("recording")), str(ready.get("recording_to") or "not recording")
         ),
+        "peers": _peers(status),
     }
     return Row(agent, checks, mode, status.get("run_id"))
 

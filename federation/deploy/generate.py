@@ -83,17 +83,25 @@ class Generated:
     removed: list[Path] = field(default_factory=list)
 
 
+LEASE_MS = 10000
+"""Lab routers' Zenoh lease (Zenoh's default), measured against 15 s: after a WAN cut
+longer than the lease a fresh session carries at once, while a longer lease keeps the
+old one, whose TCP backlog must drain first (docs/deploy.md, "A WAN cut")."""
+
+
 def _prefix(fed: str) -> str:
     return f"fedlab/{fed}"
 
 
 def _common(limit: int) -> dict[str, Any]:
-    """What routers, agents and operators share: no scouting, the low-latency
-    transport, and the largest message they accept."""
+    """What routers, agents and operators share: no scouting, Zenoh's universal
+    transport with QoS on (what a default Zenoh client uses; with QoS off a congested
+    link drops pose for good: docs/deploy.md, "Transports under loss"), and the
+    largest message they accept."""
     return {
         "scouting": {"multicast": {"enabled": False}},
         "transport": {
-            "unicast": {"lowlatency": True, "qos": {"enabled": False}},
+            "unicast": {"lowlatency": False, "qos": {"enabled": True}},
             "link": {"protocols": ["tls"], "rx": {"max_message_size": limit}},
         },
     }
@@ -184,6 +192,7 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
         **_common(fed.message_limit),
         "access_control": access_control(fed, lab),
     }
+    doc["transport"]["link"]["tx"] = {"lease": LEASE_MS, "keep_alive": 4}
     doc["transport"]["link"]["tls"] = {
         "root_ca_certificate": str(c / "ca.pem"),
         "listen_certificate": str(c / f"{lab}.pem"),
@@ -253,7 +262,12 @@ def router_text(fed: FederationFile, lab: str, root: Path = DEFAULT_ROOT) -> str
         f"\nLab {lab}: listens on {', '.join(entry.listen)}; dials {dials}; its agents and "
         f"operators authenticate by {entry.auth}.\nEach agent writes only under "
         f"fedlab/{fed.federation}/{lab}/<name>/**; operators publish control; see "
-        "docs/deploy.md."
+        "docs/deploy.md.\nlowlatency false, QoS on: the transport a default Zenoh client "
+        "gets too (with QoS off, Zenoh 1.10 drops a congested link's pose and status for "
+        "good). "
+        f"Lease {LEASE_MS / 1000:g} s: after a longer WAN cut a fresh session carries at "
+        "once, sooner than a kept one draining its backlog (measured: docs/deploy.md, A WAN "
+        "cut)."
     )
     return json5_text(router_config(fed, lab, root), _header(fed, lab) + about)
 

@@ -30,6 +30,9 @@ late p99        control loop lateness, 99th percentile (``status.loop.late_p99_m
 run             ``status.run_id``: the run started last
 run time        ``status.run_time`` / ``status.duration`` (progress, %)
 hold            ``status.hold``: why every valve is closed (stale, aborted, done, reset)
+silent          an alarm, in red: the peers it reports alive but silent (answering
+                no sync request for 2 s, ``peers.<agent>.silent``) and for how long;
+                never left out on a narrow terminal
 bound           error bound of its estimate of the reference clock (``peers[reference]
                 .bound``, else the last exchange's ``error_bound``); 0 on the reference
 last status     seconds since its last valid status, marked ``stale`` after
@@ -116,6 +119,7 @@ class Row:
     duration_s: float | None = None  # the run's; run_time / duration is its progress
     hold: str | None = None  # why every valve is held closed (stale, aborted, done, reset)
     bound_s: float | None = None  # error bound of its estimate of the reference clock
+    silent: dict[str, float] | None = None  # peer -> s it has been alive but silent
 
 
 @dataclass
@@ -263,6 +267,7 @@ class MonitorModel:
             duration_s=_finite(status.duration),
             hold=status.hold,
             bound_s=0.0 if is_reference else None if ref is None else _bound(ref),
+            silent=_silent(status) or None,
         )
 
 
@@ -273,6 +278,15 @@ def _first_error(error: ValidationError) -> str:
         return str(error)
     where = ".".join(str(part) for part in details[0]["loc"]) or "payload"
     return f"{where}: {details[0]['msg']}"
+
+
+def _silent(status: Status) -> dict[str, float]:
+    """Peers ``status`` reports alive but silent (s silent), as preflight reads them."""
+    return {
+        name: float(p.silent)
+        for name, p in status.peers.items()
+        if p.silent is not None and math.isfinite(p.silent)
+    }
 
 
 def _bound(peer: Any) -> float | None:
@@ -335,6 +349,14 @@ def _hold(row: Row) -> Text:
     return Text(row.hold, style="red" if row.hold in ("stale", "aborted") else "yellow")
 
 
+def _silent_cell(row: Row) -> Text:
+    """``kiruna/knatte 2.3 s`` in red for each peer alive but silent; ``-`` when none."""
+    if not row.silent:
+        return Text(_DASH)
+    named = ", ".join(f"{peer} {s:.1f} s" for peer, s in sorted(row.silent.items()))
+    return Text(named, style="bold red")
+
+
 def _rejected(row: Row) -> Text:
     return Text(_int(row.rejected), style="red" if row.rejected else "")
 
@@ -348,6 +370,7 @@ _COLUMNS: dict[str, tuple[str, bool, Callable[[Row], str | Text]]] = {
     "run": ("run", False, lambda r: r.run_id or _DASH),
     "run_time": ("run time\ns", True, _run_time),
     "hold": ("hold", False, _hold),
+    "silent": ("silent\npeers", False, _silent_cell),
     "platform": ("platform", False, lambda r: r.platform or _DASH),
     "offset": ("offset\ns", True, _offset),
     "delay": ("delay\nms", True, lambda r: _num(r.delay_s, 1e3)),

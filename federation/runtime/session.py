@@ -4,9 +4,17 @@ fedlab's defaults, applied before the user's file and flags so either can
 override them:
 
 - multicast scouting off: labs join by explicit endpoints, never by accident;
-- ``transport/unicast/lowlatency`` on and QoS off: about half the round trip of the
-  default transport (../shared/zenoh-notes.md); Zenoh nodes with default settings
-  still connect;
+- Zenoh's universal transport with QoS on (``transport/unicast/lowlatency`` off,
+  ``transport/unicast/qos/enabled`` on: Zenoh's own defaults), as in the shipped
+  router configs, so fedlab's nodes and a client with Zenoh's default settings get the
+  same transport. Zenoh 1.10 with QoS off puts a universal link's messages in one
+  queue whose congestion mark, once set, is never cleared: after the first time a
+  droppable message (pose, status) waits out ``wait_before_drop``, that link drops
+  every later one for good while queries and replies still pass. The low-latency
+  transport (no queue) avoided it only for nodes that all asked for it; a default
+  client on such a router, or any node once the routers were universal, stopped
+  receiving under WAN loss (docs/deploy.md, "Transports under loss": the testbed
+  runs, a loopback reproduction, and what the change costs);
 - clients retry their router forever instead of exiting, so an agent started
   before its router joins when the router comes up.
 """
@@ -42,8 +50,10 @@ DEFAULT_TIMEOUT = 5.0
 
 _DEFAULTS: dict[str, Any] = {
     "scouting/multicast/enabled": False,
-    "transport/unicast/lowlatency": True,
-    "transport/unicast/qos/enabled": False,
+    # Universal transport with QoS, as the routers and a default Zenoh client: QoS off
+    # stops a congested link's pose for good (see the docstring).
+    "transport/unicast/lowlatency": False,
+    "transport/unicast/qos/enabled": True,
 }
 _CLIENT_DEFAULTS: dict[str, Any] = {
     "connect/timeout_ms": -1,

@@ -176,8 +176,9 @@ class Testbed:
         self.nft("rome-gw", gateway_ruleset())
         self.nft("kiruna", lab_ruleset(self.kiruna_ports))
 
-    def start_stage(self, timeout: float = 10.0) -> None:
-        """The packet stage on the WAN's TUN device, with :attr:`path`'s impairments."""
+    def start_stage(self, timeout: float = 30.0) -> None:
+        """The packet stage on the WAN's TUN device, with :attr:`path`'s impairments
+        (``timeout`` generous: on a loaded 2-core host Python alone took over 10 s)."""
         args = ["link", "--tun", TUN, "--forward-net", ADDR.kiruna_net, "--router", ADDR.wan_rome]
         args += ["--seed", str(self.seed), "--stats-json", str(self.stats_path)]
         args += _stage_flags(self.path, "")

@@ -17,8 +17,8 @@ def main() -> None:
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
     conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("transport/unicast/lowlatency", "true")
-    conf.insert_json5("transport/unicast/qos/enabled", "false")
+    conf.insert_json5("transport/unicast/lowlatency", "false")  # as fedlab's nodes
+    conf.insert_json5("transport/unicast/qos/enabled", "true")
     with zenoh.open(conf) as session:
         pub = session.declare_publisher(f"{key}/pong", express=True)
 

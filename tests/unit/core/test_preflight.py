@@ -78,3 +78,24 @@ def test_done_is_ready_for_the_next_run_and_others_do_not_block() -> None:
     assert [r.agent for r in rows] == [LEADER, "lab3/ghost"]
     assert rows[0].ok and not rows[1].ok and not rows[1].participant
     assert blocking(rows) == []
+
+
+def test_a_peer_alive_but_silent_fails_preflight_and_is_named() -> None:
+    peers = {
+        LEADER: {"alive": True, "silent": 2.34, "samples": 3},
+        "lund/ada": {"alive": True, "silent": None, "samples": 9},
+    }
+    rows = preflight([FOLLOWER], {FOLLOWER: status(FOLLOWER, peers=peers)}, {FOLLOWER: 0.1})
+    (row,) = blocking(rows)
+    assert row.missing == [f"peers: alive but silent: {LEADER} 2.3 s"]
+
+
+def test_peers_that_answer_pass_and_odd_peer_entries_are_not_alarms() -> None:
+    peers: dict[str, Any] = {
+        LEADER: {"alive": True, "silent": None},
+        "lund/ada": "not a mapping",
+        "lund/bea": {"silent": True},  # not a number of seconds
+    }
+    for line in (status(FOLLOWER, peers=peers), status(FOLLOWER), status(FOLLOWER, peers=[])):
+        (row,) = preflight([FOLLOWER], {FOLLOWER: line}, {FOLLOWER: 0.1})
+        assert row.ok and row.checks["peers"].detail == "none silent"

@@ -375,3 +375,26 @@ def test_rows_silent_for_drop_after_are_dropped() -> None:
     ]
     assert [r.agent for r in model.rows(31.0)] == [FOLLOWER]
     assert model.rows(51.0) == []
+
+
+def test_a_peer_alive_but_silent_is_a_red_column_never_left_out() -> None:
+    model = MonitorModel()
+    peers = {
+        LEADER: peer(-26.42, 0.0004, samples=30, silent=2.34),
+        "lund/ada": peer(1.0, 0.001, samples=3, silent=None),
+    }
+    model.on_status(key(FOLLOWER, "status"), status(FOLLOWER, peers=peers), now=0.0)
+    model.on_status(key(LEADER, "status"), leader_status(), now=0.0)
+    leader, follower = model.rows(0.5)
+    assert follower.silent == {LEADER: 2.34} and leader.silent is None
+    assert row_json(follower)["silent"] == {LEADER: 2.34}
+    narrow = Console(record=True, width=80, color_system=None)
+    table = fit(narrow, [leader, follower])
+    assert "silent\npeers" in [str(c.header) for c in table.columns]
+    narrow.print(table)
+    text = narrow.export_text()
+    assert "2.3 s" in text  # the cell may wrap on 80 columns
+    wide = Console(record=True, width=220)
+    wide.print(render([follower]))
+    styled = wide.export_text(styles=True)
+    assert f"\x1b[1;31m{LEADER} 2.3 s" in styled  # bold red: an alarm
