@@ -132,8 +132,8 @@ def main() -> None:
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("transport/unicast/lowlatency", "true")
-    conf.insert_json5("transport/unicast/qos/enabled", "false")
+    conf.insert_json5("transport/unicast/lowlatency", "false")  # as fedlab's nodes
+    conf.insert_json5("transport/unicast/qos/enabled", "true")
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router, as fedlab agents do
     conf.insert_json5("connect/exit_on_failure", "false")
     stop = threading.Event()
