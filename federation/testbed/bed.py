@@ -5,7 +5,8 @@ started in them stopped by pid and removed, even on failure.
 namespaces of :mod:`federation.testbed.topology` (names prefixed per testbed, so
 two testbeds never meet), starts the packet stage in the WAN namespace and
 returns; ``bed.fedlab("rome", "router-rome", [...])`` runs a fedlab command in a
-namespace; ``bed.cut()`` / ``bed.restore()`` cut the WAN; on exit every process
+namespace (``Testbed(..., rome_hosts=2)`` adds a second host, ``rome2``, on Rome's
+lab network); ``bed.cut()`` / ``bed.restore()`` cut the WAN; on exit every process
 is stopped by pid (SIGTERM, then SIGKILL) and every namespace deleted. A
 finalizer deletes the namespaces too if the object is dropped without ``close``.
 
@@ -33,11 +34,11 @@ from federation.fleet.launch import Fleet, wait_for
 from federation.link.packet import PacketOptions
 from federation.testbed.topology import (
     ADDR,
-    LABS,
     TUN,
     build_commands,
     gateway_ruleset,
     lab_ruleset,
+    roles,
 )
 
 __all__ = ["PREFIX", "Testbed", "TestbedError", "leftover_namespaces", "missing", "probe_tcp"]
@@ -46,6 +47,7 @@ PREFIX = "fltb"
 """Every testbed namespace's name starts with this (then the pid and a counter)."""
 
 _counter = itertools.count()
+_STAGE = "stage"  # the packet stage's process name
 
 
 class TestbedError(RuntimeError):
@@ -123,9 +125,13 @@ class Testbed:
     kiruna_ports : sequence of str
         Ports Kiruna's firewall opens (``tcp/7447``, ``udp/7447``).
     sysctls : mapping
-        Settings of both lab hosts' network stacks (e.g. TCP's).
+        Settings of every lab host's network stack (e.g. TCP's).
     seed : int
         The stage's random seed.
+    rome_hosts : int
+        Hosts on Rome's lab network (1 to 40): ``rome`` (192.0.2.10), then ``rome2``
+        (192.0.2.11) ... on one switch behind the same gateway
+        (:mod:`federation.testbed.topology`); run things on them by that role.
     """
 
     __test__ = False  # not a pytest class
@@ -139,6 +145,7 @@ class Testbed:
         kiruna_ports: Sequence[str] = ("tcp/7447",),
         sysctls: Mapping[str, str] | None = None,
         seed: int = 1,
+        rome_hosts: int = 1,
     ):
         self.out = Path(out)
         self.path = path or PacketOptions()
@@ -146,8 +153,9 @@ class Testbed:
         self.kiruna_ports = tuple(kiruna_ports)
         self.sysctls = dict(sysctls or {})
         self.seed = seed
+        self.rome_hosts = rome_hosts
         tag = f"{PREFIX}{os.getpid()}x{next(_counter)}"
-        self.ns = {lab: f"{tag}-{lab}" for lab in LABS}
+        self.ns = {role: f"{tag}-{role}" for role in roles(rome_hosts)}
         self.fleet = Fleet(self.out / "logs")
         self.stats_path = self.out / "stage.json"
         self._made: list[str] = []
@@ -169,7 +177,7 @@ class Testbed:
 
     def build(self) -> None:
         """Namespaces, wires, addresses, routes, sysctls and firewalls."""
-        for cmd in build_commands(self.ns, self.sysctls):
+        for cmd in build_commands(self.ns, self.sysctls, self.rome_hosts):
             if cmd[:3] == ["ip", "netns", "add"]:
                 self._made.append(cmd[3])
             _run(cmd)
@@ -185,14 +193,24 @@ class Testbed:
         if self.backward is not None:
             args += _stage_flags(self.backward, "backward-")
         self.stats_path.unlink(missing_ok=True)
-        self.fedlab("wan", "stage", args)
+        self.fedlab("wan", _STAGE, args)
         if not wait_for(self.stats_path.exists, timeout, 0.05):
-            raise TestbedError(f"the packet stage did not start: {self.log('stage')[-2000:]}")
+            raise TestbedError(f"the packet stage did not start: {self.log(_STAGE)[-2000:]}")
 
     def close(self) -> None:
-        """Stop every process by pid, then delete every namespace (idempotent)."""
+        """Stop every process by pid, then delete every namespace (idempotent).
+
+        Agents first, then routers, then the packet stage: a router closing its
+        session says so to the other lab's across the WAN, and with the stage gone
+        first the close found no path and each router was killed after the 5 s grace.
+        """
         try:
-            self.fleet.stop_all()
+            try:
+                names = [name for name in self.fleet.procs if name != _STAGE]
+                for name in sorted(names, key=lambda n: n.startswith("router")):
+                    self.fleet.stop(name)
+            finally:
+                self.fleet.stop_all()  # the stage, and anything still running
         finally:
             _delete_namespaces(self._made)
             self._made.clear()
@@ -226,7 +244,7 @@ class Testbed:
 
     # -- the WAN ---------------------------------------------------------------------
     def _signal_stage(self, sig: int) -> float:
-        proc = self.fleet.procs.get("stage")
+        proc = self.fleet.procs.get(_STAGE)
         if proc is None or proc.poll() is not None:
             raise TestbedError("the packet stage is not running")
         at = time.monotonic()

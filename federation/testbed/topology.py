@@ -22,16 +22,33 @@ the commands and rulesets down (:func:`build_commands`, :func:`gateway_ruleset`,
   for the kernel to forward on. It also routes 192.0.2.0/24 to Rome's gateway, so
   a direct connection into Rome's lab does reach the gateway and meets its firewall.
 
+With ``rome_hosts`` N > 1 (:func:`roles`), Rome's lab has N hosts on one LAN: a
+switch namespace **rome-lan** holds a bridge (``br0``, no address, no firewall)
+whose ports are wired to the gateway's ``lan0`` and to ``eth0`` of ``rome``
+(192.0.2.10), ``rome2`` (192.0.2.11), ... ``romeN``, all behind the same gateway::
+
+    rome   eth0 192.0.2.10 --- h1 --+      rome-lan               rome-gw
+    rome2  eth0 192.0.2.11 --- h2 --+-- br0 ----------- gw --- lan0 192.0.2.1
+    ...                             |
+
+A switch of its own rather than a bridge in the gateway: the gateway's rules stay
+as they are, and traffic between the lab's hosts never meets them (even where the
+host kernel has ``br_netfilter`` loaded). With N = 1 (the default) the
+network is exactly the one drawn first.
+
 Only documentation addresses (RFC 5737) are used.
 """
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 __all__ = [
     "LABS",
+    "LAN_SWITCH",
+    "MAX_ROME_HOSTS",
     "ROME_LAN",
     "Addresses",
     "build_commands",
@@ -39,12 +56,18 @@ __all__ = [
     "lab_ruleset",
     "parse_port",
     "parse_sysctl_conf",
+    "roles",
+    "rome_hosts",
 ]
 
 LABS = ("rome", "rome-gw", "wan", "kiruna")
 """The namespaces, by role (their real names carry the testbed's prefix)."""
 
 ROME_LAN = "192.0.2.0/24"
+LAN_SWITCH = "rome-lan"
+"""The switch namespace of Rome's lab network (only with more than one Rome host)."""
+MAX_ROME_HOSTS = 40
+"""Rome's hosts are 192.0.2.10 onwards: 40 keeps them well inside the /24."""
 
 
 @dataclass(frozen=True)
@@ -59,10 +82,39 @@ class Addresses:
     kiruna: str = "203.0.113.10"  # Kiruna's lab host: public, one port open
     kiruna_net: str = "203.0.113.0/24"  # the stage's forward direction: towards Kiruna
 
+    def rome_host(self, role: str) -> str:
+        """The address of a Rome host by role: ``rome`` 192.0.2.10, ``rome2`` .11, ..."""
+        index = _rome_index(role)
+        return str(ipaddress.ip_address(self.rome) + index - 1)
+
 
 ADDR = Addresses()
 TUN = "imp0"
 _TABLE = "100"
+
+
+def _rome_index(role: str) -> int:
+    """``rome`` -> 1, ``rome2`` -> 2, ...; ValueError for anything else."""
+    rest = role.removeprefix("rome")
+    if rest == "":
+        return 1
+    if role.startswith("rome") and rest.isdigit() and 2 <= int(rest) <= MAX_ROME_HOSTS:
+        return int(rest)
+    raise ValueError(f"{role!r} is not a Rome host: expected rome, rome2 ... rome{MAX_ROME_HOSTS}")
+
+
+def rome_hosts(n: int) -> tuple[str, ...]:
+    """The roles of Rome's ``n`` lab hosts: ``rome``, ``rome2``, ... ``romeN``."""
+    if not 1 <= n <= MAX_ROME_HOSTS:
+        raise ValueError(f"rome_hosts={n}: expected 1 to {MAX_ROME_HOSTS}")
+    return ("rome", *(f"rome{i}" for i in range(2, n + 1)))
+
+
+def roles(n_rome_hosts: int = 1) -> tuple[str, ...]:
+    """Every namespace's role: :data:`LABS`, then with more than one Rome host the
+    others (``rome2`` ...) and Rome's lab switch (:data:`LAN_SWITCH`)."""
+    hosts = rome_hosts(n_rome_hosts)
+    return LABS if len(hosts) == 1 else (*LABS, *hosts[1:], LAN_SWITCH)
 
 
 def parse_port(text: str) -> tuple[str, int]:
@@ -132,14 +184,19 @@ def lab_ruleset(ports: Iterable[str]) -> str:
     )
 
 
-def build_commands(ns: Mapping[str, str], sysctls: Mapping[str, str]) -> list[list[str]]:
+def build_commands(
+    ns: Mapping[str, str], sysctls: Mapping[str, str], n_rome_hosts: int = 1
+) -> list[list[str]]:
     """The ``ip`` and ``sysctl`` commands that build the network, in order, given the
-    real namespace name of each role in :data:`LABS` (``ns["rome"]``, ...). Each
+    real namespace name of each role in :func:`roles` (``ns["rome"]``, ...). Each
     command is run as is (the ones inside a namespace start with
-    ``ip netns exec NS``). ``sysctls`` are set on both lab hosts (e.g. TCP settings
-    a lab's host would have)."""
+    ``ip netns exec NS``); the namespaces are made first. ``sysctls`` are set on every
+    lab host (e.g. TCP settings a lab's host would have). ``n_rome_hosts`` > 1 puts
+    Rome's hosts and its gateway on one switch (see the module's docstring)."""
     a = ADDR
-    rome, gw, wan, kir = ns["rome"], ns["rome-gw"], ns["wan"], ns["kiruna"]
+    hosts = rome_hosts(n_rome_hosts)
+    names = [ns[role] for role in roles(n_rome_hosts)]
+    gw, wan, kir = ns["rome-gw"], ns["wan"], ns["kiruna"]
 
     def ip(name: str, *args: str) -> list[str]:
         return ["ip", "-n", name, *args]
@@ -147,16 +204,31 @@ def build_commands(ns: Mapping[str, str], sysctls: Mapping[str, str]) -> list[li
     def sysctl(name: str, key: str, value: str) -> list[str]:
         return ["ip", "netns", "exec", name, "sysctl", "-q", "-w", f"{key}={value}"]
 
-    cmds: list[list[str]] = [["ip", "netns", "add", n] for n in (rome, gw, wan, kir)]
-    cmds += [ip(n, "link", "set", "lo", "up") for n in (rome, gw, wan, kir)]
+    cmds: list[list[str]] = [["ip", "netns", "add", n] for n in names]
+    cmds += [ip(n, "link", "set", "lo", "up") for n in names]
     # The wires: created inside one namespace, the peer end moved to the other.
+    if len(hosts) == 1:
+        cmds.append(
+            ip(ns["rome"], "link", "add", "eth0", "type", "veth", "peer", "name", "lan0",
+               "netns", gw)
+        )  # fmt: skip
+    else:  # Rome's LAN: a bridge in the switch namespace, one port per host and the gateway
+        sw = ns[LAN_SWITCH]
+        cmds += [ip(sw, "link", "add", "br0", "type", "bridge"), ip(sw, "link", "set", "br0", "up")]
+        ports = [(gw, "lan0", "gw")]
+        ports += [(ns[host], "eth0", f"h{i}") for i, host in enumerate(hosts, 1)]
+        for name, dev, port in ports:
+            cmds += [
+                ip(name, "link", "add", dev, "type", "veth", "peer", "name", port, "netns", sw),
+                ip(sw, "link", "set", port, "master", "br0"),
+                ip(sw, "link", "set", port, "up"),
+            ]
     cmds += [
-        ip(rome, "link", "add", "eth0", "type", "veth", "peer", "name", "lan0", "netns", gw),
         ip(gw, "link", "add", "wan0", "type", "veth", "peer", "name", "rome0", "netns", wan),
         ip(kir, "link", "add", "eth0", "type", "veth", "peer", "name", "kir0", "netns", wan),
     ]
     for name, dev, cidr in (
-        (rome, "eth0", f"{a.rome}/24"),
+        *((ns[host], "eth0", f"{a.rome_host(host)}/24") for host in hosts),
         (gw, "lan0", f"{a.rome_gw_lan}/24"),
         (gw, "wan0", f"{a.rome_gw_wan}/24"),
         (wan, "rome0", f"{a.wan_rome}/24"),
@@ -164,8 +236,8 @@ def build_commands(ns: Mapping[str, str], sysctls: Mapping[str, str]) -> list[li
         (kir, "eth0", f"{a.kiruna}/24"),
     ):
         cmds += [ip(name, "addr", "add", cidr, "dev", dev), ip(name, "link", "set", dev, "up")]
+    cmds += [ip(ns[host], "route", "add", "default", "via", a.rome_gw_lan) for host in hosts]
     cmds += [
-        ip(rome, "route", "add", "default", "via", a.rome_gw_lan),
         ip(gw, "route", "add", "default", "via", a.wan_rome),
         ip(kir, "route", "add", "default", "via", a.wan_kiruna),
         ip(wan, "route", "add", ROME_LAN, "via", a.rome_gw_wan),
@@ -182,6 +254,6 @@ def build_commands(ns: Mapping[str, str], sysctls: Mapping[str, str]) -> list[li
         cmds.append(sysctl(name, "net.ipv4.ip_forward", "1"))
     for dev in ("all", "default", TUN, "rome0", "kir0"):
         cmds.append(sysctl(wan, f"net.ipv4.conf.{dev}.rp_filter", "0"))
-    for name in (rome, kir):
+    for name in (*(ns[host] for host in hosts), kir):
         cmds += [sysctl(name, key, value) for key, value in sysctls.items()]
     return cmds

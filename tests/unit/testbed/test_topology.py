@@ -11,15 +11,19 @@ import pytest
 from federation.testbed.topology import (
     ADDR,
     LABS,
+    LAN_SWITCH,
+    MAX_ROME_HOSTS,
     build_commands,
     gateway_ruleset,
     lab_ruleset,
     parse_port,
     parse_sysctl_conf,
+    roles,
 )
 
 DOC_NETS = [ipaddress.ip_network(n) for n in ("192.0.2.0/24", "198.51.100.0/24", "203.0.113.0/24")]
 NS = {lab: f"t-{lab}" for lab in LABS}
+NS3 = {role: f"t-{role}" for role in roles(3)}
 
 
 def _addresses(text: str) -> set[str]:
@@ -28,6 +32,8 @@ def _addresses(text: str) -> set[str]:
 
 def test_every_address_is_a_documentation_address() -> None:
     text = " ".join(" ".join(c) for c in build_commands(NS, {})) + gateway_ruleset()
+    text += " ".join(" ".join(c) for c in build_commands(NS3, {}, 3))
+    text += " ".join(ADDR.rome_host(f"rome{i}") for i in range(2, MAX_ROME_HOSTS + 1))
     text += " ".join(str(v) for v in vars(ADDR).values())
     found = _addresses(text)
     assert found
@@ -50,6 +56,66 @@ def test_lab_sysctls_go_to_both_lab_hosts_only() -> None:
     cmds = build_commands(NS, {"net.ipv4.tcp_mtu_probing": "2"})
     hosts = {c[3] for c in cmds if "net.ipv4.tcp_mtu_probing=2" in c}
     assert hosts == {NS["rome"], NS["kiruna"]}
+    cmds = build_commands(NS3, {"net.ipv4.tcp_mtu_probing": "2"}, 3)
+    hosts = {c[3] for c in cmds if "net.ipv4.tcp_mtu_probing=2" in c}
+    assert hosts == {NS3[r] for r in ("rome", "rome2", "rome3", "kiruna")}
+
+
+# -- several hosts on Rome's lab network ------------------------------------------------
+def test_one_rome_host_is_the_default_and_has_no_switch() -> None:
+    assert roles() == roles(1) == LABS
+    flat = [" ".join(c) for c in build_commands(NS, {})]
+    assert not any("bridge" in c or "master" in c for c in flat)
+    assert "ip -n t-rome link add eth0 type veth peer name lan0 netns t-rome-gw" in flat
+
+
+def test_more_rome_hosts_add_their_namespaces_and_a_switch() -> None:
+    assert roles(3) == (*LABS, "rome2", "rome3", LAN_SWITCH)
+    cmds = build_commands(NS3, {}, 3)
+    made = [c[3] for c in cmds[: len(NS3)]]
+    assert [c[:3] for c in cmds[: len(NS3)]] == [["ip", "netns", "add"]] * len(NS3)
+    assert sorted(made) == sorted(NS3.values())  # every namespace made first, once
+    assert not any(c[:3] == ["ip", "netns", "add"] for c in cmds[len(NS3) :])
+
+
+@pytest.mark.parametrize("n", [0, -1, MAX_ROME_HOSTS + 1])
+def test_a_bad_number_of_rome_hosts_says_the_range(n: int) -> None:
+    with pytest.raises(ValueError, match=f"1 to {MAX_ROME_HOSTS}"):
+        roles(n)
+
+
+def test_rome_hosts_and_the_gateway_share_one_bridge_with_no_address() -> None:
+    flat = [" ".join(c) for c in build_commands(NS3, {}, 3)]
+    sw = NS3[LAN_SWITCH]
+    assert f"ip -n {sw} link add br0 type bridge" in flat
+    for name, dev, port in (("rome-gw", "lan0", "gw"), ("rome", "eth0", "h1"),
+                            ("rome2", "eth0", "h2"), ("rome3", "eth0", "h3")):  # fmt: skip
+        assert f"ip -n {NS3[name]} link add {dev} type veth peer name {port} netns {sw}" in flat
+        enslaved = flat.index(f"ip -n {sw} link set {port} master br0")
+        assert flat.index(f"ip -n {sw} link set {port} up") > enslaved
+    assert not any(c.startswith(f"ip -n {sw} addr") for c in flat)  # a switch, not a router
+    # No direct wire between a Rome host and the gateway any more: only through the switch.
+    assert not any("peer name lan0" in c for c in flat)
+
+
+def test_each_rome_host_has_its_address_and_the_gateway_as_default_route() -> None:
+    flat = [" ".join(c) for c in build_commands(NS3, {}, 3)]
+    for role, address in (("rome", "192.0.2.10"), ("rome2", "192.0.2.11"),
+                          ("rome3", "192.0.2.12")):  # fmt: skip
+        assert ADDR.rome_host(role) == address
+        assert f"ip -n {NS3[role]} addr add {address}/24 dev eth0" in flat
+        assert f"ip -n {NS3[role]} route add default via {ADDR.rome_gw_lan}" in flat
+    # The gateway's side keeps its name, so its firewall rules (iifname "lan0") apply.
+    assert f"ip -n {NS3['rome-gw']} addr add {ADDR.rome_gw_lan}/24 dev lan0" in flat
+    assert 'iifname "lan0"' in gateway_ruleset()
+
+
+@pytest.mark.parametrize(
+    "bad", ["rome1", "rome-gw", "kiruna", "rome0", f"rome{MAX_ROME_HOSTS + 1}"]
+)
+def test_an_unknown_rome_host_says_which_names_exist(bad: str) -> None:
+    with pytest.raises(ValueError, match="rome2"):
+        ADDR.rome_host(bad)
 
 
 def test_the_gateway_masquerades_and_lets_nothing_unsolicited_in() -> None:
