@@ -721,7 +721,7 @@ class AgentRuntime:
         t2 = self.clock.now()  # read on arrival: the paper's t2
         try:
             payload = query.payload
-            if self._oversized(payload, "sync_requests_oversized"):
+            if self._oversized(0 if payload is None else len(payload), "sync_requests_oversized"):
                 return
             request = payload.to_bytes() if payload is not None else b""
             try:
@@ -1008,10 +1008,10 @@ class AgentRuntime:
         self._pose_sn += 1
         return zenoh.SourceInfo(self._pose_pub_id, self._pose_sn)
 
-    def _oversized(self, payload: zenoh.ZBytes | None, counter: str) -> bool:
-        """Drop (and count) a payload far larger than any pose or sync message, before
-        it is copied or decoded."""
-        if payload is None or len(payload) <= MAX_SMALL_PAYLOAD:
+    def _oversized(self, size: int, counter: str) -> bool:
+        """Drop (and count) a payload of ``size`` bytes far larger than any pose or sync
+        message, before it is copied or decoded."""
+        if size <= MAX_SMALL_PAYLOAD:
             return False
         self.count(counter)
         return True
@@ -1021,8 +1021,7 @@ class AgentRuntime:
     ) -> bool:
         """Whether a pose sample may be used: not oversized, and its peer not contested
         (its source: the publisher's session id in the source info, None without one)."""
-        if sample.size > MAX_SMALL_PAYLOAD:
-            self.count("pose_oversized")
+        if self._oversized(sample.size, "pose_oversized"):
             return False
         if parsed is None:
             return True
@@ -1032,7 +1031,7 @@ class AgentRuntime:
         """Whether a sync reply may be used: not oversized, and the peer not contested
         (its source: the replier's session id, which Zenoh sets on every reply)."""
         assert reply.ok is not None
-        if self._oversized(reply.ok.payload, "sync_replies_oversized"):
+        if self._oversized(len(reply.ok.payload), "sync_replies_oversized"):
             return False
         replier = reply.replier_id
         source = None if replier is None else str(replier.zid)
@@ -1061,9 +1060,9 @@ class AgentRuntime:
     def _contest_hold(self, t_exec: float, host: float) -> bool:
         """Safe hold while the followed agent is contested; once the contest clears,
         resume only when a pose and a sync exchange have arrived since (True: held)."""
-        assert self.follow is not None
+        assert self.follow is not None and self._follow_name is not None
         with self._contest_lock:
-            reason = self.contest.reason(self._follow_name or "", host)
+            reason = self.contest.reason(self._follow_name, host)
         if reason is not None:
             self._contest_cleared = None
             if self.hold_reason != "contested":

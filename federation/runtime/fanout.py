@@ -61,30 +61,33 @@ class Received:
     def pose(self) -> wire.PoseSample:
         """The payload as a pose sample (:class:`wire.DecodeError` if it is not one)."""
         if self._pose is _UNSET:
-            try:
-                self._pose = wire.decode_pose(self.payload())
-            except wire.DecodeError as error:
-                self._pose = error
-        if isinstance(self._pose, wire.DecodeError):
-            raise self._pose
-        pose: wire.PoseSample = self._pose
-        return pose
+            self._pose = _decoded(wire.decode_pose, self.payload())
+        return _value(self._pose)  # type: ignore[no-any-return]
 
     def stamp(self) -> wire.RefStamp | None:
         """The attachment as a reference stamp, None without one
         (:class:`wire.DecodeError` if it is not one)."""
         if self._stamp is _UNSET:
             attachment = self.sample.attachment
-            try:
-                self._stamp = (
-                    None if attachment is None else wire.decode_stamp(attachment.to_bytes())
-                )
-            except wire.DecodeError as error:
-                self._stamp = error
-        if isinstance(self._stamp, wire.DecodeError):
-            raise self._stamp
-        stamp: wire.RefStamp | None = self._stamp
-        return stamp
+            self._stamp = (
+                None if attachment is None else _decoded(wire.decode_stamp, attachment.to_bytes())
+            )
+        return _value(self._stamp)  # type: ignore[no-any-return]
+
+
+def _decoded(decode: Callable[[bytes], Any], data: bytes) -> Any:
+    """``decode(data)``, or the :class:`wire.DecodeError` it raised, kept to raise again
+    for each agent that reads it (each counts the malformed sample)."""
+    try:
+        return decode(data)
+    except wire.DecodeError as error:
+        return error
+
+
+def _value(kept: Any) -> Any:
+    if isinstance(kept, wire.DecodeError):
+        raise kept
+    return kept
 
 
 Handler = Callable[[Received], None]
