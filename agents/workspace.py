@@ -59,6 +59,17 @@ class Frame:
     def point_to_table(self, x: float, y: float) -> tuple[float, float]:
         return self._rot(x - self.origin[0], y - self.origin[1], -1.0)
 
+    def area_to_common(self, area: Area) -> list[tuple[float, float]]:
+        """``area``'s corners in the common frame, counter-clockwise from
+        (x_min, y_min) of the table frame."""
+        table = [
+            (area.x_min, area.y_min),
+            (area.x_max, area.y_min),
+            (area.x_max, area.y_max),
+            (area.x_min, area.y_max),
+        ]
+        return [self.point_to_common(x, y) for x, y in table]
+
     def to_common(self, pose: Pose) -> Pose:
         """A table-frame pose in the common frame."""
         x, y = self.point_to_common(pose.x, pose.y)

@@ -259,14 +259,19 @@ def run_one(
         wait_for(lambda: not bed.alive("leader"), timeout=15, interval=0.2)
         events["stage"] = bed.stage_stats()
     sub = json.loads(subscriber.read_text()) if subscriber.exists() else {}
-    result = score(follow, lead, events, sub)
+    return {**_header(scenario, transport, cfg, seconds, seed), **score(follow, lead, events, sub)}
+
+
+def _header(
+    scenario: Scenario, transport: str, cfg: Sequence[str], seconds: float, seed: int
+) -> dict[str, Any]:
+    """What a run's result says of how it ran."""
     return {
         "scenario": asdict(scenario),
         "transport": transport,
         "cfg": list(cfg),
         "seconds": seconds,
         "seed": seed,
-        **result,
     }
 
 
@@ -413,14 +418,8 @@ def run(
                 try:
                     result = run_one(scenario, transport, seconds, where, seed + k, cfg)
                 except TestbedError as error:
-                    result = {
-                        "scenario": asdict(scenario),
-                        "transport": transport,
-                        "cfg": list(cfg),
-                        "seconds": seconds,
-                        "seed": seed + k,
-                        "error": str(error),
-                    }
+                    header = _header(scenario, transport, cfg, seconds, seed + k)
+                    result = {**header, "error": str(error)}
                 results.append(result)
                 if progress is not None:
                     progress(results)

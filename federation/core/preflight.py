@@ -36,6 +36,7 @@ __all__ = [
     "Check",
     "Row",
     "blocking",
+    "named_silent",
     "preflight",
     "silent_peers",
 ]
@@ -112,11 +113,15 @@ def silent_peers(status: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
+def named_silent(silent: Mapping[str, float]) -> str:
+    """``kiruna/knatte 2.3 s, ...``: silent peers by name, for a table or a check."""
+    return ", ".join(f"{name} {s:.1f} s" for name, s in sorted(silent.items()))
+
+
 def _peers(status: Mapping[str, Any]) -> Check:
     silent = silent_peers(status)
     if silent:
-        named = ", ".join(f"{name} {s:.1f} s" for name, s in sorted(silent.items()))
-        return Check(False, f"alive but silent: {named}")
+        return Check(False, f"alive but silent: {named_silent(silent)}")
     return Check(True, "none silent")
 
 

@@ -85,9 +85,11 @@ class Fleet:
         """Kill one process abruptly (SIGKILL), as a crash would."""
         self.stop(name, sig=signal.SIGKILL)
 
-    def stop_all(self) -> dict[str, int | None]:
-        # Agents before routers, so sessions close while their router is still up.
-        order = sorted(self.procs, key=lambda n: n.startswith("router"))
+    def stop_all(self, last: Sequence[str] = ()) -> dict[str, int | None]:
+        """Stop every process: agents before routers, so sessions close while their
+        router is still up, and the processes named in ``last`` after both (e.g. the
+        network path the routers close their sessions over)."""
+        order = sorted(self.procs, key=lambda n: (n in last, n.startswith("router")))
         return {name: self.stop(name) for name in order}
 
     def alive(self, name: str) -> bool:

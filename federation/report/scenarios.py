@@ -261,15 +261,7 @@ def write_scenario_figures(run: Run, summary: dict[str, Any], out: Path) -> dict
         color = f"C{i}"
         truth = _truth(run, agent)
         if area is not None:
-            corners = [
-                frame.point_to_common(x, y)
-                for x, y in (
-                    (area.x_min, area.y_min),
-                    (area.x_max, area.y_min),
-                    (area.x_max, area.y_max),
-                    (area.x_min, area.y_max),
-                )
-            ]
+            corners = frame.area_to_common(area)
             common.add_patch(Polygon(corners, fill=False, ls="--", color=color))
         ax = axes[i + 1]
         if truth is not None:

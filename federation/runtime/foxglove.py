@@ -74,7 +74,7 @@ from foxglove.messages import (
 )
 from pydantic import ValidationError
 
-from agents.workspace import Frame
+from agents.workspace import Area, Frame
 from federation.core import keys, wire
 from federation.core.keys import AgentId
 from federation.runtime.session import undeclare_all
@@ -192,10 +192,7 @@ def footprint(platform: str) -> float:
 def area_corners(workspace: Workspace) -> list[tuple[float, float]]:
     """The usable area's corners in the common frame (m), counter-clockwise from
     (x_min, y_min) of the table frame: :math:`p_c = R(\\theta) p_t + o`."""
-    x_min, x_max, y_min, y_max = workspace.area
-    frame = Frame.from_config(workspace.frame)
-    table = [(x_min, y_min), (x_max, y_min), (x_max, y_max), (x_min, y_max)]
-    return [frame.point_to_common(x, y) for x, y in table]
+    return Frame.from_config(workspace.frame).area_to_common(Area(*workspace.area))
 
 
 def _plot(title: str, field: str, sync_topics: Sequence[str]) -> fl.PlotPanel:
@@ -398,8 +395,7 @@ class LiveView:
         self._alive: dict[AgentId, bool] = {}
         self._gone: list[str] = []  # agents whose footprint is to be deleted
         self._areas_drawn: set[str] = set()  # agents whose work area is on the scene
-        self._sync: dict[str, foxglove.Channel] = {}
-        self._sync_topics: set[str] = set()
+        self._sync: dict[str, foxglove.Channel] = {}  # grows under the lock
         self._declared: list[Any] = []
         self._next_scene = 0
         self.tf = FrameTransformsChannel("/tf", context=context)
@@ -477,11 +473,10 @@ class LiveView:
                 topic = sync_topic(row["agent"], row["peer"])
                 channel = self._sync.get(topic)
                 if channel is None:
-                    channel = self._sync[topic] = foxglove.Channel(
-                        topic, schema=SYNC_SCHEMA, context=self.context
-                    )
                     with self._lock:
-                        self._sync_topics.add(topic)
+                        channel = self._sync[topic] = foxglove.Channel(
+                            topic, schema=SYNC_SCHEMA, context=self.context
+                        )
                 channel.log({k: v for k, v in row.items() if k not in ("agent", "peer")},
                             log_time=ns)  # fmt: skip
             self._log_tables(ns)
@@ -504,7 +499,7 @@ class LiveView:
     def sync_topics(self) -> list[str]:
         """The per-peer plot topics advertised so far, sorted."""
         with self._lock:
-            return sorted(self._sync_topics)
+            return sorted(self._sync)
 
     # -- logging -----------------------------------------------------------------------
     def _log_tables(self, ns: int) -> None:
@@ -557,8 +552,8 @@ def serve(
         deadline = math.inf if duration is None else time.monotonic() + duration
         while not stop.is_set() and time.monotonic() < deadline:
             view.step()
-            if layout_file is not None and view.sync_topics() != topics:
-                topics = view.sync_topics()
+            if layout_file is not None and (seen := view.sync_topics()) != topics:
+                topics = seen
                 write_layout(layout_file, topics)
                 log.info("layout for %d peer views written to %s", len(topics), layout_file)
             stop.wait(0.1)

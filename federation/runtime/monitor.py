@@ -60,6 +60,7 @@ from rich.text import Text
 
 from federation.core import keys
 from federation.core.keys import AgentId
+from federation.core.preflight import named_silent
 from federation.runtime.session import undeclare_all
 from schemas.messages import Status
 
@@ -353,8 +354,7 @@ def _silent_cell(row: Row) -> Text:
     """``kiruna/knatte 2.3 s`` in red for each peer alive but silent; ``-`` when none."""
     if not row.silent:
         return Text(_DASH)
-    named = ", ".join(f"{peer} {s:.1f} s" for peer, s in sorted(row.silent.items()))
-    return Text(named, style="bold red")
+    return Text(named_silent(row.silent), style="bold red")
 
 
 def _rejected(row: Row) -> Text:

@@ -205,12 +205,7 @@ class Testbed:
         first the close found no path and each router was killed after the 5 s grace.
         """
         try:
-            try:
-                names = [name for name in self.fleet.procs if name != _STAGE]
-                for name in sorted(names, key=lambda n: n.startswith("router")):
-                    self.fleet.stop(name)
-            finally:
-                self.fleet.stop_all()  # the stage, and anything still running
+            self.fleet.stop_all(last=(_STAGE,))
         finally:
             _delete_namespaces(self._made)
             self._made.clear()
