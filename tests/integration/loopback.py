@@ -22,13 +22,15 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import zenoh
 
 from federation.core import wire
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import last_status, read_status
+
+T = TypeVar("T")
 
 __all__ = [
     "FOLLOWER",
@@ -39,6 +41,7 @@ __all__ = [
     "Link",
     "PoseTap",
     "Router",
+    "Tap",
     "client_config",
 ]
 
@@ -56,11 +59,13 @@ def client_config(endpoint: str) -> zenoh.Config:
     return conf
 
 
-class PoseTap:
-    """The leader's pose samples as published on Zenoh (at most 10 000)."""
+class Tap(Generic[T]):
+    """What is published on a key, as Zenoh delivers it, decoded by ``decode``
+    (at most 10 000 samples)."""
 
-    def __init__(self, endpoint: str, key: str):
-        self.samples: list[wire.PoseSample] = []
+    def __init__(self, endpoint: str, key: str, decode: Callable[[bytes], T]):
+        self.samples: list[T] = []
+        self._decode = decode
         self._lock = threading.Lock()
         self.session = zenoh.open(client_config(endpoint))
         self.sub = self.session.declare_subscriber(key, self._on_sample)
@@ -68,15 +73,22 @@ class PoseTap:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         with self._lock:
             if len(self.samples) < 10_000:
-                self.samples.append(wire.decode_pose(sample.payload.to_bytes()))
+                self.samples.append(self._decode(sample.payload.to_bytes()))
 
-    def received(self) -> list[wire.PoseSample]:
+    def received(self) -> list[T]:
         with self._lock:
             return list(self.samples)
 
     def close(self) -> None:
         self.sub.undeclare()  # type: ignore[no-untyped-call]
         self.session.close()  # type: ignore[no-untyped-call]
+
+
+class PoseTap(Tap[wire.PoseSample]):
+    """The pose samples published on a key."""
+
+    def __init__(self, endpoint: str, key: str):
+        super().__init__(endpoint, key, wire.decode_pose)
 
 
 @dataclass

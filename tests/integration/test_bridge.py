@@ -13,14 +13,12 @@ import math
 import socket
 import struct
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
-from loopback import LEADER, Agent, Labs, client_config
+from loopback import LEADER, Agent, Labs, Tap
 
 from federation.core import wire
 from federation.core.paper import CLOCK_OFFSET
@@ -75,29 +73,6 @@ def gone(line: dict[str, Any]) -> bool:
     return not line["peers"].get(LEGACY, {"alive": True})["alive"]
 
 
-class PoseTap:
-    """A Zenoh subscriber on the legacy agent's pose key; the payloads it received."""
-
-    def __init__(self, endpoint: str, key: str):
-        self.payloads: list[bytes] = []
-        self._lock = threading.Lock()
-        self.session = zenoh.open(client_config(endpoint))
-        self.sub = self.session.declare_subscriber(key, self._on_sample)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        with self._lock:
-            if len(self.payloads) < 10_000:
-                self.payloads.append(sample.payload.to_bytes())
-
-    def received(self) -> list[bytes]:
-        with self._lock:
-            return list(self.payloads)
-
-    def close(self) -> None:
-        self.sub.undeclare()  # type: ignore[no-untyped-call]
-        self.session.close()  # type: ignore[no-untyped-call]
-
-
 @pytest.mark.integration
 def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
     labs: Labs, fleet: Fleet
@@ -115,7 +90,7 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
     )  # fmt: skip
     # The leader writes status once its session is up: then the router is too.
     leader.wait_status(timeout=10)
-    tap = PoseTap(router.endpoint, f"fedlab/default/{LEGACY}/pose")
+    tap = Tap(router.endpoint, f"fedlab/default/{LEGACY}/pose", bytes)  # raw payloads
     try:
         assert wait_for(lambda: legacy_samples(fleet) >= 50, timeout=20), legacy_lines(fleet)[-3:]
         leader.wait_samples(LEGACY, 20, timeout=10)
