@@ -13,6 +13,11 @@ processes. Either way the recorded exchanges are replayed through every
 estimator, so one run compares them all on identical input; a live agent's own
 estimate is the same function of the same exchanges (tests check it).
 
+Replay (``--replay``): exchanges recorded elsewhere, e.g. by ``fedlab bench
+network`` in the namespace testbed (a run folder holding ``follower.mcap`` and
+``leader.mcap``), or a file of them saved with ``--save`` (gzip JSON: each run's
+exchanges and its two clock lines, a few hundred kilobytes for dozens of runs).
+
 Scores: |estimate - truth| at each exchange after the paper's sync phase, as
 p50, p95 and max in seconds. A single run holds one draw of the paper's mean
 (fixed after the sync phase), so ``restarts`` scores the same recording again
@@ -22,6 +27,8 @@ as fresh starts: a new estimator every 10 s on a ``--trial``-second stretch
 
 from __future__ import annotations
 
+import gzip
+import json
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -45,10 +52,14 @@ __all__ = [
     "Recording",
     "Scenario",
     "load_recording",
+    "load_runs",
+    "load_saved",
     "replay",
+    "replay_runs",
     "replay_trials",
     "run",
     "run_live",
+    "save_recordings",
     "simulate",
 ]
 
@@ -224,17 +235,83 @@ def load_recording(client: Path, server: Path, peer: str = "kiruna/knatte") -> R
     a_s, b_s = clock_line(read_messages(server, ["/status"])["/status"])
     client_messages = read_messages(client, ["/status", "/sync/exchange"])
     a_c, b_c = clock_line(client_messages["/status"])
-
-    def truth(t_client: float) -> float:
-        host = (t_client - a_c) / b_c
-        return a_s + b_s * host - t_client
-
     exchanges = [
         Exchange(r["t1"], r["t2"], r["t3"], r["t2s"])
         for r in client_messages["/sync/exchange"]
         if r["peer"] == peer
     ]
-    return Recording(exchanges, truth, {"mode": "live"})
+    return _recording(exchanges, (a_s, b_s, a_c, b_c), {"mode": "live"})
+
+
+def _recording(
+    exchanges: list[Exchange], lines: tuple[float, float, float, float], meta: dict[str, Any]
+) -> Recording:
+    """A recording whose truth comes from the two clocks' lines against host time:
+    ``server = a_s + b_s host`` and ``client = a_c + b_c host``."""
+    a_s, b_s, a_c, b_c = lines
+
+    def truth(t_client: float) -> float:
+        host = (t_client - a_c) / b_c
+        return a_s + b_s * host - t_client
+
+    return Recording(exchanges, truth, {**meta, "clock_lines": list(lines)})
+
+
+def save_recordings(path: Path, recordings: dict[str, Recording]) -> None:
+    """Write named recordings (made by :func:`load_recording`) as gzip JSON."""
+    runs = [
+        {"name": name, "clock_lines": rec.meta["clock_lines"],
+         "exchanges": [[ex.t1, ex.t2, ex.t3, ex.t2s] for ex in rec.exchanges]}
+        for name, rec in recordings.items()
+    ]  # fmt: skip
+    with gzip.open(path, "wt", encoding="utf-8") as f:
+        json.dump({"format": "fedlab.sync-recordings/1", "runs": runs}, f)
+
+
+def load_saved(path: Path) -> dict[str, Recording]:
+    """The named recordings of a file written by :func:`save_recordings`."""
+    try:
+        with gzip.open(path, "rt", encoding="utf-8") as f:
+            doc = json.load(f)
+        if doc.get("format") != "fedlab.sync-recordings/1":
+            raise ValueError(f"format {doc.get('format')!r} is not fedlab.sync-recordings/1")
+        return {
+            run["name"]: _recording(
+                [Exchange(*row) for row in run["exchanges"]],
+                tuple(run["clock_lines"]), {"mode": "replay", "source": str(path)},
+            )
+            for run in doc["runs"]
+        }  # fmt: skip
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: not a file of saved sync recordings ({e})") from e
+
+
+def load_runs(paths: Iterable[Path]) -> dict[str, Recording]:
+    """Recordings by name from run folders (``follower.mcap`` and ``leader.mcap``, as
+    ``fedlab bench network`` leaves them; named ``parent/folder``) and saved files."""
+    recordings: dict[str, Recording] = {}
+    for path in paths:
+        if path.is_dir():
+            client, server = path / "follower.mcap", path / "leader.mcap"
+            if not (client.is_file() and server.is_file()):
+                raise ValueError(f"{path}: a run folder needs follower.mcap and leader.mcap")
+            recordings[f"{path.parent.name}/{path.name}"] = load_recording(client, server)
+        else:
+            recordings.update(load_saved(path))
+    return recordings
+
+
+def replay_runs(
+    recordings: dict[str, Recording], estimators: Sequence[str]
+) -> list[dict[str, Any]]:
+    """Every estimator on every recording from its start: one row per pair, with
+    :func:`replay`'s scores (the network bench scores the live estimate the same way)."""
+    return [
+        {"scenario": name, "estimator": est, **replay(rec, est), "mode": "replay",
+         "restarts": None}
+        for name, rec in recordings.items()
+        for est in estimators
+    ]  # fmt: skip
 
 
 def run_live(scenario: Scenario, duration: float, out: Path, seed: int = 1) -> Recording:

@@ -66,7 +66,9 @@ def _add_sync(benches: Subparsers) -> None:
         epilog=(
             "Examples:\n"
             "  fedlab bench sync --duration 60 --scenario paper-like --scenario drift\n"
-            "  fedlab bench sync --offline --duration 600 --json"
+            "  fedlab bench sync --offline --duration 600 --json\n"
+            "  fedlab bench sync --replay runs/bench-network-tcp-tuned/loss20-tcp-tuned-0\n"
+            "  fedlab bench sync --replay benchmarks/data/testbed-sync-exchanges.json.gz"
         ),
     )
     p.add_argument(
@@ -90,6 +92,15 @@ def _add_sync(benches: Subparsers) -> None:
     p.add_argument(
         "--out", type=Path, default=Path("runs/bench-sync"), metavar="DIR", help="run folder"
     )
+    p.add_argument(
+        "--replay", action="append", type=Path, metavar="PATH",
+        help="score recorded exchanges instead of running scenarios (repeatable): a run "
+        "folder with follower.mcap and leader.mcap, or a file written by --save",
+    )  # fmt: skip
+    p.add_argument(
+        "--save", type=Path, metavar="FILE",
+        help="with --replay: write the recordings read to FILE (gzip JSON)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
@@ -98,11 +109,23 @@ def _run_sync(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     console = Console(stderr=True)
-    scenarios = [sync.SCENARIOS[n] for n in (args.scenario or sync.SCENARIOS)]
-    results = sync.run(
-        scenarios, args.estimator or sync.ESTIMATORS, args.duration, args.offline, args.out,
-        args.seed, progress=console.print, trial=args.trial,
-    )  # fmt: skip
+    estimators = args.estimator or sync.ESTIMATORS
+    if args.save and not args.replay:
+        raise SystemExit("fedlab bench sync: --save needs --replay (the recordings to save)")
+    if args.replay:
+        try:
+            recordings = sync.load_runs(args.replay)
+            results = sync.replay_runs(recordings, estimators)
+        except ValueError as e:
+            raise SystemExit(f"fedlab bench sync: {e}") from None
+        if args.save:
+            sync.save_recordings(args.save, recordings)
+    else:
+        scenarios = [sync.SCENARIOS[n] for n in (args.scenario or sync.SCENARIOS)]
+        results = sync.run(
+            scenarios, estimators, args.duration, args.offline, args.out,
+            args.seed, progress=console.print, trial=args.trial,
+        )  # fmt: skip
     if args.json:
         print(json.dumps(results, indent=1))
         return 0
