@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from federation.core.linkwatch import MAX_STALE, LinkWatch, SilenceWatch, stale_threshold
+from federation.core.linkwatch import (
+    MAX_STALE,
+    LinkWatch,
+    SilenceWatch,
+    loss_upper_bound,
+    stale_threshold,
+)
 
 STALE = 0.125  # s (a binary fraction: the boundary test is exact)
 
@@ -189,3 +195,30 @@ def test_a_peer_that_left_owes_nothing() -> None:
 def test_silence_after_must_be_positive() -> None:
     with pytest.raises(ValueError, match="after"):
         SilenceWatch(after=0.0)
+
+
+def test_loss_upper_bound_is_wilsons() -> None:
+    # Values of Wilson's one-sided 95 % bound, computed by hand.
+    assert loss_upper_bound(0, 400) == pytest.approx(0.00672, abs=5e-5)
+    assert loss_upper_bound(20, 400) == pytest.approx(0.0712, abs=5e-4)
+    assert loss_upper_bound(4, 400) < 0.0464 < loss_upper_bound(14, 400)
+    assert loss_upper_bound(0, 0) == 1.0 and loss_upper_bound(10, 10) == 1.0
+
+
+def test_three_poses_lost_in_a_row_do_not_hold_at_5_percent_loss_read_low() -> None:
+    """A 5 % link whose 400-pose window happened to read 4 %: three poses lost in a
+    row (a 200 ms gap at 20 Hz, as in a testbed run) must not hold."""
+    watch = LinkWatch(stale_after=0.15)
+    t = 0.0
+    for i in range(440):
+        t += 0.05
+        if i % 25 == 7:  # one in 25 missing: 4 %
+            continue
+        watch.observe(arrived_at=t + 0.04, sent_at=t)
+    assert watch.loss == pytest.approx(0.04, abs=0.005)
+    assert watch.loss_bound > 0.05
+    assert watch.threshold > 0.2  # four periods, where the measured 4 % gives three
+    assert stale_threshold(0.05, watch.loss, 0.0, floor=0.15) < 0.2
+    last = t + 0.04
+    assert watch.update(last + 0.199, pose_at=last, synced_at=last) is None  # 3 lost: no hold
+    assert watch.update(last + MAX_STALE + 0.001, pose_at=last, synced_at=last) == "stale_hold"

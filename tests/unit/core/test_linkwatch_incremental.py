@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from federation.core.linkwatch import WINDOW, LinkWatch, stale_threshold
+from federation.core.linkwatch import WINDOW, LinkWatch, loss_upper_bound, stale_threshold
 
 
 def straightforward(gaps: list[tuple[float, float]], stale_after: float, ceiling: float) -> tuple:
@@ -22,7 +22,8 @@ def straightforward(gaps: list[tuple[float, float]], stale_after: float, ceiling
     jitter = [a - s for s, a in gaps]
     mean = sum(jitter) / len(jitter)
     sigma = math.sqrt(sum((j - mean) ** 2 for j in jitter) / len(jitter))
-    return period, loss, sigma, stale_threshold(period, loss, sigma, stale_after, ceiling)
+    bound = loss_upper_bound(expected - len(slots), expected)
+    return period, loss, sigma, stale_threshold(period, bound, sigma, stale_after, ceiling)
 
 
 # One pose stream: each step skips some poses (lost) and arrives with some jitter.
