@@ -88,9 +88,11 @@ def test_five_percent_loss_on_tcp_no_stale_pose_and_sync_accurate(tmp_path: Path
     assert result["pose_latency_ms"]["max"] <= (ONE_WAY + 0.01 + MAX_STALE) * 1e3
     # The 0.3 ms is the benchmark's (60 s scored: 0.09 and 0.11 ms, docs/deploy.md).
     # Over this test's 20 s on the path's 3 ms jitter the estimate has less to average:
-    # four runs gave p95 0.04, 0.22, 0.29 and 0.43 ms (the last fitted a spurious 20 ppm
-    # drift when its window first spanned 20 s), so the bound here is 0.5 ms.
-    assert result["sync_error_ms"]["p95"] < 0.5
+    # four runs gave p95 0.04, 0.22, 0.29 and 0.43 ms, and one in CI 0.517 ms, which the
+    # clock filter before its floors changed gives too (0.513: replayed). That run's
+    # error was the path's own asymmetry on a loaded host, unseen by any timestamp
+    # method, so the bound here is 0.75 ms.
+    assert result["sync_error_ms"]["p95"] < 0.75
     # An outside raw Zenoh subscriber on Rome's router keeps receiving, as the agent does.
     sub = result["outside_subscriber"]
     assert sub["leader_poses"] >= 0.9 * sub["follower_poses_all_run"]
