@@ -217,41 +217,62 @@ def _weights(excess: np.ndarray, count: int) -> np.ndarray:
 class _Rows:
     """The window's exchanges as rows of one float array, oldest first: 24 bytes an
     exchange (a tuple of three floats cost about 150) and no conversion at each fit
-    (issue 17). Rows are appended at the end and dropped from the front; the live
-    rows move back to the start when the array's end is reached, and the array
-    doubles when they fill more than half of it."""
+    (issue 17). New rows wait in a short list and join the array when it is read or
+    when its oldest row expires (a row written into the array cost each reply more
+    than the rest of the filter); the live rows move back to the start when the
+    array's end is reached, and the array doubles when they fill more than half
+    of it."""
 
     def __init__(self, capacity: int = 64):
         self._data = np.empty((capacity, 3))
         self._start = 0
         self._end = 0
+        self._fresh: list[tuple[float, float, float]] = []
+        self._oldest = math.inf  # t of the oldest row, array or list
 
     def __len__(self) -> int:
-        return self._end - self._start
+        return self._end - self._start + len(self._fresh)
 
     def append(self, t: float, offset: float, rtt: float) -> None:
-        if self._end == len(self._data):
-            live = self._data[self._start : self._end]
-            if 2 * len(live) > len(self._data):
-                grown = np.empty((2 * len(self._data), 3))
-                grown[: len(live)] = live
-                self._data = grown
-            else:
-                self._data[: len(live)] = live.copy()
-            self._start, self._end = 0, len(live)
-        self._data[self._end] = (t, offset, rtt)
-        self._end += 1
+        if not self:
+            self._oldest = t
+        self._fresh.append((t, offset, rtt))
+
+    def _settle(self) -> None:
+        """Move the waiting rows into the array."""
+        fresh = self._fresh
+        if not fresh:
+            return
+        live = self._end - self._start
+        need = live + len(fresh)
+        if self._end + len(fresh) > len(self._data):
+            capacity = len(self._data)
+            while 2 * need > capacity:
+                capacity *= 2
+            data = np.empty((capacity, 3)) if capacity != len(self._data) else self._data
+            data[:live] = self._data[self._start : self._end].copy()
+            self._data, self._start, self._end = data, 0, live
+        self._data[self._end : self._end + len(fresh)] = fresh
+        self._end += len(fresh)
+        fresh.clear()
 
     def drop_older(self, t: float, horizon: float) -> None:
         """Forget the rows more than ``horizon`` seconds before client time ``t``."""
+        if not t - self._oldest > horizon:
+            return
+        self._settle()
         data, start, end = self._data, self._start, self._end
         while start < end and t - data[start, 0] > horizon:
             start += 1
         self._start = start
+        self._oldest = float(data[start, 0]) if start < end else math.inf
 
     def rows(self) -> np.ndarray:
         """The live rows, (t_mid, offset, rtt), a view: valid until the next append."""
+        self._settle()
         return self._data[self._start : self._end]
 
     def last_t(self) -> float:
+        if self._fresh:
+            return self._fresh[-1][0]
         return float(self._data[self._end - 1, 0])

@@ -31,7 +31,6 @@ from __future__ import annotations
 import math
 import statistics
 from collections import Counter, OrderedDict, deque
-from dataclasses import dataclass
 from typing import Literal, NamedTuple, Protocol
 
 from federation.core import wire
@@ -51,51 +50,70 @@ DEFAULT_WINDOW = 10.0
 """Seconds of reference time over which the paper averages the offset (Eq. 6)."""
 
 
-@dataclass(frozen=True, slots=True)
 class Exchange:
     """The timestamps of one query/reply, and what they give.
 
     ``t2s`` is the optional fourth timestamp (server clock when the reply left).
     With it, the server's turnaround ``t2s - t2`` is taken out of the delay and the
     offset is SNTP's; without it, receive and send are one instant (the paper's).
+
+    What they give is computed once, when the exchange is made: each is read
+    several times per reply (clock-step check, delay median, clock filter), and a
+    chain of properties cost a follower's reply path a tenth of its time (issue 17).
     """
+
+    __slots__ = ("delay", "error_bound", "offset", "rtt", "t1", "t2", "t2s", "t3", "t_mid",
+                 "turnaround")  # fmt: skip
 
     t1: float
     t2: float
     t3: float
-    t2s: float | None = None
+    t2s: float | None
+    turnaround: float
+    """Server's time between receiving the request and sending the reply (s)."""
+    rtt: float
+    """Round trip on the wire: client's elapsed time less the server's turnaround (s)."""
+    delay: float
+    """One-way delay, Eq. 3 (s): ``(t3 - t1) / 2``, less half the turnaround if known."""
+    offset: float
+    """Server clock minus client clock, Eq. 4 (s): ``t2 - (t1 + t3) / 2``; with four
+    timestamps ``((t2 - t1) + (t2s - t3)) / 2``."""
+    t_mid: float
+    """Client time the offset refers to: the middle of the exchange (s)."""
+    error_bound: float
+    """Largest offset error any path asymmetry can cause: half the round trip."""
 
-    @property
-    def turnaround(self) -> float:
-        """Server's time between receiving the request and sending the reply (s)."""
-        return 0.0 if self.t2s is None else self.t2s - self.t2
+    def __init__(self, t1: float, t2: float, t3: float, t2s: float | None = None):
+        setattr_ = object.__setattr__
+        turnaround = 0.0 if t2s is None else t2s - t2
+        rtt = (t3 - t1) - turnaround
+        setattr_(self, "t1", t1)
+        setattr_(self, "t2", t2)
+        setattr_(self, "t3", t3)
+        setattr_(self, "t2s", t2s)
+        setattr_(self, "turnaround", turnaround)
+        setattr_(self, "rtt", rtt)
+        setattr_(self, "delay", rtt / 2.0)
+        setattr_(self, "error_bound", rtt / 2.0)
+        setattr_(self, "offset", ((t2 - t1) + ((t2 if t2s is None else t2s) - t3)) / 2.0)
+        setattr_(self, "t_mid", (t1 + t3) / 2.0)
 
-    @property
-    def rtt(self) -> float:
-        """Round trip on the wire: client's elapsed time less the server's turnaround (s)."""
-        return (self.t3 - self.t1) - self.turnaround
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"Exchange is immutable: cannot set {name!r}")
 
-    @property
-    def delay(self) -> float:
-        """One-way delay, Eq. 3 (s): ``(t3 - t1) / 2``, less half the turnaround if known."""
-        return self.rtt / 2.0
+    def __eq__(self, other: object) -> bool:
+        if other.__class__ is not Exchange:
+            return NotImplemented
+        return (self.t1, self.t2, self.t3, self.t2s) == (other.t1, other.t2, other.t3, other.t2s)
 
-    @property
-    def offset(self) -> float:
-        """Server clock minus client clock, Eq. 4 (s): ``t2 - (t1 + t3) / 2``;
-        with four timestamps ``((t2 - t1) + (t2s - t3)) / 2``."""
-        t2s = self.t2 if self.t2s is None else self.t2s
-        return ((self.t2 - self.t1) + (t2s - self.t3)) / 2.0
+    def __hash__(self) -> int:
+        return hash((self.t1, self.t2, self.t3, self.t2s))
 
-    @property
-    def t_mid(self) -> float:
-        """Client time the offset refers to: the middle of the exchange (s)."""
-        return (self.t1 + self.t3) / 2.0
+    def __repr__(self) -> str:
+        return f"Exchange(t1={self.t1!r}, t2={self.t2!r}, t3={self.t3!r}, t2s={self.t2s!r})"
 
-    @property
-    def error_bound(self) -> float:
-        """Largest offset error any path asymmetry can cause: half the round trip."""
-        return self.delay
+    def __reduce__(self) -> tuple[type[Exchange], tuple[float, float, float, float | None]]:
+        return Exchange, (self.t1, self.t2, self.t3, self.t2s)
 
 
 class Estimator(Protocol):

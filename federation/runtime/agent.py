@@ -223,7 +223,8 @@ class AgentRuntime:
             return True
         return self.recorder is not None and topic in self.recorder.channels
 
-    def record(self, topic: Channel, message: dict[str, Any]) -> None:
+    def record(self, topic: Channel, message: dict[str, Any] | bytes) -> None:
+        """Record ``message`` (a dict, or its JSON encoded) on the agent's recordings."""
         if self.recorder is not None:
             self.recorder.record(topic, message)
         run = self.run_recording
@@ -714,7 +715,7 @@ class AgentRuntime:
         if run is not None:
             run.status_line(line)
         if self.recording(Channel.STATUS):
-            self.record(Channel.STATUS, status.model_dump())
+            self.record(Channel.STATUS, line.encode())  # the line published: encoded once
 
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------
     def _on_sync_query(self, query: zenoh.Query) -> None:
@@ -741,21 +742,24 @@ class AgentRuntime:
     def _on_sync_reply(self, peer: Peer, reply: zenoh.Reply) -> None:
         t3, host = self.clock.read()  # read on arrival: the paper's t3
         try:
-            if reply.ok is None:
+            ok = reply.ok  # each read of it builds a new sample: read once
+            if ok is None:
                 self.count("sync_reply_errors")
                 return
-            if not self._admit_reply(peer, reply, host):
+            payload = ok.payload
+            if not self._admit_reply(peer, reply, len(payload), host):
                 return
             self.silence.answered(peer.agent)
             t2s = None
-            if self.config.four_timestamps and reply.ok.attachment is not None:
+            attachment = ok.attachment if self.config.four_timestamps else None
+            if attachment is not None:
                 try:
-                    t2s = read_send_time(reply.ok.attachment.to_bytes())
+                    t2s = read_send_time(attachment.to_bytes())
                 except wire.DecodeError:
                     self.count("sync_attachment_malformed")
             with self._lock:
                 steps = peer.client.steps
-                accepted = peer.client.receive(reply.ok.payload.to_bytes(), t3, t2s)
+                accepted = peer.client.receive(payload.to_bytes(), t3, t2s)
                 reason = peer.client.last_rejection
                 exchange = peer.client.last
                 recorded = self.recording(Channel.SYNC_EXCHANGE)
@@ -803,7 +807,9 @@ class AgentRuntime:
         self._on_pose(received)
 
     def _on_pose(self, sample: Received) -> None:
-        t_recv, host = self.clock.read()
+        # Arrival in the process, read once for all co-hosted agents (Fanout).
+        host = sample.arrived if self.clock.source is time.monotonic else self.clock.source()
+        t_recv = self.clock.at(host)
         try:
             parsed = self._pose_key(sample.key)
             if not self._admit_pose(sample, parsed, host):
@@ -1027,11 +1033,11 @@ class AgentRuntime:
             return True
         return self._contest_verdict(parsed[0], "pose", sample.source(), host)
 
-    def _admit_reply(self, peer: Peer, reply: zenoh.Reply, host: float) -> bool:
-        """Whether a sync reply may be used: not oversized, and the peer not contested
-        (its source: the replier's session id, which Zenoh sets on every reply)."""
-        assert reply.ok is not None
-        if self._oversized(len(reply.ok.payload), "sync_replies_oversized"):
+    def _admit_reply(self, peer: Peer, reply: zenoh.Reply, size: int, host: float) -> bool:
+        """Whether a sync reply (its payload ``size`` bytes) may be used: not oversized,
+        and the peer not contested (its source: the replier's session id, which Zenoh
+        sets on every reply)."""
+        if self._oversized(size, "sync_replies_oversized"):
             return False
         replier = reply.replier_id
         source = None if replier is None else str(replier.zid)

@@ -7,7 +7,10 @@ each taking the interpreter lock afresh (about 40 us each, measured with 16
 agents in a process); a shared subscriber takes it once and calls every agent's
 handler in turn (a few us each). Each handler gets the sample as a :class:`Received`,
 which converts each part (key, payload, source id, the decoded pose and its
-reference stamp) once, whatever the number of agents that read it.
+reference stamp) once, whatever the number of agents that read it, and carries the
+host's monotonic time at which the sample reached the process (``arrived``): each
+agent's arrival time is that one, not the moment its turn among the co-hosted
+agents came (the link watch measures the network, not the order of handlers).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import functools
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -32,11 +36,13 @@ _UNSET: Any = object()
 class Received:
     """One Zenoh sample as the agents of a process read it: each part is converted on
     first use and kept, so that N co-hosted agents decode a sample once, not N times.
-    ``sample`` is the Zenoh sample itself (valid only during the callback)."""
+    ``sample`` is the Zenoh sample itself (valid only during the callback);
+    ``arrived`` the host's monotonic time when it reached the process."""
 
-    __slots__ = ("_payload", "_pose", "_source", "_stamp", "key", "sample", "size")
+    __slots__ = ("_payload", "_pose", "_source", "_stamp", "arrived", "key", "sample", "size")
 
     def __init__(self, sample: zenoh.Sample):
+        self.arrived = time.monotonic()
         self.sample = sample
         self.key = str(sample.key_expr)
         self.size = len(sample.payload)  # bytes, before anything is copied

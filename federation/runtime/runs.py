@@ -109,7 +109,7 @@ class RunRecording:
         self.recorder.add_metadata(METADATA, self.metadata)
         self._finished = False
 
-    def record(self, topic: str, message: dict[str, Any]) -> None:
+    def record(self, topic: str, message: dict[str, Any] | bytes) -> None:
         self.recorder.record(topic, message)
 
     def status_line(self, line: str) -> None:

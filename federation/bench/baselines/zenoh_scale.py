@@ -12,7 +12,7 @@ and sends what it sends:
 - status once a second: ``STATUS_BYTES`` bytes of JSON;
 - a follower: one shared subscriber on the leader's pose (each sample decoded once
   for the session, as fedlab's Fanout does, and handed to every follower, which
-  reads its own arrival time), a sync query to the leader every 0.1 s; the leader:
+  gets the time it reached the process), a sync query to the leader every 0.1 s; the leader:
   a sync query to every other agent once a second.
 
 Clocks are the host's monotonic clock, so a follower's latency is its arrival time
@@ -89,9 +89,10 @@ class BareAgent:
             REPLY.unpack(reply.ok.payload.to_bytes())
             self.replies += 1
 
-    def on_pose(self, t: float) -> None:
-        """A pose stamped ``t`` (decoded once for the session, as fedlab's Fanout does)."""
-        self.received.append((t, time.monotonic()))
+    def on_pose(self, t: float, arrived: float) -> None:
+        """A pose stamped ``t`` that reached the process at ``arrived`` (decoded and
+        timed once for the session, as fedlab's Fanout does)."""
+        self.received.append((t, arrived))
 
     def publish_pose(self) -> None:
         now = time.monotonic()
@@ -144,12 +145,13 @@ def main() -> None:
         if followers:  # one shared subscriber per session, as fedlab's Fanout
 
             def deliver(sample: zenoh.Sample) -> None:
+                arrived = time.monotonic()
                 t = POSE.unpack(sample.payload.to_bytes())[0]
                 attachment = sample.attachment
                 if attachment is not None:
                     STAMP.unpack(attachment.to_bytes())
                 for agent in followers:
-                    agent.on_pose(t)
+                    agent.on_pose(t, arrived)
 
             subscriber = session.declare_subscriber(
                 f"{FEDERATION}/{leader}/pose", zenoh.handlers.Callback(deliver, indirect=False)
