@@ -121,6 +121,8 @@ def _unpack(
 def _check_finite(
     values: tuple[float, ...], what: str, error: type[ValueError] = ValueError
 ) -> None:
+    if math.isfinite(sum(values)):
+        return  # the sum of finite numbers is finite but for an overflow: one C loop
     for index, value in enumerate(values):
         if not math.isfinite(value):
             raise error(f"{what}: field {index} is {value!r}, not a finite number")

@@ -15,6 +15,8 @@ override them:
   client on such a router, or any node once the routers were universal, stopped
   receiving under WAN loss (docs/deploy.md, "Transports under loss": the testbed
   runs, a loopback reproduction, and what the change costs);
+- eight transmit batches queued for data (Zenoh's default is two), so that a pose
+  waiting for a busy host's transmit task is not dropped after a millisecond;
 - clients retry their router forever instead of exiting, so an agent started
   before its router joins when the router comes up.
 """
@@ -54,6 +56,10 @@ _DEFAULTS: dict[str, Any] = {
     # stops a congested link's pose for good (see the docstring).
     "transport/unicast/lowlatency": False,
     "transport/unicast/qos/enabled": True,
+    # Eight batches queued for data, not Zenoh's two: on a busy host, express poses
+    # waiting over a millisecond for a full queue were dropped (1 in 2000 to 3000 at 64
+    # agents on 2 cores; none with eight: docs/scale.md, "Loss on a busy host").
+    "transport/link/tx/queue/size/data": 8,
 }
 _CLIENT_DEFAULTS: dict[str, Any] = {
     "connect/timeout_ms": -1,

@@ -36,6 +36,16 @@ def test_every_router_is_universal_with_qos(path: Path) -> None:
     assert _get(conf, "transport/unicast/lowlatency") is False, path
 
 
+@pytest.mark.parametrize("path", ROUTERS, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_router_queues_eight_data_batches_as_fedlab_sessions(path: Path) -> None:
+    # Two (Zenoh's default) dropped poses on a busy host (docs/scale.md).
+    assert _get(zenoh.Config.from_file(str(path)), "transport/link/tx/queue/size/data") == 8
+    for mode in ("client", "peer", "router"):
+        ours = build_config(ZenohOptions(), mode)
+        assert _get(ours, "transport/link/tx/queue/size/data") == 8, mode
+        assert _get(ours, "transport/link/tx/queue/size/control") == 2, mode  # the rest as is
+
+
 @pytest.mark.parametrize("path", [p for p in ROUTERS if p.parent.name != "multilink"])
 def test_the_tcp_and_tls_lab_links_keep_the_measured_10_s_lease(path: Path) -> None:
     # 10 s measured better than 15 s after a WAN cut (docs/deploy.md, "A WAN cut").
