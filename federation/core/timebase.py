@@ -58,7 +58,7 @@ class TimeBase(Generic[K]):
 
     def offset(self, peer: K, t: float) -> float | None:
         """``peer``'s clock minus own at own time ``t`` (s): 0 for oneself."""
-        if peer == self.me:
+        if peer is self.me or peer == self.me:
             return 0.0
         estimate = self.estimates.get(peer)
         return None if estimate is None else estimate.offset_at(t)

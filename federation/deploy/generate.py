@@ -192,7 +192,11 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
         **_common(fed.message_limit),
         "access_control": access_control(fed, lab),
     }
-    doc["transport"]["link"]["tx"] = {"lease": LEASE_MS, "keep_alive": 4}
+    # Eight data batches queued, as fedlab's sessions (Zenoh's two dropped poses on a
+    # busy host: docs/scale.md, "Loss on a busy host").
+    doc["transport"]["link"]["tx"] = {
+        "lease": LEASE_MS, "keep_alive": 4, "queue": {"size": {"data": 8}}
+    }  # fmt: skip
     doc["transport"]["link"]["tls"] = {
         "root_ca_certificate": str(c / "ca.pem"),
         "listen_certificate": str(c / f"{lab}.pem"),

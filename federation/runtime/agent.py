@@ -719,20 +719,26 @@ class AgentRuntime:
 
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------
     def _on_sync_query(self, query: zenoh.Query) -> None:
-        t2 = self.clock.now()  # read on arrival: the paper's t2
+        clock = self.clock
+        t2 = clock.now()  # read on arrival: the paper's t2
         try:
             payload = query.payload
-            if self._oversized(0 if payload is None else len(payload), "sync_requests_oversized"):
+            if payload is None:
+                request = b""
+            elif len(payload) > MAX_SMALL_PAYLOAD:
+                self.count("sync_requests_oversized")
                 return
-            request = payload.to_bytes() if payload is not None else b""
+            else:
+                request = payload.to_bytes()
             try:
                 # The send time rides in the attachment: the payload stays the paper's 64 bytes.
-                served = serve(request, t2, self.pose, self.clock.now())
+                served = serve(request, t2, self.pose, clock.now())
             except wire.DecodeError as error:
                 self.count("sync_requests_malformed")
                 self.rejects("sync request", f"{query.key_expr}: {error}")
                 return
-            query.reply(query.key_expr, served.payload, attachment=served.attachment)
+            key = query.key_expr
+            query.reply(key, served.payload, attachment=served.attachment)
             self.count("sync_requests_served")
         except Exception:
             log.exception("sync query on %s failed", query.key_expr)
