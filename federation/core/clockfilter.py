@@ -182,8 +182,8 @@ class ClockFilter:
         return None if fit is None else fit.intercept
 
     def offset_at(self, t: float) -> float | None:
-        fit = self.fit
-        return None if fit is None else fit.at(t)
+        fit = self._fit  # read several times per control step: no property, no call
+        return None if fit is None else fit.intercept + fit.drift * (t - fit.t_ref)
 
     @property
     def bound(self) -> float | None:

@@ -267,7 +267,9 @@ class SyncClient:
         self.last_step: float | None = None  # size of the last one (s)
         self.step_margin = step_margin
         self._suspects: list[Exchange] = []
-        self._recent: deque[tuple[float, float]] = deque(maxlen=8)  # (offset, error bound)
+        # The recent exchanges' offsets and error bounds, side by side (sorted in C).
+        self._recent: deque[float] = deque(maxlen=8)
+        self._recent_bounds: deque[float] = deque(maxlen=8)
         self._delays: deque[float] = deque(maxlen=delay_window)
         self._delay: float | None = None  # their median, None: to be computed
         self._pending: OrderedDict[float, None] = OrderedDict()
@@ -346,8 +348,8 @@ class SyncClient:
         a row are a step: the estimate is reset and starts again from them; fewer are
         rejected as ``inconsistent``."""
         if len(self._recent) >= 3:
-            offsets = sorted(o for o, _ in self._recent)
-            bounds = sorted(b for _, b in self._recent)
+            offsets = sorted(self._recent)
+            bounds = sorted(self._recent_bounds)
             median, bound = offsets[len(offsets) // 2], bounds[len(bounds) // 2]
             allowed = exchange.error_bound + bound + self.step_margin
             if abs(exchange.offset - median) > allowed:
@@ -358,7 +360,8 @@ class SyncClient:
                 self._restart(exchange.offset - median)
                 return True
         self._suspects.clear()
-        self._recent.append((exchange.offset, exchange.error_bound))
+        self._recent.append(exchange.offset)
+        self._recent_bounds.append(exchange.error_bound)
         return True
 
     def _restart(self, jump: float) -> None:
@@ -370,8 +373,10 @@ class SyncClient:
         self._delays.clear()
         self._delay = None
         self._recent.clear()
+        self._recent_bounds.clear()
         for ex in suspects:
-            self._recent.append((ex.offset, ex.error_bound))
+            self._recent.append(ex.offset)
+            self._recent_bounds.append(ex.error_bound)
         for ex in suspects[:-1]:  # the caller feeds the last one
             self.accepted += 1
             self._delays.append(ex.delay)
@@ -408,6 +413,7 @@ class SyncClient:
         self._delay = None
         self._pending.clear()
         self._recent.clear()
+        self._recent_bounds.clear()
         self._suspects.clear()
         self.last = None
 

@@ -107,8 +107,9 @@ class Peer:
     next_sync: float = 0.0  # host monotonic time of its next sync request
 
     def offset_at(self, t: float) -> float | None:
-        """Its clock minus this agent's at own time ``t`` (s): the time base's estimate."""
-        return self.client.offset_at(t)
+        """Its clock minus this agent's at own time ``t`` (s): the time base's estimate
+        (the client's estimator asked directly: one call, not two, several times a step)."""
+        return self.client.estimator.offset_at(t)
 
 
 class AgentRuntime:
