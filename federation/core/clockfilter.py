@@ -182,8 +182,8 @@ class ClockFilter:
         return None if fit is None else fit.intercept
 
     def offset_at(self, t: float) -> float | None:
-        fit = self._fit  # read several times per control step: no property, no call
-        return None if fit is None else fit.intercept + fit.drift * (t - fit.t_ref)
+        fit = self._fit  # read several times per control step: not through the property
+        return None if fit is None else fit.at(t)
 
     @property
     def bound(self) -> float | None:

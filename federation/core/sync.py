@@ -93,8 +93,9 @@ class Exchange:
         setattr_(self, "t2s", t2s)
         setattr_(self, "turnaround", turnaround)
         setattr_(self, "rtt", rtt)
-        setattr_(self, "delay", rtt / 2.0)
-        setattr_(self, "error_bound", rtt / 2.0)
+        delay = rtt / 2.0
+        setattr_(self, "delay", delay)
+        setattr_(self, "error_bound", delay)
         setattr_(self, "offset", ((t2 - t1) + ((t2 if t2s is None else t2s) - t3)) / 2.0)
         setattr_(self, "t_mid", (t1 + t3) / 2.0)
 

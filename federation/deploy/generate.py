@@ -46,6 +46,7 @@ from cryptography import x509
 
 from federation.core.keys import control_key
 from federation.deploy import certs
+from federation.runtime.session import DATA_QUEUE_BATCHES
 from schemas.federation import FederationFile, LabEntry
 
 __all__ = [
@@ -195,7 +196,7 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
     # Eight data batches queued, as fedlab's sessions (Zenoh's two dropped poses on a
     # busy host: docs/scale.md, "Loss on a busy host").
     doc["transport"]["link"]["tx"] = {
-        "lease": LEASE_MS, "keep_alive": 4, "queue": {"size": {"data": 8}}
+        "lease": LEASE_MS, "keep_alive": 4, "queue": {"size": {"data": DATA_QUEUE_BATCHES}}
     }  # fmt: skip
     doc["transport"]["link"]["tls"] = {
         "root_ca_certificate": str(c / "ca.pem"),

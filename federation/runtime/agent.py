@@ -724,13 +724,9 @@ class AgentRuntime:
         t2 = clock.now()  # read on arrival: the paper's t2
         try:
             payload = query.payload
-            if payload is None:
-                request = b""
-            elif len(payload) > MAX_SMALL_PAYLOAD:
-                self.count("sync_requests_oversized")
+            if payload is not None and self._oversized(len(payload), "sync_requests_oversized"):
                 return
-            else:
-                request = payload.to_bytes()
+            request = b"" if payload is None else payload.to_bytes()
             try:
                 # The send time rides in the attachment: the payload stays the paper's 64 bytes.
                 served = serve(request, t2, self.pose, clock.now())
@@ -738,8 +734,7 @@ class AgentRuntime:
                 self.count("sync_requests_malformed")
                 self.rejects("sync request", f"{query.key_expr}: {error}")
                 return
-            key = query.key_expr
-            query.reply(key, served.payload, attachment=served.attachment)
+            query.reply(query.key_expr, served.payload, attachment=served.attachment)
             self.count("sync_requests_served")
         except Exception:
             log.exception("sync query on %s failed", query.key_expr)

@@ -142,13 +142,10 @@ class Recorder:
         pending, channels, add = self._pending, self._channels, self._writer.add_message
         while pending:
             topic, stamp, message = pending.popleft()
-            if isinstance(message, bytes):
-                add(channels[topic], stamp, message, stamp)
-                self.written += 1
-                continue
-            add(channels[topic], stamp, json.dumps(message).encode(), stamp)
+            data = message if isinstance(message, bytes) else json.dumps(message).encode()
+            add(channels[topic], stamp, data, stamp)
             self.written += 1
-            if topic == Channel.POSE_SENT and self._foxglove:
+            if isinstance(message, dict) and topic == Channel.POSE_SENT and self._foxglove:
                 self._write_foxglove(stamp, message)
 
     def _write_foxglove(self, stamp: int, message: dict[str, Any]) -> None:

@@ -34,6 +34,7 @@ import zenoh
 from schemas.config import ZenohOptions
 
 __all__ = [
+    "DATA_QUEUE_BATCHES",
     "DEFAULT_TIMEOUT",
     "ConnectError",
     "ZenohConfigError",
@@ -47,6 +48,9 @@ __all__ = [
 
 log = logging.getLogger("fedlab.session")
 
+DATA_QUEUE_BATCHES = 8
+"""Transmit batches queued for data on every link (Zenoh's default is two)."""
+
 DEFAULT_TIMEOUT = 5.0
 """s a command or the SDK waits for its router before giving up."""
 
@@ -59,7 +63,7 @@ _DEFAULTS: dict[str, Any] = {
     # Eight batches queued for data, not Zenoh's two: on a busy host, express poses
     # waiting over a millisecond for a full queue were dropped (1 in 2000 to 3000 at 64
     # agents on 2 cores; none with eight: docs/scale.md, "Loss on a busy host").
-    "transport/link/tx/queue/size/data": 8,
+    "transport/link/tx/queue/size/data": DATA_QUEUE_BATCHES,
 }
 _CLIENT_DEFAULTS: dict[str, Any] = {
     "connect/timeout_ms": -1,
