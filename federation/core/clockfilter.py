@@ -152,11 +152,13 @@ class ClockFilter:
         t_ref = float(data[-1, 0])
         x, offset, rtt = data[:, 0] - t_ref, data[:, 1], data[:, 2]
         excess = rtt - rtt.min()
+        # Weighted sums as dot products: one call each, no temporary array (a refit
+        # runs on a cold cache between messages, where each numpy call costs, issue 17).
         w = _weights(excess, OFFSET_FLOOR_COUNT)
         total = float(w.sum())
-        bound = float((w * excess).sum()) / total / 2.0
-        x_mean = float((w * x).sum()) / total
-        y_mean = float((w * offset).sum()) / total
+        bound = float(w @ excess) / total / 2.0
+        x_mean = float(w @ x) / total
+        y_mean = float(w @ offset) / total
         n = len(x)
         slope = 0.0
         if n >= 3 and float(x[-1] - x[0]) >= self.min_span:
@@ -166,14 +168,15 @@ class ClockFilter:
     def _drift(self, x: np.ndarray, offset: np.ndarray, w: np.ndarray) -> float:
         """The weighted regression's slope, or 0 where it is not significant."""
         total = float(w.sum())
-        x_mean = float((w * x).sum()) / total
-        y_mean = float((w * offset).sum()) / total
-        sxx = float((w * (x - x_mean) ** 2).sum())
+        dx = x - float(w @ x) / total
+        dy = offset - float(w @ offset) / total
+        wdx = w * dx
+        sxx = float(wdx @ dx)
         if not sxx > 0:
             return 0.0
-        slope = float((w * (x - x_mean) * (offset - y_mean)).sum()) / sxx
-        resid = offset - y_mean - slope * (x - x_mean)
-        stderr = float(np.sqrt((w * resid**2).sum() / (len(x) - 2) / sxx))
+        slope = float(wdx @ dy) / sxx
+        resid = dy - slope * dx
+        stderr = math.sqrt(float(w @ (resid * resid)) / (len(x) - 2) / sxx)
         return 0.0 if abs(slope) <= self.drift_sigmas * stderr else slope
 
     @property
