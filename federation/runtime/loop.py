@@ -8,6 +8,7 @@ waits. Agents hosted in one process share one thread (:func:`run_together`).
 from __future__ import annotations
 
 import heapq
+import math
 import threading
 import time
 import zlib
@@ -103,19 +104,31 @@ class Schedule:
         return self.timetable.next_wake(agent.start_due())
 
 
-def run_together(agents: Sequence[Looped], stop: threading.Event, spread: float = 0.0) -> None:
+def run_together(
+    agents: Sequence[Looped], stop: threading.Event, spread: float = 0.0, group: int = 1
+) -> None:
     """Run several agents' loops on this one thread until ``stop`` is set or every
     agent's duration has passed; each publishes a last status when it ends.
 
     Virtual agents hosted in one process (a lab's gateway, ``fedlab bench
     scale``) share a thread rather than one each: with 16 agents per process,
     16 threads waking on their own handed the interpreter lock back and forth and
-    cost the kernel a third of the process's CPU. ``spread`` seconds stagger the
-    agents' first ticks evenly, so that they do not all wake at once.
+    cost the kernel a third of the process's CPU. The agents tick in groups of
+    ``group`` (in order), the groups' first ticks staggered evenly over ``spread``
+    seconds: a group's agents run back to back on one wake-up, and the groups do
+    not all wake at once. Each wake-up costs far more than the agents' own work on
+    a busy host (a cold cache, a handover of the interpreter lock: issue 17,
+    docs/scale.md), so fewer, fuller wake-ups save CPU; one group of all the agents
+    would hold the interpreter longest and delay the poses arriving meanwhile.
     """
+    if group < 1:
+        raise ValueError(f"group must be at least 1 agent, not {group!r}")
     t0 = time.monotonic()
-    step = spread / len(agents) if agents else 0.0
-    wakes = [(t0 + i * step, i, Schedule(agent, t0 + i * step)) for i, agent in enumerate(agents)]
+    step = spread / math.ceil(len(agents) / group) if agents else 0.0
+    wakes = []
+    for i, agent in enumerate(agents):
+        at = t0 + (i // group) * step
+        wakes.append((at, i, Schedule(agent, at)))
     heapq.heapify(wakes)
     while wakes and not stop.is_set():
         at, i, schedule = wakes[0]

@@ -19,13 +19,17 @@ Clocks are the host's monotonic clock, so a follower's latency is its arrival ti
 minus the stamp. At the end each process writes ``OUT/bare-<lab>.json``: the leader's
 sent stamps, each follower's (sent, received) pairs and the sync replies received.
 
-Usage: python zenoh_scale.py ENDPOINT SECONDS OUT STATUS_BYTES LEADER NAME...
+Agents tick in groups of GROUP, the groups staggered over a pose period, as fedlab's
+workers do (:func:`federation.runtime.loop.run_together`).
+
+Usage: python zenoh_scale.py ENDPOINT SECONDS OUT STATUS_BYTES GROUP LEADER NAME...
 """
 
 from __future__ import annotations
 
 import heapq
 import json
+import math
 import struct
 import sys
 import threading
@@ -128,7 +132,8 @@ class BareAgent:
 
 def main() -> None:
     endpoint, seconds, out = sys.argv[1], float(sys.argv[2]), Path(sys.argv[3])
-    status_bytes, leader, names = int(sys.argv[4]), sys.argv[5], sys.argv[6:]
+    status_bytes, group = int(sys.argv[4]), int(sys.argv[5])
+    leader, names = sys.argv[6], sys.argv[7:]
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -172,11 +177,11 @@ def main() -> None:
             )
         t0 = time.monotonic()
         end = t0 + seconds
-        step = POSE_PERIOD / max(1, len(agents))
-        # (due, index, task): pose, sync, status per agent, ticks spread over a pose period.
+        step = POSE_PERIOD / max(1, math.ceil(len(agents) / group))
+        # (due, index, task): pose, sync, status per agent; groups spread over a pose period.
         wakes: list[tuple[float, int, str]] = []
         for i in range(len(agents)):
-            first = t0 + i * step
+            first = t0 + (i // group) * step
             wakes += [(first, i, "pose"), (first, i, "sync"), (first, i, "status")]
         heapq.heapify(wakes)
         others_phase = 0

@@ -107,3 +107,29 @@ def test_a_stopped_loop_reports_once_more() -> None:
     stop.set()
     run_together(agents, stop)
     assert [a.calls for a in agents] == [["status"], ["status"]]
+
+
+def test_agents_tick_in_groups_staggered_over_the_spread() -> None:
+    """Groups of ``group`` agents tick on one wake-up; the groups' first ticks are
+    staggered evenly over ``spread`` (4 agents in groups of 2 over 40 ms: 0 and 20 ms)."""
+    import time
+
+    firsts: dict[int, float] = {}
+
+    class Timed(Stub):
+        def control_step(self) -> None:
+            firsts.setdefault(id(self), time.monotonic())
+            super().control_step()
+
+    agents = [Timed(AgentConfig(lab="lab0", name=f"a{i}", role="leader", duration=0.1))
+              for i in range(4)]  # fmt: skip
+    run_together(agents, threading.Event(), spread=0.04, group=2)
+    t = [firsts[id(a)] for a in agents]
+    assert t[1] - t[0] < 0.005 and t[3] - t[2] < 0.005  # a group: back to back
+    assert t[2] - t[0] == pytest.approx(0.02, abs=0.008)  # the next group: 20 ms on
+    assert all(a.calls[-1] == "status" for a in agents)
+
+
+def test_a_group_has_at_least_one_agent() -> None:
+    with pytest.raises(ValueError, match="group must be at least 1"):
+        run_together([stub()], threading.Event(), group=0)
