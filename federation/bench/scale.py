@@ -7,7 +7,8 @@ one worker process on one Zenoh session (this machine has 2 cores), as a lab's
 gateway process would: one shared pose subscription per key
 (:class:`federation.runtime.fanout.Fanout`), the start-up heap frozen
 (:mod:`federation.runtime.heap`), all agents' loops on one thread
-(:func:`federation.runtime.agent.run_together`).
+(:func:`federation.runtime.agent.run_together`), in groups of ``GROUP`` agents that
+tick on one wake-up (``--group``; the bare floor alike).
 
 Three configurations, run one after the other on the same hosting:
 
@@ -91,10 +92,11 @@ def _agents(n: int, labs: int = LABS) -> list[tuple[int, str]]:
 
 
 def run_one(
-    n: int, seconds: float, out: Path, mode: str = "default", labs: int = LABS
+    n: int, seconds: float, out: Path, mode: str = "default", labs: int = LABS, group: int = GROUP
 ) -> dict[str, Any]:
     """Run ``n`` agents (at least 2: a leader and a follower) over ``labs`` labs for
-    ``seconds`` in configuration ``mode`` (:data:`MODES`); returns ``n``, ``mode``,
+    ``seconds`` in configuration ``mode`` (:data:`MODES`), each worker's agents ticking
+    in groups of ``group`` (fedlab and bare alike); returns ``n``, ``mode``, ``group``,
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
     ``cpu_per_agent`` (all processes' over ``n``),
     ``p50_ms``, ``p99_ms``, ``loss``, ``samples``, ``sync_per_s`` and the workers'
@@ -105,6 +107,8 @@ def run_one(
         raise ValueError(f"mode {mode!r}: one of {', '.join(MODES)}")
     if labs < 1:
         raise ValueError(f"{labs} labs: at least one is needed")
+    if group < 1:
+        raise ValueError(f"groups of {group}: at least one agent is needed")
     out = out / f"n{n}-{mode}"
     out.mkdir(parents=True, exist_ok=True)
     for old in [*out.glob("*.mcap"), *out.glob("bare-*.json")]:
@@ -124,10 +128,10 @@ def run_one(
                 continue
             if mode == "bare":
                 argv = [sys.executable, str(BARE), endpoints[lab], f"{seconds + SETTLE}",
-                        str(out), str(STATUS_BYTES), str(GROUP), leader, *mine]  # fmt: skip
+                        str(out), str(STATUS_BYTES), str(group), leader, *mine]  # fmt: skip
             else:
                 argv = [sys.executable, "-m", "federation.bench.scale", "worker", endpoints[lab],
-                        f"{seconds + SETTLE}", str(out), mode, *mine]  # fmt: skip
+                        f"{seconds + SETTLE}", str(out), mode, str(group), *mine]  # fmt: skip
             fleet.spawn(f"worker-lab{lab}", argv)
         time.sleep(SETTLE)
         workers = [name for name in fleet.procs if name.startswith("worker")]
@@ -149,6 +153,7 @@ def run_one(
         "n": n,
         "labs": labs,
         "mode": mode,
+        "group": group,
         **scores,
         "cpu_cores": total,
         "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
@@ -230,12 +235,13 @@ def run(
     modes: tuple[str, ...] = MODES,
     labs: int = LABS,
     runs: int = 1,
+    group: int = GROUP,
 ) -> list[dict[str, Any]]:
     """:func:`run_one` for each of ``runs`` repeats, agent count in ``ns`` and
     configuration in ``modes`` (interleaved, so that the host's load falls on all
     alike); each row gets its repeat's index as ``run``."""
     return [
-        {**run_one(n, seconds, out, mode, labs), "run": k}
+        {**run_one(n, seconds, out, mode, labs, group), "run": k}
         for k in range(runs)
         for n in ns
         for mode in modes
@@ -288,9 +294,11 @@ def ratios(rows: list[dict[str, Any]]) -> dict[int, dict[str, float]]:
 
 
 # -- worker: several agents in one process ------------------------------------------
-def worker(endpoint: str, seconds: float, out: Path, mode: str, names: list[str]) -> None:
+def worker(
+    endpoint: str, seconds: float, out: Path, mode: str, names: list[str], group: int = GROUP
+) -> None:
     """Run ``names`` as agents in this process on one session, as a lab's gateway
-    process would."""
+    process would, ticking in groups of ``group``."""
     import zenoh
 
     from federation.runtime.agent import AgentRuntime, run_together
@@ -327,12 +335,12 @@ def worker(endpoint: str, seconds: float, out: Path, mode: str, names: list[str]
                 runtime.start()
                 runtimes.append(runtime)
             freeze_startup_heap()
-            # One thread for all of them, in groups of GROUP that tick on one wake-up,
+            # One thread for all of them, in groups that tick on one wake-up,
             # the groups spread over a pose period.
             timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
             timer.start()
             try:
-                run_together(runtimes, stop, spread=0.05, group=GROUP)
+                run_together(runtimes, stop, spread=0.05, group=group)
             finally:
                 timer.cancel()
         finally:
@@ -342,4 +350,5 @@ def worker(endpoint: str, seconds: float, out: Path, mode: str, names: list[str]
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:
-    worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5], sys.argv[6:])
+    worker(sys.argv[2], float(sys.argv[3]), Path(sys.argv[4]), sys.argv[5], sys.argv[7:],
+           int(sys.argv[6]))  # fmt: skip

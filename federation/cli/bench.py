@@ -227,6 +227,11 @@ def _add_scale(benches: Subparsers) -> None:
         help="repeats of the whole set, interleaved (medians and spread over them)",
     )  # fmt: skip
     p.add_argument(
+        "--group", type=_agents_or_one, default=scale.GROUP, metavar="G",
+        help="agents of a worker that tick on one wake-up, fedlab and bare alike (default "
+        f"{scale.GROUP}; 1: each agent on its own wake-up, as before)",
+    )  # fmt: skip
+    p.add_argument(
         "--out", type=Path, default=Path("runs/bench-scale"), metavar="DIR", help="run folder"
     )
     p.add_argument(
@@ -257,7 +262,7 @@ def _run_scale(args: argparse.Namespace) -> int:
         for n in args.agents or scale.DEFAULT_AGENTS:
             for mode in modes:
                 console.print(f"run {k + 1}/{args.runs}: {n} agents, {mode}: {args.seconds:.0f} s")
-                row = scale.run_one(n, args.seconds, args.out, mode, args.labs)
+                row = scale.run_one(n, args.seconds, args.out, mode, args.labs, args.group)
                 results.append({**row, "run": k})
     if args.json:
         if args.runs == 1 and len(modes) == 1:

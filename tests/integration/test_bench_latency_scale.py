@@ -39,7 +39,7 @@ def test_latency_short(tmp_path: Path) -> None:
 
 def test_scale_short(tmp_path: Path) -> None:
     out = bench("scale", "--agents", "2", "--agents", "6", "--seconds", "5", "--mode", "default",
-                "--mode", "bare", "--out", str(tmp_path), timeout=240)  # fmt: skip
+                "--mode", "bare", "--group", "2", "--out", str(tmp_path), timeout=240)  # fmt: skip
     assert isinstance(out, dict)
     rows = out["rows"]
     assert [(r["n"], r["mode"]) for r in rows] == [(2, "default"), (2, "bare"), (6, "default"),
@@ -49,6 +49,7 @@ def test_scale_short(tmp_path: Path) -> None:
         assert r["loss"] < 0.01, r
         assert r["cpu_cores"] > 0 and r["cpu_per_agent"] == pytest.approx(r["cpu_cores"] / r["n"])
         assert r["rss_mib"], r  # sampled after warm-up
+        assert r["group"] == 2, r  # fedlab's workers and the bare floor tick in pairs
     default = {r["n"]: r for r in rows if r["mode"] == "default"}
     bare = {r["n"]: r for r in rows if r["mode"] == "bare"}
     # Five followers sync with the leader at 10 Hz: about 50 exchanges a second, and the
