@@ -48,7 +48,7 @@ __all__ = [
 
 log = logging.getLogger("fedlab.session")
 
-DATA_QUEUE_BATCHES = 8
+DATA_QUEUE_BATCHES = 16
 """Transmit batches queued for data on every link (Zenoh's default is two)."""
 
 DEFAULT_TIMEOUT = 5.0
@@ -60,9 +60,10 @@ _DEFAULTS: dict[str, Any] = {
     # stops a congested link's pose for good (see the docstring).
     "transport/unicast/lowlatency": False,
     "transport/unicast/qos/enabled": True,
-    # Eight batches queued for data, not Zenoh's two: on a busy host, express poses
+    # Sixteen batches queued for data, not Zenoh's two: on a busy host, express poses
     # waiting over a millisecond for a full queue were dropped (1 in 2000 to 3000 at 64
-    # agents on 2 cores; none with eight: docs/scale.md, "Loss on a busy host").
+    # agents on 2 cores with two, none with eight; with agents ticking in groups of 8,
+    # a group's replies and poses fill eight at once: docs/scale.md, "Loss on a busy host").
     "transport/link/tx/queue/size/data": DATA_QUEUE_BATCHES,
 }
 _CLIENT_DEFAULTS: dict[str, Any] = {

@@ -140,7 +140,7 @@ def main() -> None:
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("transport/unicast/lowlatency", "false")  # as fedlab's nodes
     conf.insert_json5("transport/unicast/qos/enabled", "true")
-    conf.insert_json5("transport/link/tx/queue/size/data", "8")  # as fedlab's nodes
+    conf.insert_json5("transport/link/tx/queue/size/data", "16")  # as fedlab's nodes
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router, as fedlab agents do
     conf.insert_json5("connect/exit_on_failure", "false")
     stop = threading.Event()

@@ -37,12 +37,12 @@ def test_every_router_is_universal_with_qos(path: Path) -> None:
 
 
 @pytest.mark.parametrize("path", ROUTERS, ids=lambda p: p.relative_to(ROOT).as_posix())
-def test_every_router_queues_eight_data_batches_as_fedlab_sessions(path: Path) -> None:
+def test_every_router_queues_sixteen_data_batches_as_fedlab_sessions(path: Path) -> None:
     # Two (Zenoh's default) dropped poses on a busy host (docs/scale.md).
-    assert _get(zenoh.Config.from_file(str(path)), "transport/link/tx/queue/size/data") == 8
+    assert _get(zenoh.Config.from_file(str(path)), "transport/link/tx/queue/size/data") == 16
     for mode in ("client", "peer", "router"):
         ours = build_config(ZenohOptions(), mode)
-        assert _get(ours, "transport/link/tx/queue/size/data") == 8, mode
+        assert _get(ours, "transport/link/tx/queue/size/data") == 16, mode
         assert _get(ours, "transport/link/tx/queue/size/control") == 2, mode  # the rest as is
 
 
