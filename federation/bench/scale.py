@@ -7,8 +7,8 @@ one worker process on one Zenoh session (this machine has 2 cores), as a lab's
 gateway process would: one shared pose subscription per key
 (:class:`federation.runtime.fanout.Fanout`), the start-up heap frozen
 (:mod:`federation.runtime.heap`), all agents' loops on one thread
-(:func:`federation.runtime.agent.run_together`), in groups of ``GROUP`` agents that
-tick on one wake-up (``--group``; the bare floor alike).
+(:func:`federation.runtime.agent.run_together`), each agent on its own wake-up, or
+in groups that tick on one (``--group``; the bare floor alike).
 
 Three configurations, run one after the other on the same hosting:
 
@@ -60,10 +60,11 @@ LABS = 4
 MODES = ("default", "tuned", "bare")
 STATUS_BYTES = 1500
 """Bytes of a bare agent's status message: about a fedlab follower's status line."""
-GROUP = 8
-"""Agents of a worker that tick on one wake-up (fedlab's and the bare floor's alike):
-a third less CPU per agent than one wake-up each, for under a millisecond more pose
-p99 at 64 agents (docs/scale.md, "Wake-ups")."""
+GROUP = 1
+"""Agents of a worker that tick on one wake-up (fedlab's and the bare floor's alike).
+One each by default. Groups of 8 (``--group 8``) cost a third less CPU per agent
+but send bursts, and a pose was then lost in some runs at 64 agents, which the
+default must not do (docs/scale.md, "Wake-ups")."""
 BARE = Path(__file__).with_name("baselines") / "zenoh_scale.py"
 SETTLE = 3.0  # s after start before samples count (discovery, routes)
 DEFAULT_AGENTS = (2, 8, 16, 32, 64)
