@@ -193,7 +193,7 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
         **_common(fed.message_limit),
         "access_control": access_control(fed, lab),
     }
-    # Eight data batches queued, as fedlab's sessions (Zenoh's two dropped poses on a
+    # Data batches queued as in fedlab's sessions (Zenoh's two dropped poses on a
     # busy host: docs/scale.md, "Loss on a busy host").
     doc["transport"]["link"]["tx"] = {
         "lease": LEASE_MS, "keep_alive": 4, "queue": {"size": {"data": DATA_QUEUE_BATCHES}}

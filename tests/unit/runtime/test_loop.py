@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -112,8 +113,6 @@ def test_a_stopped_loop_reports_once_more() -> None:
 def test_agents_tick_in_groups_staggered_over_the_spread() -> None:
     """Groups of ``group`` agents tick on one wake-up; the groups' first ticks are
     staggered evenly over ``spread`` (4 agents in groups of 2 over 40 ms: 0 and 20 ms)."""
-    import time
-
     firsts: dict[int, float] = {}
 
     class Timed(Stub):
