@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import threading
 import time
@@ -78,6 +79,42 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _thread_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds so far of a process's threads, summed by name with digits folded
+    (Zenoh's ``rx-0``, ``rx-1`` -> ``rx-#``; Python's threads all carry the
+    interpreter's name); a thread that ended meanwhile is left out (Linux /proc)."""
+    out: dict[str, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:  # the process is gone
+        return out
+    for tid in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii", errors="replace") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        name = re.sub(r"\d+", "#", stat[stat.index("(") + 1 : stat.rindex(")")])
+        fields = stat.rsplit(")", 1)[1].split()
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def _per_thread(
+    before: list[dict[str, float]], after: list[dict[str, float]], agent_seconds: float
+) -> dict[str, float]:
+    """The workers' CPU by thread name between two readings, in ms per agent-second:
+    which threads the extra over the floor lands on (the interpreter's own thread
+    runs the agents' loop and the recorder's writer; Zenoh's ``rx-#`` threads run
+    the callbacks)."""
+    total: dict[str, float] = {}
+    for b, a in zip(before, after, strict=True):
+        for name, seconds in a.items():
+            total[name] = total.get(name, 0.0) + seconds - b.get(name, 0.0)
+    return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
+
+
 def _rss_mib(pid: int) -> float:
     """Resident memory of a process (MiB, Linux /proc)."""
     with open(f"/proc/{pid}/status", encoding="ascii") as f:
@@ -99,7 +136,8 @@ def run_one(
     ``seconds`` in configuration ``mode`` (:data:`MODES`), each worker's agents ticking
     in groups of ``group`` (fedlab and bare alike); returns ``n``, ``mode``, ``group``,
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
-    ``cpu_per_agent`` (all processes' over ``n``),
+    ``cpu_per_agent`` (all processes' over ``n``), ``worker_threads_ms`` (the
+    workers' CPU by thread name, ms per agent-second),
     ``p50_ms``, ``p99_ms``, ``loss``, ``samples``, ``sync_per_s`` and the workers'
     total ``rss_mib`` sampled every few seconds (the first after a quarter of the run)."""
     if n < 2:
@@ -137,6 +175,7 @@ def run_one(
         time.sleep(SETTLE)
         workers = [name for name in fleet.procs if name.startswith("worker")]
         cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
+        threads0 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
         t0 = time.monotonic()
         end = t0 + max(1.0, seconds - 1.0)  # workers run seconds + SETTLE: still alive then
         rss: list[tuple[float, float]] = []
@@ -147,6 +186,8 @@ def run_one(
                 rss.append((round(time.monotonic() - t0, 1), round(total, 1)))
         cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
         wall = time.monotonic() - t0
+        threads = _per_thread(threads0, [_thread_cpu(fleet.procs[w].pid) for w in workers],
+                              wall * n)  # fmt: skip
         wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
     scores = _score_bare(out, leader) if mode == "bare" else _score(out, agents, seconds)
     total = sum(cpu.values()) / wall
@@ -160,6 +201,7 @@ def run_one(
         "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
         "cpu_routers_cores": sum(v for k, v in cpu.items() if k not in workers) / wall,
         "cpu_per_agent": total / n,
+        "worker_threads_ms": threads,
         "rss_mib": rss,
         "seconds": seconds,
     }
