@@ -15,8 +15,9 @@ override them:
   client on such a router, or any node once the routers were universal, stopped
   receiving under WAN loss (docs/deploy.md, "Transports under loss": the testbed
   runs, a loopback reproduction, and what the change costs);
-- eight transmit batches queued for data (Zenoh's default is two), so that a pose
-  waiting for a busy host's transmit task is not dropped after a millisecond;
+- ``DATA_QUEUE_BATCHES`` transmit batches queued for data (Zenoh's default is
+  two), so that a pose waiting for a busy host's transmit task is not dropped
+  after a millisecond;
 - clients retry their router forever instead of exiting, so an agent started
   before its router joins when the router comes up.
 """
