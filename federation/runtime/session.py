@@ -37,6 +37,7 @@ from schemas.config import ZenohOptions
 __all__ = [
     "DATA_QUEUE_BATCHES",
     "DEFAULT_TIMEOUT",
+    "QUEUE_BATCHES_MAX",
     "ConnectError",
     "ZenohConfigError",
     "build_config",
@@ -51,6 +52,11 @@ log = logging.getLogger("fedlab.session")
 
 DATA_QUEUE_BATCHES = 16
 """Transmit batches queued for data on every link (Zenoh's default is two)."""
+QUEUE_BATCHES_MAX = 16
+"""The most batches Zenoh queues for one priority (the length of its transmit ring).
+Its config takes any number, and then every link panics as it opens: a router with
+``transport/link/tx/queue/size/data: 32`` runs and connects nothing, and its agents
+wait for it for ever. :func:`build_config` refuses such a value at load."""
 
 DEFAULT_TIMEOUT = 5.0
 """s a command or the SDK waits for its router before giving up."""
@@ -106,10 +112,12 @@ def build_config(
             conf = zenoh.Config.from_file(str(options.config))
         except Exception as error:
             raise ZenohConfigError(f"{options.config}: not a valid Zenoh config: {error}") from None
+        _check_queues(conf, str(options.config))
         # The file wins over fedlab's defaults: only fill what it leaves unset.
         settings = {k: v for k, v in settings.items() if _is_unset(conf, k)}
     for key, value in settings.items():
         _insert(conf, key, json.dumps(value), "fedlab defaults")
+    _check_queues(conf, "fedlab defaults")
     if options.mode or options.config is None:
         _insert(conf, "mode", json.dumps(mode), "--mode")
     if options.connect:
@@ -123,7 +131,27 @@ def build_config(
                 f"--cfg {item!r}: expected KEY:VALUE, e.g. transport/link/tx/lease:3000"
             )
         _insert(conf, key, value, f"--cfg {item}")
+        _check_queues(conf, f"--cfg {item}")
     return conf
+
+
+def _check_queues(conf: zenoh.Config, source: str) -> None:
+    """Refuse a transmit queue size Zenoh would panic on (:data:`QUEUE_BATCHES_MAX`),
+    naming ``source`` (the file, the flag) and the setting."""
+    sizes = config_value(conf, "transport/link/tx/queue/size")
+    if not isinstance(sizes, dict):
+        return
+    for priority, value in sizes.items():
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int)
+            or not 1 <= value <= QUEUE_BATCHES_MAX
+        ):
+            raise ZenohConfigError(
+                f"{source}: 'transport/link/tx/queue/size/{priority}' is {value!r}: Zenoh "
+                f"queues 1 to {QUEUE_BATCHES_MAX} batches per priority (with more, every "
+                "link fails as it opens)"
+            )
 
 
 def _is_unset(conf: zenoh.Config, key: str) -> bool:

@@ -1,0 +1,69 @@
+"""Transmit queue sizes Zenoh would panic on are refused at load (session.build_config)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from federation.fleet.launch import free_port
+from federation.runtime.session import (
+    DATA_QUEUE_BATCHES,
+    QUEUE_BATCHES_MAX,
+    ZenohConfigError,
+    build_config,
+    config_value,
+)
+from schemas.config import ZenohOptions
+
+
+def test_fedlab_queues_as_many_batches_as_zenoh_allows() -> None:
+    assert 1 <= DATA_QUEUE_BATCHES <= QUEUE_BATCHES_MAX
+    conf = build_config(ZenohOptions(), default_mode="router")
+    assert config_value(conf, "transport/link/tx/queue/size/data") == DATA_QUEUE_BATCHES
+
+
+@pytest.mark.parametrize("value", ["16", "1"])
+def test_a_size_within_the_ring_is_taken(value: str) -> None:
+    cfg = [f"transport/link/tx/queue/size/data_high:{value}"]
+    conf = build_config(ZenohOptions(cfg=cfg), default_mode="client")
+    assert config_value(conf, "transport/link/tx/queue/size/data_high") == int(value)
+
+
+@pytest.mark.parametrize("value", ["17", "64", "0"])
+def test_a_flag_beyond_the_ring_is_refused_naming_the_flag_and_setting(value: str) -> None:
+    item = f"transport/link/tx/queue/size/data:{value}"
+    with pytest.raises(ZenohConfigError) as error:
+        build_config(ZenohOptions(cfg=[item]), default_mode="router")
+    message = str(error.value)
+    assert f"--cfg {item}" in message
+    assert f"'transport/link/tx/queue/size/data' is {value}" in message
+    assert f"1 to {QUEUE_BATCHES_MAX} batches" in message
+
+
+def test_a_file_beyond_the_ring_is_refused_naming_the_file(tmp_path: Path) -> None:
+    # Zenoh's own loader refuses this one (a setting made by a flag it takes).
+    path = tmp_path / "router.json5"
+    path.write_text(json.dumps({"mode": "router", "transport": {"link": {"tx": {"queue": {
+        "size": {"background": 32}}}}}}))  # fmt: skip
+    with pytest.raises(ZenohConfigError) as error:
+        build_config(ZenohOptions(config=path), default_mode="router")
+    assert str(error.value).startswith(f"{path}: not a valid Zenoh config")
+
+
+def test_the_router_command_exits_at_once_instead_of_failing_every_link() -> None:
+    # Without the check this router ran and panicked on every link that opened.
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    started = time.monotonic()
+    out = subprocess.run(
+        [sys.executable, "-m", "federation", "router", "--lab", "rome", "-l", endpoint,
+         "--cfg", "transport/link/tx/queue/size/data:32"],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert out.returncode == 2, out.stderr
+    assert "'transport/link/tx/queue/size/data' is 32" in out.stderr
+    assert time.monotonic() - started < 30
