@@ -50,10 +50,10 @@ def test_scale_short(tmp_path: Path) -> None:
         assert r["cpu_cores"] > 0 and r["cpu_per_agent"] == pytest.approx(r["cpu_cores"] / r["n"])
         assert r["rss_mib"], r  # sampled after warm-up
         assert r["group"] == 2, r  # fedlab's workers and the bare floor tick in pairs
-        # The workers' CPU by thread: the interpreter's thread runs the loop, Zenoh's
-        # rx threads the callbacks; together no more than the workers' total.
+        # The workers' CPU by thread name (digits folded), together no more than the
+        # workers' total (a short run may leave a thread under one clock tick: absent).
         threads = r["worker_threads_ms"]
-        assert any(name.startswith("rx-") for name in threads), threads
+        assert threads and not any(ch.isdigit() for name in threads for ch in name), threads
         workers_ms = 1e3 * r["cpu_workers_cores"] / r["n"]
         assert 0 < sum(threads.values()) <= workers_ms * 1.05 + 0.5, (threads, workers_ms)
     default = {r["n"]: r for r in rows if r["mode"] == "default"}
