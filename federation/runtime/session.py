@@ -111,7 +111,8 @@ def build_config(
         try:
             conf = zenoh.Config.from_file(str(options.config))
         except Exception as error:
-            raise ZenohConfigError(f"{options.config}: not a valid Zenoh config: {error}") from None
+            why = _invalid_because(str(error))
+            raise ZenohConfigError(f"{options.config}: not a valid Zenoh config: {why}") from None
         _check_queues(conf, str(options.config))
         # The file wins over fedlab's defaults: only fill what it leaves unset.
         settings = {k: v for k, v in settings.items() if _is_unset(conf, k)}
@@ -138,20 +139,42 @@ def build_config(
 def _check_queues(conf: zenoh.Config, source: str) -> None:
     """Refuse a transmit queue size Zenoh would panic on (:data:`QUEUE_BATCHES_MAX`),
     naming ``source`` (the file, the flag) and the setting."""
-    sizes = config_value(conf, "transport/link/tx/queue/size")
+    problem = _queue_problem(config_value(conf, "transport/link/tx/queue/size"))
+    if problem is not None:
+        raise ZenohConfigError(f"{source}: {problem}")
+
+
+def _queue_problem(sizes: Any) -> str | None:
+    """What is wrong with a ``transport/link/tx/queue/size`` table, or None."""
     if not isinstance(sizes, dict):
-        return
+        return None
     for priority, value in sizes.items():
         if (
             isinstance(value, bool)
             or not isinstance(value, int)
             or not 1 <= value <= QUEUE_BATCHES_MAX
         ):
-            raise ZenohConfigError(
-                f"{source}: 'transport/link/tx/queue/size/{priority}' is {value!r}: Zenoh "
-                f"queues 1 to {QUEUE_BATCHES_MAX} batches per priority (with more, every "
-                "link fails as it opens)"
+            return (
+                f"'transport/link/tx/queue/size/{priority}' is {value!r}: Zenoh queues 1 to "
+                f"{QUEUE_BATCHES_MAX} batches per priority (with more, every link fails as it "
+                "opens)"
             )
+    return None
+
+
+def _invalid_because(text: str) -> str:
+    """Why Zenoh's loader refused a file. It says "Invalid configuration: " and dumps the
+    whole configuration as JSON, naming no setting: the settings whose limits fedlab
+    knows are named; otherwise the dump is left out."""
+    prefix = "Invalid configuration: "
+    if not text.startswith(prefix):
+        return text
+    try:
+        dump = json.loads(text[len(prefix) :].rsplit(" at ", 1)[0])
+        sizes = dump["transport"]["link"]["tx"]["queue"]["size"]
+    except (ValueError, KeyError, TypeError):
+        sizes = None
+    return _queue_problem(sizes) or "Zenoh refused one of its settings without naming it"
 
 
 def _is_unset(conf: zenoh.Config, key: str) -> bool:

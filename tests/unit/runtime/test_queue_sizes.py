@@ -15,6 +15,7 @@ from federation.runtime.session import (
     DATA_QUEUE_BATCHES,
     QUEUE_BATCHES_MAX,
     ZenohConfigError,
+    _invalid_because,
     build_config,
     config_value,
 )
@@ -52,7 +53,19 @@ def test_a_file_beyond_the_ring_is_refused_naming_the_file(tmp_path: Path) -> No
         "size": {"background": 32}}}}}}))  # fmt: skip
     with pytest.raises(ZenohConfigError) as error:
         build_config(ZenohOptions(config=path), default_mode="router")
-    assert str(error.value).startswith(f"{path}: not a valid Zenoh config")
+    message = str(error.value)
+    assert message.startswith(f"{path}: not a valid Zenoh config: ")
+    # Zenoh's loader dumps the whole configuration and names nothing; fedlab names it.
+    assert "'transport/link/tx/queue/size/background' is 32" in message
+    assert len(message) < 300 + len(str(path))
+
+
+def test_a_refusal_fedlab_cannot_name_leaves_the_dump_out() -> None:
+    dump = '{"mode":"router","transport":{"link":{"tx":{"queue":{"size":{"data":16}}}}}}'
+    why = _invalid_because(f"Invalid configuration: {dump} at zenoh-config/src/lib.rs:1483.")
+    assert why == "Zenoh refused one of its settings without naming it"
+    assert _invalid_because("Invalid configuration: {not json") == why
+    assert _invalid_because("missing field `mode`") == "missing field `mode`"  # as Zenoh said
 
 
 def test_the_router_command_exits_at_once_instead_of_failing_every_link() -> None:
