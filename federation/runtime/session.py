@@ -156,8 +156,8 @@ def _queue_problem(sizes: Any) -> str | None:
         ):
             return (
                 f"'transport/link/tx/queue/size/{priority}' is {value!r}: Zenoh queues 1 to "
-                f"{QUEUE_BATCHES_MAX} batches per priority (with more, every link fails as it "
-                "opens)"
+                f"{QUEUE_BATCHES_MAX} batches per priority (outside that, every link fails as "
+                "it opens)"
             )
     return None
 
