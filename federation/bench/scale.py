@@ -36,6 +36,7 @@ import re
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -279,16 +280,20 @@ def run(
     labs: int = LABS,
     runs: int = 1,
     group: int = GROUP,
+    progress: Callable[[int, int, str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """:func:`run_one` for each of ``runs`` repeats, agent count in ``ns`` and
     configuration in ``modes`` (interleaved, so that the host's load falls on all
-    alike); each row gets its repeat's index as ``run``."""
-    return [
-        {**run_one(n, seconds, out, mode, labs, group), "run": k}
-        for k in range(runs)
-        for n in ns
-        for mode in modes
-    ]
+    alike); each row gets its repeat's index as ``run``. ``progress(repeat, n, mode)``
+    is called before each run (``repeat`` from 0)."""
+    rows = []
+    for k in range(runs):
+        for n in ns:
+            for mode in modes:
+                if progress is not None:
+                    progress(k, n, mode)
+                rows.append({**run_one(n, seconds, out, mode, labs, group), "run": k})
+    return rows
 
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:

@@ -257,13 +257,12 @@ def _run_scale(args: argparse.Namespace) -> int:
 
     console = Console(stderr=True)
     modes = tuple(args.mode or scale.MODES)
-    results = []
-    for k in range(args.runs):
-        for n in args.agents or scale.DEFAULT_AGENTS:
-            for mode in modes:
-                console.print(f"run {k + 1}/{args.runs}: {n} agents, {mode}: {args.seconds:.0f} s")
-                row = scale.run_one(n, args.seconds, args.out, mode, args.labs, args.group)
-                results.append({**row, "run": k})
+
+    def progress(k: int, n: int, mode: str) -> None:
+        console.print(f"run {k + 1}/{args.runs}: {n} agents, {mode}: {args.seconds:.0f} s")
+
+    results = scale.run(list(args.agents or scale.DEFAULT_AGENTS), args.seconds, args.out,
+                        modes, args.labs, args.runs, args.group, progress)  # fmt: skip
     if args.json:
         if args.runs == 1 and len(modes) == 1:
             print(json.dumps(results, indent=1))

@@ -20,3 +20,24 @@ def test_the_cli_refuses_a_group_of_no_agents(capsys: pytest.CaptureFixture[str]
         main(["bench", "scale", "--group", "0"])
     assert exit_.value.code == 2
     assert "--group" in capsys.readouterr().err
+
+
+def test_repeats_interleave_counts_and_modes_and_report_progress(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ran: list[tuple[int, str, int]] = []
+
+    def fake_run_one(
+        n: int, seconds: float, out: Path, mode: str, labs: int, group: int
+    ) -> dict[str, object]:
+        ran.append((n, mode, group))
+        return {"n": n, "mode": mode}
+
+    monkeypatch.setattr(scale, "run_one", fake_run_one)
+    seen: list[tuple[int, int, str]] = []
+    rows = scale.run([2, 4], 1.0, tmp_path, ("default", "bare"), runs=2, group=3,
+                     progress=lambda k, n, mode: seen.append((k, n, mode)))  # fmt: skip
+    order = [(k, n, m) for k in range(2) for n in (2, 4) for m in ("default", "bare")]
+    assert seen == order  # each repeat runs every count and mode before the next
+    assert [(r["run"], r["n"], r["mode"]) for r in rows] == order
+    assert {g for _, _, g in ran} == {3}
