@@ -80,11 +80,11 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _thread_cpu(pid: int) -> dict[str, float]:
-    """CPU seconds so far of a process's threads, summed by name with digits folded
-    (Zenoh's ``rx-0``, ``rx-1`` -> ``rx-#``; Python's threads all carry the
-    interpreter's name); a thread that ended meanwhile is left out (Linux /proc)."""
-    out: dict[str, float] = {}
+def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """Each thread of a process so far: its name, digits folded (Zenoh's ``rx-0``,
+    ``rx-1`` -> ``rx-#``; before Python 3.14 Python's threads all carry the
+    interpreter's name), and its CPU seconds, by thread id (Linux /proc)."""
+    out: dict[int, tuple[str, float]] = {}
     tick = os.sysconf("SC_CLK_TCK")
     try:
         tasks = os.listdir(f"/proc/{pid}/task")
@@ -94,25 +94,32 @@ def _thread_cpu(pid: int) -> dict[str, float]:
         try:
             with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii", errors="replace") as f:
                 stat = f.read()
-        except OSError:
+        except OSError:  # the thread ended meanwhile
+            continue
+        if "(" not in stat or ")" not in stat:
             continue
         name = re.sub(r"\d+", "#", stat[stat.index("(") + 1 : stat.rindex(")")])
         fields = stat.rsplit(")", 1)[1].split()
-        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+        out[int(tid)] = (name, (int(fields[11]) + int(fields[12])) / tick)
     return out
 
 
 def _per_thread(
-    before: list[dict[str, float]], after: list[dict[str, float]], agent_seconds: float
+    before: list[dict[int, tuple[str, float]]],
+    after: list[dict[int, tuple[str, float]]],
+    agent_seconds: float,
 ) -> dict[str, float]:
     """The workers' CPU by thread name between two readings, in ms per agent-second:
     which threads the extra over the floor lands on (the interpreter's own thread
     runs the agents' loop and the recorder's writer; Zenoh's ``rx-#`` threads run
-    the callbacks)."""
+    the callbacks). Taken thread by thread: one that started meanwhile counts from
+    zero, one that ended meanwhile is left out (its CPU since the first reading is
+    not known), so neither takes from the others of its name."""
     total: dict[str, float] = {}
     for b, a in zip(before, after, strict=True):
-        for name, seconds in a.items():
-            total[name] = total.get(name, 0.0) + seconds - b.get(name, 0.0)
+        for tid, (name, seconds) in a.items():
+            spent = seconds - b.get(tid, (name, 0.0))[1]
+            total[name] = total.get(name, 0.0) + spent
     return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
 
 

@@ -94,7 +94,12 @@ def _insert(conf: zenoh.Config, key: str, value_json5: str, source: str) -> None
     try:
         conf.insert_json5(key, value_json5)
     except Exception as error:  # zenoh raises its own ZError
-        raise ZenohConfigError(f"{source}: cannot set '{key}' to {value_json5}: {error}") from None
+        hint = ""
+        if key.startswith("transport/link/tx/queue/size"):
+            hint = f" (Zenoh queues 1 to {QUEUE_BATCHES_MAX} batches per priority)"
+        raise ZenohConfigError(
+            f"{source}: cannot set '{key}' to {value_json5}{hint}: {error}"
+        ) from None
 
 
 def build_config(
@@ -113,12 +118,12 @@ def build_config(
         except Exception as error:
             why = _invalid_because(str(error))
             raise ZenohConfigError(f"{options.config}: not a valid Zenoh config: {why}") from None
-        _check_queues(conf, str(options.config))
+        _check_queues(conf, str(options.config))  # Zenoh's loader checks this too, today
         # The file wins over fedlab's defaults: only fill what it leaves unset.
         settings = {k: v for k, v in settings.items() if _is_unset(conf, k)}
     for key, value in settings.items():
         _insert(conf, key, json.dumps(value), "fedlab defaults")
-    _check_queues(conf, "fedlab defaults")
+    _check_queues(conf, "fedlab's settings")  # its defaults and the caller's (``extra``)
     if options.mode or options.config is None:
         _insert(conf, "mode", json.dumps(mode), "--mode")
     if options.connect:
@@ -132,6 +137,7 @@ def build_config(
                 f"--cfg {item!r}: expected KEY:VALUE, e.g. transport/link/tx/lease:3000"
             )
         _insert(conf, key, value, f"--cfg {item}")
+        # Checked flag by flag: a bad size is refused even if a later flag would mend it.
         _check_queues(conf, f"--cfg {item}")
     return conf
 

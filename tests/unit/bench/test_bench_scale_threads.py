@@ -5,20 +5,32 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
 
 from federation.bench.scale import _per_thread, _thread_cpu
 
 
-def test_a_thread_that_burns_cpu_shows_in_its_process_reading() -> None:
-    before = _thread_cpu(os.getpid())
-    start = time.thread_time()
-    while time.thread_time() - start < 0.3:  # bounded by this thread's own CPU time
-        pass
-    after = _thread_cpu(os.getpid())
-    spent = sum(after.values()) - sum(before.values())
-    assert spent >= 0.2, (before, after)
-    assert not any(ch.isdigit() for name in after for ch in name)  # rx-0, rx-1 -> rx-#
+def test_a_named_thread_that_burns_cpu_shows_under_its_folded_name() -> None:
+    # A name with digits, a parenthesis and spaces, as /proc's stat line shows it.
+    before: dict[int, tuple[str, float]] = {}
+    after: dict[int, tuple[str, float]] = {}
+
+    def burn() -> None:
+        nonlocal before, after
+        with open(f"/proc/self/task/{threading.get_native_id()}/comm", "w") as comm:
+            comm.write("rx-1) a (b")
+        before = _thread_cpu(os.getpid())
+        start = time.thread_time()
+        while time.thread_time() - start < 0.3:  # bounded by this thread's own CPU time
+            pass
+        after = _thread_cpu(os.getpid())
+
+    worker = threading.Thread(target=burn)
+    worker.start()
+    worker.join(timeout=60)
+    split = _per_thread([before], [after], 1.0)
+    assert split.get("rx-#) a (b", 0.0) >= 200.0, split  # ms in one "agent-second"
 
 
 def test_a_process_that_has_ended_reads_as_no_threads() -> None:
@@ -28,8 +40,16 @@ def test_a_process_that_has_ended_reads_as_no_threads() -> None:
 
 
 def test_per_thread_sums_the_workers_by_name_per_agent_second() -> None:
-    before = [{"python": 1.0, "rx-#": 0.5}, {"python": 2.0}]
-    after = [{"python": 1.4, "rx-#": 0.9, "tx-#": 0.1}, {"python": 2.2, "rx-#": 0.3}]
-    # 10 agents for 2 s: 20 agent-seconds
+    before = [{1: ("python", 1.0), 2: ("rx-#", 0.5)}, {7: ("python", 2.0)}]
+    after = [{1: ("python", 1.4), 2: ("rx-#", 0.9), 3: ("tx-#", 0.1)},
+             {7: ("python", 2.2), 8: ("rx-#", 0.3)}]  # fmt: skip
+    # 10 agents for 2 s: 20 agent-seconds; threads 3 and 8 started meanwhile (from 0)
     split = _per_thread(before, after, 20.0)
     assert split == {"python": 30.0, "rx-#": 35.0, "tx-#": 5.0}
+
+
+def test_a_thread_that_ended_takes_nothing_from_others_of_its_name() -> None:
+    # rx-1 (tid 2) ran 0.29 s and ended; rx-2 (tid 3) started and ran 0.04 s.
+    before = [{1: ("python", 1.0), 2: ("rx-#", 0.29)}]
+    after = [{1: ("python", 1.0), 3: ("rx-#", 0.04)}]
+    assert _per_thread(before, after, 1.0) == {"rx-#": 40.0}

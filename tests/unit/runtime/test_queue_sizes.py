@@ -80,3 +80,19 @@ def test_the_router_command_exits_at_once_instead_of_failing_every_link() -> Non
     assert out.returncode == 2, out.stderr
     assert "'transport/link/tx/queue/size/data' is 32" in out.stderr
     assert time.monotonic() - started < 30
+
+
+def test_a_bad_size_in_the_callers_settings_is_refused() -> None:
+    with pytest.raises(
+        ZenohConfigError, match="fedlab's settings: 'transport/link/tx/queue/size/data' is 40"
+    ):
+        build_config(ZenohOptions(), "router", extra={"transport/link/tx/queue/size/data": 40})
+
+
+def test_a_whole_table_zenoh_refuses_says_the_limit() -> None:
+    sizes = ",".join(f"{p}:2" for p in ("control", "real_time", "interactive_high",
+                                         "interactive_low", "data_high", "data_low",
+                                         "background"))  # fmt: skip
+    item = f"transport/link/tx/queue/size:{{{sizes},data:32}}"
+    with pytest.raises(ZenohConfigError, match=f"1 to {QUEUE_BATCHES_MAX} batches per priority"):
+        build_config(ZenohOptions(cfg=[item]), default_mode="router")
