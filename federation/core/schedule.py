@@ -55,7 +55,8 @@ class Timetable:
     """The deadlines of one agent's periodic tasks, all on one monotonic clock (s).
 
     Starting at ``t0``: control every ``control_period``, pose every
-    ``pose_period``, sync every ``sync_period``, each first due at ``t0``; status
+    ``pose_period``, sync every ``sync_period``, each first due at ``t0`` (sync at
+    ``t0 + sync_phase``: agents that tick together query on different ticks); status
     every ``status_period``, first due at ``t0 + status_period * (1 + phase)``
     (``phase`` in [0, 1): co-hosted agents report on their own phases); finished
     ``duration`` after ``t0`` (None: never).
@@ -70,13 +71,15 @@ class Timetable:
         status_period: float,
         duration: float | None = None,
         phase: float = 0.0,
+        sync_phase: float = 0.0,
     ):
         self.deadline = t0 + duration if duration else math.inf
         self.control_period = control_period
         self.pose_period = pose_period
         self.sync_period = sync_period
         self.status_period = status_period
-        self.next_control = self.next_pose = self.next_sync = t0
+        self.next_control = self.next_pose = t0
+        self.next_sync = t0 + sync_phase
         self.next_status = t0 + status_period * (1.0 + phase)
 
     def due(self, now: float, start_at: float = math.inf) -> Due:

@@ -65,20 +65,26 @@ class Looped(Protocol):
 class Schedule:
     """One agent's periodic tasks: :meth:`tick` runs the ones due."""
 
-    def __init__(self, agent: Looped, t0: float):
+    def __init__(self, agent: Looped, t0: float, slot: int = 0):
         cfg = agent.config
         self.agent = agent
         # Each agent on its own phase: co-hosted agents that reported together held
         # the interpreter for tens of ms, once a second.
         phase = zlib.crc32(str(agent.me).encode()) / 2**32
+        control_period = 1.0 / agent.platform.rate
+        # The ``slot``-th agent of a group that ticks together sends its sync queries
+        # on its own control tick within the sync period, so that the group's queries
+        # (and the replies coming back) do not all fill a link's queue at once.
+        ticks = max(1, round(cfg.sync_period / control_period))
         self.timetable = Timetable(
             t0,
-            control_period=1.0 / agent.platform.rate,
+            control_period=control_period,
             pose_period=1.0 / cfg.pose_rate,
             sync_period=cfg.sync_period,
             status_period=cfg.status_period,
             duration=cfg.duration,
             phase=phase,
+            sync_phase=(slot % ticks) * control_period,
         )
 
     def tick(self, now: float) -> float | None:
@@ -120,6 +126,8 @@ def run_together(
     a busy host (a cold cache, a handover of the interpreter lock: issue 17,
     docs/scale.md), so fewer, fuller wake-ups save CPU; one group of all the agents
     would hold the interpreter longest and delay the poses arriving meanwhile.
+    Within a group each agent sends its sync queries on a control tick of its own
+    (:class:`Schedule`'s ``slot``), so a group's queries do not leave in one burst.
     """
     if group < 1:
         raise ValueError(f"group must be at least 1 agent, not {group!r}")
@@ -128,7 +136,7 @@ def run_together(
     wakes = []
     for i, agent in enumerate(agents):
         at = t0 + (i // group) * step
-        wakes.append((at, i, Schedule(agent, at)))
+        wakes.append((at, i, Schedule(agent, at, slot=i % group)))
     heapq.heapify(wakes)
     while wakes and not stop.is_set():
         at, i, schedule = wakes[0]

@@ -19,8 +19,9 @@ Clocks are the host's monotonic clock, so a follower's latency is its arrival ti
 minus the stamp. At the end each process writes ``OUT/bare-<lab>.json``: the leader's
 sent stamps, each follower's (sent, received) pairs and the sync replies received.
 
-Agents tick in groups of GROUP, the groups staggered over a pose period, as fedlab's
-workers do (:func:`federation.runtime.loop.run_together`).
+Agents tick in groups of GROUP, the groups staggered over a pose period, and a
+group's agents send their sync queries on alternate ticks, as fedlab's workers do
+(:func:`federation.runtime.loop.run_together`).
 
 Usage: python zenoh_scale.py ENDPOINT SECONDS OUT STATUS_BYTES GROUP LEADER NAME...
 """
@@ -180,9 +181,11 @@ def main() -> None:
         step = POSE_PERIOD / max(1, math.ceil(len(agents) / group))
         # (due, index, task): pose, sync, status per agent; groups spread over a pose period.
         wakes: list[tuple[float, int, str]] = []
+        ticks = round(SYNC_PERIOD / POSE_PERIOD)  # a group's agents sync on their own ticks
         for i in range(len(agents)):
             first = t0 + (i // group) * step
-            wakes += [(first, i, "pose"), (first, i, "sync"), (first, i, "status")]
+            sync = first + (i % group % ticks) * POSE_PERIOD
+            wakes += [(first, i, "pose"), (sync, i, "sync"), (first, i, "status")]
         heapq.heapify(wakes)
         others_phase = 0
         while wakes and not stop.is_set():

@@ -36,6 +36,15 @@ def test_status_first_comes_one_period_plus_the_phase_after_t0() -> None:
     assert t.due(1.25).status
 
 
+def test_a_sync_phase_moves_the_first_query_onto_a_later_control_tick() -> None:
+    t = Timetable(0.0, 0.01, 0.05, 0.1, 1.0, sync_phase=0.03)
+    assert not t.due(0.0).sync
+    assert not t.due(0.01).sync
+    assert not t.due(0.02).sync
+    assert t.due(0.03).sync  # on the fourth control tick, then every 0.1 s
+    assert t.next_sync == pytest.approx(0.13)
+
+
 def test_tasks_fire_at_their_own_rates() -> None:
     t = table()
     counts = {"control": 0, "pose": 0, "sync": 0, "status": 0}

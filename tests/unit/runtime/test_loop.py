@@ -129,6 +129,31 @@ def test_agents_tick_in_groups_staggered_over_the_spread() -> None:
     assert all(a.calls[-1] == "status" for a in agents)
 
 
+def test_a_groups_agents_send_their_sync_queries_on_ticks_of_their_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """100 Hz control, 10 Hz sync: the 10 control ticks of a sync period hold the
+    queries of a group's agents one each (the 11th shares the first's); with one
+    agent a group, every agent queries at its first tick."""
+    agent = stub(duration=1.0)
+    firsts = [Schedule(agent, 5.0, slot=k).timetable.next_sync for k in (0, 1, 3, 9, 10)]
+    assert firsts == pytest.approx([5.0, 5.01, 5.03, 5.09, 5.0])
+    slots: list[int] = []
+
+    class Recorded(Schedule):
+        def __init__(self, agent: Any, t0: float, slot: int = 0):
+            slots.append(slot)
+            super().__init__(agent, t0, slot)
+
+    monkeypatch.setattr("federation.runtime.loop.Schedule", Recorded)
+    agents = [stub(duration=0.02) for _ in range(6)]
+    run_together(agents, threading.Event(), spread=0.0, group=4)
+    assert slots == [0, 1, 2, 3, 0, 1]
+    slots.clear()
+    run_together(agents[:3], threading.Event(), spread=0.0, group=1)
+    assert slots == [0, 0, 0]
+
+
 def test_a_group_has_at_least_one_agent() -> None:
     with pytest.raises(ValueError, match="group must be at least 1"):
         run_together([stub()], threading.Event(), group=0)
