@@ -73,11 +73,17 @@ DEFAULT_AGENTS = (2, 8, 16, 32, 64)
 """Agent counts run when none is given."""
 
 
+def _stat_cpu(stat: str) -> float:
+    """User + system CPU seconds from a ``/proc/.../stat`` line (a process's or a
+    thread's; fields after the parenthesised name, which may hold spaces and ``)``)."""
+    fields = stat.rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process so far (Linux /proc)."""
     with open(f"/proc/{pid}/stat", encoding="ascii") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return _stat_cpu(f.read())
 
 
 def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
@@ -85,7 +91,6 @@ def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
     ``rx-1`` -> ``rx-#``; before Python 3.14 Python's threads all carry the
     interpreter's name), and its CPU seconds, by thread id (Linux /proc)."""
     out: dict[int, tuple[str, float]] = {}
-    tick = os.sysconf("SC_CLK_TCK")
     try:
         tasks = os.listdir(f"/proc/{pid}/task")
     except OSError:  # the process is gone
@@ -99,8 +104,7 @@ def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
         if "(" not in stat or ")" not in stat:
             continue
         name = re.sub(r"\d+", "#", stat[stat.index("(") + 1 : stat.rindex(")")])
-        fields = stat.rsplit(")", 1)[1].split()
-        out[int(tid)] = (name, (int(fields[11]) + int(fields[12])) / tick)
+        out[int(tid)] = (name, _stat_cpu(stat))
     return out
 
 

@@ -57,6 +57,7 @@ QUEUE_BATCHES_MAX = 16
 Its config takes any number, and then every link panics as it opens: a router with
 ``transport/link/tx/queue/size/data: 32`` runs and connects nothing, and its agents
 wait for it for ever. :func:`build_config` refuses such a value at load."""
+_QUEUE_LIMIT = f"Zenoh queues 1 to {QUEUE_BATCHES_MAX} batches per priority"
 
 DEFAULT_TIMEOUT = 5.0
 """s a command or the SDK waits for its router before giving up."""
@@ -96,7 +97,7 @@ def _insert(conf: zenoh.Config, key: str, value_json5: str, source: str) -> None
     except Exception as error:  # zenoh raises its own ZError
         hint = ""
         if key.startswith("transport/link/tx/queue/size"):
-            hint = f" (Zenoh queues 1 to {QUEUE_BATCHES_MAX} batches per priority)"
+            hint = f" ({_QUEUE_LIMIT})"
         raise ZenohConfigError(
             f"{source}: cannot set '{key}' to {value_json5}{hint}: {error}"
         ) from None
@@ -161,9 +162,8 @@ def _queue_problem(sizes: Any) -> str | None:
             or not 1 <= value <= QUEUE_BATCHES_MAX
         ):
             return (
-                f"'transport/link/tx/queue/size/{priority}' is {value!r}: Zenoh queues 1 to "
-                f"{QUEUE_BATCHES_MAX} batches per priority (outside that, every link fails as "
-                "it opens)"
+                f"'transport/link/tx/queue/size/{priority}' is {value!r}: {_QUEUE_LIMIT} "
+                "(outside that, every link fails as it opens)"
             )
     return None
 
