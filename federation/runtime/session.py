@@ -1,7 +1,8 @@
 """Zenoh configuration from the usual flags (-m, -e, -l, -c, --cfg).
 
 fedlab's defaults, applied before the user's file and flags so either can
-override them:
+override them (a file overrides one by setting a value other than Zenoh's own
+default, since Zenoh's loader fills its defaults in; a flag, by any value):
 
 - multicast scouting off: labs join by explicit endpoints, never by accident;
 - Zenoh's universal transport with QoS on (``transport/unicast/lowlatency`` off,
@@ -120,8 +121,9 @@ def build_config(
             why = _invalid_because(str(error))
             raise ZenohConfigError(f"{options.config}: not a valid Zenoh config: {why}") from None
         _check_queues(conf, str(options.config))  # Zenoh's loader checks this too, today
-        # The file wins over fedlab's defaults: only fill what it leaves unset.
-        settings = {k: v for k, v in settings.items() if _is_unset(conf, k)}
+        # The file wins over fedlab's defaults: only fill what it leaves to the defaults.
+        zenoh_defaults = zenoh.Config()
+        settings = {k: v for k, v in settings.items() if _is_default(conf, zenoh_defaults, k)}
     for key, value in settings.items():
         _insert(conf, key, json.dumps(value), "fedlab defaults")
     _check_queues(conf, "fedlab's settings")  # its defaults and the caller's (``extra``)
@@ -183,11 +185,13 @@ def _invalid_because(text: str) -> str:
     return _queue_problem(sizes) or "Zenoh refused one of its settings without naming it"
 
 
-def _is_unset(conf: zenoh.Config, key: str) -> bool:
-    try:
-        return json.loads(conf.get_json(key)) is None
-    except Exception:
-        return True
+def _is_default(conf: zenoh.Config, zenoh_defaults: zenoh.Config, key: str) -> bool:
+    """Whether a file's ``conf`` leaves ``key`` to the defaults: unset, or at Zenoh's
+    own default. Zenoh's loader fills some settings in (a file that names no transmit
+    queue size has Zenoh's two batches), so a file cannot be told from one that sets
+    that same value: both get fedlab's (a flag, applied last, still sets any value)."""
+    value = config_value(conf, key)
+    return value is None or value == config_value(zenoh_defaults, key)
 
 
 def config_value(conf: zenoh.Config, key: str) -> Any:

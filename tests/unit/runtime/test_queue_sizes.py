@@ -96,3 +96,37 @@ def test_a_whole_table_zenoh_refuses_says_the_limit() -> None:
     item = f"transport/link/tx/queue/size:{{{sizes},data:32}}"
     with pytest.raises(ZenohConfigError, match=f"1 to {QUEUE_BATCHES_MAX} batches per priority"):
         build_config(ZenohOptions(cfg=[item]), default_mode="router")
+
+
+def _file(tmp_path: Path, settings: dict[str, object]) -> Path:
+    path = tmp_path / "agent.json5"
+    path.write_text(json.dumps({"mode": "client", **settings}))
+    return path
+
+
+def test_a_file_that_sets_no_queue_size_gets_fedlabs(tmp_path: Path) -> None:
+    # Zenoh's loader fills in its own two batches: they count as unset.
+    conf = build_config(ZenohOptions(config=_file(tmp_path, {})), default_mode="client")
+    assert config_value(conf, "transport/link/tx/queue/size/data") == DATA_QUEUE_BATCHES
+
+
+def test_a_file_that_sets_its_own_queue_size_keeps_it(tmp_path: Path) -> None:
+    sizes = {"transport": {"link": {"tx": {"queue": {"size": {"data": 8}}}}}}
+    conf = build_config(ZenohOptions(config=_file(tmp_path, sizes)), default_mode="client")
+    assert config_value(conf, "transport/link/tx/queue/size/data") == 8
+
+
+def test_a_flag_sets_zenohs_default_queue_size_over_a_file(tmp_path: Path) -> None:
+    options = ZenohOptions(
+        config=_file(tmp_path, {}), cfg=["transport/link/tx/queue/size/data:2"]
+    )
+    conf = build_config(options, default_mode="client")
+    assert config_value(conf, "transport/link/tx/queue/size/data") == 2
+
+
+def test_a_file_keeps_its_transport_choice(tmp_path: Path) -> None:
+    # A setting other than Zenoh's default is the file's choice: fedlab's does not win.
+    path = _file(tmp_path, {"transport": {"unicast": {"qos": {"enabled": False}}}})
+    conf = build_config(ZenohOptions(config=path), default_mode="client")
+    assert config_value(conf, "transport/unicast/qos/enabled") is False
+    assert config_value(conf, "scouting/multicast/enabled") is False  # unset: fedlab's
