@@ -117,9 +117,7 @@ def test_a_file_that_sets_its_own_queue_size_keeps_it(tmp_path: Path) -> None:
 
 
 def test_a_flag_sets_zenohs_default_queue_size_over_a_file(tmp_path: Path) -> None:
-    options = ZenohOptions(
-        config=_file(tmp_path, {}), cfg=["transport/link/tx/queue/size/data:2"]
-    )
+    options = ZenohOptions(config=_file(tmp_path, {}), cfg=["transport/link/tx/queue/size/data:2"])
     conf = build_config(options, default_mode="client")
     assert config_value(conf, "transport/link/tx/queue/size/data") == 2
 
