@@ -219,7 +219,7 @@ def _add_scale(benches: Subparsers) -> None:
         "tuned = followers sync_with the leader, bare = bare zenoh-python, the floor)",
     )  # fmt: skip
     p.add_argument(
-        "--labs", type=_agents, default=scale.LABS, metavar="L",
+        "--labs", type=_agents_or_one, default=scale.LABS, metavar="L",
         help=f"labs (routers and worker processes; default {scale.LABS})",
     )  # fmt: skip
     p.add_argument(

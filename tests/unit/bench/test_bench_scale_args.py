@@ -41,3 +41,29 @@ def test_repeats_interleave_counts_and_modes_and_report_progress(
     assert seen == order  # each repeat runs every count and mode before the next
     assert [(r["run"], r["n"], r["mode"]) for r in rows] == order
     assert {g for _, _, g in ran} == {3}
+
+
+def test_one_lab_is_a_lab_count_and_none_is_refused(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # One lab: one router and one worker hosting every agent (not "a leader and a follower").
+    labs: list[int] = []
+
+    def fake_run(
+        counts: list[int],
+        seconds: float,
+        out: Path,
+        modes: tuple[str, ...],
+        labs_: int,
+        *rest: object,
+    ) -> list[dict[str, object]]:
+        labs.append(labs_)
+        return []
+
+    monkeypatch.setattr(scale, "run", fake_run)
+    main(["bench", "scale", "--agents", "4", "--labs", "1", "--json"])
+    assert labs == [1]
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "scale", "--labs", "0"])
+    assert exit_.value.code == 2
+    assert "--labs: at least 1" in capsys.readouterr().err
