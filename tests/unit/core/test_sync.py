@@ -831,6 +831,29 @@ def test_delay_is_the_median_of_the_recent_exchanges_after_every_change(
             offset += 3.0  # the server's clock jumps: a step after STEP_CONFIRM replies
         request = client.request(now)
         client.receive(reply_to(request, now + rtt / 2 + offset), now=now + rtt)
-        expected = statistics.median(client._delays) if client._delays else None
+        expected = statistics.median(client._delays._order) if client._delays._order else None
         assert client.delay == expected
         now += 0.5
+
+
+@given(
+    st.lists(st.floats(-1.0, 1.0) | st.sampled_from([0.0, 0.5]), min_size=1, max_size=80),
+    st.integers(1, 9),
+)
+def test_the_running_median_is_the_windows_median_after_every_value(
+    values: list[float], window: int
+) -> None:
+    from collections import deque
+
+    from federation.core.sync import _Median
+
+    median, recent = _Median(window), deque[float](maxlen=window)
+    assert median.median is None
+    for k, value in enumerate(values):
+        median.add(value)
+        recent.append(value)
+        assert median.median == statistics.median(recent)
+        if k == len(values) // 2:
+            median.clear()
+            recent.clear()
+            assert median.median is None
