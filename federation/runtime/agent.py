@@ -48,6 +48,7 @@ from federation.core.contest import ContestWatch
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch, SilenceWatch
+from federation.core.ring import FloatRing
 from federation.core.runstate import Event, RunState
 from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient, read_send_time, serve
@@ -196,7 +197,7 @@ class AgentRuntime:
         self._clock_stepped = False
         self._left_area = False  # the scenario's platform left its area (held for good)
         self.counters: Counter[str] = Counter()
-        self.lateness: deque[float] = deque(maxlen=2000)  # control ticks' lateness (s)
+        self.lateness = FloatRing(2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
         self.recorder = (
             Recorder(config.record, str(self.me), config.record_channels) if config.record else None
@@ -670,7 +671,7 @@ class AgentRuntime:
 
     def loop_stats(self) -> dict[str, float]:
         """Control loop timing: rate and lateness of the recent ticks (ms)."""
-        return loop_stats(self.platform.rate, list(self.lateness))
+        return loop_stats(self.platform.rate, self.lateness.values())
 
     def counter_snapshot(self) -> dict[str, int]:
         with self._count_lock:

@@ -12,7 +12,6 @@ import math
 import threading
 import time
 import zlib
-from collections import deque
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -24,6 +23,10 @@ __all__ = ["Looped", "Schedule", "run_together"]
 
 STOP_POLL = 0.05
 """s: the longest the loop sleeps before looking at its stop event again."""
+
+
+class _Appendable(Protocol):
+    def append(self, value: float, /) -> None: ...
 
 
 class _Rated(Protocol):
@@ -45,7 +48,7 @@ class Looped(Protocol):
     def platform(self) -> _Rated: ...
 
     @property
-    def lateness(self) -> deque[float]:
+    def lateness(self) -> _Appendable:
         """The recent control ticks' lateness (s); the loop appends to it."""
 
     def count(self, name: str) -> None: ...

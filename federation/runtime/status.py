@@ -43,10 +43,14 @@ def peer_status(client: SyncClient, t: float, alive: bool, base: float = 0.0) ->
     )
 
 
-def loop_stats(rate: float, lateness: Iterable[float]) -> dict[str, float]:
+def loop_stats(rate: float, lateness: Iterable[float] | memoryview) -> dict[str, float]:
     """Control loop timing: ``rate`` (Hz) and the lateness of the recent ticks (s,
-    reported in ms as median, 99th percentile and maximum)."""
-    late = np.fromiter(lateness, dtype=float)
+    reported in ms as median, 99th percentile and maximum; a buffer of doubles,
+    :meth:`FloatRing.values`, is read without a Python float per value)."""
+    if isinstance(lateness, memoryview):
+        late = np.frombuffer(lateness, dtype=float)
+    else:
+        late = np.fromiter(lateness, dtype=float)
     n = len(late)
     stats = {"rate_hz": rate, "ticks": float(n)}
     if n:
