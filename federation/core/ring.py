@@ -44,6 +44,6 @@ class FloatRing:
             yield self._buffer[(start + k) % self.size]
 
     def values(self) -> memoryview:
-        """The values held, in no particular order (for order statistics): a view of
-        the buffer, valid until the next append."""
-        return memoryview(self._buffer)[: self._count]
+        """The values held, in no particular order (for order statistics): a read-only
+        view of the buffer (format ``d``), whose contents the next append changes."""
+        return memoryview(self._buffer).toreadonly()[: self._count]

@@ -332,6 +332,11 @@ class SyncClient:
         if t2s is not None and not (math.isfinite(t2s) and 0.0 <= t2s - reply.t2 <= now - t1):
             t2s = None  # a send time the exchange cannot have had: use three timestamps
         exchange = Exchange(t1, reply.t2, now, t2s)
+        if not (math.isfinite(exchange.offset) and math.isfinite(exchange.delay)):
+            # Finite timestamps whose differences overflow (a t2 near the float's limit):
+            # nothing to estimate from, and nothing the delay window could order.
+            self._reject("malformed")
+            return None
         if not self._consistent(exchange):
             return None
         self.accepted += 1
@@ -417,14 +422,18 @@ class _Median:
     """The median of the last ``window`` values, kept up to date as each is added.
 
     A follower reads its delay median for every pose it receives. Sorting the window
-    at each read (``statistics.median``) walked every value, each a float object of
-    its own, cold in the cache by the time the next pose arrived; with 16 agents in a
-    process that was a third of a pose handler's cost (issue 17). The window is kept
-    sorted beside its arrival order instead: an add touches a handful of values."""
+    (``statistics.median``, at the first read after each exchange) walked every value,
+    each a float object of its own, cold in the cache by the time the pose arrived
+    (issue 17). The window is kept sorted beside its arrival order instead: an add
+    touches a handful of values, and a read is one attribute (safe from another thread
+    while an add runs). Values must be finite (NaN cannot be ordered); ``window`` at
+    least 1."""
 
     __slots__ = ("_order", "_sorted", "median")
 
     def __init__(self, window: int):
+        if window < 1:
+            raise ValueError(f"window must be at least 1 value, not {window!r}")
         self._order: deque[float] = deque(maxlen=window)
         self._sorted: list[float] = []
         self.median: float | None = None

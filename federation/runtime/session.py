@@ -124,6 +124,15 @@ def build_config(
         # The file wins over fedlab's defaults: only fill what it leaves to the defaults.
         zenoh_defaults = zenoh.Config()
         settings = {k: v for k, v in settings.items() if _is_default(conf, zenoh_defaults, k)}
+        for key, value in settings.items():
+            left = config_value(conf, key)
+            if left is not None and left != value:
+                log.info(
+                    "%s leaves '%s' at Zenoh's %s: fedlab's %s is used "
+                    "(--cfg %s:%s keeps Zenoh's)",
+                    options.config, key, json.dumps(left), json.dumps(value),
+                    key, json.dumps(left),
+                )  # fmt: skip
     for key, value in settings.items():
         _insert(conf, key, json.dumps(value), "fedlab defaults")
     _check_queues(conf, "fedlab's settings")  # its defaults and the caller's (``extra``)

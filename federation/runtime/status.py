@@ -48,6 +48,8 @@ def loop_stats(rate: float, lateness: Iterable[float] | memoryview) -> dict[str,
     reported in ms as median, 99th percentile and maximum; a buffer of doubles,
     :meth:`FloatRing.values`, is read without a Python float per value)."""
     if isinstance(lateness, memoryview):
+        if lateness.format != "d":
+            raise TypeError(f"lateness: a buffer of doubles (format 'd'), not {lateness.format!r}")
         late = np.frombuffer(lateness, dtype=float)
     else:
         late = np.fromiter(lateness, dtype=float)

@@ -36,3 +36,13 @@ def test_loop_stats_read_from_the_ring_equal_those_of_the_values(lateness: list[
     for value in lateness:
         ring.append(value)
     assert loop_stats(20.0, ring.values()) == loop_stats(20.0, lateness[-200:])
+
+
+def test_the_values_are_a_read_only_view_and_loop_stats_wants_doubles() -> None:
+    ring = FloatRing(4)
+    ring.append(0.001)
+    view = ring.values()
+    with pytest.raises(TypeError):
+        view[0] = 1.0  # type: ignore[index]
+    with pytest.raises(TypeError, match="format 'd'"):
+        loop_stats(20.0, memoryview(bytes(8)))

@@ -857,3 +857,34 @@ def test_the_running_median_is_the_windows_median_after_every_value(
             median.clear()
             recent.clear()
             assert median.median is None
+
+
+def test_a_clock_step_starts_the_delay_median_again_from_the_suspect_exchanges() -> None:
+    client = SyncClient(ClockFilter(), timeout=1.0, delay_window=50)
+    for k in range(20):  # one-way delay 50 ms
+        t1 = 0.1 * k
+        client.request(t1)
+        client.receive(encode_reply(t1, t1 + 0.05 + 3.0, Pose()), t1 + 0.1)
+    assert client.delay == pytest.approx(0.05)
+    for k in range(SyncClient.STEP_CONFIRM):  # the server's clock jumps 1 s; delay 10 ms
+        t1 = 5.0 + 0.1 * k
+        client.request(t1)
+        client.receive(encode_reply(t1, t1 + 0.01 + 4.0, Pose()), t1 + 0.02)
+    assert client.steps == 1
+    # Only the exchanges since the step: with the 20 before it the median stays 50 ms.
+    assert client.delay == pytest.approx(0.01)
+
+
+def test_a_reply_whose_offset_overflows_is_rejected_and_changes_nothing() -> None:
+    client = make_client(timeout=10.0)
+    request = client.request(-1.7e308)
+    assert client.receive(reply_to(request, 1.7e308), now=-1.7e308 + 0.1) is None
+    assert client.last_rejection == "malformed" and client.accepted == 0
+    assert client.delay is None and client.offset is None
+
+
+def test_a_running_median_of_no_values_is_refused() -> None:
+    from federation.core.sync import _Median
+
+    with pytest.raises(ValueError, match="at least 1"):
+        _Median(0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 import time
@@ -128,3 +129,27 @@ def test_a_file_keeps_its_transport_choice(tmp_path: Path) -> None:
     conf = build_config(ZenohOptions(config=path), default_mode="client")
     assert config_value(conf, "transport/unicast/qos/enabled") is False
     assert config_value(conf, "scouting/multicast/enabled") is False  # unset: fedlab's
+
+
+def test_a_file_that_names_zenohs_two_batches_gets_fedlabs_and_says_so(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Zenoh's loader cannot tell this file from one that names no size (docs/deploy.md).
+    sizes = {"transport": {"link": {"tx": {"queue": {"size": {"data": 2}}}}}}
+    path = _file(tmp_path, sizes)
+    with caplog.at_level(logging.INFO, logger="fedlab.session"):
+        conf = build_config(ZenohOptions(config=path), default_mode="client")
+    assert config_value(conf, "transport/link/tx/queue/size/data") == DATA_QUEUE_BATCHES
+    assert f"{path} leaves 'transport/link/tx/queue/size/data' at Zenoh's 2" in caplog.text
+    assert "--cfg transport/link/tx/queue/size/data:2 keeps Zenoh's" in caplog.text
+
+
+def test_a_router_file_that_names_no_queue_size_gets_fedlabs(tmp_path: Path) -> None:
+    from federation.runtime.router import load_router_config
+
+    path = tmp_path / "kiruna.json5"
+    path.write_text(json.dumps({"mode": "router", "metadata": {"lab": "kiruna"},
+                                "listen": {"endpoints": ["tcp/127.0.0.1:0"]}}))  # fmt: skip
+    _, conf = load_router_config(ZenohOptions(config=path), None)
+    assert config_value(conf, "transport/link/tx/queue/size/data") == DATA_QUEUE_BATCHES
+    assert config_value(conf, "connect/timeout_ms") == -1  # the router's own default
