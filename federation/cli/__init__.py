@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 from types import ModuleType
 
-from federation.cli.common import Formatter, signal_handlers_kept
+from federation.cli.common import Formatter, exit_on_sigterm, signal_handlers_kept
 from federation.runtime.session import ConnectError, ZenohConfigError
 from schemas.config import ConfigError
 
@@ -110,6 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         with signal_handlers_kept():
+            exit_on_sigterm()
             code: int = args.func(args)
     except (ConfigError, ZenohConfigError) as error:
         print(f"fedlab {args.command}: error: {error}", file=sys.stderr)

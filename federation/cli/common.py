@@ -32,6 +32,7 @@ __all__ = [
     "add_timeout_flag",
     "add_zenoh_flags",
     "agent_id",
+    "exit_on_sigterm",
     "federation_name",
     "integer_in",
     "nonnegative",
@@ -120,6 +121,26 @@ def stop_on_signals() -> threading.Event:
     for sig in _SIGNALS:
         signal.signal(sig, handler)
     return stop
+
+
+def exit_on_sigterm() -> None:
+    """Make SIGTERM unwind the command like Ctrl-C does, exiting with 143 (128 + 15).
+
+    Python's default for SIGTERM ends the process at once: no ``finally``, no
+    ``with`` exit. A command that runs child processes (``fedlab demo``, the
+    benchmarks: routers and agents in a :class:`~federation.fleet.launch.Fleet`)
+    then left them running, routers for ever. Raised as ``SystemExit`` instead, the
+    fleet stops its children by pid on the way out; a second SIGTERM meanwhile is
+    ignored, so that stopping them is not cut short (each stop is bounded: SIGKILL
+    after a grace period). Commands that stop cleanly on their own
+    (:func:`stop_on_signals`) replace this handler."""
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        log.warning("received SIGTERM: stopping what this command started")
+        raise SystemExit(128 + signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, handler)
 
 
 @contextmanager

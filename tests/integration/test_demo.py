@@ -50,3 +50,60 @@ def test_demo_short_run_reproduces_the_paper_setup(tmp_path: Path) -> None:
                   "/control", "/status"):  # fmt: skip
         assert channels[topic], topic
     assert any(e["event"] == "started" for e in channels["/control"])
+
+
+def _children(pid: int) -> set[int]:
+    """The pids of ``pid``'s live child processes (from /proc)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended meanwhile
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"  # a zombie has ended; its parent has not reaped it yet
+
+
+def test_sigterm_to_the_demo_stops_its_routers_and_agents(tmp_path: Path) -> None:
+    """SIGTERM to ``fedlab demo`` alone (a service manager, ``timeout``): it stops the
+    processes it started instead of leaving them running (routers would never end)."""
+    import os
+    import signal
+    import time
+
+    from federation.fleet.launch import wait_for
+
+    demo = subprocess.Popen(
+        [sys.executable, "-m", "federation", "demo", "--duration", "60", "--out",
+         str(tmp_path / "demo")],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+        text=True,
+    )  # fmt: skip
+    children: set[int] = set()
+    try:
+        # Two routers, the link emulator and the agents.
+        assert wait_for(lambda: len(_children(demo.pid)) >= 4, timeout=30)
+        time.sleep(1.0)  # all of them up
+        children = _children(demo.pid)
+        demo.send_signal(signal.SIGTERM)
+        _, err = demo.communicate(timeout=60)
+        assert demo.returncode == 128 + signal.SIGTERM, err[-2000:]
+        assert "received SIGTERM: stopping what this command started" in err
+        left = {pid for pid in children if _alive(pid)}
+        assert not left, f"still running after the demo ended: {sorted(left)}"
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait(10)
+        for pid in children:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
