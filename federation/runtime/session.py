@@ -121,18 +121,7 @@ def build_config(
             why = _invalid_because(str(error))
             raise ZenohConfigError(f"{options.config}: not a valid Zenoh config: {why}") from None
         _check_queues(conf, str(options.config))  # Zenoh's loader checks this too, today
-        # The file wins over fedlab's defaults: only fill what it leaves to the defaults.
-        zenoh_defaults = zenoh.Config()
-        settings = {k: v for k, v in settings.items() if _is_default(conf, zenoh_defaults, k)}
-        for key, value in settings.items():
-            left = config_value(conf, key)
-            if left is not None and left != value:
-                log.info(
-                    "%s leaves '%s' at Zenoh's %s: fedlab's %s is used "
-                    "(--cfg %s:%s keeps Zenoh's)",
-                    options.config, key, json.dumps(left), json.dumps(value),
-                    key, json.dumps(left),
-                )  # fmt: skip
+        settings = _left_to_defaults(conf, settings, str(options.config))
     for key, value in settings.items():
         _insert(conf, key, json.dumps(value), "fedlab defaults")
     _check_queues(conf, "fedlab's settings")  # its defaults and the caller's (``extra``)
@@ -194,13 +183,27 @@ def _invalid_because(text: str) -> str:
     return _queue_problem(sizes) or "Zenoh refused one of its settings without naming it"
 
 
-def _is_default(conf: zenoh.Config, zenoh_defaults: zenoh.Config, key: str) -> bool:
-    """Whether a file's ``conf`` leaves ``key`` to the defaults: unset, or at Zenoh's
-    own default. Zenoh's loader fills some settings in (a file that names no transmit
-    queue size has Zenoh's two batches), so a file cannot be told from one that sets
-    that same value: both get fedlab's (a flag, applied last, still sets any value)."""
-    value = config_value(conf, key)
-    return value is None or value == config_value(zenoh_defaults, key)
+def _left_to_defaults(conf: zenoh.Config, settings: dict[str, Any], path: str) -> dict[str, Any]:
+    """Those of fedlab's ``settings`` that the file ``path`` (loaded as ``conf``) leaves
+    to the defaults: unset, or at Zenoh's own default. Zenoh's loader fills some
+    settings in (a file that names no transmit queue size has Zenoh's two batches), so
+    a file cannot be told from one that sets that same value: both get fedlab's, said
+    in the log (a flag, applied last, still sets any value). The file wins elsewhere."""
+    zenoh_defaults = zenoh.Config()
+    fill = {}
+    for key, value in settings.items():
+        current = config_value(conf, key)
+        if current is None:
+            fill[key] = value
+        elif current == config_value(zenoh_defaults, key):
+            fill[key] = value
+            if current != value:
+                log.info(
+                    "%s leaves '%s' at Zenoh's %s: fedlab's %s is used "
+                    "(--cfg %s:%s keeps Zenoh's)",
+                    path, key, json.dumps(current), json.dumps(value), key, json.dumps(current),
+                )  # fmt: skip
+    return fill
 
 
 def config_value(conf: zenoh.Config, key: str) -> Any:
