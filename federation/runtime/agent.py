@@ -203,6 +203,9 @@ class AgentRuntime:
             Recorder(config.record, str(self.me), config.record_channels) if config.record else None
         )
         self.run_recording: RunRecording | None = None  # this run's, under runs_dir
+        # The channels recorded now (the file's and the run's): read on every message.
+        self._recorded: frozenset[str] = frozenset()
+        self._update_recorded()
         self.recording_server: RecordingServer | None = None
         self.margins = _margins(self.platform)
         self._delay_warned = False
@@ -221,9 +224,17 @@ class AgentRuntime:
 
     def recording(self, topic: Channel) -> bool:
         """Whether ``topic`` is recorded: callbacks build no message otherwise."""
-        if self.run_recording is not None and topic in self.run_recording.recorder.channels:
-            return True
-        return self.recorder is not None and topic in self.recorder.channels
+        return topic in self._recorded
+
+    def _update_recorded(self) -> None:
+        """Gather the recorded channels again (a recorder opened or closed): one set,
+        read by every callback, rather than two recorders' (issue 17: a lean agent)."""
+        channels: set[str] = set()
+        if self.recorder is not None:
+            channels |= self.recorder.channels
+        if self.run_recording is not None:
+            channels |= self.run_recording.recorder.channels
+        self._recorded = frozenset(channels)
 
     def record(self, topic: Channel, message: dict[str, Any] | bytes) -> None:
         """Record ``message`` (a dict, or its JSON encoded) on the agent's recordings."""
@@ -330,6 +341,7 @@ class AgentRuntime:
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None
+            self._update_recorded()
 
     def run(self, stop: threading.Event) -> None:
         """The agent's loop, until ``stop`` is set or the configured duration has passed.
@@ -363,28 +375,39 @@ class AgentRuntime:
         return host + (start_at - t_sim) / self.clock.rate
 
     # -- the agent's own loop ----------------------------------------------------------
-    def reference_heading(self, t_exec: float, run_time: float | None) -> tuple[float, float]:
-        """Guidance: the leader's maneuver on run time, or the followed heading."""
+    def reference_heading(
+        self, t_exec: float, run_time: float | None, t_sim: float | None = None
+    ) -> tuple[float, float]:
+        """Guidance: the leader's maneuver on run time, or the followed heading
+        (``t_sim``: simulation time at ``t_exec``, if known: the followed agent's clock
+        when it is the reference, so not estimated twice in one step)."""
         if self.config.role == "leader":
             return (0.0, 0.0) if run_time is None else self.maneuver(run_time)
         if self.config.role == "member":
             return 0.0, 0.0  # its pose source decides where it goes
         received = self.latest_poses.get(self.follow) if self.follow else None
         # The followed agent's clock now: its samples are stamped on it.
-        now = self.timebase.peer_time(self.follow, t_exec) if self.follow else None
+        if self.follow is None:
+            now = None
+        elif self.follow is self.reference and t_sim is not None:
+            now = t_sim
+        else:
+            now = self.timebase.peer_time(self.follow, t_exec)
         return track_heading(received, now, self.config.latency_compensation)
 
     def control_step(self) -> None:
         """Run state, link watch, guidance and one platform step (the platform's rate)."""
-        self._rehearse_clock_step()
+        if self.config.clock_step is not None:
+            self._rehearse_clock_step()
         t_exec, host = self.clock.read()
         t_sim = self.sim_time(t_exec)
         with self._lock:
             events = self.run_state.update(t_sim)
             run_time = self.run_state.run_time(t_sim)
-        self._apply(events, t_exec, host)
+        if events:
+            self._apply(events, t_exec, host)
         self._watch_link(t_exec, host)
-        self.guidance = self.reference_heading(t_exec, run_time)
+        self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
             self._scenario_reference(t_sim, run_time)
         self.guidance_at = (t_exec, host, t_sim, run_time)
@@ -458,10 +481,13 @@ class AgentRuntime:
             attachment=self.reference_stamp(t_exec),
         )
         # Only the messages of recorded channels are built (issue 17: a lean agent).
+        recorded = self._recorded
+        if not recorded:
+            return
         stamp = {"t_exec": t_exec, "host_monotonic": host}
-        if self.recording(Channel.POSE_SENT):
+        if Channel.POSE_SENT in recorded:
             self.record(Channel.POSE_SENT, stamp | self.pose._asdict())
-        if self.recording(Channel.REFERENCE):
+        if Channel.REFERENCE in recorded:
             # The reference as computed at the last control step, stamped with that step's time.
             g_exec, g_host, g_sim, g_run = self.guidance_at
             self.record(
@@ -478,8 +504,8 @@ class AgentRuntime:
                 }
                 | ({} if self.scenario is None else self.scenario.fields()),
             )
-        truth = getattr(self.platform, "truth", None)
-        if truth is not None and self.recording(Channel.TRUTH):
+        truth = getattr(self.platform, "truth", None) if Channel.TRUTH in recorded else None
+        if truth is not None:
             self.record(Channel.TRUTH, stamp | truth._asdict())
 
     def step(self) -> None:
@@ -538,11 +564,13 @@ class AgentRuntime:
                  "latency_compensation": self.config.latency_compensation,
                  "reference": str(self.reference), "duration": self.run_state.duration},
             )  # fmt: skip
+            self._update_recorded()
         except OSError as error:
             log.error("cannot record run %s under %s: %s", run_id, self.config.runs_dir, error)
 
     def _end_run_recording(self, wait: bool = False) -> None:
         run, self.run_recording = self.run_recording, None
+        self._update_recorded()
         if run is not None:
             run.finish(wait=wait)
 
@@ -861,11 +889,13 @@ class AgentRuntime:
         ``t_recv``) is too old to steer by (a burst queued through a cut); a fresh one
         measures the link for the stale threshold (:mod:`federation.core.linkwatch`)."""
         assert self.follow is not None
-        sender_now = self.timebase.peer_time(self.follow, t_recv)
-        peer = self.peers.get(self.follow)
-        delay = peer.client.delay if peer is not None else None
-        if sender_now is not None and self.link_watch.too_old(sender_now - sent, delay):
-            return True
+        peer = self.peers.get(self.follow)  # the time base's estimate, read directly
+        if peer is not None:
+            offset = peer.offset_at(t_recv)  # the sender's clock now: t_recv + offset
+            if offset is not None and self.link_watch.too_old(
+                t_recv + offset - sent, peer.client.delay
+            ):
+                return True
         self.link_watch.observe(t_recv, sent)
         return False
 
