@@ -25,7 +25,10 @@ p50/p99 one-way pose latency leader to followers (host monotonic clock on both
 ends; the leader's clock is mapped to it exactly through its status lines), loss
 (leader samples sent while a follower listened that it never received), sync
 exchanges completed per second (all agents), and the workers' resident memory
-after warm-up and at the end.
+after warm-up and at the end. For fedlab also the stale-pose safe holds the
+followers entered in the same window as the loss (a hold is what a follower does
+when the leader's pose is late by more than its link watch's threshold), and for
+both the leader's largest gap between two poses published (its loop stalled).
 """
 
 from __future__ import annotations
@@ -68,6 +71,8 @@ One each by default. Groups of 8 (``--group 8``) cost a third less CPU per agent
 but send bursts, and a pose was then lost in some runs at 64 agents, which the
 default must not do (docs/scale.md, "Wake-ups")."""
 BARE = Path(__file__).with_name("baselines") / "zenoh_scale.py"
+SUMMARY_KEYS = ("cpu_per_agent", "cpu_cores", "p50_ms", "p99_ms", "loss", "sync_per_s",
+                "leader_gap_max_ms")  # fmt: skip
 SETTLE = 3.0  # s after start before samples count (discovery, routes)
 DEFAULT_AGENTS = (2, 8, 16, 32, 64)
 """Agent counts run when none is given."""
@@ -260,7 +265,11 @@ def _score_bare(out: Path, leader: str) -> dict[str, Any]:
         replies += sum(data["replies"].values())
         seconds = data["seconds"]
     scores = _latency_and_loss(sent, received, lambda t: t)
-    return {**scores, "sync_per_s": replies / seconds if seconds else float("nan")}
+    return {
+        **scores,
+        "sync_per_s": replies / seconds if seconds else float("nan"),
+        **_pose_gaps(sorted(sent)),  # its leader stamps its poses with host time
+    }
 
 
 def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str, Any]:
@@ -270,17 +279,61 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     lead = read_messages(out / f"{leader.replace('/', '-')}.mcap", ["/status", "/pose/sent"])
     a, b = clock_line(lead["/status"])
     sent = [r["t_exec"] for r in lead["/pose/sent"]]
+    published = [r["host_monotonic"] for r in lead["/pose/sent"]]
     syncs = sum(p.get("samples", 0) for p in lead["/status"][-1]["peers"].values())
     received = []
+    holds = []
     for _, name in agents[1:]:
         mine = read_messages(out / f"{name.replace('/', '-')}.mcap", ["/status", "/pose/received"])
-        received.append(
-            [(r["t"], r["host_monotonic"]) for r in mine["/pose/received"] if r["agent"] == leader]
-        )
+        poses = mine["/pose/received"]
+        got = [(r["t"], r["host_monotonic"]) for r in poses if r["agent"] == leader]
+        received.append(got)
         if mine["/status"]:
             syncs += sum(p.get("samples", 0) for p in mine["/status"][-1]["peers"].values())
+        if got and published:
+            # The same window as the loss: from when routes had settled to the leader's
+            # last pose (after it, every follower holds: the run is over).
+            start = min(h for _, h in got) + SETTLE
+            holds.append(_holds_between(mine["/status"], start, published[-1]))
     scores = _latency_and_loss(sent, received, lambda t: (t - a) / b)
-    return {**scores, "sync_per_s": syncs / (seconds + SETTLE)}
+    return {
+        **scores,
+        "sync_per_s": syncs / (seconds + SETTLE),
+        **_hold_scores(holds),
+        **_pose_gaps(published),
+    }
+
+
+def _holds_between(statuses: list[dict[str, Any]], start: float, end: float) -> int:
+    """Stale-pose safe holds a follower entered between host times ``start`` and
+    ``end``, from the ``stale_holds`` counter of its status reports (one a second: the
+    window is that coarse)."""
+
+    def held(until: float) -> int:
+        before = [s for s in statuses if s["host_monotonic"] <= until]
+        return int(before[-1]["counters"].get("stale_holds", 0)) if before else 0
+
+    return held(end) - held(start)
+
+
+def _hold_scores(holds: list[int]) -> dict[str, Any]:
+    """``stale_holds``: safe holds entered by all followers together (the leader's pose
+    late by more than the link watch's threshold); ``followers_held``: how many
+    followers entered at least one."""
+    return {"stale_holds": sum(holds), "followers_held": sum(1 for h in holds if h)}
+
+
+def _pose_gaps(published: list[float]) -> dict[str, Any]:
+    """The leader's publication gaps (host times of its poses, s): the largest (ms) and
+    how many exceeded twice the median (a stalled loop: each is a gap every follower
+    sees, whatever the network does)."""
+    if len(published) < 3:
+        return {"leader_gap_max_ms": float("nan"), "leader_gaps_over_2x": 0}
+    gaps = np.diff(np.asarray(published))
+    return {
+        "leader_gap_max_ms": float(gaps.max() * 1e3),
+        "leader_gaps_over_2x": int((gaps > 2.0 * float(np.median(gaps))).sum()),
+    }
 
 
 def run(
@@ -324,7 +377,8 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             of = [r for r in mine if r["mode"] == mode]
             entry[mode] = {
                 key: spread([r[key] for r in of])
-                for key in ("cpu_per_agent", "cpu_cores", "p50_ms", "p99_ms", "loss", "sync_per_s")
+                for key in (*SUMMARY_KEYS, "stale_holds")
+                if all(key in r for r in of)  # the bare floor has no safe hold
             }
         per_run: dict[str, list[float]] = {}
         for k in sorted({r.get("run", 0) for r in mine}):

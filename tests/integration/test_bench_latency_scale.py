@@ -56,6 +56,12 @@ def test_scale_short(tmp_path: Path) -> None:
         assert threads and not any(ch.isdigit() for name in threads for ch in name), threads
         workers_ms = 1e3 * r["cpu_workers_cores"] / r["n"]
         assert 0 < sum(threads.values()) <= workers_ms * 1.05 + 0.5, (threads, workers_ms)
+        # The leader publishes every 50 ms: its largest gap is at least that.
+        assert r["leader_gap_max_ms"] >= 40 and r["leader_gaps_over_2x"] >= 0, r
+        if r["mode"] == "default":  # the bare floor has no safe hold
+            assert 0 <= r["followers_held"] <= r["n"] - 1 and r["stale_holds"] >= 0, r
+        else:
+            assert "stale_holds" not in r, r
     default = {r["n"]: r for r in rows if r["mode"] == "default"}
     bare = {r["n"]: r for r in rows if r["mode"] == "bare"}
     # Five followers sync with the leader at 10 Hz: about 50 exchanges a second, and the

@@ -1,0 +1,53 @@
+"""The scale bench's safe-hold and loop-stall figures, from status reports and the
+leader's publication times."""
+
+from __future__ import annotations
+
+import math
+
+from federation.bench.scale import _hold_scores, _holds_between, _pose_gaps, summary
+
+
+def status(host: float, holds: int) -> dict[str, object]:
+    return {"host_monotonic": host, "counters": {"stale_holds": holds} if holds else {}}
+
+
+def test_holds_are_counted_inside_the_window_only() -> None:
+    # One hold before the window (start-up), two inside, one after (the leader stopped).
+    reports = [status(1.0, 1), status(2.0, 1), status(3.0, 2), status(4.0, 3), status(5.0, 4)]
+    assert _holds_between(reports, start=2.5, end=4.5) == 2
+    # A window that starts before the first report counts from zero.
+    assert _holds_between(reports, start=0.5, end=4.5) == 3
+    assert _holds_between([], start=0.0, end=9.0) == 0
+
+
+def test_hold_scores_sum_holds_and_count_followers_held() -> None:
+    assert _hold_scores([0, 2, 0, 1]) == {"stale_holds": 3, "followers_held": 2}
+    assert _hold_scores([]) == {"stale_holds": 0, "followers_held": 0}
+
+
+def test_pose_gaps_find_a_stalled_loop() -> None:
+    published = [i * 0.05 for i in range(40)]
+    steady = _pose_gaps(published)
+    assert steady["leader_gaps_over_2x"] == 0
+    assert math.isclose(steady["leader_gap_max_ms"], 50.0, rel_tol=1e-6)
+    stalled = published[:20] + [t + 0.15 for t in published[20:]]  # one 200 ms gap
+    gaps = _pose_gaps(stalled)
+    assert gaps["leader_gaps_over_2x"] == 1
+    assert math.isclose(gaps["leader_gap_max_ms"], 200.0, rel_tol=1e-6)
+    assert math.isnan(_pose_gaps([0.0, 0.05])["leader_gap_max_ms"])
+
+
+def row(mode: str, run: int, **extra: float) -> dict[str, object]:
+    base = {"n": 4, "mode": mode, "run": run, "cpu_per_agent": 0.01, "cpu_cores": 0.04,
+            "p50_ms": 1.0, "p99_ms": 2.0, "loss": 0.0, "sync_per_s": 30.0,
+            "leader_gap_max_ms": 60.0}  # fmt: skip
+    return base | extra
+
+
+def test_summary_gives_holds_for_fedlab_and_gaps_for_both() -> None:
+    rows = [row("default", k, stale_holds=k) for k in range(3)] + [row("bare", k) for k in range(3)]
+    table = summary(rows)["4"]  # type: ignore[arg-type]
+    assert table["default"]["stale_holds"] == {"median": 1.0, "min": 0, "max": 2}
+    assert "stale_holds" not in table["bare"]
+    assert table["bare"]["leader_gap_max_ms"]["median"] == 60.0
