@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import heapq
 import math
-import sys
 import threading
 import time
 import zlib
@@ -24,14 +23,6 @@ __all__ = ["Looped", "Schedule", "run_together"]
 
 STOP_POLL = 0.05
 """s: the longest the loop sleeps before looking at its stop event again."""
-
-SWITCH_INTERVAL = 0.0005
-"""s: how long another thread may keep the interpreter lock once the loop's thread
-asks for it back, while agents' loops run (Python's default is 5 ms). Each Zenoh call
-the loop makes (a put, a query) lets go of the lock; with sync replies and queries
-arriving on Zenoh's threads, getting it back could take the whole 5 ms, once per
-call: a reference querying 25 peers on one tick stalled its pose 90 to 190 ms, and
-every follower held (issue 17, docs/scale.md)."""
 
 
 class _Appendable(Protocol):
@@ -140,21 +131,9 @@ def run_together(
     would hold the interpreter longest and delay the poses arriving meanwhile.
     Within a group each agent sends its sync queries on a control tick of its own
     (:class:`Schedule`'s ``slot``), so a group's queries do not leave in one burst.
-    While it runs, the interpreter's switch interval is at most
-    :data:`SWITCH_INTERVAL`, so that the loop's many Zenoh calls each get the lock
-    back promptly.
     """
     if group < 1:
         raise ValueError(f"group must be at least 1 agent, not {group!r}")
-    switch = sys.getswitchinterval()
-    sys.setswitchinterval(min(switch, SWITCH_INTERVAL))
-    try:
-        _run(agents, stop, spread, group)
-    finally:
-        sys.setswitchinterval(switch)
-
-
-def _run(agents: Sequence[Looped], stop: threading.Event, spread: float, group: int) -> None:
     t0 = time.monotonic()
     step = spread / math.ceil(len(agents) / group) if agents else 0.0
     wakes = []

@@ -144,9 +144,6 @@ def main() -> None:
     conf.insert_json5("transport/link/tx/queue/size/data", "16")  # as fedlab's nodes
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router, as fedlab agents do
     conf.insert_json5("connect/exit_on_failure", "false")
-    # As fedlab's loop does (federation.runtime.loop.SWITCH_INTERVAL): the loop's
-    # thread gets the interpreter lock back within 0.5 ms of asking, not 5.
-    sys.setswitchinterval(0.0005)
     stop = threading.Event()
     with zenoh.open(conf) as session:
         agents = [BareAgent(session, name, leader, status_bytes) for name in names]

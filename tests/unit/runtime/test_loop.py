@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
 import threading
 import time
 from collections import deque
@@ -13,7 +12,7 @@ from typing import Any
 import pytest
 
 from federation.core.keys import AgentId
-from federation.runtime.loop import SWITCH_INTERVAL, Schedule, run_together
+from federation.runtime.loop import Schedule, run_together
 from schemas.config import AgentConfig
 
 
@@ -158,28 +157,3 @@ def test_a_groups_agents_send_their_sync_queries_on_ticks_of_their_own(
 def test_a_group_has_at_least_one_agent() -> None:
     with pytest.raises(ValueError, match="group must be at least 1"):
         run_together([stub()], threading.Event(), group=0)
-
-
-def test_the_loop_shortens_the_switch_interval_while_it_runs_and_restores_it() -> None:
-    """While agents' loops run, another thread keeps the interpreter lock at most
-    SWITCH_INTERVAL after the loop asks for it back; the process's own setting returns
-    after (and a shorter one set by the process is kept)."""
-    seen: list[float] = []
-
-    class Watching(Stub):
-        def publish_pose(self) -> None:
-            seen.append(sys.getswitchinterval())
-            super().publish_pose()
-
-    before = sys.getswitchinterval()
-    try:
-        sys.setswitchinterval(0.005)
-        run_together([Watching(stub(duration=0.1).config)], threading.Event())
-        assert seen and set(seen) == {SWITCH_INTERVAL}
-        assert sys.getswitchinterval() == 0.005
-        sys.setswitchinterval(SWITCH_INTERVAL / 2)
-        seen.clear()
-        run_together([Watching(stub(duration=0.1).config)], threading.Event())
-        assert set(seen) == {SWITCH_INTERVAL / 2}
-    finally:
-        sys.setswitchinterval(before)
