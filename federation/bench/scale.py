@@ -28,7 +28,8 @@ exchanges completed per second (all agents), and the workers' resident memory
 after warm-up and at the end. For fedlab also the stale-pose safe holds the
 followers entered in the same window as the loss (a hold is what a follower does
 when the leader's pose is late by more than its link watch's threshold), and for
-both the leader's largest gap between two poses published (its loop stalled).
+both the leader's largest gap between two poses it published (where a stalled
+loop shows).
 """
 
 from __future__ import annotations
