@@ -72,8 +72,6 @@ One each by default. Groups of 8 (``--group 8``) cost a third less CPU per agent
 but send bursts, and a pose was then lost in some runs at 64 agents, which the
 default must not do (docs/scale.md, "Wake-ups")."""
 BARE = Path(__file__).with_name("baselines") / "zenoh_scale.py"
-SUMMARY_KEYS = ("cpu_per_agent", "cpu_cores", "p50_ms", "p99_ms", "loss", "sync_per_s",
-                "leader_gap_max_ms")  # fmt: skip
 SETTLE = 3.0  # s after start before samples count (discovery, routes)
 DEFAULT_AGENTS = (2, 8, 16, 32, 64)
 """Agent counts run when none is given."""
@@ -363,13 +361,16 @@ def run(
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Median and spread (min, max) over the repeats, per agent count and
-    configuration, of CPU per agent, pose p50/p99, loss and sync exchanges per
-    second; and per agent count the ratios fedlab over bare (CPU per agent, p99),
-    each taken within one repeat, then their median and spread."""
+    configuration, of CPU per agent, pose p50/p99, loss, sync exchanges per second,
+    the leader's largest publication gap and (fedlab) the safe holds; and per agent
+    count the ratios fedlab over bare (CPU per agent, p99), each taken within one
+    repeat, then their median and spread."""
 
     def spread(values: list[float]) -> dict[str, float]:
         return {"median": float(np.median(values)), "min": min(values), "max": max(values)}
 
+    figures = ("cpu_per_agent", "cpu_cores", "p50_ms", "p99_ms", "loss", "sync_per_s",
+               "leader_gap_max_ms", "stale_holds")  # fmt: skip
     table: dict[str, Any] = {}
     for n in sorted({r["n"] for r in rows}):
         mine = [r for r in rows if r["n"] == n]
@@ -378,7 +379,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             of = [r for r in mine if r["mode"] == mode]
             entry[mode] = {
                 key: spread([r[key] for r in of])
-                for key in (*SUMMARY_KEYS, "stale_holds")
+                for key in figures
                 if all(key in r for r in of)  # the bare floor has no safe hold
             }
         per_run: dict[str, list[float]] = {}
