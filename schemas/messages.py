@@ -52,6 +52,11 @@ class PeerStatus(BaseModel):
     rejected: int = Field(description="rejected replies (all reasons)")
     rejected_by_reason: dict[str, int] = Field(default_factory=dict)
     clock_steps: int = Field(0, description="clock steps detected (estimate reset each time)")
+    sharing: int = Field(
+        1,
+        description="agents of this process on this exchange: its figures are theirs too "
+        "(agents on one clock share one exchange with a peer)",
+    )
     silent: float | None = Field(
         None,
         description="alarm: seconds the peer, alive, has answered no sync request (over 2 s); "

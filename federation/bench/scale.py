@@ -279,7 +279,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     a, b = clock_line(lead["/status"])
     sent = [r["t_exec"] for r in lead["/pose/sent"]]
     published = [r["host_monotonic"] for r in lead["/pose/sent"]]
-    syncs = sum(p.get("samples", 0) for p in lead["/status"][-1]["peers"].values())
+    syncs = _exchanges(lead["/status"][-1])
     received = []
     holds = []
     for _, name in agents[1:]:
@@ -288,7 +288,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
         got = [(r["t"], r["host_monotonic"]) for r in poses if r["agent"] == leader]
         received.append(got)
         if mine["/status"]:
-            syncs += sum(p.get("samples", 0) for p in mine["/status"][-1]["peers"].values())
+            syncs += _exchanges(mine["/status"][-1])
         if got and published:
             # The same window as the loss: from when routes had settled to the leader's
             # last pose (after it, every follower holds: the run is over).
@@ -301,6 +301,13 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
         **_hold_scores(holds),
         **_pose_gaps(published),
     }
+
+
+def _exchanges(status: dict[str, Any]) -> float:
+    """The sync exchanges an agent's status reports, each shared one divided among the
+    agents that share it (they all report it)."""
+    peers = status["peers"].values()
+    return float(sum(p.get("samples", 0) / p.get("sharing", 1) for p in peers))
 
 
 def _holds_between(statuses: list[dict[str, Any]], start: float, end: float) -> int:
@@ -417,8 +424,10 @@ def worker(
     import zenoh
 
     from federation.runtime.agent import AgentRuntime, run_together
+    from federation.runtime.clock import ExecClock
     from federation.runtime.fanout import Fanout
     from federation.runtime.heap import freeze_startup_heap
+    from federation.runtime.links import SyncLinks
     from federation.runtime.session import build_config
     from schemas.config import AgentConfig, ZenohOptions
 
@@ -428,6 +437,9 @@ def worker(
     runtimes: list[AgentRuntime] = []
     with zenoh.open(conf) as session:
         fanout = Fanout(session)
+        # One clock for the process's agents, so they share one sync exchange per peer
+        # (federation.runtime.links), as a gateway process hosting them would.
+        clock, links = ExecClock(), SyncLinks()
         try:
             for name in names:
                 lab, agent = name.split("/")
@@ -446,7 +458,7 @@ def worker(
                         "/status", "/pose/sent" if role == "leader" else "/pose/received"
                     ],
                 )  # fmt: skip
-                runtime = AgentRuntime(config, session, fanout=fanout)
+                runtime = AgentRuntime(config, session, clock, fanout=fanout, links=links)
                 runtime.start()
                 runtimes.append(runtime)
             freeze_startup_heap()

@@ -30,7 +30,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -56,6 +56,7 @@ from federation.core.timebase import TimeBase
 from federation.runtime.clock import ExecClock
 from federation.runtime.collect import RecordingServer
 from federation.runtime.fanout import Fanout, Received
+from federation.runtime.links import SyncLink, SyncLinks
 from federation.runtime.loop import Schedule, run_together
 from federation.runtime.recorder import Recorder
 from federation.runtime.runs import RunRecording
@@ -99,13 +100,17 @@ class RateLimitedLog:
 
 @dataclass
 class Peer:
+    """Another agent as this one knows it: alive or not, and the sync link whose
+    estimate of its clock this agent reads (its own, or shared with the agents of its
+    process on the same clock: :mod:`federation.runtime.links`)."""
+
     agent: AgentId
-    client: SyncClient
-    key: str
+    link: SyncLink
     alive: bool = True
-    querier: Any = None  # zenoh.Querier on the peer's sync key, declared on first use
-    on_reply: Any = None  # its reply handler, made once
-    next_sync: float = 0.0  # host monotonic time of its next sync request
+    client: SyncClient = field(init=False)  # the link's: read on every pose
+
+    def __post_init__(self) -> None:
+        self.client = self.link.client
 
     def offset_at(self, t: float) -> float | None:
         """Its clock minus this agent's at own time ``t`` (s): the time base's estimate
@@ -124,10 +129,13 @@ class AgentRuntime:
         platform: Platform | None = None,
         maneuver: Callable[[float], tuple[float, float]] | None = None,
         fanout: Fanout | None = None,
+        links: SyncLinks | None = None,
     ):
         self.config = config
         self.session = session
         self.fanout = fanout  # shared pose subscriptions of agents on one session
+        # Sync links: shared with the agents of this session on the same clock object.
+        self.links = links if links is not None else SyncLinks()
         self.me = config.agent
         self.clock = clock or ExecClock(config.clock_offset, config.clock_drift_ppm)
         self.platform: Platform = platform or make_platform(
@@ -331,6 +339,11 @@ class AgentRuntime:
         except Exception as error:
             log.warning("closing the platform failed: %s", error)
         undeclare_all(self._declared)
+        emptied, orphaned = self.links.leave(self)
+        undeclare_all([link.querier for link in emptied if link.querier is not None])
+        for link in orphaned:  # the agents still on it look for a sender again
+            for user in link.agents:
+                user._next_sync_due = 0.0
         if self.recording_server is not None:
             self.recording_server.close()
             self.recording_server = None
@@ -596,37 +609,42 @@ class AgentRuntime:
             peer = self.peers.get(agent)
             if peer is None or not peer.alive:
                 continue
-            if peer.next_sync <= now:
+            link = peer.link
+            if link.sender is not self and not self.links.claim(link, self):
+                continue  # another agent on this clock queries it for both
+            if link.next_sync <= now:
                 if agent in self.close_sync:
-                    peer.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
+                    link.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
                 else:
-                    peer.next_sync = next_tick(peer.next_sync, cfg.sync_others_period, now)
+                    link.next_sync = next_tick(link.next_sync, cfg.sync_others_period, now)
                 due.append(agent)
-            earliest = min(earliest, peer.next_sync)
+            earliest = min(earliest, link.next_sync)
         self._next_sync_due = earliest
         return due
 
     def send_sync_requests(self, now: float | None = None) -> None:
-        """Query every agent due at host monotonic ``now`` (default: the present)."""
+        """Query every agent due at host monotonic ``now`` (default: the present), for
+        every agent on the same link (each one's silence watch counts the request)."""
         for agent in self.due_for_sync(time.monotonic() if now is None else now):
-            peer = self.peers[agent]
+            link = self.peers[agent].link
             try:
-                if peer.querier is None:
-                    # One querier and one handler per peer: a query costs a single call.
-                    peer.querier = self.session.declare_querier(
-                        peer.key,
+                if link.querier is None:
+                    # One querier and one handler per link: a query costs a single call.
+                    link.querier = self.session.declare_querier(
+                        link.key,
                         consolidation=zenoh.ConsolidationMode.NONE,
                         timeout=self.config.sync_timeout,
                         express=True,
                     )
-                    self._declared.append(peer.querier)
-                    peer.on_reply = zenoh.handlers.Callback(
-                        functools.partial(self._on_sync_reply, peer), indirect=False
+                    link.on_reply = zenoh.handlers.Callback(
+                        functools.partial(_on_link_reply, link), indirect=False
                     )
-                with self._lock:
-                    payload = peer.client.request(self.clock.now())
-                peer.querier.get(peer.on_reply, payload=payload)
-                self.silence.requested(agent, time.monotonic())
+                with link.lock:
+                    payload = link.client.request(self.clock.now())
+                link.querier.get(link.on_reply, payload=payload)
+                host = time.monotonic()
+                for user in link.agents:
+                    user.silence.requested(agent, host)
             except Exception as error:  # session closing, or zenoh refusing the query
                 log.warning("sync request to %s failed: %s", agent, error)
 
@@ -637,7 +655,9 @@ class AgentRuntime:
         with self._lock:
             for agent, peer in self.peers.items():
                 if peer.client.sent:  # agents this one has never queried: nothing to say
-                    view = peers[str(agent)] = peer_status(peer.client, t_exec, peer.alive)
+                    view = peers[str(agent)] = peer_status(
+                        peer.client, t_exec, peer.alive, sharing=peer.link.sharing
+                    )
                     view.silent = self.silence.silent_for(agent, host) if peer.alive else None
         t_sim = self.sim_time(t_exec)
         received = self.latest_poses.get(self.follow) if self.follow else None
@@ -770,17 +790,25 @@ class AgentRuntime:
         finally:
             query.drop()  # type: ignore[no-untyped-call]  # release now, or the querier waits
 
-    def _on_sync_reply(self, peer: Peer, reply: zenoh.Reply) -> None:
+    def _on_sync_reply(self, link: SyncLink, reply: zenoh.Reply) -> None:
+        """A reply on ``link``, for every agent on it (this one first): each admits it
+        (one that finds the replier contested drops it, and resets the estimate they
+        share, so every one of them holds), the client takes it once, and each counts,
+        logs and records what came of it."""
         t3, host = self.clock.read()  # read on arrival: the paper's t3
+        users = link.agents or (self,)
         try:
             ok = reply.ok  # each read of it builds a new sample: read once
             if ok is None:
-                self.count("sync_reply_errors")
+                for user in users:
+                    user.count("sync_reply_errors")
                 return
             payload = ok.payload
-            if not self._admit_reply(peer, reply, len(payload), host):
+            admitted = [user._admit_reply(link, reply, len(payload), host) for user in users]
+            if not all(admitted):
                 return
-            self.silence.answered(peer.agent)
+            for user in users:
+                user.silence.answered(link.agent)
             t2s = None
             attachment = ok.attachment if self.config.four_timestamps else None
             if attachment is not None:
@@ -788,45 +816,46 @@ class AgentRuntime:
                     t2s = read_send_time(attachment.to_bytes())
                 except wire.DecodeError:
                     self.count("sync_attachment_malformed")
-            with self._lock:
-                steps = peer.client.steps
-                accepted = peer.client.receive(payload.to_bytes(), t3, t2s)
-                reason = peer.client.last_rejection
-                exchange = peer.client.last
-                recorded = self.recording(Channel.SYNC_EXCHANGE)
-                estimate = peer.client.offset_at(t3) if recorded else None
-                stepped = peer.client.steps > steps
+            recorders = [user for user in users if user.recording(Channel.SYNC_EXCHANGE)]
+            client = link.client
+            with link.lock:
+                steps = client.steps
+                accepted = client.receive(payload.to_bytes(), t3, t2s)
+                reason = client.last_rejection
+                exchange = client.last
+                estimate = client.offset_at(t3) if recorders else None
+                stepped = client.steps > steps
             if stepped:
-                self.count("clock_steps")
-                jump = peer.client.last_step or 0.0
+                jump = client.last_step or 0.0
                 log.warning(
                     "clock step of %+.3f s between %s and %s: estimate reset",
                     jump,
-                    self.me,
-                    peer.agent,
+                    ", ".join(str(user.me) for user in users),
+                    link.agent,
                 )
-                self._event("clock_step", t3, host, f"{peer.agent}: {jump:+.6f} s")
+                for user in users:
+                    user.count("clock_steps")
+                    user._event("clock_step", t3, host, f"{link.agent}: {jump:+.6f} s")
             if accepted is None or exchange is None:
-                self.rejects(f"sync reply ({reason})", f"from {peer.key}")
+                self.rejects(f"sync reply ({reason})", f"from {link.key}")
                 return
-            if not recorded:
+            if not recorders:
                 return
-            self.record(
-                Channel.SYNC_EXCHANGE,
-                {
-                    "peer": str(peer.agent),
-                    "t1": exchange.t1,
-                    "t2": exchange.t2,
-                    "t3": exchange.t3,
-                    "t2s": exchange.t2s,
-                    "offset": exchange.offset,
-                    "delay": exchange.delay,
-                    "estimate": estimate,
-                    "host_monotonic": host,
-                },
-            )
+            message = {
+                "peer": str(link.agent),
+                "t1": exchange.t1,
+                "t2": exchange.t2,
+                "t3": exchange.t3,
+                "t2s": exchange.t2s,
+                "offset": exchange.offset,
+                "delay": exchange.delay,
+                "estimate": estimate,
+                "host_monotonic": host,
+            }
+            for user in recorders:
+                user.record(Channel.SYNC_EXCHANGE, message)
         except Exception:
-            log.exception("sync reply from %s failed", peer.key)
+            log.exception("sync reply from %s failed", link.key)
 
     def _on_pose_sample(self, sample: zenoh.Sample) -> None:
         """A pose sample from this agent's own subscriber (no :class:`Fanout`)."""
@@ -981,14 +1010,15 @@ class AgentRuntime:
             if peer is None:
                 if not alive:
                     return
-                peer = self.peers[agent] = Peer(
-                    agent, self._new_client(), self.key(agent, "sync"),
-                    next_sync=self._first_sync(agent, len(self.peers)),
-                )  # fmt: skip
+                link = self._link_for(agent)
+                if link.sharing == 1:  # a new link: this agent schedules its first request
+                    link.next_sync = self._first_sync(agent, len(self.peers))
+                peer = self.peers[agent] = Peer(agent, link)
             elif alive and not peer.alive:
-                peer.client.reset()  # a restarted agent has a new clock
+                with peer.link.lock:
+                    peer.client.reset()  # a restarted agent has a new clock
                 self.silence.forget(agent)
-                peer.next_sync = self._first_sync(agent, len(self.peers))
+                peer.link.next_sync = self._first_sync(agent, len(self.peers))
             peer.alive = alive
             self._next_sync_due = 0.0  # due_for_sync looks again
         log.info("agent %s %s", agent, "joined" if alive else "left")
@@ -1066,7 +1096,7 @@ class AgentRuntime:
             return True
         return self._contest_verdict(parsed[0], "pose", sample.source(), host)
 
-    def _admit_reply(self, peer: Peer, reply: zenoh.Reply, size: int, host: float) -> bool:
+    def _admit_reply(self, link: SyncLink, reply: zenoh.Reply, size: int, host: float) -> bool:
         """Whether a sync reply (its payload ``size`` bytes) may be used: not oversized,
         and the peer not contested (its source: the replier's session id, which Zenoh
         sets on every reply)."""
@@ -1074,7 +1104,7 @@ class AgentRuntime:
             return False
         replier = reply.replier_id
         source = None if replier is None else str(replier.zid)
-        return self._contest_verdict(peer.agent, "sync", source, host)
+        return self._contest_verdict(link.agent, "sync", source, host)
 
     def _contest_verdict(
         self, agent: AgentId, channel: ContestChannel, source: str | None, host: float
@@ -1089,9 +1119,9 @@ class AgentRuntime:
         if outcome == "contested":
             self.count("contested")
             self.latest_poses.pop(agent, None)  # what it sent so far is suspect too
-            with self._lock:
-                peer = self.peers.get(agent)
-                if peer is not None:
+            peer = self.peers.get(agent)
+            if peer is not None:
+                with peer.link.lock:  # the estimate of every agent on the link: all hold
                     peer.client.reset()
             log.error("%s is contested: %s; nothing from it is used", agent, reason)
         return False
@@ -1141,9 +1171,36 @@ class AgentRuntime:
         phase = (index * 0.6180339887498949) % 1.0
         return time.monotonic() + phase * self.config.sync_others_period
 
+    def _link_for(self, agent: AgentId) -> SyncLink:
+        """The sync link to ``agent``: shared with the agents of this session that read
+        the same clock object and query ``agent`` alike (:mod:`federation.runtime.links`);
+        this agent's own for a peer it does not query (until a pose without our
+        reference stamp makes it one: synced pairwise on that link) or a clock that a
+        rehearsal steps."""
+        cfg = self.config
+        close = agent in self.close_sync
+        queried = close or (self.sync_all and not self.explicit_sync)
+        share: tuple[Any, ...] = (self, agent)
+        if queried and cfg.clock_step is None:
+            period = cfg.sync_period if close else cfg.sync_others_period
+            share = (
+                self.clock, agent, period, cfg.estimator, cfg.sync_window,
+                cfg.sync_timeout, cfg.four_timestamps,
+            )  # fmt: skip
+        return self.links.join(
+            self, share, lambda: SyncLink(agent, self.key(agent, "sync"), self._new_client())
+        )
+
     def _new_client(self) -> SyncClient:
         cfg = self.config
         return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), timeout=cfg.sync_timeout)
+
+
+def _on_link_reply(link: SyncLink, reply: zenoh.Reply) -> None:
+    """A sync reply on ``link``: handled once, by the first agent still on it, for all."""
+    users = link.agents
+    if users:
+        users[0]._on_sync_reply(link, reply)
 
 
 def _margins(platform: Platform) -> Margins | None:

@@ -17,10 +17,12 @@ from schemas.messages import PeerStatus
 __all__ = ["loop_stats", "peer_status"]
 
 
-def peer_status(client: SyncClient, t: float, alive: bool, base: float = 0.0) -> PeerStatus:
+def peer_status(
+    client: SyncClient, t: float, alive: bool, base: float = 0.0, sharing: int = 1
+) -> PeerStatus:
     """What a sync client knows of its peer at own time ``t``, as status reports it;
     ``base`` is subtracted from offsets (to report them against another clock than
-    ``t``'s)."""
+    ``t``'s); ``sharing`` agents read the client's estimate."""
     offset = client.offset_at(t)
     drift = getattr(client.estimator, "drift", None)  # only the clock filter models drift
     last = client.last
@@ -40,6 +42,7 @@ def peer_status(client: SyncClient, t: float, alive: bool, base: float = 0.0) ->
         rejected=sum(client.rejected.values()),
         rejected_by_reason=dict(client.rejected),
         clock_steps=client.steps,
+        sharing=sharing,
     )
 
 

@@ -12,8 +12,9 @@ and sends what it sends:
 - status once a second: ``STATUS_BYTES`` bytes of JSON;
 - a follower: one shared subscriber on the leader's pose (each sample decoded once
   for the session, as fedlab's Fanout does, and handed to every follower, which
-  gets the time it reached the process), a sync query to the leader every 0.1 s; the leader:
-  a sync query to every other agent once a second.
+  gets the time it reached the process); the process's followers, on one clock,
+  one sync query to the leader every 0.1 s (sent by the first of them, as fedlab's
+  shared sync link); the leader: a sync query to every other agent once a second.
 
 Clocks are the host's monotonic clock, so a follower's latency is its arrival time
 minus the stamp. At the end each process writes ``OUT/bare-<lab>.json``: the leader's
@@ -148,6 +149,8 @@ def main() -> None:
     with zenoh.open(conf) as session:
         agents = [BareAgent(session, name, leader, status_bytes) for name in names]
         followers = [a for a in agents if not a.is_leader]
+        # The followers share one clock: one exchange with the leader for all of them.
+        sender = followers[0] if followers else None
         subscriber = None
         if followers:  # one shared subscriber per session, as fedlab's Fanout
 
@@ -202,9 +205,9 @@ def main() -> None:
                 period = POSE_PERIOD
             elif task == "sync":
                 period = SYNC_PERIOD
-                if not agent.is_leader:
+                if agent is sender:
                     agent.query(leader)
-                else:  # every other agent once a second, spread over ten ticks
+                elif agent.is_leader:  # every other agent once a second, over ten ticks
                     peers = sorted(seen - {leader})
                     for peer in peers[others_phase % 10 :: 10]:
                         agent.query(peer)

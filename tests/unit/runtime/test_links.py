@@ -1,0 +1,214 @@
+"""Sync links shared by the agents of a process on one clock, on a real Zenoh session:
+one exchange with the reference for all of them, every one admitting each reply (a
+contested reference holds them all), and another agent taking over the requests
+when the one sending them leaves."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import zenoh
+
+from federation.core import wire
+from federation.core.keys import AgentId
+from federation.core.sync import serve
+from federation.runtime.agent import AgentRuntime, run_together
+from federation.runtime.clock import ExecClock
+from federation.runtime.fanout import Fanout
+from federation.runtime.links import SyncLink, SyncLinks
+from schemas.config import AgentConfig
+
+LEAD = AgentId.parse("lab0/lead")
+
+
+@pytest.fixture
+def session() -> Iterator[zenoh.Session]:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    with zenoh.open(conf) as s:
+        yield s
+
+
+def leader_config() -> AgentConfig:
+    return AgentConfig(lab="lab0", name="lead", role="leader", duration=60.0)
+
+
+def follower_config(name: str, **extra: Any) -> AgentConfig:
+    return AgentConfig(
+        lab="lab1", name=name, role="follower", follow=str(LEAD), duration=60.0, **extra
+    )
+
+
+def run_for(agents: list[AgentRuntime], seconds: float) -> None:
+    stop = threading.Event()
+    timer = threading.Timer(seconds, stop.set)
+    timer.start()
+    try:
+        run_together(agents, stop, spread=0.05)
+    finally:
+        timer.cancel()
+
+
+# -- the registry ------------------------------------------------------------------
+def test_a_link_is_shared_by_key_and_sent_by_one() -> None:
+    links = SyncLinks()
+    a, b, c = object(), object(), object()
+
+    def make() -> SyncLink:
+        return SyncLink(LEAD, "k", None)  # type: ignore[arg-type]
+
+    one = links.join(a, ("clock", LEAD), make)
+    assert links.join(b, ("clock", LEAD), make) is one
+    other = links.join(c, ("another clock", LEAD), make)
+    assert other is not one and len(links) == 2
+    assert one.agents == (a, b) and one.sharing == 2
+    assert links.claim(one, b) and not links.claim(one, a)  # the first to ask sends
+    emptied, orphaned = links.leave(b)
+    assert emptied == [] and orphaned == [one] and one.sender is None
+    assert links.claim(one, a)  # the one left takes over
+    emptied, orphaned = links.leave(a)
+    assert emptied == [one] and orphaned == [] and len(links) == 1
+
+
+# -- on a session --------------------------------------------------------------------
+def test_agents_on_one_clock_share_one_exchange_with_their_reference(
+    session: zenoh.Session,
+) -> None:
+    """Two followers on one clock: one link, one request every sync period for both
+    (the leader serves half the requests it serves to followers on clocks of their
+    own), and each reports the same estimate, saying two agents share it."""
+    served = {}
+    for shared in (True, False):
+        fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+        kinds = [leader_config(), follower_config("f1"), follower_config("f2")]
+        agents = [
+            AgentRuntime(c, session, clock if shared else None, fanout=fanout, links=links)
+            for c in kinds
+        ]
+        lead, f1, f2 = agents
+        for agent in agents:
+            agent.start()
+        try:
+            run_for(agents, 2.0)
+            served[shared] = lead.counters["sync_requests_served"]
+            one, two = f1.peers[LEAD], f2.peers[LEAD]
+            if shared:
+                assert one.link is two.link and one.client is two.client
+                view = f1.status().peers[str(LEAD)]
+                assert view.sharing == 2 and view.samples >= 10
+                assert view.offset == f2.status().peers[str(LEAD)].offset
+                assert f1.reference_offset(clock.now()) is not None
+                assert f2.readiness(clock.now()).reference_locked is False  # window: 3 s
+            else:
+                assert one.link is not two.link
+                assert f1.status().peers[str(LEAD)].sharing == 1
+        finally:
+            for agent in agents:
+                agent.close()
+        assert len(links) == 0  # every link left, its querier undeclared
+    # 10 requests a second for 2 s: once for both followers, or once each.
+    assert 14 <= served[True] <= 26, served
+    assert served[False] >= 1.6 * served[True], served
+
+
+def test_when_the_sender_leaves_another_agent_on_the_link_takes_over(
+    session: zenoh.Session,
+) -> None:
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    lead, f1, f2 = (
+        AgentRuntime(c, session, clock, fanout=fanout, links=links)
+        for c in (leader_config(), follower_config("f1"), follower_config("f2"))
+    )
+    for agent in (lead, f1, f2):
+        agent.start()
+    try:
+        run_for([lead, f1, f2], 1.0)
+        link = f2.peers[LEAD].link
+        assert link.sender is f1
+        sent = link.client.sent
+        f1.close()
+        run_for([lead, f2], 1.0)
+        assert link.sender is f2 and link.agents == (f2,)
+        assert link.client.sent >= sent + 7  # 10 a second, requested by f2 now
+        assert f2.status().peers[str(LEAD)].sharing == 1
+    finally:
+        for agent in (lead, f2):
+            agent.close()
+    assert len(links) == 0
+
+
+# -- a reply, for every agent on the link --------------------------------------------
+class _Bytes:
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+
+class _Reply:
+    """What ``_on_sync_reply`` reads of a zenoh.Reply."""
+
+    def __init__(self, payload: bytes, attachment: bytes, replier: str):
+        self.ok = type("Ok", (), {"payload": _Bytes(payload), "attachment": _Bytes(attachment)})
+        self.replier_id = type("Replier", (), {"zid": replier})
+
+
+def _reply(link: SyncLink, t1: float, replier: str) -> _Reply:
+    request = link.client.request(t1)
+    served = serve(request, t1 + 5.0, wire.Pose(), t1 + 5.0)
+    return _Reply(served.payload, served.attachment, replier)
+
+
+def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
+    session: zenoh.Session,
+) -> None:
+    links, clock = SyncLinks(), ExecClock()
+    f1, f2 = (
+        AgentRuntime(follower_config(n), session, clock, links=links) for n in ("f1", "f2")
+    )
+    for agent in (f1, f2):
+        agent.peer_seen(LEAD, True)
+    link = f1.peers[LEAD].link
+    assert f2.peers[LEAD].link is link
+    now = clock.now()
+    f1._on_sync_reply(link, _reply(link, now, "aaaa"))  # type: ignore[arg-type]
+    assert link.client.accepted == 1
+    assert f1.reference_offset(clock.now()) == f2.reference_offset(clock.now()) is not None
+
+    # Another session answers for the leader: every agent on the link finds it
+    # contested, the reply is dropped and the estimate they share is gone.
+    f1._on_sync_reply(link, _reply(link, clock.now(), "bbbb"))  # type: ignore[arg-type]
+    assert link.client.accepted == 1
+    for agent in (f1, f2):
+        assert agent.counters["contested"] == 1
+        assert agent.reference_offset(clock.now()) is None
+        t_exec, host = clock.read()
+        assert agent._contest_hold(t_exec, host)  # held: valves closed
+        assert agent.hold_reason == "contested"
+
+
+def test_agents_on_clocks_of_their_own_or_not_querying_the_peer_do_not_share(
+    session: zenoh.Session,
+) -> None:
+    links, clock = SyncLinks(), ExecClock()
+    stepped = follower_config("s", clock_step=(5.0, 0.25))
+    agents = [
+        AgentRuntime(follower_config("f1"), session, clock, links=links),
+        AgentRuntime(follower_config("f2"), session, ExecClock(), links=links),  # own clock
+        AgentRuntime(stepped, session, clock, links=links),  # a rehearsal steps its clock
+    ]
+    other = AgentId.parse("lab2/x")
+    for agent in agents:
+        agent.peer_seen(LEAD, True)
+        agent.peer_seen(other, True)  # queried by none of them: a link each
+    assert len({id(a.peers[LEAD].link) for a in agents}) == 3
+    assert len({id(a.peers[other].link) for a in agents}) == 3
