@@ -610,10 +610,18 @@ class AgentRuntime:
             if peer is None or not peer.alive:
                 continue
             link = peer.link
-            if link.sender is not self and not self.links.claim(link, self):
-                continue  # another agent on this clock queries it for both
+            close = agent in self.close_sync
+            if link.sender is not self:
+                # Another agent on this clock queries it for all; taken over if it has
+                # not for two periods (it left, or its loop ended before this one's).
+                stalled = link.next_sync + 2 * (
+                    cfg.sync_period if close else cfg.sync_others_period
+                )
+                if not self.links.claim(link, self, stalled <= now):
+                    earliest = min(earliest, stalled)
+                    continue
             if link.next_sync <= now:
-                if agent in self.close_sync:
+                if close:
                     link.next_sync = now + 0.5 * cfg.sync_period  # due again at the next tick
                 else:
                     link.next_sync = next_tick(link.next_sync, cfg.sync_others_period, now)
@@ -655,9 +663,10 @@ class AgentRuntime:
         with self._lock:
             for agent, peer in self.peers.items():
                 if peer.client.sent:  # agents this one has never queried: nothing to say
-                    view = peers[str(agent)] = peer_status(
-                        peer.client, t_exec, peer.alive, sharing=peer.link.sharing
-                    )
+                    with peer.link.lock:  # a reply may be changing it on another thread
+                        view = peers[str(agent)] = peer_status(
+                            peer.client, t_exec, peer.alive, sharing=peer.link.sharing
+                        )
                     view.silent = self.silence.silent_for(agent, host) if peer.alive else None
         t_sim = self.sim_time(t_exec)
         received = self.latest_poses.get(self.follow) if self.follow else None

@@ -8,8 +8,9 @@ that one clock and the reference's. A :class:`SyncLinks` registry gives them one
 :class:`SyncLink` per peer instead: one querier, one exchange per period, one
 :class:`~federation.core.sync.SyncClient` whose estimate every agent on the link
 reads. The first agent on the link that queries the peer sends the requests (the
-link's ``sender``); each reply is admitted, counted, recorded and logged by every
-agent on the link (:meth:`AgentRuntime._on_sync_reply`).
+link's ``sender``), and another takes over if it leaves or its loop ends first;
+each reply is admitted, counted, recorded and logged by every agent on the link
+(:meth:`AgentRuntime._on_sync_reply`).
 
 A link is shared only by agents that would query the peer alike: the same clock
 object, the same cadence (``sync_period`` or ``sync_others_period``) and the same
@@ -72,13 +73,14 @@ class SyncLinks:
                 link.agents = (*link.agents, user)
             return link
 
-    def claim(self, link: SyncLink, user: Any) -> bool:
-        """Whether ``user`` sends ``link``'s requests: it does if it already did or no
-        one does (the first agent on the link that queries the peer)."""
+    def claim(self, link: SyncLink, user: Any, stalled: bool = False) -> bool:
+        """Whether ``user`` sends ``link``'s requests: it does if it already did, if no
+        one does (the first agent on the link that queries the peer), or if the one
+        that did has ``stalled`` (sent nothing for a while: its loop ended)."""
         if link.sender is user:
             return True
         with self._lock:
-            if link.sender is None:
+            if link.sender is None or stalled:
                 link.sender = user
             return link.sender is user
 

@@ -64,8 +64,10 @@ def test_scale_short(tmp_path: Path) -> None:
             assert "stale_holds" not in r, r
     default = {r["n"]: r for r in rows if r["mode"] == "default"}
     bare = {r["n"]: r for r in rows if r["mode"] == "bare"}
-    # Five followers sync with the leader at 10 Hz: about 50 exchanges a second, and the
-    # leader queries each once a second; the bare agents send the same.
+    # Six agents over four labs: the followers of each lab's process share one exchange
+    # with the leader at 10 Hz (four processes: 40 a second, not the 50 of one each), and
+    # the leader queries each follower once a second (5); the bare agents send the same.
+    assert 0.7 * 45 <= default[6]["sync_per_s"] <= 50, default[6]
     assert default[6]["sync_per_s"] > default[2]["sync_per_s"] * 2
     assert bare[6]["sync_per_s"] == pytest.approx(default[6]["sync_per_s"], rel=0.25)
     ratios = out["summary"]["6"]["ratios"]

@@ -40,8 +40,9 @@ def leader_config() -> AgentConfig:
 
 def follower_config(name: str, **extra: Any) -> AgentConfig:
     return AgentConfig(
-        lab="lab1", name=name, role="follower", follow=str(LEAD), duration=60.0, **extra
-    )
+        **{"lab": "lab1", "name": name, "role": "follower", "follow": str(LEAD),
+           "duration": 60.0} | extra
+    )  # fmt: skip
 
 
 def run_for(agents: list[AgentRuntime], seconds: float) -> None:
@@ -142,6 +143,30 @@ def test_when_the_sender_leaves_another_agent_on_the_link_takes_over(
     assert len(links) == 0
 
 
+def test_when_the_senders_loop_ends_first_another_agent_takes_over(
+    session: zenoh.Session,
+) -> None:
+    """Agents of one process with different durations: the sender's loop ends after
+    1 s, the other's after 3 s, which queries the leader itself from then on."""
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    lead = AgentRuntime(leader_config(), session, clock, fanout=fanout, links=links)
+    f1, f2 = (
+        AgentRuntime(follower_config(n, duration=d), session, clock, fanout=fanout, links=links)
+        for n, d in (("f1", 1.0), ("f2", 3.0))
+    )
+    for agent in (lead, f1, f2):
+        agent.start()
+    try:
+        run_for([lead, f1, f2], 4.0)
+        link = f2.peers[LEAD].link
+        assert link.sender is f2
+        # 10 a second for 3 s, less the two periods before f2 took over.
+        assert link.client.sent >= 24, link.client.sent
+    finally:
+        for agent in (lead, f1, f2):
+            agent.close()
+
+
 # -- a reply, for every agent on the link --------------------------------------------
 class _Bytes:
     def __init__(self, data: bytes):
@@ -172,9 +197,7 @@ def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
     session: zenoh.Session,
 ) -> None:
     links, clock = SyncLinks(), ExecClock()
-    f1, f2 = (
-        AgentRuntime(follower_config(n), session, clock, links=links) for n in ("f1", "f2")
-    )
+    f1, f2 = (AgentRuntime(follower_config(n), session, clock, links=links) for n in ("f1", "f2"))
     for agent in (f1, f2):
         agent.peer_seen(LEAD, True)
     link = f1.peers[LEAD].link
