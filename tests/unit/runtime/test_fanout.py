@@ -5,25 +5,14 @@ from __future__ import annotations
 import gc
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
-import pytest
 import zenoh
 
 from federation.core import wire
 from federation.fleet.launch import wait_for
 from federation.runtime.fanout import Fanout, Received
 from federation.runtime.heap import freeze_startup_heap
-
-
-@pytest.fixture
-def session() -> Iterator[zenoh.Session]:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-    with zenoh.open(conf) as s:
-        yield s
 
 
 def test_every_handler_gets_every_sample_even_if_one_raises(session: zenoh.Session) -> None:

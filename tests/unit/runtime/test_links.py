@@ -6,10 +6,8 @@ when the one sending them leaves."""
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
 from typing import Any
 
-import pytest
 import zenoh
 
 from federation.core import wire
@@ -22,16 +20,6 @@ from federation.runtime.links import SyncLink, SyncLinks
 from schemas.config import AgentConfig
 
 LEAD = AgentId.parse("lab0/lead")
-
-
-@pytest.fixture
-def session() -> Iterator[zenoh.Session]:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-    with zenoh.open(conf) as s:
-        yield s
 
 
 def leader_config() -> AgentConfig:
