@@ -240,15 +240,21 @@ class LinkWatch:
 
     # -- deciding --------------------------------------------------------------------
     def update(
-        self, now: float, pose_at: float | None, synced_at: float | None
+        self,
+        now: float,
+        pose_at: float | None,
+        synced_at: float | None,
+        threshold: float | None = None,
     ) -> LinkAction | None:
         """The action due at own time ``now`` (s), given when the last followed pose
         arrived (``pose_at``) and when the last sync exchange with its sender
         completed (``synced_at``, its ``t3``), both on the own clock (None: never);
-        None if nothing changes."""
+        None if nothing changes. ``threshold`` (s) judges staleness in place of this
+        watch's own measurement: agents that share one measured link (one watch that
+        observes the poses) each keep a hold of their own."""
         if pose_at is None:
             return None
-        stale = now - pose_at > self.threshold
+        stale = now - pose_at > (self.threshold if threshold is None else threshold)
         if stale and not self.holding:
             self.holding, self.since = True, now
             return "stale_hold"

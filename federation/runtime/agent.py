@@ -56,7 +56,7 @@ from federation.core.timebase import TimeBase
 from federation.runtime.clock import ExecClock
 from federation.runtime.collect import RecordingServer
 from federation.runtime.fanout import Fanout, Received
-from federation.runtime.links import SyncLink, SyncLinks
+from federation.runtime.links import PoseFeed, SyncLink, SyncLinks
 from federation.runtime.loop import Schedule, run_together
 from federation.runtime.recorder import Recorder
 from federation.runtime.runs import RunRecording
@@ -195,6 +195,9 @@ class AgentRuntime:
         # (waiting after an abort); the last two are released by the next start.
         self.hold_reason: str | None = None
         self.link_watch = LinkWatch(config.stale_after)
+        # The followed agent's poses, admitted once for the agents of this session that
+        # follow it on one sync link (federation.runtime.links); None: handled here.
+        self.feed: PoseFeed | None = None
         # Two sources speaking for one peer: nothing from it is used (issue 13).
         self.contest = ContestWatch()
         self._contest_lock = threading.Lock()
@@ -279,7 +282,7 @@ class AgentRuntime:
         watched = keys.all_of(fed, "pose") if self.config.watch_all else None
         if watched is None and self.follow is not None:
             watched = self.key(self.follow, "pose")
-        if watched is not None:
+        if watched is not None and not self._join_feed(watched):
             self._declared.append(
                 self.fanout.subscribe(watched, self._on_pose)
                 if self.fanout is not None
@@ -339,6 +342,8 @@ class AgentRuntime:
         except Exception as error:
             log.warning("closing the platform failed: %s", error)
         undeclare_all(self._declared)
+        for feed in self.links.leave_feeds(self):  # the last agent on it unsubscribes
+            undeclare_all([feed.subscription] if feed.subscription is not None else [])
         emptied, orphaned = self.links.leave(self)
         undeclare_all([link.querier for link in emptied if link.querier is not None])
         for link in orphaned:  # the agents still on it look for a sender again
@@ -449,7 +454,11 @@ class AgentRuntime:
         received = self.pose_received_at.get(self.follow)
         peer = self.peers.get(self.follow)
         last = peer.client.last if peer else None
-        action = self.link_watch.update(t_exec, received, None if last is None else last.t3)
+        # On a shared feed the link is measured once for all its agents; the hold is each one's.
+        threshold = None if self.feed is None else self.feed.watch.threshold
+        action = self.link_watch.update(
+            t_exec, received, None if last is None else last.t3, threshold
+        )
         if action == "stale_hold" and received is not None:
             self.hold_reason = "stale"
             self.platform.hold()
@@ -899,7 +908,7 @@ class AgentRuntime:
             if (
                 parsed is not None
                 and parsed[0] == self.follow
-                and self._stale_on_arrival(decoded.t, t_recv)
+                and self._stale_on_arrival(decoded.t, t_recv, self.link_watch)
             ):
                 self.count("pose_stale_dropped")  # never reaches the controller
                 return
@@ -922,20 +931,93 @@ class AgentRuntime:
         except Exception:
             log.exception("pose sample on %s failed", sample.key)
 
-    def _stale_on_arrival(self, sent: float, t_recv: float) -> bool:
+    def _stale_on_arrival(self, sent: float, t_recv: float, watch: LinkWatch) -> bool:
         """Whether a followed pose (stamped ``sent`` on its sender's clock, arrived at own
         ``t_recv``) is too old to steer by (a burst queued through a cut); a fresh one
-        measures the link for the stale threshold (:mod:`federation.core.linkwatch`)."""
+        measures the link on ``watch`` for the stale threshold
+        (:mod:`federation.core.linkwatch`)."""
         assert self.follow is not None
         peer = self.peers.get(self.follow)  # the time base's estimate, read directly
         if peer is not None:
             offset = peer.offset_at(t_recv)  # the sender's clock now: t_recv + offset
-            if offset is not None and self.link_watch.too_old(
-                t_recv + offset - sent, peer.client.delay
-            ):
+            if offset is not None and watch.too_old(t_recv + offset - sent, peer.client.delay):
                 return True
-        self.link_watch.observe(t_recv, sent)
+        watch.observe(t_recv, sent)
         return False
+
+    def _join_feed(self, key: str) -> bool:
+        """Follow through the pose feed shared with the agents of this session that follow
+        the same agent on the same sync link, judge its poses alike and record them
+        (:mod:`federation.runtime.links`); False (the agent subscribes itself) without a
+        :class:`Fanout`, or for an agent that watches every pose, has a scenario (it reads
+        every peer's pose), rehearses a clock step, or does not query the agent it follows."""
+        cfg, follow, fanout = self.config, self.follow, self.fanout
+        if (
+            fanout is None or follow is None or cfg.watch_all or self.scenario is not None
+            or cfg.clock_step is not None or follow not in self.close_sync
+        ):  # fmt: skip
+            return False
+        # What makes two agents' judgement of a pose the same: the clock, the link whose
+        # estimate dates the pose (the key _link_for shares it by), the threshold's floor
+        # and the reference whose stamps are read.
+        share = (
+            "pose", self.clock, follow, cfg.federation, cfg.sync_period, cfg.estimator,
+            cfg.sync_window, cfg.sync_timeout, cfg.four_timestamps, cfg.stale_after, self.ref_id,
+        )  # fmt: skip
+        feed = self.links.feed(self, share, lambda: PoseFeed(follow, LinkWatch(cfg.stale_after)))
+        with feed.lock:
+            if feed.subscription is None:
+                feed.subscription = fanout.subscribe(key, functools.partial(_on_feed_pose, feed))
+        self.feed = feed
+        return True
+
+    def _on_feed_pose(self, feed: PoseFeed, sample: Received) -> None:
+        """A pose of the followed agent on ``feed``, for every agent on it (this one
+        first): admitted once (its size, its source, its age on arrival by the estimate
+        they share), the link measured once; each agent stores, counts and records it."""
+        users = feed.agents or (self,)
+        host = sample.arrived if self.clock.source is time.monotonic else self.clock.source()
+        t_recv = self.clock.at(host)
+        agent = feed.agent
+        try:
+            if sample.size > MAX_SMALL_PAYLOAD:
+                _count_all(users, "pose_oversized")
+                return
+            if not self._contest_verdict(agent, "pose", sample.source(), host, feed):
+                return
+            try:
+                decoded = sample.pose()
+            except wire.DecodeError as error:
+                _count_all(users, "pose_malformed")
+                self.rejects("pose sample", f"{sample.key}: {error}")
+                return
+            try:
+                stamp = sample.stamp()
+            except wire.DecodeError as error:
+                _count_all(users, "pose_stamp_malformed")
+                self.rejects("pose stamp", f"{sample.key}: {error}")
+                return
+            if stamp is not None and stamp.ref_id != self.ref_id:
+                _count_all(users, "pose_other_reference")
+                stamp = None
+            if self._stale_on_arrival(decoded.t, t_recv, feed.watch):
+                _count_all(users, "pose_stale_dropped")  # never reaches a controller
+                return
+            message: dict[str, Any] | None = None
+            for user in users:
+                user.count("pose_received")
+                user._place(agent, decoded.t, stamp)
+                user.latest_poses[agent] = decoded
+                user.pose_received_at[agent] = t_recv
+                if user.recording(Channel.POSE_RECEIVED):
+                    if message is None:  # built once, queued by each recorder
+                        message = {
+                            "agent": str(agent), "t": decoded.t, "t_recv": t_recv,
+                            "host_monotonic": host, **decoded.pose._asdict(),
+                        }  # fmt: skip
+                    user.record(Channel.POSE_RECEIVED, message)
+        except Exception:
+            log.exception("pose sample on %s failed", sample.key)
 
     def _on_control(self, sample: zenoh.Sample) -> None:
         t_exec, host = self.clock.read()
@@ -1016,6 +1098,10 @@ class AgentRuntime:
             if peer is not None and peer.alive != alive:
                 with self._contest_lock:  # a restarted agent has a new session id
                     self.contest.forget(str(agent))
+                feed = self.feed
+                if feed is not None and feed.agent == agent:
+                    with feed.lock:
+                        feed.contest.forget(str(agent))
             if peer is None:
                 if not alive:
                     return
@@ -1116,22 +1202,34 @@ class AgentRuntime:
         return self._contest_verdict(link.agent, "sync", source, host)
 
     def _contest_verdict(
-        self, agent: AgentId, channel: ContestChannel, source: str | None, host: float
+        self,
+        agent: AgentId,
+        channel: ContestChannel,
+        source: str | None,
+        host: float,
+        feed: PoseFeed | None = None,
     ) -> bool:
+        """Whether ``source`` may speak for ``agent`` on ``channel``: judged by this
+        agent's contest watch, or by ``feed``'s for every agent on it."""
         name = str(agent)
-        with self._contest_lock:
-            outcome = self.contest.observe(name, channel, source, host)
-            reason = self.contest.reason(name, host) if outcome == "contested" else None
+        watch, lock = (
+            (self.contest, self._contest_lock) if feed is None else (feed.contest, feed.lock)
+        )
+        users = (self,) if feed is None else (feed.agents or (self,))
+        with lock:
+            outcome = watch.observe(name, channel, source, host)
+            reason = watch.reason(name, host) if outcome == "contested" else None
         if outcome == "ok":
             return True
-        self.count("contested_dropped")
+        _count_all(users, "contested_dropped")
         if outcome == "contested":
-            self.count("contested")
-            self.latest_poses.pop(agent, None)  # what it sent so far is suspect too
-            peer = self.peers.get(agent)
-            if peer is not None:
-                with peer.link.lock:  # the estimate of every agent on the link: all hold
-                    peer.client.reset()
+            for user in users:
+                user.count("contested")
+                user.latest_poses.pop(agent, None)  # what it sent so far is suspect too
+                peer = user.peers.get(agent)
+                if peer is not None:
+                    with peer.link.lock:  # the estimate of every agent on the link: all hold
+                        peer.client.reset()
             log.error("%s is contested: %s; nothing from it is used", agent, reason)
         return False
 
@@ -1141,6 +1239,10 @@ class AgentRuntime:
         assert self.follow is not None and self._follow_name is not None
         with self._contest_lock:
             reason = self.contest.reason(self._follow_name, host)
+        feed = self.feed
+        if reason is None and feed is not None:  # its poses are judged on the feed
+            with feed.lock:
+                reason = feed.contest.reason(self._follow_name, host)
         if reason is not None:
             self._contest_cleared = None
             if self.hold_reason != "contested":
@@ -1168,8 +1270,14 @@ class AgentRuntime:
 
     def contested(self) -> dict[str, str]:
         """Every contested peer and why (status)."""
+        host = self.clock.read()[1]
         with self._contest_lock:
-            return self.contest.contested(self.clock.read()[1])
+            contested = self.contest.contested(host)
+        feed = self.feed
+        if feed is not None:  # the followed agent's poses are judged on the feed
+            with feed.lock:
+                contested = feed.contest.contested(host) | contested
+        return contested
 
     def _first_sync(self, agent: AgentId, index: int) -> float:
         """When the ``index``-th peer seen gets its first request: at once for the ones
@@ -1193,7 +1301,7 @@ class AgentRuntime:
         if queried and cfg.clock_step is None:
             period = cfg.sync_period if close else cfg.sync_others_period
             share = (
-                self.clock, agent, period, cfg.estimator, cfg.sync_window,
+                self.clock, agent, cfg.federation, period, cfg.estimator, cfg.sync_window,
                 cfg.sync_timeout, cfg.four_timestamps,
             )  # fmt: skip
         return self.links.join(
@@ -1203,6 +1311,18 @@ class AgentRuntime:
     def _new_client(self) -> SyncClient:
         cfg = self.config
         return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), timeout=cfg.sync_timeout)
+
+
+def _on_feed_pose(feed: PoseFeed, sample: Received) -> None:
+    """A pose on ``feed``: handled once, by the first agent still on it, for all."""
+    users = feed.agents
+    if users:
+        users[0]._on_feed_pose(feed, sample)
+
+
+def _count_all(users: Iterable[AgentRuntime], name: str) -> None:
+    for user in users:
+        user.count(name)
 
 
 def _on_link_reply(link: SyncLink, reply: zenoh.Reply) -> None:

@@ -17,6 +17,13 @@ object, the same cadence (``sync_period`` or ``sync_others_period``) and the sam
 estimator, window, timeout and timestamps. Anything else (a clock of an agent's
 own, a clock-step rehearsal, a peer an agent does not query) gets a link of its
 own, as every agent had before links were shared.
+
+The same agents that follow one peer share its poses too: a :class:`PoseFeed`
+admits each sample once for all of them (its size, who published it, its age on
+arrival by the link's estimate) and measures the link once (one
+:class:`~federation.core.linkwatch.LinkWatch` observing the arrivals); each agent
+then only stores the pose, counts and records it, and keeps its own safe hold,
+judged by the feed's measured threshold (:meth:`AgentRuntime._on_feed_pose`).
 """
 
 from __future__ import annotations
@@ -24,12 +31,14 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
+from federation.core.contest import ContestWatch
 from federation.core.keys import AgentId
+from federation.core.linkwatch import LinkWatch
 from federation.core.sync import SyncClient
 
-__all__ = ["SyncLink", "SyncLinks"]
+__all__ = ["PoseFeed", "SyncLink", "SyncLinks"]
 
 
 @dataclass(eq=False)
@@ -54,6 +63,27 @@ class SyncLink:
         return len(self.agents)
 
 
+@dataclass(eq=False)
+class PoseFeed:
+    """The poses of ``agent`` (the peer followed), admitted once for the agents that
+    follow it on one sync link: ``watch`` measures the link from their arrivals,
+    ``contest`` tells who publishes them (issue 13's pose channel)."""
+
+    agent: AgentId
+    watch: LinkWatch
+    contest: ContestWatch = field(default_factory=ContestWatch)
+    agents: tuple[Any, ...] = ()  # the agents that follow it (AgentRuntime)
+    subscription: Any = None  # on the peer's pose key, declared by the first of them
+    lock: threading.Lock = field(default_factory=threading.Lock)  # held for the contest
+
+
+class _Shared(Protocol):
+    agents: tuple[Any, ...]
+
+
+_S = TypeVar("_S", bound=_Shared)
+
+
 class SyncLinks:
     """The sync links of the agents on one session, keyed by what makes two agents'
     exchanges with a peer the same (see the module's docstring)."""
@@ -61,17 +91,42 @@ class SyncLinks:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._links: dict[Hashable, SyncLink] = {}
+        self._feeds: dict[Hashable, PoseFeed] = {}
 
     def join(self, user: Any, share: Hashable, make: Callable[[], SyncLink]) -> SyncLink:
         """The link keyed ``share`` (made by ``make()`` if there is none), with ``user``
         among its agents."""
+        return self._join(self._links, user, share, make)
+
+    def feed(self, user: Any, share: Hashable, make: Callable[[], PoseFeed]) -> PoseFeed:
+        """The pose feed keyed ``share`` (made by ``make()`` if there is none), with
+        ``user`` among its agents."""
+        return self._join(self._feeds, user, share, make)
+
+    def _join(
+        self, table: dict[Hashable, _S], user: Any, share: Hashable, make: Callable[[], _S]
+    ) -> _S:
         with self._lock:
-            link = self._links.get(share)
-            if link is None:
-                link = self._links[share] = make()
-            if user not in link.agents:
-                link.agents = (*link.agents, user)
-            return link
+            shared = table.get(share)
+            if shared is None:
+                shared = make()
+                table[share] = shared
+            if user not in shared.agents:
+                shared.agents = (*shared.agents, user)
+            return shared
+
+    def leave_feeds(self, user: Any) -> list[PoseFeed]:
+        """Take ``user`` off every pose feed: the feeds now without agents, whose
+        subscription the caller undeclares."""
+        emptied = []
+        with self._lock:
+            for share, feed in list(self._feeds.items()):
+                if user in feed.agents:
+                    feed.agents = tuple(a for a in feed.agents if a is not user)
+                    if not feed.agents:
+                        del self._feeds[share]
+                        emptied.append(feed)
+        return emptied
 
     def claim(self, link: SyncLink, user: Any, stalled: bool = False) -> bool:
         """Whether ``user`` sends ``link``'s requests: it does if it already did, if no

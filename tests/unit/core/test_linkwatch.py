@@ -29,6 +29,16 @@ def test_a_pose_older_than_stale_after_holds_once() -> None:
     assert watch.update(11.0, pose_at=10.0, synced_at=9.9) is None  # held already
 
 
+def test_a_threshold_given_judges_in_place_of_the_watchs_own() -> None:
+    """Agents sharing one measured link each keep a hold of their own, judged by the
+    shared watch's threshold."""
+    watch = LinkWatch(STALE)
+    assert watch.update(10.2, pose_at=10.0, synced_at=9.9, threshold=0.25) is None
+    assert not watch.holding
+    assert watch.update(10.26, pose_at=10.0, synced_at=9.9, threshold=0.25) == "stale_hold"
+    assert watch.threshold == STALE  # its own measurement is untouched
+
+
 def test_poses_again_without_a_sync_since_keep_holding() -> None:
     watch = LinkWatch(STALE)
     watch.update(10.5, pose_at=10.0, synced_at=9.9)

@@ -1,0 +1,260 @@
+"""Pose feeds shared by the followers of one agent in a process, on a real Zenoh
+session: each pose is admitted once for all of them, the link is measured once, and
+each follower keeps its own safe hold: a contested leader holds them all, a leader
+that stops holds each of them, judged by the threshold the feed measured."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import pytest
+import zenoh
+
+from federation.core import wire
+from federation.core.keys import AgentId
+from federation.core.sync import serve
+from federation.runtime import agent as agent_module
+from federation.runtime.agent import AgentRuntime, run_together
+from federation.runtime.clock import ExecClock
+from federation.runtime.fanout import Fanout
+from federation.runtime.links import PoseFeed, SyncLinks
+from schemas.config import AgentConfig
+
+LEAD = AgentId.parse("lab0/lead")
+
+
+def leader_config(**extra: Any) -> AgentConfig:
+    return AgentConfig(
+        **{"lab": "lab0", "name": "lead", "role": "leader", "duration": 60.0} | extra
+    )
+
+
+def follower_config(name: str, **extra: Any) -> AgentConfig:
+    return AgentConfig(
+        **{"lab": "lab1", "name": name, "role": "follower", "follow": str(LEAD),
+           "duration": 60.0} | extra
+    )  # fmt: skip
+
+
+def run_for(agents: list[AgentRuntime], seconds: float) -> None:
+    stop = threading.Event()
+    timer = threading.Timer(seconds, stop.set)
+    timer.start()
+    try:
+        run_together(agents, stop, spread=0.05)
+    finally:
+        timer.cancel()
+
+
+def test_followers_on_one_link_take_each_pose_once(
+    session: zenoh.Session, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two followers on one clock: one feed, whose handler runs once per pose for
+    both; each stores, counts and places every pose; one watch measures the link."""
+    calls = []
+    handler = AgentRuntime._on_feed_pose
+
+    def counted(self: AgentRuntime, feed: PoseFeed, sample: Any) -> None:
+        calls.append(self)
+        handler(self, feed, sample)
+
+    monkeypatch.setattr(AgentRuntime, "_on_feed_pose", counted)
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    lead, f1, f2 = (
+        AgentRuntime(c, session, clock, fanout=fanout, links=links)
+        for c in (leader_config(), follower_config("f1"), follower_config("f2"))
+    )
+    for agent in (lead, f1, f2):
+        agent.start()
+    try:
+        run_for([lead, f1, f2], 2.0)
+        feed = f1.feed
+        assert feed is not None and f2.feed is feed and feed.agents == (f1, f2)
+        assert lead.feed is None  # a leader follows no one
+        for follower in (f1, f2):
+            assert follower.counters["pose_received"] >= 30  # 20 a second
+            assert LEAD in follower.latest_poses and LEAD in follower.latest_ref
+            assert follower.status().pose_age is not None
+        assert f1.counters["pose_received"] == f2.counters["pose_received"] == len(calls)
+        assert {id(c) for c in calls} == {id(f1)}  # the first on the feed, for both
+        assert feed.watch.period == pytest.approx(0.05, abs=0.01)  # measured once
+        assert f1.link_watch.period is None  # a follower's own watch only holds
+    finally:
+        for agent in (lead, f1, f2):
+            agent.close()
+    assert fanout._subscribers == {}  # the last to leave the feed unsubscribed
+    assert len(links) == 0
+
+
+def test_a_leader_that_stops_holds_every_follower_on_the_feed(session: zenoh.Session) -> None:
+    """The leader's loop ends after 1.5 s, the followers' after 3 s: each follower
+    enters its own stale safe hold, judged by the threshold the feed measured."""
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    lead = AgentRuntime(leader_config(duration=1.5), session, clock, fanout=fanout, links=links)
+    f1, f2 = (
+        AgentRuntime(follower_config(n, duration=3.0), session, clock, fanout=fanout, links=links)
+        for n in ("f1", "f2")
+    )
+    for agent in (lead, f1, f2):
+        agent.start()
+    try:
+        run_for([lead, f1, f2], 4.0)
+        assert f1.feed is f2.feed is not None
+        threshold = f1.feed.watch.threshold
+        assert 0.15 <= threshold <= 0.5  # three periods and a margin, measured
+        for follower in (f1, f2):
+            assert follower.counters["stale_holds"] == 1
+            assert follower.hold_reason == "stale"
+            assert follower.platform.held  # type: ignore[attr-defined]
+    finally:
+        for agent in (lead, f1, f2):
+            agent.close()
+
+
+# -- faults, fed to the feed directly --------------------------------------------------
+class _Sample:
+    """What a feed reads of a :class:`federation.runtime.fanout.Received`."""
+
+    def __init__(self, t: float, source: str, payload: bytes | None = None, stamp: Any = None):
+        self.arrived = time.monotonic()
+        self.key = "fedlab/default/lab0/lead/pose"
+        self._payload = wire.encode_pose(t, wire.Pose()) if payload is None else payload
+        self.size = len(self._payload)
+        self._source, self._stamp = source, stamp
+
+    def source(self) -> str:
+        return self._source
+
+    def pose(self) -> wire.PoseSample:
+        return wire.decode_pose(self._payload)
+
+    def stamp(self) -> Any:
+        return self._stamp
+
+
+def _feed_of_two(session: zenoh.Session) -> tuple[AgentRuntime, AgentRuntime, PoseFeed]:
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    f1, f2 = (
+        AgentRuntime(follower_config(n), session, clock, fanout=fanout, links=links)
+        for n in ("f1", "f2")
+    )
+    for agent in (f1, f2):
+        agent.start()
+        agent.peer_seen(LEAD, True)
+    assert f1.feed is not None and f1.feed is f2.feed
+    return f1, f2, f1.feed
+
+
+def test_a_contested_leader_holds_every_follower_on_the_feed(session: zenoh.Session) -> None:
+    f1, f2, feed = _feed_of_two(session)
+    try:
+        now = f1.clock.now()
+        agent_module._on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
+        assert LEAD in f1.latest_poses and LEAD in f2.latest_poses
+        # A second session publishes the leader's pose: contested for both followers,
+        # the pose dropped, what came before forgotten, the shared estimate reset.
+        agent_module._on_feed_pose(feed, _Sample(now + 0.05, "bbbb"))  # type: ignore[arg-type]
+        for follower in (f1, f2):
+            assert follower.counters["contested"] == 1
+            assert follower.counters["pose_received"] == 1
+            assert LEAD not in follower.latest_poses
+            assert str(LEAD) in follower.contested()
+            t_exec, host = follower.clock.read()
+            assert follower._contest_hold(t_exec, host)  # held: valves closed
+            assert follower.hold_reason == "contested"
+        # Nothing more from it is used while contested, from either source.
+        agent_module._on_feed_pose(feed, _Sample(now + 0.1, "aaaa"))  # type: ignore[arg-type]
+        assert f1.counters["contested_dropped"] == f2.counters["contested_dropped"] == 2
+        assert LEAD not in f1.latest_poses and LEAD not in f2.latest_poses
+        # The leader rejoins (a new session): its record starts clean for both.
+        for follower in (f1, f2):
+            follower.peer_seen(LEAD, False)
+            follower.peer_seen(LEAD, True)
+        assert f1.contested() == f2.contested() == {}
+    finally:
+        for agent in (f1, f2):
+            agent.close()
+
+
+def test_each_follower_holds_by_the_threshold_the_feed_measured(
+    session: zenoh.Session,
+) -> None:
+    f1, f2, feed = _feed_of_two(session)
+    try:
+        t_exec, host = f1.clock.read()
+        for follower in (f1, f2):
+            follower.pose_received_at[LEAD] = t_exec - 0.3  # the last pose 0.3 s ago
+        feed.watch.threshold = 0.5  # as measured on a jittery link
+        f1._watch_link(t_exec, host)
+        assert f1.hold_reason is None  # 0.3 s is within it (its own floor is 0.15 s)
+        feed.watch.threshold = 0.25
+        f1._watch_link(t_exec, host)
+        assert f1.hold_reason == "stale" and f1.platform.held  # type: ignore[attr-defined]
+        assert f2.hold_reason is None  # each hold its own: f2 has not looked yet
+        f2._watch_link(t_exec, host)
+        assert f2.hold_reason == "stale"
+    finally:
+        for agent in (f1, f2):
+            agent.close()
+
+
+def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
+    session: zenoh.Session,
+) -> None:
+    f1, f2, feed = _feed_of_two(session)
+    try:
+        now = f1.clock.now()
+        bad = [
+            _Sample(now, "aaaa", payload=b"\x00" * 5),  # not a pose
+            _Sample(now, "aaaa", payload=b"\x00" * 4096),  # far larger than one
+        ]
+        for sample in bad:
+            agent_module._on_feed_pose(feed, sample)  # type: ignore[arg-type]
+        for follower in (f1, f2):
+            assert follower.counters["pose_malformed"] == 1
+            assert follower.counters["pose_oversized"] == 1
+            assert LEAD not in follower.latest_poses
+        # With the leader's clock known (offset 0), a pose 2 s old on arrival is late.
+        link = f1.peers[LEAD].link
+        with link.lock:
+            for _ in range(3):
+                t1 = f1.clock.now()
+                served = serve(link.client.request(t1), t1 + 0.001, wire.Pose(), t1 + 0.001)
+                link.client.receive(served.payload, t1 + 0.002)
+        assert f1.reference_offset(f1.clock.now()) is not None
+        agent_module._on_feed_pose(feed, _Sample(f1.clock.now() - 2.0, "aaaa"))  # type: ignore[arg-type]
+        for follower in (f1, f2):
+            assert follower.counters["pose_stale_dropped"] == 1
+            assert LEAD not in follower.latest_poses  # never reaches a controller
+    finally:
+        for agent in (f1, f2):
+            agent.close()
+
+
+def test_followers_that_judge_poses_differently_do_not_share_a_feed(
+    session: zenoh.Session,
+) -> None:
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    configs = [
+        follower_config("f1"),
+        follower_config("f2", stale_after=0.3),  # another threshold floor
+        follower_config("f3", clock_step=(5.0, 0.25)),  # a rehearsal steps its clock
+        follower_config("f4", watch_all=True),  # reads every peer's pose
+    ]
+    agents = [AgentRuntime(c, session, clock, fanout=fanout, links=links) for c in configs]
+    agents.append(
+        AgentRuntime(follower_config("f5"), session, ExecClock(), fanout=fanout, links=links)
+    )
+    agents.append(AgentRuntime(follower_config("f6"), session, clock, links=links))  # no Fanout
+    for agent in agents:
+        agent.start()
+    try:
+        feeds = [agent.feed for agent in agents]
+        assert feeds[0] is not None and feeds[1] is not None and feeds[4] is not None
+        assert len({id(feeds[0]), id(feeds[1]), id(feeds[4])}) == 3
+        assert feeds[2] is None and feeds[3] is None and feeds[5] is None
+    finally:
+        for agent in agents:
+            agent.close()
