@@ -69,12 +69,12 @@ def test_followers_on_one_link_take_each_pose_once(
     for agent in (lead, f1, f2):
         agent.start()
     try:
-        run_for([lead, f1, f2], 2.0)
+        run_for([lead, f1, f2], 3.5)  # the link is measured from its 41st pose on
         feed = f1.feed
         assert feed is not None and f2.feed is feed and feed.agents == (f1, f2)
         assert lead.feed is None  # a leader follows no one
         for follower in (f1, f2):
-            assert follower.counters["pose_received"] >= 30  # 20 a second
+            assert follower.counters["pose_received"] >= 50  # 20 a second
             assert LEAD in follower.latest_poses and LEAD in follower.latest_ref
             assert follower.status().pose_age is not None
         assert f1.counters["pose_received"] == f2.counters["pose_received"] == len(calls)
