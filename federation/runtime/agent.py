@@ -822,7 +822,10 @@ class AgentRuntime:
                     user.count("sync_reply_errors")
                 return
             payload = ok.payload
-            admitted = [user._admit_reply(link, reply, len(payload), host) for user in users]
+            replier = reply.replier_id  # a new object at each read: read once for all
+            source = None if replier is None else str(replier.zid)
+            size = len(payload)
+            admitted = [user._admit_reply(link, source, size, host) for user in users]
             if not all(admitted):
                 return
             for user in users:
@@ -1191,14 +1194,12 @@ class AgentRuntime:
             return True
         return self._contest_verdict(parsed[0], "pose", sample.source(), host)
 
-    def _admit_reply(self, link: SyncLink, reply: zenoh.Reply, size: int, host: float) -> bool:
+    def _admit_reply(self, link: SyncLink, source: str | None, size: int, host: float) -> bool:
         """Whether a sync reply (its payload ``size`` bytes) may be used: not oversized,
-        and the peer not contested (its source: the replier's session id, which Zenoh
-        sets on every reply)."""
+        and the peer not contested (its ``source``: the replier's session id, which
+        Zenoh sets on every reply)."""
         if self._oversized(size, "sync_replies_oversized"):
             return False
-        replier = reply.replier_id
-        source = None if replier is None else str(replier.zid)
         return self._contest_verdict(link.agent, "sync", source, host)
 
     def _contest_verdict(
