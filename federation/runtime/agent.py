@@ -606,12 +606,7 @@ class AgentRuntime:
         if now < self._next_sync_due:
             return []
         cfg = self.config
-        if self.explicit_sync:
-            targets: Iterable[AgentId] = self.explicit_sync | self.pairwise
-        elif self.sync_all:
-            targets = list(self.peers)  # liveliness may add one meanwhile
-        else:
-            targets = self.close_sync | self.pairwise
+        targets = self._sync_targets()
         due = []
         earliest = math.inf
         for agent in targets:
@@ -638,6 +633,17 @@ class AgentRuntime:
             earliest = min(earliest, link.next_sync)
         self._next_sync_due = earliest
         return due
+
+    def _sync_targets(self) -> list[AgentId] | set[AgentId]:
+        """The agents this one queries: those in ``sync_with`` (or, when it is empty,
+        the reference and the followed agent), senders of poses without its reference
+        stamp, and with ``sync_all`` (or on the reference) every other agent seen, in
+        the order seen."""
+        if self.explicit_sync:
+            return self.explicit_sync | self.pairwise
+        if self.sync_all:
+            return list(self.peers)  # liveliness may add one meanwhile
+        return self.close_sync | self.pairwise
 
     def send_sync_requests(self, now: float | None = None) -> None:
         """Query every agent due at host monotonic ``now`` (default: the present), for
@@ -669,9 +675,13 @@ class AgentRuntime:
     def status(self) -> Status:
         t_exec, host = self.clock.read()
         peers = {}
+        # Only the agents it queries can have figures: not a walk of every agent seen
+        # (a follower among 256 agents queries one or two of them).
+        targets = self._sync_targets()
         with self._lock:
-            for agent, peer in self.peers.items():
-                if peer.client.sent:  # agents this one has never queried: nothing to say
+            for agent in targets if isinstance(targets, list) else sorted(targets, key=str):
+                peer = self.peers.get(agent)
+                if peer is not None and peer.client.sent:  # never queried: nothing to say
                     with peer.link.lock:  # a reply may be changing it on another thread
                         view = peers[str(agent)] = peer_status(
                             peer.client, t_exec, peer.alive, sharing=peer.link.sharing
