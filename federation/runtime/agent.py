@@ -249,8 +249,9 @@ class AgentRuntime:
 
     def record(self, topic: Channel, message: dict[str, Any] | bytes) -> None:
         """Record ``message`` (a dict, or its JSON encoded) on the agent's recordings."""
-        if self.recorder is not None:
-            self.recorder.record(topic, message)
+        recorder = self.recorder  # read once: close() may clear it on another thread
+        if recorder is not None:
+            recorder.record(topic, message)
         run = self.run_recording
         if run is not None:
             run.record(topic, message)
@@ -835,8 +836,19 @@ class AgentRuntime:
             replier = reply.replier_id  # a new object at each read: read once for all
             source = None if replier is None else str(replier.zid)
             size = len(payload)
-            admitted = [user._admit_reply(link, source, size, host) for user in users]
-            if not all(admitted):
+            # Each agent judges it by its own contest watch, except that the followers on
+            # one pose feed judge their followed agent once, by the feed's (every one of
+            # them looks: no short cut).
+            admitted = True
+            judged: list[PoseFeed] = []
+            for user in users:
+                feed = user.feed
+                if feed is None or feed.agent != link.agent:
+                    admitted &= user._admit_reply(link, source, size, host, None)
+                elif all(feed is not seen for seen in judged):
+                    judged.append(feed)
+                    admitted &= user._admit_reply(link, source, size, host, feed)
+            if not admitted:
                 return
             for user in users:
                 user.silence.answered(link.agent)
@@ -963,18 +975,20 @@ class AgentRuntime:
         the same agent on the same sync link, judge its poses alike and record them
         (:mod:`federation.runtime.links`); False (the agent subscribes itself) without a
         :class:`Fanout`, or for an agent that watches every pose, has a scenario (it reads
-        every peer's pose), rehearses a clock step, or does not query the agent it follows."""
+        every peer's pose) or rehearses a clock step."""
         cfg, follow, fanout = self.config, self.follow, self.fanout
         if (
             fanout is None or follow is None or cfg.watch_all or self.scenario is not None
-            or cfg.clock_step is not None or follow not in self.close_sync
+            or cfg.clock_step is not None
         ):  # fmt: skip
             return False
-        # What makes two agents' judgement of a pose the same: the clock, the link whose
-        # estimate dates the pose (the key _link_for shares it by), the threshold's floor
-        # and the reference whose stamps are read.
+        # What makes two agents' judgement of a pose the same: the session's shared
+        # subscriptions, the clock, the link whose estimate dates the pose (the key
+        # _link_for shares it by: the followed agent is always queried), the threshold's
+        # floor and the reference whose stamps are read. Who may speak for the followed
+        # agent, on pose and sync alike, is recorded on the feed (_admit_reply).
         share = (
-            "pose", self.clock, follow, cfg.federation, cfg.sync_period, cfg.estimator,
+            "pose", fanout, self.clock, follow, cfg.federation, cfg.sync_period, cfg.estimator,
             cfg.sync_window, cfg.sync_timeout, cfg.four_timestamps, cfg.stale_after, self.ref_id,
         )  # fmt: skip
         feed = self.links.feed(self, share, lambda: PoseFeed(follow, LinkWatch(cfg.stale_after)))
@@ -1013,11 +1027,19 @@ class AgentRuntime:
             if stamp is not None and stamp.ref_id != self.ref_id:
                 _count_all(users, "pose_other_reference")
                 stamp = None
-            if self._stale_on_arrival(decoded.t, t_recv, feed.watch):
+            # Dated by the estimate of the link they share: read through the first of
+            # them that has seen the agent (liveliness may reach one before another).
+            judge = next((user for user in users if agent in user.peers), self)
+            if judge._stale_on_arrival(decoded.t, t_recv, feed.watch):
+                _count_all(users, "pose_received")
                 _count_all(users, "pose_stale_dropped")  # never reaches a controller
                 return
-            message: dict[str, Any] | None = None
-            for user in users:
+        except Exception:
+            log.exception("pose sample on %s failed", sample.key)
+            return
+        message: dict[str, Any] | None = None
+        for user in users:  # one agent's failure must not keep the pose from the rest
+            try:
                 user.count("pose_received")
                 user._place(agent, decoded.t, stamp)
                 user.latest_poses[agent] = decoded
@@ -1029,8 +1051,8 @@ class AgentRuntime:
                             "host_monotonic": host, **decoded.pose._asdict(),
                         }  # fmt: skip
                     user.record(Channel.POSE_RECEIVED, message)
-        except Exception:
-            log.exception("pose sample on %s failed", sample.key)
+            except Exception:
+                log.exception("pose sample on %s failed for %s", sample.key, user.me)
 
     def _on_control(self, sample: zenoh.Sample) -> None:
         t_exec, host = self.clock.read()
@@ -1204,13 +1226,20 @@ class AgentRuntime:
             return True
         return self._contest_verdict(parsed[0], "pose", sample.source(), host)
 
-    def _admit_reply(self, link: SyncLink, source: str | None, size: int, host: float) -> bool:
+    def _admit_reply(
+        self, link: SyncLink, source: str | None, size: int, host: float, feed: PoseFeed | None
+    ) -> bool:
         """Whether a sync reply (its payload ``size`` bytes) may be used: not oversized,
         and the peer not contested (its ``source``: the replier's session id, which
-        Zenoh sets on every reply)."""
-        if self._oversized(size, "sync_replies_oversized"):
+        Zenoh sets on every reply); judged for this agent, or for every agent on
+        ``feed``, whose record of the agent they follow covers its poses and its
+        replies alike (a contest on one drops what comes on the other too)."""
+        if size > MAX_SMALL_PAYLOAD:
+            _count_all(
+                (self,) if feed is None else (feed.agents or (self,)), "sync_replies_oversized"
+            )
             return False
-        return self._contest_verdict(link.agent, "sync", source, host)
+        return self._contest_verdict(link.agent, "sync", source, host, feed)
 
     def _contest_verdict(
         self,
@@ -1221,7 +1250,8 @@ class AgentRuntime:
         feed: PoseFeed | None = None,
     ) -> bool:
         """Whether ``source`` may speak for ``agent`` on ``channel``: judged by this
-        agent's contest watch, or by ``feed``'s for every agent on it."""
+        agent's contest watch, or by ``feed``'s (the record of the agent its agents
+        follow) for every agent on it."""
         name = str(agent)
         watch, lock = (
             (self.contest, self._contest_lock) if feed is None else (feed.contest, feed.lock)

@@ -67,14 +67,17 @@ class SyncLink:
 class PoseFeed:
     """The poses of ``agent`` (the peer followed), admitted once for the agents that
     follow it on one sync link: ``watch`` measures the link from their arrivals,
-    ``contest`` tells who publishes them (issue 13's pose channel)."""
+    ``contest`` records who speaks for the peer (issue 13: its poses, and its replies
+    to these agents' sync queries)."""
 
     agent: AgentId
     watch: LinkWatch
     contest: ContestWatch = field(default_factory=ContestWatch)
     agents: tuple[Any, ...] = ()  # the agents that follow it (AgentRuntime)
     subscription: Any = None  # on the peer's pose key, declared by the first of them
-    lock: threading.Lock = field(default_factory=threading.Lock)  # held for the contest
+    # Held while the contest record or the subscription changes: Zenoh's callback
+    # threads and the agents' threads all reach them.
+    lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 class _Shared(Protocol):

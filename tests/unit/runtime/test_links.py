@@ -5,42 +5,14 @@ when the one sending them leaves."""
 
 from __future__ import annotations
 
-import threading
-from typing import Any
-
 import zenoh
+from cohosted import LEAD, follower_config, leader_config, reply, run_for
 
-from federation.core import wire
 from federation.core.keys import AgentId
-from federation.core.sync import serve
-from federation.runtime.agent import AgentRuntime, run_together
+from federation.runtime.agent import AgentRuntime
 from federation.runtime.clock import ExecClock
 from federation.runtime.fanout import Fanout
 from federation.runtime.links import SyncLink, SyncLinks
-from schemas.config import AgentConfig
-
-LEAD = AgentId.parse("lab0/lead")
-
-
-def leader_config() -> AgentConfig:
-    return AgentConfig(lab="lab0", name="lead", role="leader", duration=60.0)
-
-
-def follower_config(name: str, **extra: Any) -> AgentConfig:
-    return AgentConfig(
-        **{"lab": "lab1", "name": name, "role": "follower", "follow": str(LEAD),
-           "duration": 60.0} | extra
-    )  # fmt: skip
-
-
-def run_for(agents: list[AgentRuntime], seconds: float) -> None:
-    stop = threading.Event()
-    timer = threading.Timer(seconds, stop.set)
-    timer.start()
-    try:
-        run_together(agents, stop, spread=0.05)
-    finally:
-        timer.cancel()
 
 
 # -- the registry ------------------------------------------------------------------
@@ -156,31 +128,6 @@ def test_when_the_senders_loop_ends_first_another_agent_takes_over(
 
 
 # -- a reply, for every agent on the link --------------------------------------------
-class _Bytes:
-    def __init__(self, data: bytes):
-        self.data = data
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-
-class _Reply:
-    """What ``_on_sync_reply`` reads of a zenoh.Reply."""
-
-    def __init__(self, payload: bytes, attachment: bytes, replier: str):
-        self.ok = type("Ok", (), {"payload": _Bytes(payload), "attachment": _Bytes(attachment)})
-        self.replier_id = type("Replier", (), {"zid": replier})
-
-
-def _reply(link: SyncLink, t1: float, replier: str) -> _Reply:
-    request = link.client.request(t1)
-    served = serve(request, t1 + 5.0, wire.Pose(), t1 + 5.0)
-    return _Reply(served.payload, served.attachment, replier)
-
-
 def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
     session: zenoh.Session,
 ) -> None:
@@ -191,13 +138,13 @@ def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
     link = f1.peers[LEAD].link
     assert f2.peers[LEAD].link is link
     now = clock.now()
-    f1._on_sync_reply(link, _reply(link, now, "aaaa"))  # type: ignore[arg-type]
+    f1._on_sync_reply(link, reply(link, now, "aaaa"))  # type: ignore[arg-type]
     assert link.client.accepted == 1
     assert f1.reference_offset(clock.now()) == f2.reference_offset(clock.now()) is not None
 
     # Another session answers for the leader: every agent on the link finds it
     # contested, the reply is dropped and the estimate they share is gone.
-    f1._on_sync_reply(link, _reply(link, clock.now(), "bbbb"))  # type: ignore[arg-type]
+    f1._on_sync_reply(link, reply(link, clock.now(), "bbbb"))  # type: ignore[arg-type]
     assert link.client.accepted == 1
     for agent in (f1, f2):
         assert agent.counters["contested"] == 1
