@@ -917,18 +917,10 @@ class AgentRuntime:
             parsed = self._pose_key(sample.key)
             if not self._admit_pose(sample, parsed, host):
                 return
-            try:
-                decoded = sample.pose()
-            except wire.DecodeError as error:
-                self.count("pose_malformed")
-                self.rejects("pose sample", f"{sample.key}: {error}")
+            read = self._read_pose(sample, (self,))
+            if read is None:
                 return
-            try:
-                stamp = self._read_stamp(sample)
-            except wire.DecodeError as error:
-                self.count("pose_stamp_malformed")
-                self.rejects("pose stamp", f"{sample.key}: {error}")
-                return
+            decoded, stamp = read
             self.count("pose_received")
             if (
                 parsed is not None
@@ -1012,24 +1004,15 @@ class AgentRuntime:
                 return
             if not self._contest_verdict(agent, "pose", sample.source(), host, feed):
                 return
-            try:
-                decoded = sample.pose()
-            except wire.DecodeError as error:
-                _count_all(users, "pose_malformed")
-                self.rejects("pose sample", f"{sample.key}: {error}")
+            read = self._read_pose(sample, users)
+            if read is None:
                 return
-            try:
-                stamp = sample.stamp()
-            except wire.DecodeError as error:
-                _count_all(users, "pose_stamp_malformed")
-                self.rejects("pose stamp", f"{sample.key}: {error}")
-                return
-            if stamp is not None and stamp.ref_id != self.ref_id:
-                _count_all(users, "pose_other_reference")
-                stamp = None
+            decoded, stamp = read
             # Dated by the estimate of the link they share: read through the first of
             # them that has seen the agent (liveliness may reach one before another).
-            judge = next((user for user in users if agent in user.peers), self)
+            judge = (
+                self if agent in self.peers else next((u for u in users if agent in u.peers), self)
+            )
             if judge._stale_on_arrival(decoded.t, t_recv, feed.watch):
                 _count_all(users, "pose_received")
                 _count_all(users, "pose_stale_dropped")  # never reaches a controller
@@ -1176,16 +1159,28 @@ class AgentRuntime:
             return wire.encode_stamp(self.ref_id, None, None)
         return wire.encode_stamp(self.ref_id, t_exec + offset, bound)
 
-    def _read_stamp(self, sample: Received) -> wire.RefStamp | None:
-        """A pose sample's reference stamp; None without one or on another reference
-        (wire.DecodeError if malformed)."""
-        stamp = sample.stamp()
-        if stamp is None:
+    def _read_pose(
+        self, sample: Received, users: Iterable[AgentRuntime]
+    ) -> tuple[wire.PoseSample, wire.RefStamp | None] | None:
+        """A pose sample's pose and reference stamp (None without one, or on another
+        reference: counted by each of ``users``); None if either is malformed, counted
+        by each of ``users`` and logged once."""
+        try:
+            decoded = sample.pose()
+        except wire.DecodeError as error:
+            _count_all(users, "pose_malformed")
+            self.rejects("pose sample", f"{sample.key}: {error}")
             return None
-        if stamp.ref_id != self.ref_id:
-            self.count("pose_other_reference")
+        try:
+            stamp = sample.stamp()
+        except wire.DecodeError as error:
+            _count_all(users, "pose_stamp_malformed")
+            self.rejects("pose stamp", f"{sample.key}: {error}")
             return None
-        return stamp
+        if stamp is not None and stamp.ref_id != self.ref_id:
+            _count_all(users, "pose_other_reference")
+            stamp = None
+        return decoded, stamp
 
     def _place(self, agent: AgentId, t: float, stamp: wire.RefStamp | None) -> None:
         """Remember where a peer's pose stamped ``t`` sits on reference time; a sender

@@ -1,17 +1,24 @@
 """Agents hosted together in one process, for the runtime's tests of what they share
-(sync links, pose feeds): their configurations, a loop that runs them for a while,
-and a sync reply made by hand from a chosen replier."""
+(sync links, pose feeds): their configurations, the agents started on one session's
+shared subscriptions, links and clock, a loop that runs them for a while, and a sync
+reply made by hand from a chosen replier."""
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
+
+import zenoh
 
 from federation.core import wire
 from federation.core.keys import AgentId
 from federation.core.sync import serve
 from federation.runtime.agent import AgentRuntime, run_together
-from federation.runtime.links import SyncLink
+from federation.runtime.clock import ExecClock
+from federation.runtime.fanout import Fanout
+from federation.runtime.links import SyncLink, SyncLinks
 from schemas.config import AgentConfig
 
 LEAD = AgentId.parse("lab0/lead")
@@ -28,6 +35,24 @@ def follower_config(name: str, **extra: Any) -> AgentConfig:
         **{"lab": "lab1", "name": name, "role": "follower", "follow": str(LEAD),
            "duration": 60.0} | extra
     )  # fmt: skip
+
+
+@contextmanager
+def cohosted(
+    session: zenoh.Session, *configs: AgentConfig
+) -> Iterator[tuple[Fanout, SyncLinks, list[AgentRuntime]]]:
+    """Agents of ``configs`` in this process, as a lab's worker hosts them: one
+    :class:`Fanout`, one :class:`SyncLinks` and one clock; started, and every one
+    closed at the end (closing twice is harmless: a test may close one earlier)."""
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    agents = [AgentRuntime(c, session, clock, fanout=fanout, links=links) for c in configs]
+    try:
+        for agent in agents:
+            agent.start()
+        yield fanout, links, agents
+    finally:
+        for agent in agents:
+            agent.close()
 
 
 def run_for(agents: list[AgentRuntime], seconds: float) -> None:

@@ -6,11 +6,13 @@ that stops holds each of them, judged by the threshold the feed measured."""
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
 import zenoh
-from cohosted import LEAD, follower_config, leader_config, reply, run_for
+from cohosted import LEAD, cohosted, follower_config, leader_config, reply, run_for
 
 from federation.core import wire
 from federation.core.sync import serve
@@ -34,14 +36,8 @@ def test_followers_on_one_link_take_each_pose_once(
         handler(self, feed, sample)
 
     monkeypatch.setattr(AgentRuntime, "_on_feed_pose", counted)
-    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
-    lead, f1, f2 = (
-        AgentRuntime(c, session, clock, fanout=fanout, links=links)
-        for c in (leader_config(), follower_config("f1"), follower_config("f2"))
-    )
-    for agent in (lead, f1, f2):
-        agent.start()
-    try:
+    configs = (leader_config(), follower_config("f1"), follower_config("f2"))
+    with cohosted(session, *configs) as (fanout, links, (lead, f1, f2)):
         run_for([lead, f1, f2], 3.5)  # the link is measured from its 41st pose on
         feed = f1.feed
         assert feed is not None and f2.feed is feed and feed.agents == (f1, f2)
@@ -54,9 +50,6 @@ def test_followers_on_one_link_take_each_pose_once(
         assert {id(c) for c in calls} == {id(f1)}  # the first on the feed, for both
         assert feed.watch.period == pytest.approx(0.05, abs=0.01)  # measured once
         assert f1.link_watch.period is None  # a follower's own watch only holds
-    finally:
-        for agent in (lead, f1, f2):
-            agent.close()
     assert fanout._subscribers == {}  # the last to leave the feed unsubscribed
     assert len(links) == 0
 
@@ -64,15 +57,11 @@ def test_followers_on_one_link_take_each_pose_once(
 def test_a_leader_that_stops_holds_every_follower_on_the_feed(session: zenoh.Session) -> None:
     """The leader's loop ends after 3 s (the link measured by then), the followers'
     after 4.5 s: each follower enters a stale safe hold of its own and ends in it."""
-    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
-    lead = AgentRuntime(leader_config(duration=3.0), session, clock, fanout=fanout, links=links)
-    f1, f2 = (
-        AgentRuntime(follower_config(n, duration=4.5), session, clock, fanout=fanout, links=links)
-        for n in ("f1", "f2")
+    configs = (
+        leader_config(duration=3.0),
+        *(follower_config(n, duration=4.5) for n in ("f1", "f2")),
     )
-    for agent in (lead, f1, f2):
-        agent.start()
-    try:
+    with cohosted(session, *configs) as (_, _, (lead, f1, f2)):
         run_for([lead, f1, f2], 5.5)
         assert f1.feed is f2.feed is not None
         assert f1.feed.watch.period is not None  # measured from the poses, once
@@ -80,9 +69,6 @@ def test_a_leader_that_stops_holds_every_follower_on_the_feed(session: zenoh.Ses
             assert follower.counters["stale_holds"] >= 1  # a busy host may add one
             assert follower.hold_reason == "stale"
             assert follower.platform.held  # type: ignore[attr-defined]
-    finally:
-        for agent in (lead, f1, f2):
-            agent.close()
 
 
 # -- faults, fed to the feed directly --------------------------------------------------
@@ -106,22 +92,18 @@ class _Sample:
         return self._stamp
 
 
-def _feed_of_two(session: zenoh.Session) -> tuple[AgentRuntime, AgentRuntime, PoseFeed]:
-    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
-    f1, f2 = (
-        AgentRuntime(follower_config(n), session, clock, fanout=fanout, links=links)
-        for n in ("f1", "f2")
-    )
-    for agent in (f1, f2):
-        agent.start()
-        agent.peer_seen(LEAD, True)
-    assert f1.feed is not None and f1.feed is f2.feed
-    return f1, f2, f1.feed
+@contextmanager
+def _feed_of_two(session: zenoh.Session) -> Iterator[tuple[AgentRuntime, AgentRuntime, PoseFeed]]:
+    """Two followers of the leader on one feed, the leader seen alive (closed after)."""
+    with cohosted(session, follower_config("f1"), follower_config("f2")) as (_, _, (f1, f2)):
+        for agent in (f1, f2):
+            agent.peer_seen(LEAD, True)
+        assert f1.feed is not None and f1.feed is f2.feed
+        yield f1, f2, f1.feed
 
 
 def test_a_contested_leader_holds_every_follower_on_the_feed(session: zenoh.Session) -> None:
-    f1, f2, feed = _feed_of_two(session)
-    try:
+    with _feed_of_two(session) as (f1, f2, feed):
         now = f1.clock.now()
         agent_module._on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
         assert LEAD in f1.latest_poses and LEAD in f2.latest_poses
@@ -145,16 +127,12 @@ def test_a_contested_leader_holds_every_follower_on_the_feed(session: zenoh.Sess
             follower.peer_seen(LEAD, False)
             follower.peer_seen(LEAD, True)
         assert f1.contested() == f2.contested() == {}
-    finally:
-        for agent in (f1, f2):
-            agent.close()
 
 
 def test_each_follower_holds_by_the_threshold_the_feed_measured(
     session: zenoh.Session,
 ) -> None:
-    f1, f2, feed = _feed_of_two(session)
-    try:
+    with _feed_of_two(session) as (f1, f2, feed):
         t_exec, host = f1.clock.read()
         for follower in (f1, f2):
             follower.pose_received_at[LEAD] = t_exec - 0.3  # the last pose 0.3 s ago
@@ -167,16 +145,12 @@ def test_each_follower_holds_by_the_threshold_the_feed_measured(
         assert f2.hold_reason is None  # each hold its own: f2 has not looked yet
         f2._watch_link(t_exec, host)
         assert f2.hold_reason == "stale"
-    finally:
-        for agent in (f1, f2):
-            agent.close()
 
 
 def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
     session: zenoh.Session,
 ) -> None:
-    f1, f2, feed = _feed_of_two(session)
-    try:
+    with _feed_of_two(session) as (f1, f2, feed):
         now = f1.clock.now()
         bad = [
             _Sample(now, "aaaa", payload=b"\x00" * 5),  # not a pose
@@ -200,9 +174,6 @@ def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
         for follower in (f1, f2):
             assert follower.counters["pose_stale_dropped"] == 1
             assert LEAD not in follower.latest_poses  # never reaches a controller
-    finally:
-        for agent in (f1, f2):
-            agent.close()
 
 
 def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
@@ -211,9 +182,8 @@ def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
     """The followed agent's record is the feed's for its poses and its sync replies
     alike: two repliers drop its poses for both followers, two publishers its replies."""
     for first in ("sync", "pose"):
-        f1, f2, feed = _feed_of_two(session)
-        link = f1.peers[LEAD].link
-        try:
+        with _feed_of_two(session) as (f1, f2, feed):
+            link = f1.peers[LEAD].link
             now = f1.clock.now()
             if first == "sync":
                 for replier in ("aaaa", "bbbb"):  # another session answers for it
@@ -231,20 +201,11 @@ def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
                 assert follower.reference_offset(follower.clock.now()) is None  # reset
                 t_exec, host = follower.clock.read()
                 assert follower._contest_hold(t_exec, host) and follower.hold_reason == "contested"
-        finally:
-            for agent in (f1, f2):
-                agent.close()
 
 
 def test_when_the_first_follower_leaves_the_feed_serves_the_rest(session: zenoh.Session) -> None:
-    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
-    lead, f1, f2 = (
-        AgentRuntime(c, session, clock, fanout=fanout, links=links)
-        for c in (leader_config(), follower_config("f1"), follower_config("f2"))
-    )
-    for agent in (lead, f1, f2):
-        agent.start()
-    try:
+    configs = (leader_config(), follower_config("f1"), follower_config("f2"))
+    with cohosted(session, *configs) as (fanout, _, (lead, f1, f2)):
         run_for([lead, f1, f2], 1.0)
         feed = f2.feed
         assert feed is not None and feed.agents == (f1, f2)
@@ -254,9 +215,6 @@ def test_when_the_first_follower_leaves_the_feed_serves_the_rest(session: zenoh.
         run_for([lead, f2], 1.0)
         assert f2.counters["pose_received"] >= received + 15  # 20 a second, still
         assert f2.hold_reason is None
-    finally:
-        for agent in (lead, f2):
-            agent.close()
     assert fanout._subscribers == {}
 
 

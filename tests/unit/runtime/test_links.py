@@ -6,7 +6,7 @@ when the one sending them leaves."""
 from __future__ import annotations
 
 import zenoh
-from cohosted import LEAD, follower_config, leader_config, reply, run_for
+from cohosted import LEAD, cohosted, follower_config, leader_config, reply, run_for
 
 from federation.core.keys import AgentId
 from federation.runtime.agent import AgentRuntime
@@ -80,14 +80,8 @@ def test_agents_on_one_clock_share_one_exchange_with_their_reference(
 def test_when_the_sender_leaves_another_agent_on_the_link_takes_over(
     session: zenoh.Session,
 ) -> None:
-    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
-    lead, f1, f2 = (
-        AgentRuntime(c, session, clock, fanout=fanout, links=links)
-        for c in (leader_config(), follower_config("f1"), follower_config("f2"))
-    )
-    for agent in (lead, f1, f2):
-        agent.start()
-    try:
+    configs = (leader_config(), follower_config("f1"), follower_config("f2"))
+    with cohosted(session, *configs) as (_, links, (lead, f1, f2)):
         run_for([lead, f1, f2], 1.0)
         link = f2.peers[LEAD].link
         assert link.sender is f1
@@ -97,9 +91,6 @@ def test_when_the_sender_leaves_another_agent_on_the_link_takes_over(
         assert link.sender is f2 and link.agents == (f2,)
         assert link.client.sent >= sent + 7  # 10 a second, requested by f2 now
         assert f2.status().peers[str(LEAD)].sharing == 1
-    finally:
-        for agent in (lead, f2):
-            agent.close()
     assert len(links) == 0
 
 
@@ -108,23 +99,17 @@ def test_when_the_senders_loop_ends_first_another_agent_takes_over(
 ) -> None:
     """Agents of one process with different durations: the sender's loop ends after
     1 s, the other's after 3 s, which queries the leader itself from then on."""
-    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
-    lead = AgentRuntime(leader_config(), session, clock, fanout=fanout, links=links)
-    f1, f2 = (
-        AgentRuntime(follower_config(n, duration=d), session, clock, fanout=fanout, links=links)
-        for n, d in (("f1", 1.0), ("f2", 3.0))
+    configs = (
+        leader_config(),
+        follower_config("f1", duration=1.0),
+        follower_config("f2", duration=3.0),
     )
-    for agent in (lead, f1, f2):
-        agent.start()
-    try:
+    with cohosted(session, *configs) as (_, _, (lead, f1, f2)):
         run_for([lead, f1, f2], 4.0)
         link = f2.peers[LEAD].link
         assert link.sender is f2
         # 10 a second for 3 s, less the two periods before f2 took over.
         assert link.client.sent >= 24, link.client.sent
-    finally:
-        for agent in (lead, f1, f2):
-            agent.close()
 
 
 # -- a reply, for every agent on the link --------------------------------------------
