@@ -33,13 +33,16 @@ estimate's heading is continuous (not wrapped). The published rate is
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 
 from agents.sensors import ImuSample
 from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
+
+if TYPE_CHECKING:
+    from filterpy.kalman import KalmanFilter
 
 __all__ = ["NavigationFilter"]
 
@@ -84,7 +87,11 @@ class NavigationFilter:
         self._q_accel = accel_noise**2 + unmodelled_accel**2
         self._q_bg = gyro_bias_walk**2
         self._q_ba = accel_bias_walk**2
-        kf = KalmanFilter(dim_x=8, dim_z=3, dim_u=3)
+        # Imported here: filterpy brings scipy, 60 MiB and half a second at start that a
+        # process of kinematic agents (a bench worker, a gateway) never uses (issue 17).
+        from filterpy.kalman import KalmanFilter
+
+        kf: KalmanFilter = KalmanFilter(dim_x=8, dim_z=3, dim_u=3)
         if initial is None:
             initial = Pose()
         start = [initial.x, initial.y, initial.heading, initial.vx, initial.vy, 0.0, 0.0, 0.0]
