@@ -69,7 +69,7 @@ class TimeBase(Generic[K]):
 
     def sim_time(self, t: float) -> float | None:
         """Simulation time at own time ``t`` (Eq. 5), s."""
-        offset = self.reference_offset(t)
+        offset = self.offset(self.reference, t)  # read each control step: one call less
         return None if offset is None else t + offset
 
     def peer_time(self, peer: K, t: float) -> float | None:

@@ -58,7 +58,7 @@ from federation.runtime.collect import RecordingServer
 from federation.runtime.fanout import Fanout, Received
 from federation.runtime.links import PoseFeed, SyncLink, SyncLinks
 from federation.runtime.loop import Schedule, run_together
-from federation.runtime.recorder import Recorder
+from federation.runtime.recorder import Message, Recorder, Shared
 from federation.runtime.runs import RunRecording
 from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
@@ -100,22 +100,34 @@ class RateLimitedLog:
 
 @dataclass
 class Peer:
-    """Another agent as this one knows it: alive or not, and the sync link whose
-    estimate of its clock this agent reads (its own, or shared with the agents of its
-    process on the same clock: :mod:`federation.runtime.links`)."""
+    """Another agent as this one knows it: alive or not and, if this agent queries it,
+    the sync link whose estimate of its clock it reads (its own, or shared with the
+    agents of its process on the same clock: :mod:`federation.runtime.links`).
+
+    An agent not queried has no link, hence no estimate (issue 17: a follower among
+    256 agents queries two of them, and a link to each of the others made a
+    federation's memory grow as N squared)."""
 
     agent: AgentId
-    link: SyncLink
+    link: SyncLink | None = None
     alive: bool = True
-    client: SyncClient = field(init=False)  # the link's: read on every pose
+    client: SyncClient | None = field(init=False)  # the link's: read on every pose
 
     def __post_init__(self) -> None:
-        self.client = self.link.client
+        self.client = None if self.link is None else self.link.client
+
+    def attach(self, link: SyncLink) -> None:
+        """Query it from now on, on ``link`` (the client is set last: a reader on
+        another thread that finds the client finds the link)."""
+        self.link = link
+        self.client = link.client
 
     def offset_at(self, t: float) -> float | None:
         """Its clock minus this agent's at own time ``t`` (s): the time base's estimate
-        (the client's estimator asked directly: one call, not two, several times a step)."""
-        return self.client.estimator.offset_at(t)
+        (the client's estimator asked directly: one call, not two, several times a step);
+        None for an agent not queried."""
+        client = self.client
+        return None if client is None else client.estimator.offset_at(t)
 
 
 class AgentRuntime:
@@ -186,6 +198,9 @@ class AgentRuntime:
         self.guidance = (0.0, 0.0)  # last heading and rate references
         # When they were computed: t_exec, host monotonic, t_sim, run time.
         self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
+        # The reference clock minus own at the last control step (None: not known, or
+        # no step yet): publish_pose stamps reference time with it.
+        self._step_offset: float | None = None
         self.peers: dict[AgentId, Peer] = {}
         # Own clock <-> reference time <-> a peer's clock, through the peers' estimates.
         self.timebase = TimeBase(self.me, self.reference, self.peers)
@@ -247,8 +262,9 @@ class AgentRuntime:
             channels |= self.run_recording.recorder.channels
         self._recorded = frozenset(channels)
 
-    def record(self, topic: Channel, message: dict[str, Any] | bytes) -> None:
-        """Record ``message`` (a dict, or its JSON encoded) on the agent's recordings."""
+    def record(self, topic: Channel, message: Message) -> None:
+        """Record ``message`` (a dict, its JSON encoded, or one :class:`Shared` by several
+        recordings) on the agent's recordings."""
         recorder = self.recorder  # read once: close() may clear it on another thread
         if recorder is not None:
             recorder.record(topic, message)
@@ -431,6 +447,7 @@ class AgentRuntime:
             self._scenario_reference(t_sim, run_time)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
+        self._step_offset = None if t_sim is None else t_sim - t_exec
         if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
             self._left_area = True
             self.hold_reason = "workspace"
@@ -453,8 +470,8 @@ class AgentRuntime:
         if self._contest_hold(t_exec, host):
             return
         received = self.pose_received_at.get(self.follow)
-        peer = self.peers.get(self.follow)
-        last = peer.client.last if peer else None
+        client = self._client_of(self.follow)
+        last = None if client is None else client.last
         # On a shared feed the link is measured once for all its agents; the hold is each one's.
         threshold = None if self.feed is None else self.feed.watch.threshold
         action = self.link_watch.update(
@@ -497,11 +514,17 @@ class AgentRuntime:
         )
 
     def publish_pose(self) -> None:
+        """Publish the pose, stamped now on the own clock and on reference time. The
+        reference offset is the last control step's: the estimate is not evaluated
+        twice in one tick (issue 17: a lean agent); it moves by the clocks' drift over
+        the microseconds between the two, far below the stamp's error bound."""
         t_exec, host = self.clock.read()
+        offset = self._step_offset
+        t_ref = self.sim_time(t_exec) if offset is None else t_exec + offset
         self._pose_pub.put(
             wire.encode_pose(t_exec, self.pose),
             source_info=self._source_info(),
-            attachment=self.reference_stamp(t_exec),
+            attachment=self._stamp(t_ref),
         )
         # Only the messages of recorded channels are built (issue 17: a lean agent).
         recorded = self._recorded
@@ -612,9 +635,9 @@ class AgentRuntime:
         earliest = math.inf
         for agent in targets:
             peer = self.peers.get(agent)
-            if peer is None or not peer.alive:
+            link = None if peer is None or not peer.alive else peer.link
+            if link is None:  # gone, or not attached yet (pairwise as of now)
                 continue
-            link = peer.link
             close = agent in self.close_sync
             if link.sender is not self:
                 # Another agent on this clock queries it for all; taken over if it has
@@ -651,6 +674,7 @@ class AgentRuntime:
         every agent on the same link (each one's silence watch counts the request)."""
         for agent in self.due_for_sync(time.monotonic() if now is None else now):
             link = self.peers[agent].link
+            assert link is not None  # due_for_sync gives only agents with a link
             try:
                 if link.querier is None:
                     # One querier and one handler per link: a query costs a single call.
@@ -682,10 +706,13 @@ class AgentRuntime:
         with self._lock:
             for agent in targets if isinstance(targets, list) else sorted(targets, key=str):
                 peer = self.peers.get(agent)
-                if peer is not None and peer.client.sent:  # never queried: nothing to say
-                    with peer.link.lock:  # a reply may be changing it on another thread
+                client = None if peer is None else peer.client
+                if peer is not None and client is not None and client.sent:
+                    link = peer.link  # set before the client (Peer.attach)
+                    assert link is not None
+                    with link.lock:  # a reply may be changing it on another thread
                         view = peers[str(agent)] = peer_status(
-                            peer.client, t_exec, peer.alive, sharing=peer.link.sharing
+                            client, t_exec, peer.alive, sharing=link.sharing
                         )
                     view.silent = self.silence.silent_for(agent, host) if peer.alive else None
         t_sim = self.sim_time(t_exec)
@@ -733,7 +760,8 @@ class AgentRuntime:
         if self.reference != self.me:
             peer = self.peers.get(self.reference)
             with self._lock:
-                estimator = None if peer is None else peer.client.estimator
+                client = None if peer is None else peer.client
+                estimator = None if client is None else client.estimator
                 locked = estimator is not None and estimator.locked
                 bound = None if estimator is None else estimator.bound
         target = self.config.record if self.recorder is not None else self.config.runs_dir
@@ -884,7 +912,7 @@ class AgentRuntime:
                 return
             if not recorders:
                 return
-            message = {
+            message = Shared({  # encoded once for every agent on the link
                 "peer": str(link.agent),
                 "t1": exchange.t1,
                 "t2": exchange.t2,
@@ -894,7 +922,7 @@ class AgentRuntime:
                 "delay": exchange.delay,
                 "estimate": estimate,
                 "host_monotonic": host,
-            }
+            })  # fmt: skip
             for user in recorders:
                 user.record(Channel.SYNC_EXCHANGE, message)
         except Exception:
@@ -935,16 +963,15 @@ class AgentRuntime:
                 self.pose_received_at[parsed[0]] = t_recv
             if not self.recording(Channel.POSE_RECEIVED):
                 return
-            self.record(
-                Channel.POSE_RECEIVED,
-                {
-                    "agent": str(parsed[0]) if parsed else sample.key,
-                    "t": decoded.t,
-                    "t_recv": t_recv,
-                    "host_monotonic": host,
-                    **decoded.pose._asdict(),
-                },
-            )
+            message = {
+                "agent": str(parsed[0]) if parsed else sample.key,
+                "t": decoded.t,
+                "t_recv": t_recv,
+                "host_monotonic": host,
+                **decoded.pose._asdict(),
+            }
+            # Shared: a run's recording and the agent's encode it once between them.
+            self.record(Channel.POSE_RECEIVED, Shared(message))
         except Exception:
             log.exception("pose sample on %s failed", sample.key)
 
@@ -954,10 +981,10 @@ class AgentRuntime:
         measures the link on ``watch`` for the stale threshold
         (:mod:`federation.core.linkwatch`)."""
         assert self.follow is not None
-        peer = self.peers.get(self.follow)  # the time base's estimate, read directly
-        if peer is not None:
-            offset = peer.offset_at(t_recv)  # the sender's clock now: t_recv + offset
-            if offset is not None and watch.too_old(t_recv + offset - sent, peer.client.delay):
+        client = self._client_of(self.follow)  # the time base's estimate, read directly
+        if client is not None:
+            offset = client.estimator.offset_at(t_recv)  # the sender's clock: t_recv + offset
+            if offset is not None and watch.too_old(t_recv + offset - sent, client.delay):
                 return True
         watch.observe(t_recv, sent)
         return False
@@ -1020,7 +1047,7 @@ class AgentRuntime:
         except Exception:
             log.exception("pose sample on %s failed", sample.key)
             return
-        message: dict[str, Any] | None = None
+        message: Shared | None = None
         for user in users:  # one agent's failure must not keep the pose from the rest
             try:
                 user.count("pose_received")
@@ -1028,11 +1055,11 @@ class AgentRuntime:
                 user.latest_poses[agent] = decoded
                 user.pose_received_at[agent] = t_recv
                 if user.recording(Channel.POSE_RECEIVED):
-                    if message is None:  # built once, queued by each recorder
-                        message = {
+                    if message is None:  # built and encoded once, queued by each recorder
+                        message = Shared({
                             "agent": str(agent), "t": decoded.t, "t_recv": t_recv,
                             "host_monotonic": host, **decoded.pose._asdict(),
-                        }  # fmt: skip
+                        })  # fmt: skip
                     user.record(Channel.POSE_RECEIVED, message)
             except Exception:
                 log.exception("pose sample on %s failed for %s", sample.key, user.me)
@@ -1123,15 +1150,16 @@ class AgentRuntime:
             if peer is None:
                 if not alive:
                     return
-                link = self._link_for(agent)
-                if link.sharing == 1:  # a new link: this agent schedules its first request
-                    link.next_sync = self._first_sync(agent, len(self.peers))
-                peer = self.peers[agent] = Peer(agent, link)
+                peer = self.peers[agent] = Peer(agent)
+                if self._queries(agent):
+                    self._attach(peer)
             elif alive and not peer.alive:
-                with peer.link.lock:
-                    peer.client.reset()  # a restarted agent has a new clock
                 self.silence.forget(agent)
-                peer.link.next_sync = self._first_sync(agent, len(self.peers))
+                link = peer.link
+                if link is not None:
+                    with link.lock:
+                        link.client.reset()  # a restarted agent has a new clock
+                    link.next_sync = self._first_sync(agent, len(self.peers))
             peer.alive = alive
             self._next_sync_due = 0.0  # due_for_sync looks again
         log.info("agent %s %s", agent, "joined" if alive else "left")
@@ -1150,14 +1178,17 @@ class AgentRuntime:
     def reference_stamp(self, t_exec: float) -> bytes:
         """The attachment of a pose stamped ``t_exec`` (wire.encode_stamp): its reference
         time and error bound (this agent's one-way delay to the reference)."""
+        return self._stamp(self.sim_time(t_exec))
+
+    def _stamp(self, t_ref: float | None) -> bytes:
+        """The attachment of a pose at reference time ``t_ref`` (None: not synchronized)."""
         if self.reference == self.me:
-            return wire.encode_stamp(self.ref_id, t_exec, 0.0)
-        peer = self.peers.get(self.reference)
-        offset = None if peer is None else peer.client.offset_at(t_exec)
-        bound = None if peer is None else peer.client.delay
-        if offset is None or bound is None:
+            return wire.encode_stamp(self.ref_id, t_ref, 0.0)
+        client = self._client_of(self.reference)
+        bound = None if client is None else client.delay
+        if t_ref is None or bound is None:
             return wire.encode_stamp(self.ref_id, None, None)
-        return wire.encode_stamp(self.ref_id, t_exec + offset, bound)
+        return wire.encode_stamp(self.ref_id, t_ref, bound)
 
     def _read_pose(
         self, sample: Received, users: Iterable[AgentRuntime]
@@ -1188,8 +1219,12 @@ class AgentRuntime:
         if stamp is None:
             self.latest_ref.pop(agent, None)
             if agent != self.me and agent not in self.pairwise:
-                self.pairwise.add(agent)
-                self._next_sync_due = 0.0
+                with self._lock:
+                    self.pairwise.add(agent)
+                    peer = self.peers.get(agent)  # not seen yet: linked when it is
+                    if peer is not None and peer.link is None:
+                        self._attach(peer)
+                    self._next_sync_due = 0.0
                 log.info("%s sends no reference stamp: synced pairwise", agent)
         elif stamp.t_ref is not None and stamp.bound is not None:
             self.latest_ref[agent] = (t, stamp.t_ref, stamp.bound)
@@ -1263,9 +1298,10 @@ class AgentRuntime:
                 user.count("contested")
                 user.latest_poses.pop(agent, None)  # what it sent so far is suspect too
                 peer = user.peers.get(agent)
-                if peer is not None:
-                    with peer.link.lock:  # the estimate of every agent on the link: all hold
-                        peer.client.reset()
+                link = None if peer is None else peer.link
+                if link is not None:
+                    with link.lock:  # the estimate of every agent on the link: all hold
+                        link.client.reset()
             log.error("%s is contested: %s; nothing from it is used", agent, reason)
         return False
 
@@ -1293,8 +1329,8 @@ class AgentRuntime:
         if self._contest_cleared is None:
             self._contest_cleared = t_exec
         received = self.pose_received_at.get(self.follow)
-        peer = self.peers.get(self.follow)
-        last = peer.client.last if peer else None
+        client = self._client_of(self.follow)
+        last = None if client is None else client.last
         cleared = self._contest_cleared
         if received is None or received <= cleared or last is None or last.t3 <= cleared:
             return True
@@ -1324,11 +1360,31 @@ class AgentRuntime:
         phase = (index * 0.6180339887498949) % 1.0
         return time.monotonic() + phase * self.config.sync_others_period
 
+    def _client_of(self, agent: AgentId) -> SyncClient | None:
+        """The sync client of ``agent``'s link (None: not seen, or not queried)."""
+        peer = self.peers.get(agent)
+        return None if peer is None else peer.client
+
+    def _queries(self, agent: AgentId) -> bool:
+        """Whether this agent queries ``agent`` (one of :meth:`_sync_targets`)."""
+        if agent in self.pairwise:
+            return True
+        if self.explicit_sync:
+            return agent in self.explicit_sync
+        return self.sync_all or agent in self.close_sync
+
+    def _attach(self, peer: Peer) -> None:
+        """Give ``peer`` its sync link (under ``_lock``): this agent queries it now."""
+        link = self._link_for(peer.agent)
+        if link.sharing == 1:  # a new link: this agent schedules its first request
+            link.next_sync = self._first_sync(peer.agent, len(self.peers))
+        peer.attach(link)
+
     def _link_for(self, agent: AgentId) -> SyncLink:
-        """The sync link to ``agent``: shared with the agents of this session that read
-        the same clock object and query ``agent`` alike (:mod:`federation.runtime.links`);
-        this agent's own for a peer it does not query (until a pose without our
-        reference stamp makes it one: synced pairwise on that link) or a clock that a
+        """The sync link to ``agent``, which this agent queries: shared with the agents
+        of this session that read the same clock object and query ``agent`` alike
+        (:mod:`federation.runtime.links`); its own for an agent it queries pairwise
+        (its poses carry no stamp on this agent's reference) or on a clock that a
         rehearsal steps."""
         cfg = self.config
         close = agent in self.close_sync

@@ -49,7 +49,7 @@ from federation.core.channels import (
     json_schema,
 )
 
-__all__ = ["Recorder", "read_messages", "read_metadata"]
+__all__ = ["Message", "Recorder", "Shared", "read_messages", "read_metadata"]
 
 log = logging.getLogger("fedlab.recorder")
 
@@ -58,6 +58,30 @@ log = logging.getLogger("fedlab.recorder")
 # interpreter for well under a millisecond (issue 17).
 FLUSH_PERIOD = 0.1
 _TF, _POSE = FOXGLOVE_CHANNELS  # "/tf", "/pose": Foxglove's types, from /pose/sent
+
+
+class Shared:
+    """A message that several recorders queue (a pose that every follower on a feed
+    records: :mod:`federation.runtime.links`): encoded to JSON once, by the first
+    write, not once per recorder (issue 17: a lean agent). Its dict must not change
+    once queued."""
+
+    __slots__ = ("_data", "message")
+
+    def __init__(self, message: dict[str, Any]):
+        self.message = message
+        self._data: bytes | None = None
+
+    def data(self) -> bytes:
+        """The message's JSON (two writers racing both encode it: the same bytes)."""
+        data = self._data
+        if data is None:
+            data = self._data = json.dumps(self.message).encode()
+        return data
+
+
+Message = dict[str, Any] | bytes | Shared
+"""What a recorder takes: a dict, its JSON already encoded, or one shared by several."""
 
 
 class Recorder:
@@ -81,7 +105,7 @@ class Recorder:
         self.dropped = 0
         self.written = 0
         self.capacity = capacity
-        self._pending: deque[tuple[str, int, dict[str, Any] | bytes]] = deque()
+        self._pending: deque[tuple[str, int, Message]] = deque()
         self._write_lock = threading.Lock()  # the writer thread or close(), not both
         self._closed = False
         self._file = self.path.open("wb")
@@ -114,9 +138,9 @@ class Recorder:
                 )  # fmt: skip
         _WRITER.add(self)
 
-    def record(self, topic: str, message: dict[str, Any] | bytes) -> None:
-        """Buffer one message (a dict, or its JSON already encoded); never blocks (a
-        full buffer drops and counts it)."""
+    def record(self, topic: str, message: Message) -> None:
+        """Buffer one message (a dict, its JSON already encoded, or a :class:`Shared`);
+        never blocks (a full buffer drops and counts it)."""
         if topic not in self.channels:
             return
         if len(self._pending) >= self.capacity:
@@ -142,7 +166,12 @@ class Recorder:
         pending, channels, add = self._pending, self._channels, self._writer.add_message
         while pending:
             topic, stamp, message = pending.popleft()
-            data = message if isinstance(message, bytes) else json.dumps(message).encode()
+            if isinstance(message, bytes):
+                data = message
+            elif isinstance(message, Shared):
+                data = message.data()
+            else:
+                data = json.dumps(message).encode()
             add(channels[topic], stamp, data, stamp)
             self.written += 1
             if isinstance(message, dict) and topic == Channel.POSE_SENT and self._foxglove:

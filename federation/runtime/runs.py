@@ -26,7 +26,7 @@ from typing import IO, Any
 
 from federation.core.channels import Channel
 from federation.runtime.collect import finalize
-from federation.runtime.recorder import Recorder
+from federation.runtime.recorder import Message, Recorder
 
 __all__ = ["RunRecording", "software_versions"]
 
@@ -109,7 +109,7 @@ class RunRecording:
         self.recorder.add_metadata(METADATA, self.metadata)
         self._finished = False
 
-    def record(self, topic: str, message: dict[str, Any] | bytes) -> None:
+    def record(self, topic: str, message: Message) -> None:
         self.recorder.record(topic, message)
 
     def status_line(self, line: str) -> None:

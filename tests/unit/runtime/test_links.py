@@ -5,6 +5,8 @@ when the one sending them leaves."""
 
 from __future__ import annotations
 
+import time
+
 import zenoh
 from cohosted import LEAD, cohosted, follower_config, leader_config, reply, run_for
 
@@ -139,9 +141,7 @@ def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
         assert agent.hold_reason == "contested"
 
 
-def test_agents_on_clocks_of_their_own_or_not_querying_the_peer_do_not_share(
-    session: zenoh.Session,
-) -> None:
+def test_agents_on_clocks_of_their_own_do_not_share(session: zenoh.Session) -> None:
     links, clock = SyncLinks(), ExecClock()
     stepped = follower_config("s", clock_step=(5.0, 0.25))
     agents = [
@@ -149,9 +149,48 @@ def test_agents_on_clocks_of_their_own_or_not_querying_the_peer_do_not_share(
         AgentRuntime(follower_config("f2"), session, ExecClock(), links=links),  # own clock
         AgentRuntime(stepped, session, clock, links=links),  # a rehearsal steps its clock
     ]
-    other = AgentId.parse("lab2/x")
     for agent in agents:
         agent.peer_seen(LEAD, True)
-        agent.peer_seen(other, True)  # queried by none of them: a link each
     assert len({id(a.peers[LEAD].link) for a in agents}) == 3
-    assert len({id(a.peers[other].link) for a in agents}) == 3
+
+
+def test_only_the_agents_queried_get_a_link(session: zenoh.Session) -> None:
+    """A follower among many queries its leader and no one else: the others are known
+    (alive or not) without a link, a client or an estimate. One whose poses come
+    without a stamp on its reference is queried pairwise from then on, on a link."""
+    links, clock = SyncLinks(), ExecClock()
+    configs = [follower_config(f"f{i}") for i in range(8)]
+    followers = [AgentRuntime(c, session, clock, links=links) for c in configs]
+    others = [AgentId("lab2", f"x{i}") for i in range(50)]
+    for agent in followers:
+        agent.peer_seen(LEAD, True)
+        for other in others:
+            agent.peer_seen(other, True)
+    linked = {id(p.link) for a in followers for p in a.peers.values() if p.link is not None}
+    assert len(linked) == 1  # the leader's, shared by all eight
+    f0 = followers[0]
+    assert all(f0.peers[o].link is None and f0.peers[o].client is None for o in others)
+    assert f0.timebase.offset(others[0], clock.now()) is None
+    assert others[0] not in f0.due_for_sync(time.monotonic() + 100.0)
+    # A pose without a reference stamp: queried pairwise, on a link of its own.
+    f0._place(others[0], 1.0, None)
+    assert f0.peers[others[0]].link is not None
+    assert f0.peers[others[1]].link is None
+    assert others[0] in f0.due_for_sync(time.monotonic() + 100.0)
+    # One not seen yet: linked when its liveliness comes.
+    late = AgentId("lab3", "late")
+    f0._place(late, 1.0, None)
+    f0.peer_seen(late, True)
+    assert f0.peers[late].link is not None
+    # Gone and back: a peer not queried stays without a link.
+    f0.peer_seen(others[2], False)
+    f0.peer_seen(others[2], True)
+    assert f0.peers[others[2]].link is None
+
+
+def test_the_reference_queries_and_links_every_agent(session: zenoh.Session) -> None:
+    lead = AgentRuntime(leader_config(), session, ExecClock(), links=SyncLinks())
+    others = [AgentId("lab2", f"x{i}") for i in range(10)]
+    for other in others:
+        lead.peer_seen(other, True)
+    assert all(lead.peers[o].link is not None for o in others)

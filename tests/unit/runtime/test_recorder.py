@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 
 from federation.core.channels import Channel
 from federation.fleet.launch import wait_for
-from federation.runtime.recorder import Recorder, read_messages
+from federation.runtime import recorder as recorder_module
+from federation.runtime.recorder import Recorder, Shared, read_messages
 
 
 def writers() -> int:
@@ -52,6 +53,40 @@ def test_unrecorded_channels_are_skipped_and_a_full_buffer_counts_drops(tmp_path
     rec.close()
     assert rec.dropped == 2 and rec.written == 3
     rec.close()  # twice is harmless
+
+
+def test_a_shared_message_is_encoded_once_for_every_recorder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    recorders = [
+        Recorder(tmp_path / f"f{i}.mcap", f"lab/f{i}", ["/pose/received"]) for i in range(4)
+    ]
+    unshared = Recorder(tmp_path / "u.mcap", "lab/u", ["/pose/received"])
+    encodings = 0
+    dumps = recorder_module.json.dumps
+
+    def counted(value: Any) -> str:
+        nonlocal encodings
+        encodings += 1
+        return dumps(value)
+
+    monkeypatch.setattr(recorder_module.json, "dumps", counted)  # the messages' encodings
+    poses = [Shared({"agent": "lab/a0", "t": float(k), "x": 0.5}) for k in range(10)]
+    try:
+        for pose in poses:
+            for rec in recorders:
+                rec.record("/pose/received", pose)
+    finally:
+        for rec in recorders:
+            rec.close()
+    assert encodings == 10  # once per pose, not once per recorder
+    for i in range(4):
+        got = read_messages(tmp_path / f"f{i}.mcap", ["/pose/received"])["/pose/received"]
+        assert got == [{"agent": "lab/a0", "t": float(k), "x": 0.5} for k in range(10)]
+    unshared.record("/pose/received", {"t": 1.0})
+    unshared.record("/pose/received", {"t": 1.0})
+    unshared.close()
+    assert encodings == 12  # a plain dict: encoded at each write
 
 
 def _protobuf_class(schema: Any) -> Any:
