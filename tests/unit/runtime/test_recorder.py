@@ -9,7 +9,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import StreamReader
 
 from federation.core.channels import Channel
 from federation.fleet.launch import wait_for
@@ -87,6 +90,32 @@ def test_a_shared_message_is_encoded_once_for_every_recorder(
     unshared.record("/pose/received", {"t": 1.0})
     unshared.close()
     assert encodings == 12  # a plain dict: encoded at each write
+
+
+def test_a_recording_killed_mid_run_loses_at_most_its_last_chunk(tmp_path: Path) -> None:
+    """Each chunk reaches the file as soon as it is full: the messages of every chunk
+    but the one gathering are on disk before the file is closed (a killed agent's)."""
+    path = tmp_path / "a.mcap"
+    rec = Recorder(path, "lab1/a", ["/pose/received"])
+    pose = {"agent": "lab0/a0", "t": 0.0, "pad": "x" * 200}
+    size = len(json.dumps(pose)) + 40  # an upper bound of one message's record, bytes
+    written = 4 * recorder_module.CHUNK_SIZE // size  # more than three chunks' worth
+    try:
+        for k in range(written):
+            rec.record("/pose/received", pose | {"t": float(k)})
+        rec.flush()  # what the writer thread does
+        on_disk = []
+        with path.open("rb") as f:
+            try:
+                for record in StreamReader(f).records:
+                    if isinstance(record, McapMessage):
+                        on_disk.append(json.loads(record.data)["t"])
+            except EndOfFile:
+                pass  # the file is not finished: it ends mid-way
+    finally:
+        rec.close()
+    assert on_disk == [float(k) for k in range(len(on_disk))]  # in order, none missing
+    assert written - len(on_disk) <= recorder_module.CHUNK_SIZE // (size - 40) + 1
 
 
 def _protobuf_class(schema: Any) -> Any:
