@@ -1,4 +1,5 @@
-"""``fedlab bench sync|latency|scale|network``: benchmarks beside baselines run alongside.
+"""``fedlab bench sync|latency|scale|memory|network|scenarios``: benchmarks, beside
+baselines run alongside.
 
 Each parses its flags, runs :mod:`federation.bench` and prints a table (or ``--json``).
 """
@@ -10,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from federation.bench import latency, scale, sync
+from federation.bench import latency, memory, scale, sync
 from federation.cli.common import Formatter, Subparsers, positive
 
 __all__ = ["add", "run"]
@@ -19,7 +20,7 @@ __all__ = ["add", "run"]
 def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "bench",
-        help="benchmarks: sync accuracy, latency, scale",
+        help="benchmarks: sync accuracy, latency, scale, memory",
         formatter_class=Formatter,
         description="Benchmarks; each prints a table, or JSON with --json.",
         epilog=(
@@ -27,6 +28,7 @@ def add(sub: Subparsers) -> None:
             "  fedlab bench sync --duration 60 --scenario drift\n"
             "  fedlab bench latency --seconds 30 --rate 100 --json\n"
             "  fedlab bench scale --agents 2 --agents 8 --seconds 20\n"
+            "  fedlab bench memory --agents 32 --agents 128 --json\n"
             "  fedlab bench network --scenario loss5 --transport multilink --seconds 60\n"
             "  fedlab bench scenarios --json > benchmarks/scenarios.json"
         ),
@@ -35,6 +37,7 @@ def add(sub: Subparsers) -> None:
     _add_sync(benches)
     _add_latency(benches)
     _add_scale(benches)
+    _add_memory(benches)
     _add_network(benches)
     _add_scenarios(benches)
     p.set_defaults(func=run)
@@ -43,7 +46,8 @@ def add(sub: Subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark named by ``args.bench`` and print its results."""
     runs = {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}
-    return (runs | {"network": _run_network, "scenarios": _run_scenarios})[args.bench](args)
+    runs |= {"memory": _run_memory, "network": _run_network, "scenarios": _run_scenarios}
+    return runs[args.bench](args)
 
 
 # -- sync ----------------------------------------------------------------------------
@@ -293,6 +297,48 @@ def _run_scale(args: argparse.Namespace) -> int:
                 f"{n} agents: {key} median {value['median']:.2f} "
                 f"({value['min']:.2f}-{value['max']:.2f})"
             )
+    return 0
+
+
+# -- memory --------------------------------------------------------------------------
+def _add_memory(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "memory",
+        help="resident memory per agent hosted in one process, beside bare zenoh-python",
+        formatter_class=Formatter,
+        description=(memory.__doc__ or "").split("\n\n")[0],
+        epilog="Example: fedlab bench memory --agents 32 --agents 128 --json",
+    )
+    p.add_argument(
+        "--agents", action="append", type=_agents_or_one, metavar="N",
+        help="agents added to a leader and a follower (repeatable; default "
+        f"{' '.join(map(str, memory.DEFAULT_AGENTS))})",
+    )  # fmt: skip
+    p.add_argument(
+        "--mode", action="append", choices=memory.MODES,
+        help="default = fedlab agents, bare = bare zenoh-python agents (repeatable; default both)",
+    )  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print JSON rows instead of a table")
+
+
+def _run_memory(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = memory.run(list(args.agents or memory.DEFAULT_AGENTS), tuple(args.mode or memory.MODES))
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    table = Table(title="Resident memory, agents hosted in one process")
+    for col in ("agents added", "mode", "base (MiB)", "with them (MiB)", "per agent (KiB)",
+                "agents each saw"):  # fmt: skip
+        table.add_column(col, justify="right")
+    for r in rows:
+        table.add_row(
+            str(r["n"]), r["mode"], f"{r['base_mib']:.1f}", f"{r['rss_mib']:.1f}",
+            f"{r['kib_per_agent']:.0f}", str(r["peers_seen"]),
+        )  # fmt: skip
+    Console().print(table)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Short forms of ``fedlab bench latency`` and ``fedlab bench scale`` (real processes)."""
+"""Short forms of ``fedlab bench latency``, ``scale`` and ``memory`` (real processes)."""
 
 from __future__ import annotations
 
@@ -74,3 +74,16 @@ def test_scale_short(tmp_path: Path) -> None:
     assert ratios["cpu_default_over_bare"]["median"] == pytest.approx(
         default[6]["cpu_per_agent"] / bare[6]["cpu_per_agent"]
     )
+
+
+def test_memory_short() -> None:
+    """Every agent sees every other one before the second reading; fedlab's agents
+    cost memory, and the floor's are measured alike."""
+    rows = bench("memory", "--agents", "16", timeout=180)
+    assert isinstance(rows, list)
+    assert [(r["n"], r["mode"]) for r in rows] == [(16, "default"), (16, "bare")]
+    for r in rows:
+        assert r["peers_seen"] == 17, r  # the leader, the first follower, 15 others
+        assert r["rss_mib"] >= r["base_mib"] > 0, r
+    fedlab = rows[0]
+    assert fedlab["kib_per_agent"] > 0
