@@ -98,7 +98,7 @@ class RateLimitedLog:
             self.logger.warning("rejected %s (#%d): %s", kind, n, message)
 
 
-@dataclass
+@dataclass(slots=True)  # one per agent seen, in every agent: no __dict__ each
 class Peer:
     """Another agent as this one knows it: alive or not and, if this agent queries it,
     the sync link whose estimate of its clock it reads (its own, or shared with the
