@@ -30,21 +30,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from federation.bench.procfs import rss_mib
+
 __all__ = ["DEFAULT_AGENTS", "MODES", "measure", "run"]
 
 MODES = ("default", "bare")
 DEFAULT_AGENTS = (32, 128)
 SETTLE = 1.0  # s after the last agent joined, for liveliness news and first messages
 SEEN_TIMEOUT = 30.0  # s for every agent to see every other one
-
-
-def _rss_mib() -> float:
-    """This process's resident memory (MiB, Linux /proc)."""
-    with open(f"/proc/{os.getpid()}/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def measure(n: int, mode: str, out: Path, status_bytes: int) -> dict[str, Any]:
@@ -68,7 +61,7 @@ def measure(n: int, mode: str, out: Path, status_bytes: int) -> dict[str, Any]:
                 add(name)
             freeze_startup_heap()
             time.sleep(SETTLE)
-            base = _rss_mib()
+            base = rss_mib(os.getpid())
             for i in range(1, n + 1):
                 add(f"f{i}")
             deadline = time.monotonic() + SEEN_TIMEOUT
@@ -76,7 +69,7 @@ def measure(n: int, mode: str, out: Path, status_bytes: int) -> dict[str, Any]:
                 time.sleep(0.1)
             seen = agents_seen()
             time.sleep(SETTLE)
-            after = _rss_mib()
+            after = rss_mib(os.getpid())
         finally:
             close()
     return {

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from federation.bench.procfs import rss_mib
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 
@@ -131,15 +132,6 @@ def _per_thread(
     return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
 
 
-def _rss_mib(pid: int) -> float:
-    """Resident memory of a process (MiB, Linux /proc)."""
-    with open(f"/proc/{pid}/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
-
-
 def _agents(n: int, labs: int = LABS) -> list[tuple[int, str]]:
     """(lab index, agent name) for n agents, round-robin over the labs."""
     return [(i % labs, f"lab{i % labs}/a{i}") for i in range(n)]
@@ -198,7 +190,7 @@ def run_one(
         while (left := end - time.monotonic()) > 0:
             time.sleep(min(5.0, left))
             if time.monotonic() - t0 >= seconds / 4:
-                total = sum(_rss_mib(fleet.procs[w].pid) for w in workers)
+                total = sum(rss_mib(fleet.procs[w].pid) for w in workers)
                 rss.append((round(time.monotonic() - t0, 1), round(total, 1)))
         cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
         wall = time.monotonic() - t0

@@ -198,9 +198,6 @@ class AgentRuntime:
         self.guidance = (0.0, 0.0)  # last heading and rate references
         # When they were computed: t_exec, host monotonic, t_sim, run time.
         self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
-        # The reference clock minus own at the last control step (None: not known, or
-        # no step yet): publish_pose stamps reference time with it.
-        self._step_offset: float | None = None
         self.peers: dict[AgentId, Peer] = {}
         # Own clock <-> reference time <-> a peer's clock, through the peers' estimates.
         self.timebase = TimeBase(self.me, self.reference, self.peers)
@@ -447,7 +444,6 @@ class AgentRuntime:
             self._scenario_reference(t_sim, run_time)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
-        self._step_offset = None if t_sim is None else t_sim - t_exec
         if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
             self._left_area = True
             self.hold_reason = "workspace"
@@ -514,17 +510,11 @@ class AgentRuntime:
         )
 
     def publish_pose(self) -> None:
-        """Publish the pose, stamped now on the own clock and on reference time. The
-        reference offset is the last control step's: the estimate is not evaluated
-        twice in one tick (issue 17: a lean agent); it moves by the clocks' drift over
-        the microseconds between the two, far below the stamp's error bound."""
         t_exec, host = self.clock.read()
-        offset = self._step_offset
-        t_ref = self.sim_time(t_exec) if offset is None else t_exec + offset
         self._pose_pub.put(
             wire.encode_pose(t_exec, self.pose),
             source_info=self._source_info(),
-            attachment=self._stamp(t_ref),
+            attachment=self.reference_stamp(t_exec),
         )
         # Only the messages of recorded channels are built (issue 17: a lean agent).
         recorded = self._recorded
@@ -1157,8 +1147,7 @@ class AgentRuntime:
                 self.silence.forget(agent)
                 link = peer.link
                 if link is not None:
-                    with link.lock:
-                        link.client.reset()  # a restarted agent has a new clock
+                    link.reset()  # a restarted agent has a new clock
                     link.next_sync = self._first_sync(agent, len(self.peers))
             peer.alive = alive
             self._next_sync_due = 0.0  # due_for_sync looks again
@@ -1178,17 +1167,14 @@ class AgentRuntime:
     def reference_stamp(self, t_exec: float) -> bytes:
         """The attachment of a pose stamped ``t_exec`` (wire.encode_stamp): its reference
         time and error bound (this agent's one-way delay to the reference)."""
-        return self._stamp(self.sim_time(t_exec))
-
-    def _stamp(self, t_ref: float | None) -> bytes:
-        """The attachment of a pose at reference time ``t_ref`` (None: not synchronized)."""
         if self.reference == self.me:
-            return wire.encode_stamp(self.ref_id, t_ref, 0.0)
+            return wire.encode_stamp(self.ref_id, t_exec, 0.0)
         client = self._client_of(self.reference)
+        offset = None if client is None else client.offset_at(t_exec)
         bound = None if client is None else client.delay
-        if t_ref is None or bound is None:
+        if offset is None or bound is None:
             return wire.encode_stamp(self.ref_id, None, None)
-        return wire.encode_stamp(self.ref_id, t_ref, bound)
+        return wire.encode_stamp(self.ref_id, t_exec + offset, bound)
 
     def _read_pose(
         self, sample: Received, users: Iterable[AgentRuntime]
@@ -1300,8 +1286,7 @@ class AgentRuntime:
                 peer = user.peers.get(agent)
                 link = None if peer is None else peer.link
                 if link is not None:
-                    with link.lock:  # the estimate of every agent on the link: all hold
-                        link.client.reset()
+                    link.reset()  # the estimate of every agent on the link: all hold
             log.error("%s is contested: %s; nothing from it is used", agent, reason)
         return False
 

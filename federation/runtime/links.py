@@ -62,6 +62,12 @@ class SyncLink:
         """How many agents read this link's estimate."""
         return len(self.agents)
 
+    def reset(self) -> None:
+        """Forget the estimate, for every agent that reads it (the peer restarted, or
+        someone else answers for it: all of them hold until it is measured again)."""
+        with self.lock:
+            self.client.reset()
+
 
 @dataclass(eq=False)
 class PoseFeed:

@@ -71,7 +71,8 @@ class Shared:
     """A message that several recorders queue (a pose that every follower on a feed
     records: :mod:`federation.runtime.links`): encoded to JSON once, by the first
     write, not once per recorder (issue 17: a lean agent). Its dict must not change
-    once queued."""
+    once queued. Not for ``/pose/sent``, whose dicts are also written in Foxglove's
+    types (each agent records its own pose: nothing to share)."""
 
     __slots__ = ("_data", "message")
 

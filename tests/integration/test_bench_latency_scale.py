@@ -77,13 +77,14 @@ def test_scale_short(tmp_path: Path) -> None:
 
 
 def test_memory_short() -> None:
-    """Every agent sees every other one before the second reading; fedlab's agents
-    cost memory, and the floor's are measured alike."""
-    rows = bench("memory", "--agents", "16", timeout=180)
+    """Every agent sees every other one before the second reading. A fedlab agent
+    among 64 costs well under the 440 KiB it did when each kept a sync link to every
+    agent it saw (248 KiB among 32, 826 among 128); the floor is measured alike."""
+    rows = bench("memory", "--agents", "64", timeout=180)
     assert isinstance(rows, list)
-    assert [(r["n"], r["mode"]) for r in rows] == [(16, "default"), (16, "bare")]
+    assert [(r["n"], r["mode"]) for r in rows] == [(64, "default"), (64, "bare")]
     for r in rows:
-        assert r["peers_seen"] == 17, r  # the leader, the first follower, 15 others
+        assert r["peers_seen"] == 65, r  # the leader, the first follower, 63 others
         assert r["rss_mib"] >= r["base_mib"] > 0, r
     fedlab = rows[0]
-    assert fedlab["kib_per_agent"] > 0
+    assert 0 < fedlab["kib_per_agent"] < 200, fedlab  # 78 to 81 at 32 and 128 now

@@ -1,31 +1,25 @@
-"""A pose sample's reference stamp takes the reference offset of the control step
-just run: publishing evaluates no estimate again (issue 17: a lean agent)."""
+"""A follower's pose sample carries its reference time, the time it was published
+plus the reference's offset as its estimate gives it then, and the estimate's bound;
+without an estimate, a stamp that says it is not synchronized."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import zenoh
+from cohosted import LEAD, cohosted, follower_config
 
 from federation.core import wire
-from federation.core.keys import AgentId
-from federation.runtime.agent import AgentRuntime
-from schemas.config import AgentConfig
-
-LEAD = AgentId.parse("lab0/lead")
 
 
 class Estimate:
-    """The reference's clock 2.5 s ahead; counts how often it is evaluated."""
+    """The reference's clock 2.5 s ahead, or unknown (None)."""
 
     def __init__(self) -> None:
-        self.calls = 0
+        self.offset: float | None = 2.5
 
-    def offset_at(self, t: float) -> float:
-        self.calls += 1
-        return 2.5
+    def offset_at(self, t: float) -> float | None:
+        return self.offset
 
 
 class Client:
@@ -36,6 +30,9 @@ class Client:
         self.delay = 0.001
         self.last = None
 
+    def offset_at(self, t: float) -> float | None:
+        return self.estimator.offset_at(t)
+
 
 class Publisher:
     def __init__(self) -> None:
@@ -45,49 +42,16 @@ class Publisher:
         self.sent.append((wire.decode_pose(payload), wire.decode_stamp(attachment)))
 
 
-@contextmanager
-def follower(session: zenoh.Session) -> Iterator[tuple[AgentRuntime, Publisher, Estimate]]:
-    """A follower of LEAD started on ``session``, its estimate of LEAD's clock and its
-    pose publisher replaced."""
-    agent = AgentRuntime(
-        AgentConfig(lab="lab1", name="f", role="follower", follow=str(LEAD)), session
-    )
-    agent.start()
-    try:
+def test_a_pose_carries_its_reference_time_or_says_it_has_none(session: zenoh.Session) -> None:
+    with cohosted(session, follower_config("f")) as (_, _, (agent,)):
         agent.peer_seen(LEAD, alive=True)
-        agent.peers[LEAD].client = client = Client()  # type: ignore[assignment]
+        client = Client()
+        agent.peers[LEAD].client = client  # type: ignore[assignment]
         agent._pose_pub = publisher = Publisher()
-        yield agent, publisher, client.estimator
-    finally:
-        agent.close()
-
-
-def test_a_pose_is_stamped_with_the_control_steps_reference_offset(
-    session: zenoh.Session,
-) -> None:
-    with follower(session) as (agent, publisher, estimate):
         agent.control_step()
-        evaluated = estimate.calls
         agent.publish_pose()
-        assert estimate.calls == evaluated  # not evaluated again
         sample, stamp = publisher.sent[-1]
         assert stamp == wire.RefStamp(agent.ref_id, sample.t + 2.5, 0.001)
-
-
-def test_before_any_control_step_the_estimate_is_evaluated(session: zenoh.Session) -> None:
-    with follower(session) as (agent, publisher, estimate):
-        agent.publish_pose()
-        assert estimate.calls == 1
-        sample, stamp = publisher.sent[-1]
-        assert stamp == wire.RefStamp(agent.ref_id, sample.t + 2.5, 0.001)
-
-
-def test_without_a_reference_estimate_the_stamp_says_not_synchronized(
-    session: zenoh.Session,
-) -> None:
-    with follower(session) as (agent, publisher, _):
-        agent.control_step()  # an offset known at this step
-        del agent.peers[LEAD]  # it left: no estimate
-        agent.control_step()  # and none at this one
-        agent.publish_pose()
+        client.estimator.offset = None  # reset: a contest, a clock step, a restart
+        agent.publish_pose()  # before the next control step: not the old offset
         assert publisher.sent[-1][1] == wire.RefStamp(agent.ref_id, None, None)

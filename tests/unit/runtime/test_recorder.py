@@ -58,9 +58,22 @@ def test_unrecorded_channels_are_skipped_and_a_full_buffer_counts_drops(tmp_path
     rec.close()  # twice is harmless
 
 
+class _NoWriter:
+    """In place of the process's writer thread: the recorders write only at close,
+    one after the other (a writer thread and a close racing may both encode one
+    shared message, harmlessly, which the count below would catch)."""
+
+    def add(self, recorder: Recorder) -> None:
+        pass
+
+    def remove(self, recorder: Recorder) -> None:
+        pass
+
+
 def test_a_shared_message_is_encoded_once_for_every_recorder(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.setattr(recorder_module, "_WRITER", _NoWriter())
     recorders = [
         Recorder(tmp_path / f"f{i}.mcap", f"lab/f{i}", ["/pose/received"]) for i in range(4)
     ]
