@@ -6,7 +6,7 @@ router: the agents of a process meet through their session), starts a leader and
 one follower, and reads its resident memory (the base: interpreter, libraries,
 session). It then adds N followers of the leader, as ``fedlab bench scale``'s
 workers host them (one shared pose subscription, one clock, shared sync links,
-each recording its status and received poses), waits until every agent has seen
+each with a recorder open on its status and received poses), waits until every agent has seen
 every other one alive, and reads the memory again. Agents seen but not queried
 are where memory grew with N (issue 17: each agent kept a sync client for every
 agent it saw), so the figure per agent is taken at two or more N. The agents are
@@ -68,6 +68,11 @@ def measure(n: int, mode: str, out: Path, status_bytes: int) -> dict[str, Any]:
             while agents_seen() < n + 1 and time.monotonic() < deadline:
                 time.sleep(0.1)
             seen = agents_seen()
+            if seen < n + 1:  # a reading now would be of agents half set up
+                raise RuntimeError(
+                    f"{n} agents, {mode}: an agent saw only {seen} of the {n + 1} others "
+                    f"after {SEEN_TIMEOUT:.0f} s"
+                )
             time.sleep(SETTLE)
             after = rss_mib(os.getpid())
         finally:
@@ -106,8 +111,9 @@ def _fedlab(session: Any, out: Path) -> tuple[Any, Any, Any]:
         agents.append(agent)
 
     def seen() -> int:
-        """The fewest agents alive that any one of them knows of."""
-        return min(sum(p.alive for p in a.peers.values()) for a in agents)
+        """The fewest agents alive that any one of them knows of (each agent's peers
+        copied first: Zenoh's threads add to them meanwhile)."""
+        return min(sum(p.alive for p in list(a.peers.values())) for a in agents)
 
     def close() -> None:
         for agent in agents:
@@ -139,12 +145,18 @@ def run(counts: list[int], modes: tuple[str, ...] = MODES) -> list[dict[str, Any
     rows = []
     for n in counts:
         for mode in modes:
+            command = [sys.executable, "-m", "federation.bench.memory", "measure", str(n), mode]
             with tempfile.TemporaryDirectory(prefix="fedlab-bench-memory-") as out:
-                done = subprocess.run(
-                    [sys.executable, "-m", "federation.bench.memory", "measure", str(n), mode,
-                     out, str(STATUS_BYTES)],
-                    capture_output=True, text=True, timeout=SEEN_TIMEOUT + 120, check=False,
-                )  # fmt: skip
+                try:
+                    done = subprocess.run(
+                        [*command, out, str(STATUS_BYTES)], capture_output=True, text=True,
+                        timeout=SEEN_TIMEOUT + 120, check=False,
+                    )  # fmt: skip
+                except subprocess.TimeoutExpired:
+                    raise RuntimeError(
+                        f"fedlab bench memory: {n} agents, {mode}: no result after "
+                        f"{SEEN_TIMEOUT + 120:.0f} s (the process was stopped)"
+                    ) from None
             if done.returncode != 0:
                 raise RuntimeError(
                     f"fedlab bench memory: {n} agents, {mode}: exit {done.returncode}: "

@@ -7,7 +7,8 @@ __all__ = ["rss_mib"]
 
 
 def rss_mib(pid: int) -> float:
-    """Resident memory of process ``pid`` (MiB); NaN if /proc does not say."""
+    """Resident memory of process ``pid`` (MiB, Linux /proc: OSError without it, or
+    for a process gone); NaN if its status has no resident size."""
     with open(f"/proc/{pid}/status", encoding="ascii") as f:
         for line in f:
             if line.startswith("VmRSS:"):

@@ -111,6 +111,7 @@ class Peer:
     agent: AgentId
     link: SyncLink | None = None
     alive: bool = True
+    index: int = 0  # the order it was seen in: its phase if queried once a period
     client: SyncClient | None = field(init=False)  # the link's: read on every pose
 
     def __post_init__(self) -> None:
@@ -1140,7 +1141,7 @@ class AgentRuntime:
             if peer is None:
                 if not alive:
                     return
-                peer = self.peers[agent] = Peer(agent)
+                peer = self.peers[agent] = Peer(agent, index=len(self.peers))
                 if self._queries(agent):
                     self._attach(peer)
             elif alive and not peer.alive:
@@ -1362,7 +1363,9 @@ class AgentRuntime:
         """Give ``peer`` its sync link (under ``_lock``): this agent queries it now."""
         link = self._link_for(peer.agent)
         if link.sharing == 1:  # a new link: this agent schedules its first request
-            link.next_sync = self._first_sync(peer.agent, len(self.peers))
+            # Its own phase, from when it was seen: senders that turn pairwise together
+            # are not all queried on one tick.
+            link.next_sync = self._first_sync(peer.agent, peer.index)
         peer.attach(link)
 
     def _link_for(self, agent: AgentId) -> SyncLink:

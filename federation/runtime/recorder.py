@@ -57,8 +57,8 @@ CHUNK_SIZE = 64 * 1024
 """Bytes of messages gathered (uncompressed) before they are compressed and written as
 one chunk. An agent killed mid-run loses at most the last chunk, and each recorder
 holds one in memory with its index: a follower's 5 to 6 kB a second fill 64 kB in about
-12 s (256 kB took 47 s, and a 256-agent federation's workers grew by 60 to 80 MiB
-before their first chunks were written: issue 17)."""
+12 s (256 kB took 47 s: 32 followers' chunks came to about 13 MiB a worker, likely
+part of the 60 to 80 MiB a 256-agent federation's workers grew by: issue 17)."""
 
 # s between writes of the buffered messages: at 20 Hz, 16 co-hosted agents' recorders
 # cost their process 6 ms a second of flush calls; at 10 Hz a write still holds the

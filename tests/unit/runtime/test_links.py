@@ -177,6 +177,12 @@ def test_only_the_agents_queried_get_a_link(session: zenoh.Session) -> None:
     assert f0.peers[others[0]].link is not None
     assert f0.peers[others[1]].link is None
     assert others[0] in f0.due_for_sync(time.monotonic() + 100.0)
+    # Senders that turn pairwise together keep the phases of when they were seen:
+    # they are not all queried on one tick.
+    f0._place(others[4], 1.0, None)
+    f0._place(others[5], 1.0, None)
+    phases = [f0.peers[o].link.next_sync for o in (others[4], others[5])]  # type: ignore[union-attr]
+    assert abs(phases[0] - phases[1]) > 0.05 * f0.config.sync_others_period, phases
     # One not seen yet: linked when its liveliness comes.
     late = AgentId("lab3", "late")
     f0._place(late, 1.0, None)
