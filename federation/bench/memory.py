@@ -47,6 +47,8 @@ def measure(n: int, mode: str, out: Path, status_bytes: int) -> dict[str, Any]:
 
     from federation.runtime.heap import freeze_startup_heap
 
+    # Written out, not federation.runtime.session.build_config: that would import
+    # fedlab's schemas into the bare floor's process and count them in its base.
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")

@@ -697,13 +697,11 @@ class AgentRuntime:
         with self._lock:
             for agent in targets if isinstance(targets, list) else sorted(targets, key=str):
                 peer = self.peers.get(agent)
-                client = None if peer is None else peer.client
-                if peer is not None and client is not None and client.sent:
-                    link = peer.link  # set before the client (Peer.attach)
-                    assert link is not None
+                link = None if peer is None else peer.link  # attached under this lock
+                if peer is not None and link is not None and link.client.sent:
                     with link.lock:  # a reply may be changing it on another thread
                         view = peers[str(agent)] = peer_status(
-                            client, t_exec, peer.alive, sharing=link.sharing
+                            link.client, t_exec, peer.alive, sharing=link.sharing
                         )
                     view.silent = self.silence.silent_for(agent, host) if peer.alive else None
         t_sim = self.sim_time(t_exec)
