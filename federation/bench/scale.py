@@ -29,7 +29,8 @@ after warm-up and at the end. For fedlab also the stale-pose safe holds the
 followers entered in the same window as the loss (a hold is what a follower does
 when the leader's pose is late by more than its link watch's threshold), and for
 both the leader's largest gap between two poses it published (where a stalled
-loop shows).
+loop shows): in the steady state, while every follower listened, and over the
+whole run (its cold first tick and the wind-down included).
 """
 
 from __future__ import annotations
@@ -259,7 +260,8 @@ def _score_bare(out: Path, leader: str) -> dict[str, Any]:
     return {
         **scores,
         "sync_per_s": replies / seconds if seconds else float("nan"),
-        **_pose_gaps(sorted(sent)),  # its leader stamps its poses with host time
+        # Its leader stamps its poses with host time.
+        **_pose_gaps(sorted(sent), _listening(received)),
     }
 
 
@@ -291,7 +293,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
         **scores,
         "sync_per_s": syncs / (seconds + SETTLE),
         **_hold_scores(holds),
-        **_pose_gaps(published),
+        **_pose_gaps(published, _listening(received)),
     }
 
 
@@ -321,17 +323,35 @@ def _hold_scores(holds: list[int]) -> dict[str, Any]:
     return {"stale_holds": sum(holds), "followers_held": sum(1 for h in holds if h)}
 
 
-def _pose_gaps(published: list[float]) -> dict[str, Any]:
-    """The leader's publication gaps (host times of its poses, s): the largest (ms) and
-    how many exceeded twice the median (a stalled loop: each is a gap every follower
-    sees, whatever the network does)."""
-    if len(published) < 3:
-        return {"leader_gap_max_ms": float("nan"), "leader_gaps_over_2x": 0}
-    gaps = np.diff(np.asarray(published))
+def _pose_gaps(published: list[float], window: tuple[float, float] | None = None) -> dict[str, Any]:
+    """The leader's publication gaps (host times of its poses, s) within ``window``
+    (host times; None: all of them): the largest (ms) and how many exceeded twice the
+    median (a stalled loop: each is a gap every follower sees, whatever the network
+    does). ``leader_gap_max_all_ms`` is the largest over all its publications, start-up
+    and wind-down included: the first tick runs cold, and the workers that end first
+    close their recordings while the others still run."""
+    times = np.asarray(published)
+    scored = times if window is None else times[(times >= window[0]) & (times <= window[1])]
+    if len(scored) < 3:
+        return {"leader_gap_max_ms": float("nan"), "leader_gaps_over_2x": 0,
+                "leader_gap_max_all_ms": float("nan")}  # fmt: skip
+    gaps = np.diff(scored)
     return {
         "leader_gap_max_ms": float(gaps.max() * 1e3),
         "leader_gaps_over_2x": int((gaps > 2.0 * float(np.median(gaps))).sum()),
+        "leader_gap_max_all_ms": float(np.diff(times).max() * 1e3),
     }
+
+
+def _listening(received: list[list[tuple[float, float]]]) -> tuple[float, float] | None:
+    """The host-time window in which every follower was listening (the steady state):
+    from when the last to start had its routes settled to the first one's last
+    arrival (those that received nothing are counted lost, not here)."""
+    listened = [got for got in received if got]
+    if not listened:
+        return None
+    start = max(min(h for _, h in got) for got in listened) + SETTLE
+    return start, min(max(h for _, h in got) for got in listened)
 
 
 def run(
@@ -361,7 +381,8 @@ def run(
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Median and spread (min, max) over the repeats, per agent count and
     configuration, of CPU per agent, pose p50/p99, loss, sync exchanges per second,
-    the leader's largest publication gap and (fedlab) the safe holds; and per agent
+    the leader's largest publication gap (steady state, and over the whole run) and
+    (fedlab) the safe holds; and per agent
     count the ratios fedlab over bare (CPU per agent, p99), each taken within one
     repeat, then their median and spread."""
 
@@ -369,7 +390,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         return {"median": float(np.median(values)), "min": min(values), "max": max(values)}
 
     figures = ("cpu_per_agent", "cpu_cores", "p50_ms", "p99_ms", "loss", "sync_per_s",
-               "leader_gap_max_ms", "stale_holds")  # fmt: skip
+               "leader_gap_max_ms", "leader_gap_max_all_ms", "stale_holds")  # fmt: skip
     table: dict[str, Any] = {}
     for n in sorted({r["n"] for r in rows}):
         mine = [r for r in rows if r["n"] == n]

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import math
 
-from federation.bench.scale import _hold_scores, _holds_between, _pose_gaps, summary
+from federation.bench.scale import (
+    SETTLE,
+    _hold_scores,
+    _holds_between,
+    _listening,
+    _pose_gaps,
+    summary,
+)
 
 
 def status(host: float, holds: int) -> dict[str, object]:
@@ -36,6 +43,30 @@ def test_pose_gaps_find_a_stalled_loop() -> None:
     assert gaps["leader_gaps_over_2x"] == 1
     assert math.isclose(gaps["leader_gap_max_ms"], 200.0, rel_tol=1e-6)
     assert math.isnan(_pose_gaps([0.0, 0.05])["leader_gap_max_ms"])
+
+
+def test_pose_gaps_in_the_window_leave_out_start_up_and_wind_down() -> None:
+    # A cold first tick (120 ms) and a last one late (90 ms) around a steady 50 ms loop.
+    published = [0.0] + [0.12 + i * 0.05 for i in range(40)]
+    published.append(published[-1] + 0.09)
+    steady = _pose_gaps(published, window=(0.12, published[-2]))
+    assert math.isclose(steady["leader_gap_max_ms"], 50.0, rel_tol=1e-6)
+    assert steady["leader_gaps_over_2x"] == 0
+    assert math.isclose(steady["leader_gap_max_all_ms"], 120.0, rel_tol=1e-6)
+    # A stall inside the window is still found.
+    stalled = published[:20] + [t + 0.2 for t in published[20:]]
+    gaps = _pose_gaps(stalled, window=(0.12, stalled[-2]))
+    assert math.isclose(gaps["leader_gap_max_ms"], 250.0, rel_tol=1e-6)
+    assert gaps["leader_gaps_over_2x"] == 1
+
+
+def test_listening_is_the_window_every_follower_heard() -> None:
+    # (stamp, host arrival): one follower from 1.0 to 9.0 s, one from 2.0 to 8.0 s.
+    early = [(t, t + 0.001) for t in (1.0, 5.0, 9.0)]
+    late = [(t, t + 0.001) for t in (2.0, 5.0, 8.0)]
+    start, end = _listening([early, late, []])  # one that heard nothing is left out
+    assert math.isclose(start, 2.001 + SETTLE) and math.isclose(end, 8.001)
+    assert _listening([[], []]) is None and _listening([]) is None
 
 
 def row(mode: str, run: int, **extra: float) -> dict[str, object]:
