@@ -331,22 +331,23 @@ def _pose_gaps(published: list[float], window: tuple[float, float] | None = None
     and wind-down included: the first tick runs cold, and the workers that end first
     close their recordings while the others still run."""
     times = np.asarray(published)
+    whole = float(np.diff(times).max() * 1e3) if len(times) >= 3 else float("nan")
     scored = times if window is None else times[(times >= window[0]) & (times <= window[1])]
     if len(scored) < 3:
         return {"leader_gap_max_ms": float("nan"), "leader_gaps_over_2x": 0,
-                "leader_gap_max_all_ms": float("nan")}  # fmt: skip
+                "leader_gap_max_all_ms": whole}  # fmt: skip
     gaps = np.diff(scored)
     return {
         "leader_gap_max_ms": float(gaps.max() * 1e3),
         "leader_gaps_over_2x": int((gaps > 2.0 * float(np.median(gaps))).sum()),
-        "leader_gap_max_all_ms": float(np.diff(times).max() * 1e3),
+        "leader_gap_max_all_ms": whole,
     }
 
 
 def _listening(received: list[list[tuple[float, float]]]) -> tuple[float, float] | None:
     """The host-time window in which every follower was listening (the steady state):
-    from when the last to start had its routes settled to the first one's last
-    arrival (those that received nothing are counted lost, not here)."""
+    from when the last to start had its routes settled to the last arrival of the
+    first to stop (those that received nothing are counted lost, not here)."""
     listened = [got for got in received if got]
     if not listened:
         return None

@@ -3,7 +3,9 @@ leader's publication times."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 from federation.bench.scale import (
     SETTLE,
@@ -11,6 +13,7 @@ from federation.bench.scale import (
     _holds_between,
     _listening,
     _pose_gaps,
+    _score_bare,
     summary,
 )
 
@@ -58,6 +61,26 @@ def test_pose_gaps_in_the_window_leave_out_start_up_and_wind_down() -> None:
     gaps = _pose_gaps(stalled, window=(0.12, stalled[-2]))
     assert math.isclose(gaps["leader_gap_max_ms"], 250.0, rel_tol=1e-6)
     assert gaps["leader_gaps_over_2x"] == 1
+
+
+def test_a_window_too_short_keeps_the_whole_runs_gap() -> None:
+    published = [0.0] + [0.12 + i * 0.05 for i in range(40)]
+    gaps = _pose_gaps(published, window=(5.0, 5.01))  # no pose in it
+    assert math.isnan(gaps["leader_gap_max_ms"]) and gaps["leader_gaps_over_2x"] == 0
+    assert math.isclose(gaps["leader_gap_max_all_ms"], 120.0, rel_tol=1e-6)
+
+
+def test_the_floor_is_scored_in_the_window_its_followers_listened(tmp_path: Path) -> None:
+    # The bare floor's leader stamps host time: a 300 ms start-up gap, then 50 ms ticks
+    # from 0.3 s to 9.8 s; two followers hear from 0.3 s (one stops at 8.0 s).
+    sent = [0.0] + [0.3 + i * 0.05 for i in range(191)]
+    heard = [[t, t + 0.001] for t in sent[1:]]
+    data = {"sent": sent, "received": {"a1": heard, "a2": [p for p in heard if p[0] <= 8.0]},
+            "replies": {"a1": 10}, "seconds": 10.0}  # fmt: skip
+    (tmp_path / "bare-lab1.json").write_text(json.dumps(data))
+    scores = _score_bare(tmp_path, "lab0/a0")
+    assert math.isclose(scores["leader_gap_max_ms"], 50.0, rel_tol=1e-6)
+    assert math.isclose(scores["leader_gap_max_all_ms"], 300.0, rel_tol=1e-6)
 
 
 def test_listening_is_the_window_every_follower_heard() -> None:
