@@ -87,7 +87,9 @@ def test_listening_is_the_window_every_follower_heard() -> None:
     # (stamp, host arrival): one follower from 1.0 to 9.0 s, one from 2.0 to 8.0 s.
     early = [(t, t + 0.001) for t in (1.0, 5.0, 9.0)]
     late = [(t, t + 0.001) for t in (2.0, 5.0, 8.0)]
-    start, end = _listening([early, late, []])  # one that heard nothing is left out
+    window = _listening([early, late, []])  # one that heard nothing is left out
+    assert window is not None
+    start, end = window
     assert math.isclose(start, 2.001 + SETTLE) and math.isclose(end, 8.001)
     assert _listening([[], []]) is None and _listening([]) is None
 
@@ -95,7 +97,7 @@ def test_listening_is_the_window_every_follower_heard() -> None:
 def row(mode: str, run: int, **extra: float) -> dict[str, object]:
     base = {"n": 4, "mode": mode, "run": run, "cpu_per_agent": 0.01, "cpu_cores": 0.04,
             "p50_ms": 1.0, "p99_ms": 2.0, "loss": 0.0, "sync_per_s": 30.0,
-            "leader_gap_max_ms": 60.0}  # fmt: skip
+            "leader_gap_max_ms": 60.0, "leader_gap_max_all_ms": 80.0}  # fmt: skip
     return base | extra
 
 
@@ -105,3 +107,4 @@ def test_summary_gives_holds_for_fedlab_and_gaps_for_both() -> None:
     assert table["default"]["stale_holds"] == {"median": 1.0, "min": 0, "max": 2}
     assert "stale_holds" not in table["bare"]
     assert table["bare"]["leader_gap_max_ms"]["median"] == 60.0
+    assert table["default"]["leader_gap_max_all_ms"] == {"median": 80.0, "min": 80.0, "max": 80.0}
