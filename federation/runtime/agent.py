@@ -1147,7 +1147,7 @@ class AgentRuntime:
                 link = peer.link
                 if link is not None:
                     link.reset()  # a restarted agent has a new clock
-                    link.next_sync = self._first_sync(agent, len(self.peers))
+                    link.next_sync = self._first_sync(peer)
             peer.alive = alive
             self._next_sync_due = 0.0  # due_for_sync looks again
         log.info("agent %s %s", agent, "joined" if alive else "left")
@@ -1335,13 +1335,14 @@ class AgentRuntime:
                 contested = feed.contest.contested(host) | contested
         return contested
 
-    def _first_sync(self, agent: AgentId, index: int) -> float:
-        """When the ``index``-th peer seen gets its first request: at once for the ones
-        synced every period, else spread over ``sync_others_period`` (golden-ratio
-        phases, so no tick carries a burst however many agents join)."""
-        if agent in self.close_sync:
+    def _first_sync(self, peer: Peer) -> float:
+        """When ``peer`` gets its first request (again, after a restart): at once for the
+        ones synced every period, else spread over ``sync_others_period`` by the order
+        it was seen (golden-ratio phases, so no tick carries a burst however many agents
+        join or come back together)."""
+        if peer.agent in self.close_sync:
             return 0.0
-        phase = (index * 0.6180339887498949) % 1.0
+        phase = (peer.index * 0.6180339887498949) % 1.0
         return time.monotonic() + phase * self.config.sync_others_period
 
     def _client_of(self, agent: AgentId) -> SyncClient | None:
@@ -1363,7 +1364,7 @@ class AgentRuntime:
         if link.sharing == 1:  # a new link: this agent schedules its first request
             # Its own phase, from when it was seen: senders that turn pairwise together
             # are not all queried on one tick.
-            link.next_sync = self._first_sync(peer.agent, peer.index)
+            link.next_sync = self._first_sync(peer)
         peer.attach(link)
 
     def _link_for(self, agent: AgentId) -> SyncLink:
