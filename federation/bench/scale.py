@@ -20,6 +20,10 @@ Three configurations, run one after the other on the same hosting:
 - ``bare``: the floor, :mod:`federation.bench.baselines.zenoh_scale`: bare
   zenoh-python agents with the same declarations and messages per agent.
 
+By default the kernel places every process on any core. With ``--pin-routers``
+the routers get a core of their own and the workers the others, fedlab's and the
+floor's alike (docs/scale.md, "A late pose waits for a core").
+
 For each: CPU of all processes (routers and workers, in cores, and per agent),
 p50/p99 one-way pose latency leader to followers (host monotonic clock on both
 ends; the leader's clock is mapped to it exactly through its status lines), loss
@@ -50,6 +54,8 @@ import numpy as np
 from federation.bench.procfs import rss_mib
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
+from federation.runtime.cpus import format_cpus, usable_cpus
+from schemas.config import ConfigError
 
 __all__ = [
     "DEFAULT_AGENTS",
@@ -57,6 +63,7 @@ __all__ = [
     "LABS",
     "MODES",
     "STATUS_BYTES",
+    "hosting_cores",
     "ratios",
     "run",
     "run_one",
@@ -133,17 +140,38 @@ def _per_thread(
     return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
 
 
+def hosting_cores() -> tuple[frozenset[int], frozenset[int]]:
+    """The routers' core and the workers' cores when the routers are pinned: the first
+    core this process may use, and the others (ConfigError with fewer than two)."""
+    cores = sorted(usable_cpus())
+    if len(cores) < 2:
+        raise ConfigError(
+            f"--pin-routers: the routers need a core of their own and the workers another; "
+            f"this process may use only {format_cpus(cores)}"
+        )
+    return frozenset(cores[:1]), frozenset(cores[1:])
+
+
 def _agents(n: int, labs: int = LABS) -> list[tuple[int, str]]:
     """(lab index, agent name) for n agents, round-robin over the labs."""
     return [(i % labs, f"lab{i % labs}/a{i}") for i in range(n)]
 
 
 def run_one(
-    n: int, seconds: float, out: Path, mode: str = "default", labs: int = LABS, group: int = GROUP
+    n: int,
+    seconds: float,
+    out: Path,
+    mode: str = "default",
+    labs: int = LABS,
+    group: int = GROUP,
+    pin_routers: bool = False,
 ) -> dict[str, Any]:
     """Run ``n`` agents (at least 2: a leader and a follower) over ``labs`` labs for
     ``seconds`` in configuration ``mode`` (:data:`MODES`), each worker's agents ticking
-    in groups of ``group`` (fedlab and bare alike); returns ``n``, ``mode``, ``group``,
+    in groups of ``group`` (fedlab and bare alike); with ``pin_routers`` the routers
+    run on the first core this process may use (``fedlab router --cpus``) and the
+    workers on the others (:func:`hosting_cores`). Returns ``n``, ``mode``, ``group``,
+    ``pin_routers``,
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
     ``cpu_per_agent`` (all processes' over ``n``), ``worker_threads_ms`` (the
     workers' CPU by thread name, ms per agent-second),
@@ -157,6 +185,7 @@ def run_one(
         raise ValueError(f"{labs} labs: at least one is needed")
     if group < 1:
         raise ValueError(f"groups of {group}: at least one agent is needed")
+    router_cores, worker_cores = hosting_cores() if pin_routers else (None, None)
     out = out / f"n{n}-{mode}"
     out.mkdir(parents=True, exist_ok=True)
     for old in [*out.glob("*.mcap"), *out.glob("bare-*.json")]:
@@ -169,6 +198,8 @@ def run_one(
             args = ["router", "--lab", f"lab{lab}", "-l", ep]
             if lab:
                 args += ["-e", endpoints[0]]
+            if router_cores is not None:
+                args += ["--cpus", format_cpus(router_cores)]
             fleet.start(f"router-lab{lab}", args)
         for lab in range(labs):
             mine = [name for (i, name) in agents if i == lab]
@@ -180,7 +211,7 @@ def run_one(
             else:
                 argv = [sys.executable, "-m", "federation.bench.scale", "worker", endpoints[lab],
                         f"{seconds + SETTLE}", str(out), mode, str(group), *mine]  # fmt: skip
-            fleet.spawn(f"worker-lab{lab}", argv)
+            fleet.spawn(f"worker-lab{lab}", argv, cpus=worker_cores)
         time.sleep(SETTLE)
         workers = [name for name in fleet.procs if name.startswith("worker")]
         cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
@@ -205,6 +236,7 @@ def run_one(
         "labs": labs,
         "mode": mode,
         "group": group,
+        "pin_routers": pin_routers,
         **scores,
         "cpu_cores": total,
         "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
@@ -364,6 +396,7 @@ def run(
     runs: int = 1,
     group: int = GROUP,
     progress: Callable[[int, int, str], None] | None = None,
+    pin_routers: bool = False,
 ) -> list[dict[str, Any]]:
     """:func:`run_one` for each of ``runs`` repeats, agent count in ``ns`` and
     configuration in ``modes`` (interleaved, so that the host's load falls on all
@@ -375,7 +408,8 @@ def run(
             for mode in modes:
                 if progress is not None:
                     progress(k, n, mode)
-                rows.append({**run_one(n, seconds, out, mode, labs, group), "run": k})
+                row = run_one(n, seconds, out, mode, labs, group, pin_routers)
+                rows.append({**row, "run": k})
     return rows
 
 

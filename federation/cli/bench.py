@@ -236,6 +236,11 @@ def _add_scale(benches: Subparsers) -> None:
         f"{scale.GROUP}; 8 costs a third less CPU, with bursts: docs/scale.md)",
     )  # fmt: skip
     p.add_argument(
+        "--pin-routers", action="store_true",
+        help="routers on a core of their own (fedlab router --cpus), the workers on the "
+        "others, fedlab and bare alike (needs 2 cores; docs/scale.md)",
+    )  # fmt: skip
+    p.add_argument(
         "--out", type=Path, default=Path("runs/bench-scale"), metavar="DIR", help="run folder"
     )
     p.add_argument(
@@ -266,14 +271,16 @@ def _run_scale(args: argparse.Namespace) -> int:
         console.print(f"run {k + 1}/{args.runs}: {n} agents, {mode}: {args.seconds:.0f} s")
 
     results = scale.run(list(args.agents or scale.DEFAULT_AGENTS), args.seconds, args.out,
-                        modes, args.labs, args.runs, args.group, progress)  # fmt: skip
+                        modes, args.labs, args.runs, args.group, progress,
+                        args.pin_routers)  # fmt: skip
     if args.json:
         if args.runs == 1 and len(modes) == 1:
             print(json.dumps(results, indent=1))
         else:
             print(json.dumps({"rows": results, "summary": scale.summary(results)}, indent=1))
         return 0
-    table = Table(title=f"N agents over {args.labs} labs (pose 20 Hz, sync 10 Hz)")
+    hosting = ", routers on a core of their own" if args.pin_routers else ""
+    table = Table(title=f"N agents over {args.labs} labs (pose 20 Hz, sync 10 Hz{hosting})")
     cols = ("run", "agents", "mode", "CPU (cores)", "CPU/agent", "p50 (ms)", "p99 (ms)",
             "loss", "holds", "leader gap max (ms, steady / all)", "sync/s", "RSS MiB (first, last)",
             "busiest worker threads (ms/agent-s)")  # fmt: skip

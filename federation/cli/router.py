@@ -25,17 +25,36 @@ def add(sub: Subparsers) -> None:
             "Examples:\n"
             "  fedlab router --lab kiruna -l tcp/0.0.0.0:7447\n"
             "  fedlab router --lab rome -l tcp/127.0.0.1:7448 -e tcp/kiruna.example.org:7447\n"
-            "  fedlab router -c deploy/routers/kiruna.json5"
+            "  fedlab router -c deploy/routers/kiruna.json5\n"
+            "  fedlab router --lab kiruna -l tcp/0.0.0.0:7447 --cpus 0   # a core of its own"
         ),
     )
     p.add_argument("--lab", help="lab name (else metadata.lab in the config file)")
+    p.add_argument(
+        "--cpus", type=_cpus, metavar="LIST",
+        help="run on these cores only, e.g. 0 or 2-3 (Linux): on a host shared with agents, "
+        "a core the agents do not use spares each pose a wait for one (docs/deploy.md)",
+    )  # fmt: skip
     add_zenoh_flags(p)
     p.set_defaults(func=run)
 
 
+def _cpus(text: str) -> frozenset[int]:
+    """Argument type: a list of cores."""
+    from federation.runtime.cpus import parse_cpus
+
+    try:
+        return parse_cpus(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def run(args: argparse.Namespace) -> int:
+    from federation.runtime.cpus import pin_process
     from federation.runtime.router import load_router_config, run_router
 
     settings, conf = load_router_config(zenoh_options(args), args.lab)
+    if args.cpus is not None:
+        pin_process(args.cpus, "--cpus")  # before the session: Zenoh's threads inherit it
     run_router(settings, conf, stop_on_signals())
     return 0

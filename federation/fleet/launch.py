@@ -13,11 +13,18 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from typing import IO
 
 __all__ = ["Fleet", "free_port", "wait_for"]
+
+# Sets the process's cores, then becomes the command (same pid, threads inherit them).
+_ON_CORES = (
+    "import os, sys; "
+    "os.sched_setaffinity(0, {int(c) for c in sys.argv[1].split(',')}); "
+    "os.execv(sys.argv[2], sys.argv[2:])"
+)
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -42,10 +49,18 @@ class Fleet:
         """Run ``fedlab ARGS...`` with this interpreter; ``name`` must be unique while running."""
         return self.spawn(name, [sys.executable, "-m", "federation", *args])
 
-    def spawn(self, name: str, argv: Sequence[str]) -> subprocess.Popen[bytes]:
-        """Run any command as a tracked child process."""
+    def spawn(
+        self, name: str, argv: Sequence[str], cpus: Collection[int] | None = None
+    ) -> subprocess.Popen[bytes]:
+        """Run any command as a tracked child process; with ``cpus``, on those cores only
+        (set before the command starts, so each of its threads runs on them: Linux).
+        ``argv[0]`` must then be a path, as ``sys.executable`` is."""
         if name in self.procs and self.procs[name].poll() is None:
             raise ValueError(f"process {name!r} is already running")
+        if cpus is not None:
+            if not cpus:
+                raise ValueError(f"process {name!r}: no core to run on")
+            argv = [sys.executable, "-c", _ON_CORES, ",".join(map(str, sorted(cpus))), *argv]
         log = self.log_path(name).open("ab")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         proc = subprocess.Popen(

@@ -80,6 +80,19 @@ def test_scale_short(tmp_path: Path) -> None:
     )
 
 
+def test_scale_with_routers_on_a_core_of_their_own(tmp_path: Path) -> None:
+    """``--pin-routers``: fedlab and the floor both run, routers on one core and the
+    workers on the others (each process's threads checked where they ran: in
+    tests/integration/test_router_cores.py and tests/unit/runtime/test_cpus.py)."""
+    out = bench("scale", "--agents", "3", "--seconds", "4", "--mode", "default", "--mode", "bare",
+                "--labs", "2", "--pin-routers", "--out", str(tmp_path), timeout=240)  # fmt: skip
+    assert isinstance(out, dict)
+    rows = out["rows"]
+    assert [(r["mode"], r["pin_routers"]) for r in rows] == [("default", True), ("bare", True)]
+    for r in rows:
+        assert r["samples"] > 0 and r["loss"] < 0.01 and r["cpu_routers_cores"] > 0, r
+
+
 def test_memory_short() -> None:
     """Every agent sees every other one before the second reading. A fedlab agent
     among 64 costs well under the 440 KiB it did when each kept a sync link to every

@@ -8,6 +8,7 @@ import pytest
 
 from federation.bench import scale
 from federation.cli import main
+from schemas.config import ConfigError
 
 
 def test_a_group_of_no_agents_is_refused(tmp_path: Path) -> None:
@@ -25,12 +26,12 @@ def test_the_cli_refuses_a_group_of_no_agents(capsys: pytest.CaptureFixture[str]
 def test_repeats_interleave_counts_and_modes_and_report_progress(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    ran: list[tuple[int, str, int]] = []
+    ran: list[tuple[int, str, int, bool]] = []
 
     def fake_run_one(
-        n: int, seconds: float, out: Path, mode: str, labs: int, group: int
+        n: int, seconds: float, out: Path, mode: str, labs: int, group: int, pin_routers: bool
     ) -> dict[str, object]:
-        ran.append((n, mode, group))
+        ran.append((n, mode, group, pin_routers))
         return {"n": n, "mode": mode}
 
     monkeypatch.setattr(scale, "run_one", fake_run_one)
@@ -40,7 +41,27 @@ def test_repeats_interleave_counts_and_modes_and_report_progress(
     order = [(k, n, m) for k in range(2) for n in (2, 4) for m in ("default", "bare")]
     assert seen == order  # each repeat runs every count and mode before the next
     assert [(r["run"], r["n"], r["mode"]) for r in rows] == order
-    assert {g for _, _, g in ran} == {3}
+    assert {(g, pin) for _, _, g, pin in ran} == {(3, False)}
+    ran.clear()
+    scale.run([2], 1.0, tmp_path, ("default", "bare"), pin_routers=True)
+    assert [pin for *_, pin in ran] == [True, True]  # fedlab and the floor on the same hosting
+
+
+def test_routers_get_the_first_core_and_workers_the_others(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(scale, "usable_cpus", lambda: frozenset({5, 2, 7}))
+    assert scale.hosting_cores() == ({2}, {5, 7})
+    monkeypatch.setattr(scale, "usable_cpus", lambda: frozenset({3}))
+    with pytest.raises(ConfigError, match=r"--pin-routers: .* may use only 3"):
+        scale.hosting_cores()
+
+
+def test_pinning_on_one_core_is_refused_before_anything_starts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(scale, "usable_cpus", lambda: frozenset({0}))
+    with pytest.raises(ConfigError, match="--pin-routers"):
+        scale.run_one(4, 1.0, tmp_path, pin_routers=True)
+    assert not list(tmp_path.iterdir())  # no run folder, no process
 
 
 def test_one_lab_is_a_lab_count_and_none_is_refused(
