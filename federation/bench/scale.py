@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from federation.bench.procfs import rss_mib
+from federation.bench.procfs import cores, rss_mib
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 from federation.runtime.cpus import format_cpus, usable_cpus
@@ -143,13 +143,13 @@ def _per_thread(
 def hosting_cores() -> tuple[frozenset[int], frozenset[int]]:
     """The routers' core and the workers' cores when the routers are pinned: the first
     core this process may use, and the others (ConfigError with fewer than two)."""
-    cores = sorted(usable_cpus())
-    if len(cores) < 2:
+    usable = sorted(usable_cpus())
+    if len(usable) < 2:
         raise ConfigError(
             f"--pin-routers: the routers need a core of their own and the workers another; "
-            f"this process may use only {format_cpus(cores)}"
+            f"this process may use only {format_cpus(usable)}"
         )
-    return frozenset(cores[:1]), frozenset(cores[1:])
+    return frozenset(usable[:1]), frozenset(usable[1:])
 
 
 def _agents(n: int, labs: int = LABS) -> list[tuple[int, str]]:
@@ -171,7 +171,8 @@ def run_one(
     in groups of ``group`` (fedlab and bare alike); with ``pin_routers`` the routers
     run on the first core this process may use (``fedlab router --cpus``) and the
     workers on the others (:func:`hosting_cores`). Returns ``n``, ``mode``, ``group``,
-    ``pin_routers``,
+    ``pin_routers``, ``cores`` (the cores the routers and the workers may run on,
+    read from /proc),
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
     ``cpu_per_agent`` (all processes' over ``n``), ``worker_threads_ms`` (the
     workers' CPU by thread name, ms per agent-second),
@@ -214,6 +215,10 @@ def run_one(
             fleet.spawn(f"worker-lab{lab}", argv, cpus=worker_cores)
         time.sleep(SETTLE)
         workers = [name for name in fleet.procs if name.startswith("worker")]
+        hosting = {
+            kind: sorted({cores(p.pid) for name, p in fleet.procs.items() if name.startswith(kind)})
+            for kind in ("router", "worker")
+        }
         cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
         threads0 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
         t0 = time.monotonic()
@@ -237,6 +242,7 @@ def run_one(
         "mode": mode,
         "group": group,
         "pin_routers": pin_routers,
+        "cores": hosting,
         **scores,
         "cpu_cores": total,
         "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
@@ -402,6 +408,8 @@ def run(
     configuration in ``modes`` (interleaved, so that the host's load falls on all
     alike); each row gets its repeat's index as ``run``. ``progress(repeat, n, mode)``
     is called before each run (``repeat`` from 0)."""
+    if pin_routers:
+        hosting_cores()  # fewer than two cores: refused before any run starts
     rows = []
     for k in range(runs):
         for n in ns:

@@ -15,6 +15,7 @@ from typing import Any
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_cpus_flag,
     add_zenoh_flags,
     open_session,
     stop_on_signals,
@@ -147,6 +148,10 @@ def add(sub: Subparsers) -> None:
         const=True,
         help="hold still until a start command (fedlab ctl start) instead of starting at once",
     )
+    add_cpus_flag(
+        p, "run on these cores only, e.g. 1-3 (Linux): on a host shared with the lab's router, "
+        "the cores it does not use (fedlab router --cpus; docs/deploy.md)",
+    )  # fmt: skip
     add_zenoh_flags(p)
     p.set_defaults(func=run)
 
@@ -278,6 +283,10 @@ def run(args: argparse.Namespace) -> int:
 
     config = agent_config(args)
     _check_identity(args, config)
+    if args.cpus is not None:
+        from federation.runtime.cpus import pin_process
+
+        pin_process(args.cpus, "--cpus")  # before the session: Zenoh's threads inherit it
     stop = stop_on_signals()
     session = open_session(args, stop)
     if session is None:

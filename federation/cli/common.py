@@ -236,6 +236,21 @@ def add_federation_flag(parser: argparse.ArgumentParser, help: str = "federation
     )  # fmt: skip
 
 
+def cpus(text: str) -> frozenset[int]:
+    """Argument type: a list of cores (``0``, ``2-3``, ``0,2-3``)."""
+    from federation.runtime.cpus import parse_cpus
+
+    try:
+        return parse_cpus(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_cpus_flag(parser: argparse.ArgumentParser, help: str) -> None:
+    """``--cpus LIST``: the cores the process (every thread of it) runs on."""
+    parser.add_argument("--cpus", type=cpus, metavar="LIST", help=help)
+
+
 def run_id(text: str) -> str:
     """Argument type: a run's name, safe as a folder name."""
     from federation.core.chunking import RequestError, safe_name

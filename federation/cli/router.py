@@ -7,6 +7,7 @@ import argparse
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_cpus_flag,
     add_zenoh_flags,
     stop_on_signals,
     zenoh_options,
@@ -30,23 +31,13 @@ def add(sub: Subparsers) -> None:
         ),
     )
     p.add_argument("--lab", help="lab name (else metadata.lab in the config file)")
-    p.add_argument(
-        "--cpus", type=_cpus, metavar="LIST",
-        help="run on these cores only, e.g. 0 or 2-3 (Linux): on a host shared with agents, "
-        "a core the agents do not use spares each pose a wait for one (docs/deploy.md)",
+    add_cpus_flag(
+        p, "run on these cores only, e.g. 0 or 2-3 (Linux): on a host shared with agents, "
+        "give it a core they do not use (their --cpus): each pose is spared a wait for one "
+        "(docs/deploy.md)",
     )  # fmt: skip
     add_zenoh_flags(p)
     p.set_defaults(func=run)
-
-
-def _cpus(text: str) -> frozenset[int]:
-    """Argument type: a list of cores."""
-    from federation.runtime.cpus import parse_cpus
-
-    try:
-        return parse_cpus(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -17,13 +17,15 @@ from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from typing import IO
 
+from federation.runtime.cpus import format_cpus, usable_cpus
+
 __all__ = ["Fleet", "free_port", "wait_for"]
 
 # Sets the process's cores, then becomes the command (same pid, threads inherit them).
 _ON_CORES = (
     "import os, sys; "
     "os.sched_setaffinity(0, {int(c) for c in sys.argv[1].split(',')}); "
-    "os.execv(sys.argv[2], sys.argv[2:])"
+    "os.execvp(sys.argv[2], sys.argv[2:])"
 )
 
 
@@ -53,13 +55,17 @@ class Fleet:
         self, name: str, argv: Sequence[str], cpus: Collection[int] | None = None
     ) -> subprocess.Popen[bytes]:
         """Run any command as a tracked child process; with ``cpus``, on those cores only
-        (set before the command starts, so each of its threads runs on them: Linux).
-        ``argv[0]`` must then be a path, as ``sys.executable`` is."""
+        (set before the command starts, so each of its threads runs on them: Linux; a
+        core this process may not use is refused here, naming the process)."""
         if name in self.procs and self.procs[name].poll() is None:
             raise ValueError(f"process {name!r} is already running")
         if cpus is not None:
-            if not cpus:
-                raise ValueError(f"process {name!r}: no core to run on")
+            usable = usable_cpus()
+            if not cpus or not set(cpus) <= usable:
+                raise ValueError(
+                    f"process {name!r}: cores {format_cpus(cpus) or 'none'} are not among "
+                    f"those it may use ({format_cpus(usable)})"
+                )
             argv = [sys.executable, "-c", _ON_CORES, ",".join(map(str, sorted(cpus))), *argv]
         log = self.log_path(name).open("ab")
         env = dict(os.environ, PYTHONUNBUFFERED="1")

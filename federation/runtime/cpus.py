@@ -1,12 +1,14 @@
-"""Keeping a process to some of the host's cores (``fedlab router --cpus``).
+"""Keeping a process to some of the host's cores (``fedlab router --cpus``,
+``fedlab agent --cpus``).
 
 On a small host that runs a lab's router beside its agents, a pose waits for a
 core more than for anything else: the agents' Python runs in stretches of up to
 a few milliseconds (a status, a pose handed to every co-hosted follower, the
 recorder's write), and a router thread woken meanwhile on the same core waits
 for the stretch to end (issue 17, docs/scale.md "A late pose waits for a
-core"). A core of the router's own removes that wait. Linux only: elsewhere
-pinning is refused with a clear error, never silently skipped.
+core"). A core of the router's own, and the others for the agents, removes that
+wait. Linux only: elsewhere pinning is refused with a clear error, never
+silently skipped.
 """
 
 from __future__ import annotations
@@ -17,36 +19,40 @@ from pathlib import Path
 
 from schemas.config import ConfigError
 
-__all__ = ["format_cpus", "parse_cpus", "pin_process", "usable_cpus"]
+__all__ = ["MAX_CPU", "format_cpus", "parse_cpus", "pin_process", "usable_cpus"]
+
+MAX_CPU = 8191
+"""The highest core number a list may name (Linux builds for at most 8192)."""
 
 
 def parse_cpus(text: str) -> frozenset[int]:
     """The cores of a list such as ``0``, ``2-3`` or ``0,2-3`` (as ``taskset -c``
-    takes them); ValueError naming the part that is not a core or a range."""
+    takes them, without strides); ValueError naming the part that is not a core or
+    a range of cores from 0 to :data:`MAX_CPU`."""
     cpus: set[int] = set()
     for part in text.split(","):
-        first, dash, last = part.strip().partition("-")
-        try:
-            low = int(first)
-            high = int(last) if dash else low
-        except ValueError:
-            bad = part.strip()
-            raise ValueError(f"{bad!r} in {text!r} is not a core or a range of cores") from None
-        if low < 0 or high < low:
-            raise ValueError(f"{part.strip()!r} in {text!r}: cores count up from 0, low-high")
+        bad = part.strip()
+        where = repr(bad) if bad == text.strip() else f"{bad!r} in {text!r}"
+        first, dash, last = bad.partition("-")
+        bounds = [first, last] if dash else [first]
+        if not all(b.isascii() and b.isdecimal() for b in bounds):
+            raise ValueError(f"{where} is not a core or a range of cores (such as 0 or 2-3)")
+        low, high = int(bounds[0]), int(bounds[-1])
+        if high < low or high > MAX_CPU:
+            raise ValueError(f"{where}: cores go from 0 to {MAX_CPU}, a range low-high")
         cpus.update(range(low, high + 1))
     return frozenset(cpus)
 
 
 def format_cpus(cpus: Collection[int]) -> str:
     """``cpus`` as a list :func:`parse_cpus` reads (``0-2,5``)."""
-    runs: list[str] = []
-    for cpu in sorted(cpus):
-        if runs and runs[-1].split("-")[-1] == str(cpu - 1):
-            runs[-1] = f"{runs[-1].split('-')[0]}-{cpu}"
+    runs: list[list[int]] = []
+    for cpu in sorted(set(cpus)):
+        if runs and runs[-1][1] == cpu - 1:
+            runs[-1][1] = cpu
         else:
-            runs.append(str(cpu))
-    return ",".join(runs)
+            runs.append([cpu, cpu])
+    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
 def usable_cpus() -> frozenset[int]:
@@ -66,18 +72,25 @@ def pin_process(cpus: Collection[int], what: str) -> None:
         raise ConfigError(f"{what}: no core given")
     missing = wanted - allowed
     if missing:
+        cores = "cores" if len(missing) > 1 else "core"
         raise ConfigError(
-            f"{what}: core {format_cpus(missing)} is not one this process may use "
-            f"(it may use {format_cpus(allowed)})"
+            f"{what}: {cores} {format_cpus(missing)} not among those this process may use "
+            f"({format_cpus(allowed)})"
         )
-    # Threads already started (by an import) keep their own mask: each is set too.
     tasks = Path("/proc/self/task")
-    tids = [int(t.name) for t in tasks.iterdir()] if tasks.is_dir() else [0]
-    for tid in tids:
-        try:
-            os.sched_setaffinity(tid, wanted)
-        except ProcessLookupError:  # the thread ended meanwhile
-            continue
-        except OSError as error:
-            cores = format_cpus(wanted)
-            raise ConfigError(f"{what}: cannot keep this process to {cores}: {error}") from None
+    if not tasks.is_dir():
+        raise ConfigError(f"{what}: cannot list this process's threads to keep them to cores")
+    # Threads already started (by an import) keep their own mask: each is set, until a
+    # listing finds none new (one not yet set may have started another meanwhile).
+    done: set[int] = set()
+    while todo := {int(t.name) for t in tasks.iterdir()} - done:
+        for tid in todo:
+            try:
+                os.sched_setaffinity(tid, wanted)
+            except ProcessLookupError:  # the thread ended meanwhile
+                pass
+            except OSError as error:
+                raise ConfigError(
+                    f"{what}: cannot keep this process to {format_cpus(wanted)}: {error}"
+                ) from None
+        done |= todo

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from federation.runtime.cpus import format_cpus
 
 pytestmark = pytest.mark.integration
 
@@ -80,17 +83,20 @@ def test_scale_short(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="a core for the routers, one more")
 def test_scale_with_routers_on_a_core_of_their_own(tmp_path: Path) -> None:
-    """``--pin-routers``: fedlab and the floor both run, routers on one core and the
-    workers on the others (each process's threads checked where they ran: in
-    tests/integration/test_router_cores.py and tests/unit/runtime/test_cpus.py)."""
+    """``--pin-routers``: fedlab and the floor both run, the routers' processes on the
+    first core and the workers' on the others, as /proc has them (every thread of a
+    pinned process: tests/integration/test_router_cores.py, tests/unit/runtime/test_cpus.py)."""
     out = bench("scale", "--agents", "3", "--seconds", "4", "--mode", "default", "--mode", "bare",
                 "--labs", "2", "--pin-routers", "--out", str(tmp_path), timeout=240)  # fmt: skip
     assert isinstance(out, dict)
     rows = out["rows"]
     assert [(r["mode"], r["pin_routers"]) for r in rows] == [("default", True), ("bare", True)]
+    usable = sorted(os.sched_getaffinity(0))
     for r in rows:
         assert r["samples"] > 0 and r["loss"] < 0.01 and r["cpu_routers_cores"] > 0, r
+        assert r["cores"] == {"router": [str(usable[0])], "worker": [format_cpus(usable[1:])]}, r
 
 
 def test_memory_short() -> None:
