@@ -48,7 +48,7 @@ def test_a_router_on_a_core_of_its_own_runs_every_thread_there(labs: Labs) -> No
     assert set(_threads_cores(labs.fleet.procs[free.name].pid).values()) == {usable_cpus()}
     # An agent on the other cores, as docs/deploy.md says (every thread of it too).
     others = usable_cpus() - {core}
-    agent = labs.agent("kiruna/knatte", router, "--cpus", format_cpus(others))
+    agent = labs.agent("kiruna/knatte", router, "--cpus", format_cpus(others), role="leader")
     agent.wait_status(30)
     agent_threads = _threads_cores(labs.fleet.procs[agent.name].pid)
     assert len(agent_threads) > 3 and set(agent_threads.values()) == {others}, agent_threads
@@ -62,7 +62,7 @@ def test_a_router_on_a_core_of_its_own_runs_every_thread_there(labs: Labs) -> No
 @pytest.mark.parametrize(
     "command",
     [["router", "--lab", "kiruna", "-l", "tcp/127.0.0.1:0"],
-     ["agent", "--lab", "kiruna", "--name", "knatte", "-e", "tcp/127.0.0.1:9"]],
+     ["agent", "--lab", "kiruna", "--name", "knatte", "--role", "leader", "-e", "tcp/127.0.0.1:9"]],
 )  # fmt: skip
 def test_cores_it_cannot_have_fail_at_start_naming_the_flag(
     command: list[str], cpus: str, says: str
