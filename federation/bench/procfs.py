@@ -3,7 +3,7 @@ bare floor's measurements read it too)."""
 
 from __future__ import annotations
 
-__all__ = ["cores", "rss_mib"]
+__all__ = ["rss_mib"]
 
 
 def rss_mib(pid: int) -> float:
@@ -14,13 +14,3 @@ def rss_mib(pid: int) -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024
     return float("nan")
-
-
-def cores(pid: int) -> str:
-    """The cores process ``pid``'s main thread may run on, as Linux lists them
-    (``0-1``, ``0,2``; OSError for a process gone)."""
-    with open(f"/proc/{pid}/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith("Cpus_allowed_list:"):
-                return line.split(":", 1)[1].strip()
-    return ""

@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from federation.bench.procfs import cores, rss_mib
+from federation.bench.procfs import rss_mib
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 from federation.runtime.cpus import format_cpus, usable_cpus
@@ -172,7 +172,7 @@ def run_one(
     run on the first core this process may use (``fedlab router --cpus``) and the
     workers on the others (:func:`hosting_cores`). Returns ``n``, ``mode``, ``group``,
     ``pin_routers``, ``cores`` (the cores the routers and the workers may run on,
-    read from /proc),
+    as the kernel has them),
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
     ``cpu_per_agent`` (all processes' over ``n``), ``worker_threads_ms`` (the
     workers' CPU by thread name, ms per agent-second),
@@ -216,9 +216,10 @@ def run_one(
         time.sleep(SETTLE)
         workers = [name for name in fleet.procs if name.startswith("worker")]
         hosting = {
-            kind: sorted({cores(p.pid) for name, p in fleet.procs.items() if name.startswith(kind)})
+            kind: sorted({format_cpus(usable_cpus(p.pid)) for name, p in fleet.procs.items()
+                          if name.startswith(kind)})
             for kind in ("router", "worker")
-        }
+        }  # fmt: skip
         cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
         threads0 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
         t0 = time.monotonic()

@@ -55,11 +55,12 @@ def format_cpus(cpus: Collection[int]) -> str:
     return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
-def usable_cpus() -> frozenset[int]:
-    """The cores this process may run on; ConfigError where the platform cannot tell."""
+def usable_cpus(pid: int = 0) -> frozenset[int]:
+    """The cores process ``pid`` (default: this one; its main thread) may run on;
+    ConfigError where the platform cannot tell, OSError for a process gone."""
     if not hasattr(os, "sched_getaffinity"):
         raise ConfigError("cores: this platform cannot keep a process to some cores (Linux only)")
-    return frozenset(os.sched_getaffinity(0))
+    return frozenset(os.sched_getaffinity(pid))
 
 
 def pin_process(cpus: Collection[int], what: str) -> None:
