@@ -480,57 +480,41 @@ def worker(
     process would, ticking in groups of ``group``."""
     import zenoh
 
-    from federation.runtime.agent import AgentRuntime, run_together
-    from federation.runtime.clock import ExecClock
-    from federation.runtime.fanout import Fanout
     from federation.runtime.heap import freeze_startup_heap
-    from federation.runtime.links import SyncLinks
+    from federation.runtime.host import host
     from federation.runtime.session import build_config
     from schemas.config import AgentConfig, ZenohOptions
 
     leader = "lab0/a0"
+    configs = []
+    for name in names:
+        lab, agent = name.split("/")
+        role = "leader" if name == leader else "follower"
+        configs.append(AgentConfig(
+            lab=lab,
+            name=agent,
+            role=role,
+            follow=None if role == "leader" else leader,
+            sync_with=[] if role == "leader" or mode == "default" else [leader],
+            duration=seconds,
+            status_period=1.0,
+            record=out / f"{lab}-{agent}.mcap",
+            # Only what the scores need: recording is work too.
+            record_channels=["/status", "/pose/sent" if role == "leader" else "/pose/received"],
+        ))  # fmt: skip
     stop = threading.Event()
+    timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
+    timer.start()
     conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
-    runtimes: list[AgentRuntime] = []
-    with zenoh.open(conf) as session:
-        fanout = Fanout(session)
-        # One clock for the process's agents, so they share one sync exchange per peer
-        # (federation.runtime.links), as a gateway process hosting them would.
-        clock, links = ExecClock(), SyncLinks()
-        try:
-            for name in names:
-                lab, agent = name.split("/")
-                role = "leader" if name == leader else "follower"
-                config = AgentConfig(
-                    lab=lab,
-                    name=agent,
-                    role=role,
-                    follow=None if role == "leader" else leader,
-                    sync_with=[] if role == "leader" or mode == "default" else [leader],
-                    duration=seconds,
-                    status_period=1.0,
-                    record=out / f"{lab}-{agent}.mcap",
-                    # Only what the scores need: recording is work too.
-                    record_channels=[
-                        "/status", "/pose/sent" if role == "leader" else "/pose/received"
-                    ],
-                )  # fmt: skip
-                runtime = AgentRuntime(config, session, clock, fanout=fanout, links=links)
-                runtime.start()
-                runtimes.append(runtime)
-            freeze_startup_heap()
-            # One thread for all of them, in groups that tick on one wake-up,
-            # the groups spread over a pose period.
-            timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
-            timer.start()
-            try:
-                run_together(runtimes, stop, spread=0.05, group=group)
-            finally:
-                timer.cancel()
-        finally:
-            stop.set()
-            for runtime in runtimes:
-                runtime.close()
+    try:
+        with zenoh.open(conf) as session:
+            # As ``fedlab host`` runs a lab's agents: one session, one thread in groups
+            # spread over a pose period, one clock (so one sync exchange per peer).
+            host(configs, session, stop, group=group, spread=0.05,
+                 on_started=freeze_startup_heap)  # fmt: skip
+    finally:
+        timer.cancel()
+        stop.set()
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["worker"]:

@@ -33,6 +33,7 @@ __all__ = ["COMMANDS", "build_parser", "command_module", "main"]
 COMMANDS: tuple[str, ...] = (
     "router",
     "agent",
+    "host",
     "demo",
     "ctl",
     "monitor",

@@ -191,36 +191,47 @@ _AGENT_FLAGS = (
 def agent_config(args: argparse.Namespace) -> AgentConfig:
     """The agent's file (if any), then its part in an experiment (if any), overlaid
     with the flags given on the command line."""
-    data: dict[str, Any] = {}
-    sources = []
-    if args.agent_config is not None:
-        base = load_model(AgentConfig, args.agent_config)
-        data = base.model_dump(exclude_unset=True)
-        sources.append(str(args.agent_config))
-    if args.experiment is not None:
-        data |= _experiment_part(args)
-        sources.append(str(args.experiment))
-    source = " + ".join([*sources, "command line"])
+    flags = {}
     for name in _AGENT_FLAGS:
         value = getattr(args, name)
         if value is not None and value != []:
-            data[name] = value
-    return validate(AgentConfig, data, source)
+            flags[name] = value
+    return build_agent_config(args.agent_config, args.experiment, flags)
 
 
-def _experiment_part(args: argparse.Namespace) -> dict[str, Any]:
-    """This agent's settings from an experiment file: role, platform, maneuver, ..."""
+def build_agent_config(
+    file: Path | None, experiment: Path | None, flags: dict[str, Any], source: str = "command line"
+) -> AgentConfig:
+    """An agent's settings: its ``file`` (if any), then its part in ``experiment`` (if
+    any, picked by the lab and name in ``flags`` or else the file), then ``flags``
+    (given by ``source``, named in errors)."""
+    data: dict[str, Any] = {}
+    sources = []
+    if file is not None:
+        base = load_model(AgentConfig, file)
+        data = base.model_dump(exclude_unset=True)
+        sources.append(str(file))
+    if experiment is not None:
+        lab, name = flags.get("lab", data.get("lab")), flags.get("name", data.get("name"))
+        data |= _experiment_part(experiment, lab, name, record="record" in flags)
+        sources.append(str(experiment))
+    return validate(AgentConfig, data | flags, " + ".join([*sources, source]))
+
+
+def _experiment_part(path: Path, lab: str | None, name: str | None, record: bool) -> dict[str, Any]:
+    """This agent's settings from an experiment file: role, platform, maneuver, ...
+    (every run recorded under ``runs`` unless ``record`` names one file for all)."""
     from federation.core.keys import AgentId
     from schemas.experiment import load_experiment
 
-    experiment = load_experiment(args.experiment)
-    if not (args.lab and args.name):
-        raise ConfigError(f"{args.experiment}: give --lab and --name to pick this agent's part")
-    me = AgentId(args.lab, args.name)
+    experiment = load_experiment(path)
+    if not (lab and name):
+        raise ConfigError(f"{path}: give the agent's lab and name (--lab, --name) to pick its part")
+    me = AgentId(lab, name)
     part = experiment.participant(me)
     if part is None:
         names = ", ".join(p.agent for p in experiment.participants)
-        raise ConfigError(f"{args.experiment}: {me} does not take part (participants: {names})")
+        raise ConfigError(f"{path}: {me} does not take part (participants: {names})")
     return {
         "federation": experiment.federation,
         "role": part.role,
@@ -229,10 +240,10 @@ def _experiment_part(args: argparse.Namespace) -> dict[str, Any]:
         "latency_compensation": part.latency_compensation,
         "maneuver": experiment.maneuver.model_dump(),
         "wait_start": True,
-        "experiment": str(args.experiment),
+        "experiment": str(path),
         "run_duration": experiment.duration,
-        # Every run recorded on this host, unless --record names one file for all.
-        **({} if args.record is not None else {"runs_dir": "runs"}),
+        # Every run recorded on this host, unless a recording names one file for all.
+        **({} if record else {"runs_dir": "runs"}),
         **_scenario_part(experiment, me),
     }
 

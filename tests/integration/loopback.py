@@ -36,6 +36,7 @@ __all__ = [
     "FOLLOWER",
     "LEADER",
     "Agent",
+    "Host",
     "LabPair",
     "Labs",
     "Link",
@@ -211,6 +212,14 @@ class Agent(Process):
 
 
 @dataclass
+class Host(Process):
+    """A ``fedlab host`` of several agents: ``agents[who]`` reads each one's status lines
+    (its own :class:`Agent` view, never started or stopped on its own)."""
+
+    agents: dict[str, Agent] = field(default_factory=dict)
+
+
+@dataclass
 class Labs:
     """Factories of routers, links and agents on loopback, all in one :class:`Fleet`."""
 
@@ -303,6 +312,32 @@ class Labs:
         agent = Agent(self.fleet, stem, [*args, *extra], who=who, status=status, record=mcap)
         agent.start()
         return agent
+
+    def host(
+        self,
+        at: str | Router,
+        agents: dict[str, dict[str, Any]],
+        *extra: str,
+        name: str = "host",
+        status_period: float = STATUS_PERIOD,
+    ) -> Host:
+        """Start ``fedlab host`` dialling ``at`` with one file per agent of ``agents``
+        (lab/name -> its other settings, e.g. ``{"role": "follower", "follow": LEADER}``),
+        each writing status lines to ``<lab>-<name>.jsonl`` in the test's folder."""
+        files, views = [], {}
+        for who, settings in agents.items():
+            lab, agent_name = who.split("/")
+            stem = who.replace("/", "-")
+            fields = {"lab": lab, "name": agent_name, "status_period": status_period, **settings}
+            path = self.tmp / f"{stem}.toml"
+            path.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in fields.items()))
+            files.append(str(path))
+            views[who] = Agent(self.fleet, name, [], who=who, status=self.tmp / f"{stem}.jsonl")
+        endpoint = at if isinstance(at, str) else at.endpoint
+        args = ["host", *files, "-e", endpoint, "--status-dir", str(self.tmp), *extra]
+        host = Host(self.fleet, name, args, agents=views)
+        host.start()
+        return host
 
     def leader(self, at: str | Router | None, *extra: str, who: str = LEADER, **kw: Any) -> Agent:
         """A leader (kiruna/knatte by default); keywords as :meth:`agent`."""

@@ -1,0 +1,145 @@
+"""``fedlab host``: what one process may host, refused at load naming the file and
+field (federation/runtime/host.py, federation/cli/host.py). No session is opened:
+every refusal comes before it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from federation import cli
+from federation.runtime.host import check_hosted, shared_clocks
+from schemas.config import AgentConfig, ConfigError
+
+ENDPOINT = "tcp/127.0.0.1:9"  # never dialled: each case fails before the session
+
+
+def agent_file(folder: Path, stem: str, **fields: object) -> Path:
+    lines = [f'lab = "rome"\nname = "{stem}"\n']
+    for key, value in {"role": "member", **fields}.items():
+        lines.append(f'{key} = "{value}"\n' if isinstance(value, str) else f"{key} = {value}\n")
+    path = folder / f"{stem}.toml"
+    path.write_text("".join(lines))
+    return path
+
+
+def test_one_name_twice_is_refused_naming_both_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    first = agent_file(tmp_path, "a1")
+    (tmp_path / "copy").mkdir()
+    second = agent_file(tmp_path / "copy", "a1")
+    assert cli.main(["host", str(first), str(second), "-e", ENDPOINT]) == 2
+    err = capsys.readouterr().err
+    assert f"{second}: lab/name rome/a1 is also {first}'s" in err
+
+
+def test_a_real_platform_is_refused_naming_file_and_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    virtual = agent_file(tmp_path, "a1")
+    real = agent_file(tmp_path, "a2", platform="serial:/dev/ttyUSB0")
+    assert cli.main(["host", str(virtual), str(real), "-e", ENDPOINT]) == 2
+    err = capsys.readouterr().err
+    assert f"{real}: platform: serial:/dev/ttyUSB0 is a real platform" in err
+    assert "own `fedlab agent`" in err
+
+
+def test_two_federations_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    one = agent_file(tmp_path, "a1")
+    other = agent_file(tmp_path, "a2", federation="other")
+    assert cli.main(["host", str(one), str(other), "-e", ENDPOINT]) == 2
+    err = capsys.readouterr().err
+    assert f"{other}: federation: 'other', but {one}'s is 'default'" in err
+
+
+def test_a_bad_file_names_file_and_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = agent_file(tmp_path, "a1")
+    bad = agent_file(tmp_path, "a2", pose_rate=-1)
+    assert cli.main(["host", str(good), str(bad), "-e", ENDPOINT]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "pose_rate" in err
+
+
+def test_one_identity_for_several_agents_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    files = [str(agent_file(tmp_path, f"a{i}")) for i in (1, 2)]
+    user = 'transport/auth/usrpwd/user:"rome/a1"'
+    assert cli.main(["host", *files, "-e", ENDPOINT, "--cfg", user]) == 2
+    err = capsys.readouterr().err
+    assert "the user name is 'rome/a1'" in err and "2 agents on this one session" in err
+    # One agent: identity = name, as for fedlab agent.
+    assert cli.main(["host", files[1], "-e", ENDPOINT, "--cfg", user]) == 2
+    assert "but this agent is rome/a2" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("group", ["0", "-2", "x"])
+def test_group_is_a_positive_count(group: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["host", "a.toml", "--group", group])
+    assert exit_.value.code == 2
+    assert "--group" in capsys.readouterr().err
+
+
+def test_flags_and_experiment_reach_each_agent(tmp_path: Path) -> None:
+    from federation.cli.host import hosted_configs
+
+    experiment = tmp_path / "exp.toml"
+    experiment.write_text(
+        'name = "pair"\nfederation = "trial"\nduration = 30\n'
+        '[[participants]]\nagent = "rome/a1"\nrole = "leader"\n'
+        '[[participants]]\nagent = "rome/a2"\nrole = "follower"\nfollow = "rome/a1"\n'
+    )
+    own = tmp_path / "own.jsonl"
+    files = [agent_file(tmp_path, "a1", status_json=str(own)), agent_file(tmp_path, "a2")]
+    argv = ["host", *map(str, files), "--experiment", str(experiment)]
+    argv += ["--duration", "7", "--status-dir", str(tmp_path / "st")]
+    args = cli.build_parser(("host",)).parse_args(argv)
+    hosted = dict(hosted_configs(args))
+    a1, a2 = hosted[str(files[0])], hosted[str(files[1])]
+    assert (a1.role, a2.role, a2.follow) == ("leader", "follower", "rome/a1")
+    assert a1.federation == a2.federation == "trial"
+    assert a1.duration == a2.duration == 7 and a1.wait_start and a2.wait_start
+    assert a1.status_json == own  # the file's own choice is kept
+    assert a2.status_json == tmp_path / "st" / "rome-a2.jsonl"
+
+
+def test_a_file_not_in_the_experiment_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    experiment = tmp_path / "exp.toml"
+    experiment.write_text(
+        'name = "one"\nduration = 30\n[[participants]]\nagent = "rome/a1"\nrole = "leader"\n'
+    )
+    stray = agent_file(tmp_path, "zz")
+    code = cli.main(["host", str(stray), "--experiment", str(experiment), "-e", ENDPOINT])
+    assert code == 2
+    assert "rome/zz does not take part (participants: rome/a1)" in capsys.readouterr().err
+
+
+def test_an_empty_host_is_refused() -> None:
+    with pytest.raises(ConfigError, match="no agent to host"):
+        check_hosted([])
+
+
+def test_agents_share_a_clock_only_with_the_same_settings() -> None:
+    def config(name: str, **fields: object) -> AgentConfig:
+        return AgentConfig.model_validate({"lab": "rome", "name": name, "role": "member", **fields})
+
+    configs = [
+        config("a"),
+        config("b"),
+        config("c", clock_offset=3.0),
+        config("d", clock_offset=3.0),
+        config("e", clock_drift_ppm=50.0),
+        config("f", clock_step=(5.0, 0.5)),
+        config("g", clock_step=(5.0, 0.5)),
+    ]
+    a, b, c, d, e, f, g = shared_clocks(configs)
+    assert a is b and c is d
+    assert len({id(x) for x in (a, c, e, f, g)}) == 5  # a step moves one agent's clock only
+    assert c.offset == 3.0 and e.rate == pytest.approx(1 + 50e-6)
