@@ -126,6 +126,23 @@ class LabEntry(base.Model):
         default_factory=list,
         description="who may publish control commands (fedlab ctl) from this lab",
     )
+    hosted: dict[Name, list[Name]] = Field(
+        default_factory=dict,
+        description="processes that run several of this lab's agents on one session "
+        "(fedlab host), by name: the agents each runs. Its identity (certificate CN or user "
+        "lab/NAME) writes for exactly those agents, which get no identity of their own; "
+        "their platforms are virtual (a serial: platform runs as its own fedlab agent)",
+    )
+
+    def host_of(self, name: str) -> str | None:
+        """The hosted process that runs agent ``name``, if one does."""
+        return next((h for h, agents in self.hosted.items() if name in agents), None)
+
+    def identities(self) -> list[str]:
+        """The names that prove who they are (a certificate, a password): the agents
+        that run on their own, the hosted processes and the operators."""
+        alone = [name for name in self.agents if self.host_of(name) is None]
+        return [*alone, *self.hosted, *self.operators]
 
     def agents_endpoint(self) -> str:
         """What this lab's agents dial."""
@@ -139,6 +156,34 @@ class LabEntry(base.Model):
             if host and not _is_wildcard(host) and host not in out:
                 out.append(host)
         return out
+
+
+def _check_hosted(lab: str, entry: LabEntry) -> None:
+    """A hosted process has a name of its own and runs agents of its lab, each on one
+    host only, none with a real platform."""
+    owner: dict[str, str] = {}
+    for host, names in entry.hosted.items():
+        where = f"labs.{lab}.hosted.{host}"
+        if host in entry.agents or host in entry.operators:
+            kind = "an agent's" if host in entry.agents else "an operator's"
+            raise _field_error(where, f"{host!r} is already {kind} name: one identity each")
+        if not names:
+            raise _field_error(where, "runs no agent: list the agents it runs")
+        for i, name in enumerate(names):
+            if name not in entry.agents:
+                raise _field_error(f"{where}.{i}", f"{name!r} is not an agent of lab {lab}")
+            if name in owner:
+                raise _field_error(
+                    f"{where}.{i}",
+                    f"{name!r} is already run by {owner[name]!r}: one host per agent",
+                )
+            owner[name] = host
+            platform = entry.agents[name].platform
+            if platform.startswith("serial:"):
+                raise _field_error(
+                    f"{where}.{i}",
+                    f"{name!r} flies a real platform ({platform}): it runs as its own fedlab agent",
+                )
 
 
 class FederationFile(base.Model):
@@ -185,6 +230,7 @@ class FederationFile(base.Model):
                 )
             if len(set(entry.operators)) != len(entry.operators):
                 raise _field_error(f"labs.{lab}.operators", "a name is listed twice")
+            _check_hosted(lab, entry)
             for name, agent in entry.agents.items():
                 data = {**agent.settings, "federation": self.federation, "lab": lab, "name": name}
                 data |= {"role": agent.role, "follow": agent.follow, "platform": agent.platform}

@@ -21,7 +21,7 @@ from federation.cli.common import (
     stop_on_signals,
     zenoh_options,
 )
-from schemas.config import AgentConfig
+from schemas.config import AgentConfig, ConfigError
 
 __all__ = ["add", "hosted_configs", "run"]
 
@@ -42,11 +42,15 @@ def add(sub: Subparsers) -> None:
         epilog=(
             "Examples:\n"
             "  fedlab host rome/*.toml -e tcp/127.0.0.1:7448\n"
+            "  fedlab host /etc/fedlab/hosts/sim -c /etc/fedlab/hosts/sim.json5\n"
             "  fedlab host a1.toml a2.toml --experiment formation.toml --status-dir status/\n"
             "Every file holds one agent's settings, as for fedlab agent --agent-config."
         ),
     )
-    p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="an agent's settings")
+    p.add_argument(
+        "files", nargs="+", type=Path, metavar="FILE",
+        help="an agent's settings (TOML or JSON), or a folder of them",
+    )  # fmt: skip
     p.add_argument(
         "--experiment",
         type=Path,
@@ -96,7 +100,7 @@ def hosted_configs(args: argparse.Namespace) -> list[tuple[str, AgentConfig]]:
     from federation.runtime.host import check_hosted
 
     hosted = []
-    for file in args.files:
+    for file in _agent_files(args.files):
         flags = {} if args.duration is None else {"duration": args.duration}
         config = build_agent_config(file, args.experiment, flags)
         if args.status_dir is not None and config.status_json is None:
@@ -107,27 +111,31 @@ def hosted_configs(args: argparse.Namespace) -> list[tuple[str, AgentConfig]]:
     return hosted
 
 
+def _agent_files(paths: list[Path]) -> list[Path]:
+    """The files given, a folder standing for its ``*.toml`` and ``*.json`` files."""
+    files = []
+    for path in paths:
+        if path.is_dir():
+            found = sorted([*path.glob("*.toml"), *path.glob("*.json")])
+            if not found:
+                raise ConfigError(f"{path}: a folder without agent files (*.toml, *.json)")
+            files += found
+        else:
+            files.append(path)
+    return files
+
+
 def _check_identity(args: argparse.Namespace, hosted: list[tuple[str, AgentConfig]]) -> None:
-    """The identity the Zenoh config proves (certificate CN, user name) is one agent's:
-    the lab router lets it write only under that agent's keys (an IdentityError: exit 2)."""
-    from federation.deploy.identity import IdentityError, check_identity, identities
+    """The identity the Zenoh config proves (certificate CN, user name) may speak for
+    every hosted agent: the lab router drops what it sends for any other (an
+    IdentityError: exit 2)."""
+    from federation.deploy.identity import check_hosted_identity
     from federation.runtime.session import build_config
 
     options = zenoh_options(args)
     source = str(options.config) if options.config else "Zenoh flags"
     conf = build_config(options, default_mode="client")
-    if len(hosted) == 1:
-        check_identity(conf, hosted[0][1].agent, source)
-        return
-    proved = identities(conf, source)
-    if proved:
-        what, value = next(iter(proved.items()))
-        raise IdentityError(
-            f"{source}: the {what} is {value!r}: the lab router lets it write only under "
-            f"{value!r}'s own keys, so {len(hosted)} agents on this one session would have "
-            f"their poses and replies dropped. Run each as its own fedlab agent with its own "
-            f"certificate or user, or host them on a router without per-agent access control"
-        )
+    check_hosted_identity(conf, [config.agent for _, config in hosted], source)
 
 
 def run(args: argparse.Namespace) -> int:

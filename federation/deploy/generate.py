@@ -8,10 +8,12 @@ that lab installs as ``/etc/fedlab`` (the ``root``), and beside them the CA::
     DIR/<lab>/routers/<lab>.json5        the lab router (TLS, per-agent access control)
     DIR/<lab>/agents/<name>.toml         an agent's settings (fedlab agent --agent-config)
     DIR/<lab>/agents/<name>.json5        its Zenoh client config (certificate or password)
+    DIR/<lab>/hosts/<host>.json5         a hosted process's Zenoh config (fedlab host -c ...)
+    DIR/<lab>/hosts/<host>/<name>.toml   the settings of each agent it runs
     DIR/<lab>/operators/<name>.json5     an operator's Zenoh config (fedlab ctl -c ...)
     DIR/<lab>/certs/                     ca.pem, the lab's pair, its agents' and operators'
     DIR/<lab>/<lab>.users                user:password lines (password labs only, 0600)
-    DIR/<lab>/systemd/                   fedlab-router@.service, fedlab-agent@.service
+    DIR/<lab>/systemd/                   fedlab-router@, fedlab-agent@, fedlab-host@.service
 
 Every path inside a generated file is absolute under ``root`` (``/etc/fedlab`` by
 default; ``local=True`` puts each lab's own ``DIR/<lab>`` there, to run a whole
@@ -23,7 +25,9 @@ generated configs and, above all, their access-control entries.
 Access control (default deny), enforced by each lab's router on the sessions
 attached to it: an agent may write (put, delete, declare a queryable or a
 liveliness token, reply) only on its own address, ``fedlab/<fed>/<lab>/<name>``
-and below; operators only put on the control key; another lab's router only
+and below; a hosted process (``fedlab host``, the lab's ``hosted``) only on the
+addresses of the agents it runs, which have no identity of their own; operators
+only put on the control key; another lab's router only
 under the labs reached through it, and the control key; every listed identity
 reads the federation's keys. A certificate CN (or user name) no subject lists
 can do nothing.
@@ -46,6 +50,7 @@ from cryptography import x509
 
 from federation.core.keys import control_key
 from federation.deploy import certs
+from federation.deploy.identity import HOSTED_FIELD
 from federation.runtime.session import DATA_QUEUE_BATCHES
 from schemas.federation import FederationFile, LabEntry
 
@@ -56,6 +61,7 @@ __all__ = [
     "Generated",
     "agent_zenoh",
     "generate",
+    "host_zenoh",
     "router_config",
     "router_text",
     "toml_text",
@@ -148,12 +154,23 @@ def access_control(fed: FederationFile, lab: str) -> dict[str, Any]:
     for name in entry.agents:
         own = f"{prefix}/{lab}/{name}"
         rules.append(_rule(f"writes-{name}", "ingress", WRITES, [own, f"{own}/**"]))
+        if entry.host_of(name) is not None:
+            continue  # its host's identity speaks for it: none of its own
         subjects.append(_subject(entry, f"agent-{name}", [f"{lab}/{name}"]))
         policies.append(
             {
                 "id": f"agent-{name}",
                 "rules": [f"writes-{name}", "reads", "deliver"],
                 "subjects": [f"agent-{name}"],
+            }
+        )
+    for host, names in entry.hosted.items():
+        subjects.append(_subject(entry, f"host-{host}", [f"{lab}/{host}"]))
+        policies.append(
+            {
+                "id": f"host-{host}",
+                "rules": [*(f"writes-{name}" for name in names), "reads", "deliver"],
+                "subjects": [f"host-{host}"],
             }
         )
     if entry.operators:
@@ -249,6 +266,48 @@ def agent_settings(fed: FederationFile, lab: str, name: str) -> dict[str, Any]:
     if agent.follow is not None:
         data["follow"] = agent.follow
     return data | agent.settings
+
+
+def host_zenoh(
+    fed: FederationFile, lab: str, host: str, root: Path, password: str | None
+) -> dict[str, Any]:
+    """The Zenoh client config of hosted process ``lab/host``: as an agent's, with the
+    agents it runs listed in its metadata (``fedlab host`` checks them at start:
+    :func:`federation.deploy.identity.check_hosted_identity`)."""
+    doc = agent_zenoh(fed, lab, host, root, password)
+    doc["metadata"] = {HOSTED_FIELD: [f"{lab}/{n}" for n in fed.labs[lab].hosted[host]]}
+    return doc
+
+
+def _write_hosts(
+    fed: FederationFile,
+    lab: str,
+    folder: Path,
+    lab_root: Path,
+    passwords: dict[str, str],
+    header: str,
+    out: Generated,
+) -> None:
+    """Each hosted process's Zenoh config and its agents' settings; what is no longer
+    listed is removed."""
+    entry, hosts = fed.labs[lab], folder / "hosts"
+    kept: list[Path] = []
+    for host, names in entry.hosted.items():
+        conf = hosts / f"{host}.json5"
+        doc = host_zenoh(fed, lab, host, lab_root, passwords.get(f"{lab}/{host}"))
+        _write(conf, json5_text(doc, header), 0o600, out)
+        kept.append(conf)
+        settings = [hosts / host / f"{name}.toml" for name in names]
+        for name, path in zip(names, settings, strict=True):
+            _write(path, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
+        _prune(hosts / host, settings, (".toml",), out)
+    _prune(hosts, kept, (".json5",), out)
+    if hosts.is_dir():
+        gone = [p for p in hosts.iterdir() if p.is_dir() and p.name not in entry.hosted]
+        for stale in sorted(gone):
+            _prune(stale, [], (".toml",), out)
+            if not any(stale.iterdir()):
+                stale.rmdir()
 
 
 def _header(fed: FederationFile, lab: str) -> str:
@@ -374,7 +433,7 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
             certs.issue_lab(ca, lab, hosts, force=True)
             out.issued.append(lab)
         if entry.auth == "certificate":
-            for name in [*entry.agents, *entry.operators]:
+            for name in entry.identities():
                 if not (ca / f"{certs.agent_stem(lab, name)}.pem").exists():
                     certs.issue_agent(ca, lab, name)
                     out.issued.append(certs.agent_common_name(lab, name))
@@ -416,10 +475,10 @@ def generate(
         header = _header(fed, lab)
         users = folder / f"{lab}.users"
         passwords = _passwords(users) if entry.auth == "password" else {}
-        for name in [*entry.agents, *entry.operators]:
+        for name in entry.identities():
             if entry.auth == "password":
                 passwords.setdefault(f"{lab}/{name}", secrets.token_urlsafe(_PASSWORD_BYTES))
-        wanted = {f"{lab}/{n}" for n in [*entry.agents, *entry.operators]}
+        wanted = {f"{lab}/{n}" for n in entry.identities()}
         passwords = {u: p for u, p in passwords.items() if u in wanted}
         if entry.auth == "password":
             _write(users, "".join(f"{u}:{p}\n" for u, p in passwords.items()), 0o600, out)
@@ -433,6 +492,8 @@ def generate(
 
         kept: list[Path] = []
         for name in entry.agents:
+            if entry.host_of(name) is not None:
+                continue  # under hosts/<host>/
             conf = folder / "agents" / f"{name}.json5"
             doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
             _write(conf, json5_text(doc, header), 0o600, out)
@@ -440,6 +501,7 @@ def generate(
             _write(settings, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
             kept += [conf, settings]
         _prune(folder / "agents", kept, (".json5", ".toml"), out)
+        _write_hosts(fed, lab, folder, lab_root, passwords, header, out)
         kept = []
         for name in entry.operators:
             conf = folder / "operators" / f"{name}.json5"
@@ -450,7 +512,7 @@ def generate(
 
         stems = ["ca", lab]
         if entry.auth == "certificate":
-            stems += [certs.agent_stem(lab, n) for n in [*entry.agents, *entry.operators]]
+            stems += [certs.agent_stem(lab, n) for n in entry.identities()]
         kept = []
         for stem in stems:
             for suffix in (".pem", ".key"):

@@ -5,6 +5,11 @@ The lab router's access control lets an identity write only under its own addres
 (:mod:`federation.deploy.generate`), so an agent started under another name would
 publish into keys the router drops, silently. :func:`check_identity` refuses that
 at start, before a session is opened, naming the file and both names.
+
+A hosted process (``fedlab host``, a lab's ``hosted`` in the federation file) has an
+identity of its own, ``lab/<host>``, which writes for the agents it runs; its
+generated Zenoh config lists them (``metadata.fedlab_hosted``), and
+:func:`check_hosted_identity` refuses an agent not listed, for the same reason.
 """
 
 from __future__ import annotations
@@ -21,10 +26,20 @@ from federation.core.keys import AgentId
 from federation.runtime.session import config_value
 from schemas.base import ConfigError
 
-__all__ = ["IdentityError", "certificate_cn", "check_identity", "identities"]
+__all__ = [
+    "HOSTED_FIELD",
+    "IdentityError",
+    "certificate_cn",
+    "check_hosted_identity",
+    "check_identity",
+    "identities",
+]
 
 _CERT = "transport/link/tls/connect_certificate"
 _USER = "transport/auth/usrpwd/user"
+HOSTED_FIELD = "fedlab_hosted"
+"""The field of a hosted process's Zenoh config ``metadata``: the agents (``lab/name``)
+its identity may speak for."""
 
 
 class IdentityError(ConfigError):
@@ -79,3 +94,39 @@ def check_identity(conf: zenoh.Config, agent: AgentId, source: str) -> None:
                 f"{value.partition('/')[0]} --name {value.partition('/')[2]}, or give it its "
                 f"own certificate or user (fedlab deploy generate, fedlab certs issue-agent)"
             )
+
+
+def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str) -> None:
+    """Refuse (IdentityError) an identity in ``conf`` that may not speak for every one of
+    ``agents``: one agent's own, or a hosted process's whose config lists them all
+    (``metadata.fedlab_hosted``). Nothing to prove (a plain link): nothing refused."""
+    proved = identities(conf, source)
+    if not proved:
+        return
+    metadata = config_value(conf, "metadata")  # Zenoh reads no key inside it
+    listed = metadata.get(HOSTED_FIELD) if isinstance(metadata, dict) else None
+    if listed is None:
+        if len(agents) == 1:
+            check_identity(conf, agents[0], source)
+            return
+        what, value = next(iter(proved.items()))
+        raise IdentityError(
+            f"{source}: the {what} is {value!r}, which lists no hosted agents "
+            f"(metadata.{HOSTED_FIELD}): the lab router lets it write only under its own "
+            f"keys, so {len(agents)} agents on this one session would have what they send "
+            f"dropped. List them under labs.<lab>.hosted in the federation file and use the "
+            f"generated hosts/<host>.json5 (fedlab deploy generate), or run each as its own "
+            f"fedlab agent"
+        )
+    if not (isinstance(listed, list) and all(isinstance(a, str) for a in listed)):
+        raise IdentityError(f"{source}: metadata.{HOSTED_FIELD}: a list of lab/name expected")
+    missing = [str(a) for a in agents if str(a) not in listed]
+    if missing:
+        what, value = next(iter(proved.items()))
+        raise IdentityError(
+            f"{source}: {', '.join(missing)} not among the agents the {what} {value!r} may "
+            f"speak for ({', '.join(listed) or 'none'}): the lab router would drop what "
+            f"{'it sends' if len(missing) == 1 else 'they send'}. Add "
+            f"{'it' if len(missing) == 1 else 'them'} to this host in the federation file "
+            f"and generate again"
+        )

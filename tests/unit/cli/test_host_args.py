@@ -143,3 +143,21 @@ def test_agents_share_a_clock_only_with_the_same_settings() -> None:
     assert a is b and c is d
     assert len({id(x) for x in (a, c, e, f, g)}) == 5  # a step moves one agent's clock only
     assert c.offset == 3.0 and e.rate == pytest.approx(1 + 50e-6)
+
+
+def test_a_folder_stands_for_its_agent_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from federation.cli.host import hosted_configs
+
+    folder = tmp_path / "sim"
+    folder.mkdir()
+    for stem in ("b", "a"):
+        agent_file(folder, stem)
+    (folder / "notes.txt").write_text("not an agent")
+    args = cli.build_parser(("host",)).parse_args(["host", str(folder)])
+    assert [config.name for _, config in hosted_configs(args)] == ["a", "b"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli.main(["host", str(empty), "-e", ENDPOINT]) == 2
+    assert f"{empty}: a folder without agent files" in capsys.readouterr().err

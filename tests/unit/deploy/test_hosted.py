@@ -1,0 +1,175 @@
+"""A lab's hosted processes in the federation file (``labs.<lab>.hosted``): one identity
+that speaks for exactly the agents it runs (federation/deploy/generate.py,
+schemas/federation.py, federation/deploy/identity.py). No processes: the generated
+files run with real routers in tests/integration/test_hosted_trust.py."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+
+from federation.core.keys import AgentId
+from federation.deploy import generate as gen
+from federation.deploy.identity import IdentityError, check_hosted_identity
+from schemas.base import ConfigError
+from schemas.config import AgentConfig
+from schemas.federation import load_federation
+
+BASE = """
+federation = "default"
+
+[labs.kiruna]
+auth = "certificate"
+listen = ["tls/127.0.0.1:7447"]
+endpoint = "tls/localhost:7447"
+agents.knatte = { role = "leader" }
+agents.f1 = { role = "follower", follow = "kiruna/knatte" }
+agents.f2 = { role = "follower", follow = "kiruna/knatte" }
+agents.f3 = { role = "follower", follow = "kiruna/knatte" }
+
+[labs.rome]
+auth = "password"
+listen = ["tls/127.0.0.1:7448"]
+dial = ["kiruna"]
+agents.r1 = { role = "follower", follow = "kiruna/knatte" }
+agents.r2 = { role = "member" }
+"""
+HOSTED = BASE + '[labs.kiruna.hosted]\nsim = ["f1", "f2"]\n[labs.rome.hosted]\npad = ["r1", "r2"]\n'
+
+
+def write(tmp: Path, text: str) -> Path:
+    path = tmp / "federation.toml"
+    path.write_text(text)
+    return path
+
+
+def acl(doc: dict[str, Any], who: str) -> tuple[set[str], set[str]]:
+    """(the keys ``who`` may write, the ids of the subjects listing it)."""
+    control = doc["access_control"]
+    ids = {
+        s["id"]
+        for s in control["subjects"]
+        if who in s.get("cert_common_names", []) + s.get("usernames", [])
+    }
+    rules = {r["id"]: r for r in control["rules"]}
+    keys = {
+        k
+        for p in control["policies"]
+        if set(p["subjects"]) & ids
+        for r in p["rules"]
+        if rules[r]["flows"] == ["ingress"] and "put" in rules[r]["messages"]
+        for k in rules[r]["key_exprs"]
+    }
+    return keys, ids
+
+
+def own(*agents: str) -> set[str]:
+    return {k for a in agents for k in (f"fedlab/default/{a}", f"fedlab/default/{a}/**")}
+
+
+def test_a_host_writes_for_exactly_its_agents_which_have_no_identity(tmp_path: Path) -> None:
+    fed = load_federation(write(tmp_path, HOSTED))
+    kiruna = gen.router_config(fed, "kiruna", gen.DEFAULT_ROOT)
+    rome = gen.router_config(fed, "rome", gen.DEFAULT_ROOT)
+    assert acl(kiruna, "kiruna/sim")[0] == own("kiruna/f1", "kiruna/f2")
+    assert acl(rome, "rome/pad")[0] == own("rome/r1", "rome/r2")
+    for who in ("kiruna/f1", "kiruna/f2"):  # no subject of their own: only the host speaks
+        assert acl(kiruna, who) == (set(), set())
+    assert acl(kiruna, "kiruna/f3")[0] == own("kiruna/f3")  # not hosted: as before
+    assert acl(kiruna, "kiruna/knatte")[0] == own("kiruna/knatte")
+    subjects = {s["id"]: s for s in kiruna["access_control"]["subjects"]}
+    assert subjects["host-sim"] == {"id": "host-sim", "cert_common_names": ["kiruna/sim"]}
+    subjects = {s["id"]: s for s in rome["access_control"]["subjects"]}
+    assert subjects["host-pad"] == {"id": "host-pad", "usernames": ["rome/pad"]}
+
+
+def test_generate_writes_each_hosts_config_and_its_agents_settings(tmp_path: Path) -> None:
+    out = tmp_path / "fed"
+    done = gen.generate(load_federation(write(tmp_path, HOSTED)), out)
+    assert "kiruna/sim" in done.issued and "kiruna/f1" not in done.issued
+    certs = {p.name for p in (out / "kiruna" / "certs").iterdir()}
+    assert {"kiruna.sim.pem", "kiruna.sim.key", "kiruna.f3.pem"} <= certs
+    assert not {"kiruna.f1.pem", "kiruna.f2.pem"} & certs
+    agents = {p.name for p in (out / "kiruna" / "agents").iterdir()}
+    assert agents == {"knatte.toml", "knatte.json5", "f3.toml", "f3.json5"}
+    for lab, host, names in (("kiruna", "sim", ["f1", "f2"]), ("rome", "pad", ["r1", "r2"])):
+        conf = zenoh.Config.from_file(str(out / lab / "hosts" / f"{host}.json5"))
+        metadata = json.loads(conf.get_json("metadata"))
+        assert metadata == {"fedlab_hosted": [f"{lab}/{n}" for n in names]}
+        settings = sorted((out / lab / "hosts" / host).iterdir())
+        assert [p.name for p in settings] == [f"{n}.toml" for n in names]
+        for path in settings:
+            config = AgentConfig.model_validate(tomllib.loads(path.read_text()))
+            assert config.lab == lab
+    kiruna = zenoh.Config.from_file(str(out / "kiruna" / "hosts" / "sim.json5"))
+    cert = json.loads(kiruna.get_json("transport/link/tls/connect_certificate"))
+    assert cert.endswith("kiruna.sim.pem")
+    users = (out / "rome" / "rome.users").read_text()
+    assert "rome/pad:" in users and "rome/r1:" not in users
+    units = {p.name for p in (out / "kiruna" / "systemd").iterdir()}
+    assert "fedlab-host@.service" in units
+
+
+def test_one_edit_moves_agents_into_and_out_of_a_host(tmp_path: Path) -> None:
+    out = tmp_path / "fed"
+    source = write(tmp_path, BASE)
+    gen.generate(load_federation(source), out)
+    assert (out / "kiruna" / "agents" / "f1.json5").exists()
+    source.write_text(HOSTED)
+    done = gen.generate(load_federation(source), out)
+    assert out / "kiruna" / "agents" / "f1.json5" in done.removed  # its identity is gone
+    assert (out / "kiruna" / "hosts" / "sim" / "f1.toml").exists()
+    source.write_text(BASE)  # and back
+    done = gen.generate(load_federation(source), out)
+    assert out / "kiruna" / "hosts" / "sim.json5" in done.removed
+    assert not (out / "kiruna" / "hosts" / "sim").exists()
+    assert (out / "kiruna" / "agents" / "f1.json5").exists()
+    assert "kiruna/sim" not in (out / "kiruna" / "routers" / "kiruna.json5").read_text()
+
+
+@pytest.mark.parametrize(
+    ("hosted", "said"),
+    [
+        ('f3 = ["f1"]', "hosted.f3': 'f3' is already an agent's"),
+        ('sim = ["f1", "zz"]', "hosted.sim.1': 'zz' is not an agent of lab kiruna"),
+        ('sim = ["r1"]', "hosted.sim.0': 'r1' is not an agent of lab kiruna"),
+        ("sim = []", "hosted.sim': runs no agent"),
+        ('a = ["f1"]\nb = ["f2", "f1"]', "hosted.b.1': 'f1' is already run by 'a'"),
+    ],
+)
+def test_a_bad_host_fails_naming_the_field(tmp_path: Path, hosted: str, said: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        load_federation(write(tmp_path, BASE + "[labs.kiruna.hosted]\n" + hosted + "\n"))
+    assert said in str(error.value)
+    assert "federation.toml: field 'labs.kiruna.hosted." in str(error.value)
+
+
+def test_a_real_platform_is_never_hosted(tmp_path: Path) -> None:
+    text = BASE.replace(
+        'agents.f2 = { role = "follower", follow = "kiruna/knatte" }',
+        'agents.f2 = { role = "follower", follow = "kiruna/knatte", platform = "serial:/dev/x" }',
+    )
+    with pytest.raises(ConfigError, match=r"hosted\.sim\.1': 'f2' flies a real platform"):
+        load_federation(write(tmp_path, text + '[labs.kiruna.hosted]\nsim = ["f1", "f2"]\n'))
+
+
+def test_a_host_config_speaks_only_for_the_agents_it_lists(tmp_path: Path) -> None:
+    out = tmp_path / "fed"
+    gen.generate(load_federation(write(tmp_path, HOSTED)), out, local=True)
+    sim = zenoh.Config.from_file(str(out / "kiruna" / "hosts" / "sim.json5"))
+    f1, f2, f3 = (AgentId("kiruna", n) for n in ("f1", "f2", "f3"))
+    check_hosted_identity(sim, [f1, f2], "sim.json5")
+    check_hosted_identity(sim, [f2], "sim.json5")
+    with pytest.raises(IdentityError, match=r"kiruna/f3 not among the agents .* 'kiruna/sim'"):
+        check_hosted_identity(sim, [f1, f3], "sim.json5")
+    # An agent's own config speaks for it alone.
+    knatte = zenoh.Config.from_file(str(out / "kiruna" / "agents" / "knatte.json5"))
+    check_hosted_identity(knatte, [AgentId("kiruna", "knatte")], "knatte.json5")
+    with pytest.raises(IdentityError, match="lists no hosted agents"):
+        check_hosted_identity(knatte, [AgentId("kiruna", "knatte"), f3], "knatte.json5")
+    check_hosted_identity(zenoh.Config(), [f1, f2, f3], "plain tcp")  # nothing to prove
