@@ -130,19 +130,13 @@ class LabEntry(base.Model):
         default_factory=dict,
         description="processes that run several of this lab's agents on one session "
         "(fedlab host), by name: the agents each runs. Its identity (certificate CN or user "
-        "lab/NAME) writes for exactly those agents, which get no identity of their own; "
+        "lab/hosts/NAME) writes for exactly those agents, which get none of their own; "
         "their platforms are virtual (a serial: platform runs as its own fedlab agent)",
     )
 
     def host_of(self, name: str) -> str | None:
         """The hosted process that runs agent ``name``, if one does."""
         return next((h for h, agents in self.hosted.items() if name in agents), None)
-
-    def identities(self) -> list[str]:
-        """The names that prove who they are (a certificate, a password): the agents
-        that run on their own, the hosted processes and the operators."""
-        alone = [name for name in self.agents if self.host_of(name) is None]
-        return [*alone, *self.hosted, *self.operators]
 
     def agents_endpoint(self) -> str:
         """What this lab's agents dial."""
@@ -156,6 +150,12 @@ class LabEntry(base.Model):
             if host and not _is_wildcard(host) and host not in out:
                 out.append(host)
         return out
+
+
+_TABLE = frozenset({"role", "follow", "platform"})
+_OWN_FIELDS = _TABLE | {"federation", "lab", "name"}
+"""AgentConfig fields an agent's entry sets itself (its table, or where it sits in the
+file): ``settings`` may not override them (a hosted agent's platform is checked here)."""
 
 
 def _check_hosted(lab: str, entry: LabEntry) -> None:
@@ -232,6 +232,14 @@ class FederationFile(base.Model):
                 raise _field_error(f"labs.{lab}.operators", "a name is listed twice")
             _check_hosted(lab, entry)
             for name, agent in entry.agents.items():
+                own = sorted(_OWN_FIELDS & set(agent.settings))
+                if own:
+                    key = own[0]
+                    raise _field_error(
+                        f"labs.{lab}.agents.{name}.settings.{key}",
+                        f"set by the entry itself ({'its table' if key in _TABLE else 'the file'}),"
+                        " not in settings",
+                    )
                 data = {**agent.settings, "federation": self.federation, "lab": lab, "name": name}
                 data |= {"role": agent.role, "follow": agent.follow, "platform": agent.platform}
                 try:

@@ -503,15 +503,18 @@ def worker(
             record_channels=["/status", "/pose/sent" if role == "leader" else "/pose/received"],
         ))  # fmt: skip
     stop = threading.Event()
-    timer = threading.Timer(seconds + 30, stop.set)  # a bound, should one hang
-    timer.start()
+    timer = threading.Timer(seconds + 30, stop.set)  # a bound once up, should one hang
+
+    def started() -> None:
+        freeze_startup_heap()
+        timer.start()
+
     conf = build_config(ZenohOptions(connect=[endpoint]), default_mode="client")
     try:
         with zenoh.open(conf) as session:
             # As ``fedlab host`` runs a lab's agents: one session, one thread in groups
             # spread over a pose period, one clock (so one sync exchange per peer).
-            host(configs, session, stop, group=group, spread=0.05,
-                 on_started=freeze_startup_heap)  # fmt: skip
+            host(configs, session, stop, group=group, spread=0.05, on_started=started)
     finally:
         timer.cancel()
         stop.set()

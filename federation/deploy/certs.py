@@ -53,8 +53,11 @@ __all__ = [
     "agent_stem",
     "ca_common_name",
     "cfg_flags",
+    "host_common_name",
+    "host_stem",
     "init_ca",
     "issue_agent",
+    "issue_host",
     "issue_lab",
     "tls_settings",
 ]
@@ -92,6 +95,18 @@ def agent_common_name(lab: str, name: str) -> str:
 def agent_stem(lab: str, name: str) -> str:
     """An agent's file name stem in the certificate folder, ``"<lab>.<name>"``."""
     return f"{validate_name(lab, 'lab name')}.{validate_name(name, 'agent name')}"
+
+
+def host_common_name(lab: str, host: str) -> str:
+    """A hosted process's Common Name, ``"<lab>/hosts/<host>"`` (``fedlab host``): never
+    an agent's, whose names hold no ``/``, so no agent's old certificate or password
+    becomes a host's (nor the other way round) when a name moves between them."""
+    return f"{validate_name(lab, 'lab name')}/hosts/{validate_name(host, 'host name')}"
+
+
+def host_stem(lab: str, host: str) -> str:
+    """A hosted process's file name stem in the certificate folder, ``"<lab>.hosts.<host>"``."""
+    return f"{validate_name(lab, 'lab name')}.hosts.{validate_name(host, 'host name')}"
 
 
 def tls_settings(
@@ -209,6 +224,29 @@ def issue_agent(
         directory,
         agent_stem(lab, name),
         agent_common_name(lab, name),
+        [],
+        server=False,
+        force=force,
+        days=days,
+        now=now,
+    )
+
+
+def issue_host(
+    directory: Path,
+    lab: str,
+    host: str,
+    *,
+    force: bool = False,
+    days: int = LEAF_DAYS,
+    now: dt.datetime | None = None,
+) -> Issued:
+    """Issue hosted process ``lab/hosts/host``'s client certificate
+    (``<lab>.hosts.<host>.pem`` and ``.key``); valid as a TLS client only."""
+    return _issue(
+        directory,
+        host_stem(lab, host),
+        host_common_name(lab, host),
         [],
         server=False,
         force=force,

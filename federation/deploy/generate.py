@@ -165,7 +165,7 @@ def access_control(fed: FederationFile, lab: str) -> dict[str, Any]:
             }
         )
     for host, names in entry.hosted.items():
-        subjects.append(_subject(entry, f"host-{host}", [f"{lab}/{host}"]))
+        subjects.append(_subject(entry, f"host-{host}", [certs.host_common_name(lab, host)]))
         policies.append(
             {
                 "id": f"host-{host}",
@@ -230,10 +230,17 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
 
 
 def agent_zenoh(
-    fed: FederationFile, lab: str, name: str, root: Path, password: str | None
+    fed: FederationFile,
+    lab: str,
+    name: str,
+    root: Path,
+    password: str | None,
+    identity: tuple[str, str] | None = None,
 ) -> dict[str, Any]:
     """The Zenoh client config of agent or operator ``lab/name``: its router, the CA, and
-    its certificate (certificate labs) or user and password (password labs)."""
+    its certificate (certificate labs) or user and password (password labs); another
+    ``identity`` (its name and certificate stem: a hosted process's) if given."""
+    user, stem = identity or (f"{lab}/{name}", certs.agent_stem(lab, name))
     entry, c = fed.labs[lab], root / "certs"
     doc: dict[str, Any] = {
         "mode": "client",
@@ -246,14 +253,13 @@ def agent_zenoh(
     }
     tls: dict[str, Any] = {"root_ca_certificate": str(c / "ca.pem")}
     if entry.auth == "certificate":
-        stem = certs.agent_stem(lab, name)
         tls |= {
             "connect_certificate": str(c / f"{stem}.pem"),
             "connect_private_key": str(c / f"{stem}.key"),
             "enable_mtls": True,  # a client shows its certificate only with this set
         }
     else:
-        doc["transport"]["auth"] = {"usrpwd": {"user": f"{lab}/{name}", "password": password}}
+        doc["transport"]["auth"] = {"usrpwd": {"user": user, "password": password}}
     doc["transport"]["link"]["tls"] = tls
     return doc
 
@@ -271,10 +277,11 @@ def agent_settings(fed: FederationFile, lab: str, name: str) -> dict[str, Any]:
 def host_zenoh(
     fed: FederationFile, lab: str, host: str, root: Path, password: str | None
 ) -> dict[str, Any]:
-    """The Zenoh client config of hosted process ``lab/host``: as an agent's, with the
-    agents it runs listed in its metadata (``fedlab host`` checks them at start:
+    """The Zenoh client config of hosted process ``lab/hosts/host``: as an agent's, with
+    the agents it runs listed in its metadata (``fedlab host`` checks them at start:
     :func:`federation.deploy.identity.check_hosted_identity`)."""
-    doc = agent_zenoh(fed, lab, host, root, password)
+    identity = (certs.host_common_name(lab, host), certs.host_stem(lab, host))
+    doc = agent_zenoh(fed, lab, host, root, password, identity)
     doc["metadata"] = {HOSTED_FIELD: [f"{lab}/{n}" for n in fed.labs[lab].hosted[host]]}
     return doc
 
@@ -294,7 +301,7 @@ def _write_hosts(
     kept: list[Path] = []
     for host, names in entry.hosted.items():
         conf = hosts / f"{host}.json5"
-        doc = host_zenoh(fed, lab, host, lab_root, passwords.get(f"{lab}/{host}"))
+        doc = host_zenoh(fed, lab, host, lab_root, passwords.get(certs.host_common_name(lab, host)))
         _write(conf, json5_text(doc, header), 0o600, out)
         kept.append(conf)
         settings = [hosts / host / f"{name}.toml" for name in names]
@@ -420,6 +427,28 @@ def _normal(host: str) -> str:
         return host
 
 
+@dataclass(frozen=True)
+class _Identity:
+    """Who proves who they are in a lab: a certificate CN or a user name, its files'
+    stem in the certificate folder, and whether it is a hosted process."""
+
+    name: str
+    stem: str
+    host: bool = False
+
+
+def _identities(lab: str, entry: LabEntry) -> list[_Identity]:
+    """The agents that run on their own, the operators, and the hosted processes (whose
+    agents have no identity of their own: their host speaks for them)."""
+    alone = [n for n in [*entry.agents, *entry.operators] if entry.host_of(n) is None]
+    out = [_Identity(certs.agent_common_name(lab, n), certs.agent_stem(lab, n)) for n in alone]
+    for host in entry.hosted:
+        out.append(
+            _Identity(certs.host_common_name(lab, host), certs.host_stem(lab, host), host=True)
+        )
+    return out
+
+
 def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
     """The CA if missing, each lab's certificate (again if its names changed) and each
     certificate lab's agents' and operators' (if missing)."""
@@ -433,10 +462,13 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
             certs.issue_lab(ca, lab, hosts, force=True)
             out.issued.append(lab)
         if entry.auth == "certificate":
-            for name in entry.identities():
-                if not (ca / f"{certs.agent_stem(lab, name)}.pem").exists():
-                    certs.issue_agent(ca, lab, name)
-                    out.issued.append(certs.agent_common_name(lab, name))
+            for who in _identities(lab, entry):
+                if not (ca / f"{who.stem}.pem").exists():
+                    if who.host:
+                        certs.issue_host(ca, lab, who.name.rsplit("/", 1)[1])
+                    else:
+                        certs.issue_agent(ca, lab, who.name.split("/", 1)[1])
+                    out.issued.append(who.name)
 
 
 def _copy(src: Path, dst: Path, out: Generated) -> None:
@@ -475,10 +507,10 @@ def generate(
         header = _header(fed, lab)
         users = folder / f"{lab}.users"
         passwords = _passwords(users) if entry.auth == "password" else {}
-        for name in entry.identities():
+        for who in _identities(lab, entry):
             if entry.auth == "password":
-                passwords.setdefault(f"{lab}/{name}", secrets.token_urlsafe(_PASSWORD_BYTES))
-        wanted = {f"{lab}/{n}" for n in entry.identities()}
+                passwords.setdefault(who.name, secrets.token_urlsafe(_PASSWORD_BYTES))
+        wanted = {who.name for who in _identities(lab, entry)}
         passwords = {u: p for u, p in passwords.items() if u in wanted}
         if entry.auth == "password":
             _write(users, "".join(f"{u}:{p}\n" for u, p in passwords.items()), 0o600, out)
@@ -512,7 +544,7 @@ def generate(
 
         stems = ["ca", lab]
         if entry.auth == "certificate":
-            stems += [certs.agent_stem(lab, n) for n in entry.identities()]
+            stems += [who.stem for who in _identities(lab, entry)]
         kept = []
         for stem in stems:
             for suffix in (".pem", ".key"):

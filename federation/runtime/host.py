@@ -23,8 +23,10 @@ without a loop.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import zenoh
 
@@ -36,7 +38,16 @@ from federation.runtime.links import SyncLinks
 from federation.runtime.loop import run_together
 from schemas.config import AgentConfig, ConfigError
 
-__all__ = ["Hosted", "check_hosted", "host", "refuse_taken_names", "shared_clocks"]
+__all__ = [
+    "Hosted",
+    "check_hosted",
+    "close_all",
+    "host",
+    "refuse_taken_names",
+    "shared_clocks",
+]
+
+log = logging.getLogger("fedlab.host")
 
 Hosted = tuple[str, AgentConfig]
 """An agent to host: where its settings came from (a file's name, for errors) and them."""
@@ -44,11 +55,13 @@ Hosted = tuple[str, AgentConfig]
 
 def check_hosted(hosted: Sequence[Hosted]) -> None:
     """Refuse (ConfigError, naming the file and the field) what one process must not
-    host: no agent, one name twice, more than one federation, a real platform."""
+    host: no agent, one name twice, more than one federation, two agents writing one
+    status or recording file, a real platform."""
     if not hosted:
         raise ConfigError("no agent to host: give at least one agent file")
     first_source, first = hosted[0]
     seen: dict[str, str] = {}
+    files: dict[Path, str] = {}
     for source, config in hosted:
         name = str(config.agent)
         if name in seen:
@@ -60,6 +73,16 @@ def check_hosted(hosted: Sequence[Hosted]) -> None:
                 f"{first.federation!r}: the agents of one host share one session, so one "
                 f"federation"
             )
+        for field, path in (("status_json", config.status_json), ("record", config.record)):
+            if path is None:
+                continue
+            other = files.get(Path(path).resolve())
+            if other is not None:
+                raise ConfigError(
+                    f"{source}: {field}: {path} is also {other}'s: two agents would write "
+                    f"into one file"
+                )
+            files[Path(path).resolve()] = f"{source} ({field})"
         if config.platform.startswith("serial:"):
             raise ConfigError(
                 f"{source}: platform: {config.platform} is a real platform: run it as its "
@@ -93,7 +116,10 @@ def refuse_taken_names(session: zenoh.Session, configs: Sequence[AgentConfig]) -
     Each agent asks again as it starts (:meth:`AgentRuntime.start`), but once a first
     agent of the session has declared its liveliness subscriber, a later agent's query
     on the same session was answered at once and empty while another process held its
-    name (seen with three hosted agents): the check for all comes first."""
+    name (seen with three hosted agents): the check for all comes first. Two processes
+    that start one name within the same moment both pass, as two ``fedlab agent`` do;
+    each agent's contest watch then marks the name contested (two sources), and an
+    agent that follows it holds."""
     if not configs:
         return
     federation = configs[0].federation
@@ -127,6 +153,7 @@ def host(
     (NameTaken at start, a platform's error in the loop) after closing them all."""
     if group < 1:
         raise ValueError(f"group must be at least 1 agent, not {group!r}")
+    check_hosted([(str(config.agent), config) for config in configs])
     if spread is None:
         spread = 1.0 / max(c.pose_rate for c in configs) if configs else 0.0
     refuse_taken_names(session, configs)
@@ -141,5 +168,19 @@ def host(
             on_started()
         run_together(runtimes, stop, spread=spread, group=group)
     finally:
-        for runtime in runtimes:
+        close_all(runtimes)
+
+
+def close_all(runtimes: Sequence[AgentRuntime]) -> None:
+    """Hold every agent's platform (all valves closed) first, then close each: one that
+    fails to hold or close is logged and the others still are."""
+    for runtime in runtimes:
+        try:
+            runtime.platform.hold()
+        except Exception:
+            log.exception("%s: holding the platform failed", runtime.me)
+    for runtime in runtimes:
+        try:
             runtime.close()
+        except Exception:
+            log.exception("%s: closing failed", runtime.me)

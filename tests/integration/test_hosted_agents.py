@@ -3,8 +3,11 @@ on loopback (a router, a leader as its own ``fedlab agent``, the host)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
-from loopback import LEADER, Labs
+import zenoh
+from loopback import LEADER, Labs, client_config
 
 from federation.fleet.launch import wait_for
 
@@ -69,11 +72,69 @@ def test_a_taken_name_stops_the_host_and_closes_every_agent(labs: Labs) -> None:
     router = labs.router("rome")
     taken = labs.agent("rome/f2", router, role="member")
     taken.wait_status(timeout=15)
-    host = labs.host(router, {who: {"role": "member"} for who in FOLLOWERS})
-    assert wait_for(lambda: not host.alive(), timeout=20), host.log()[-2000:]
-    assert host.stop() == 2
+    tokens: list[str] = []
+    session = zenoh.open(client_config(router.endpoint))
+    try:
+        watch = session.liveliness().declare_subscriber(
+            "fedlab/default/rome/*",
+            lambda s: tokens.append(str(s.key_expr)) if s.kind == zenoh.SampleKind.PUT else None,
+        )
+        try:
+            host = labs.host(router, {who: {"role": "member"} for who in FOLLOWERS})
+            assert wait_for(lambda: not host.alive(), timeout=20), host.log()[-2000:]
+            assert host.stop() == 2
+        finally:
+            watch.undeclare()
+    finally:
+        session.close()
     log = host.log()
     assert "rome/f2" in log and "every agent closed" in log, log[-2000:]
+    # Refused before any of its agents was declared: no token of f1 or f3 ever appeared.
+    assert not {"fedlab/default/rome/f1", "fedlab/default/rome/f3"} & set(tokens), tokens
     # The agent that had the name first is unaffected.
     assert taken.alive()
     assert taken.stop() == 0
+
+
+def test_a_fault_in_one_hosted_agent_holds_and_closes_every_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One agent's platform fails in its loop: the host stops with exit code 1 and every
+    agent, the faulty one's neighbours too, ends held (all valves closed) and closed.
+    In this process, on a real Zenoh session (peer mode, no router, no scouting)."""
+    from agents.platform import PlatformError
+    from federation import cli
+    from federation.runtime.agent import AgentRuntime
+
+    files = []
+    for name, platform in (("a1", "knatte"), ("a2", "kinematic"), ("a3", "pinocchio")):
+        path = tmp_path / f"{name}.toml"
+        fields = f'lab = "rome"\nname = "{name}"\nrole = "member"\nplatform = "{platform}"\n'
+        path.write_text(fields)
+        files.append(str(path))
+    steps: dict[str, int] = {}
+    ended: dict[str, tuple[bool, int]] = {}
+    step, close = AgentRuntime.control_step, AgentRuntime.close
+
+    def failing_step(self: AgentRuntime) -> None:
+        who = str(self.me)
+        steps[who] = steps.get(who, 0) + 1
+        if who == "rome/a2" and steps[who] > 20:
+            raise PlatformError("rome/a2: avionics stopped answering (injected)")
+        step(self)
+
+    def recorded_close(self: AgentRuntime) -> None:
+        close(self)
+        valves = getattr(self.platform, "valves", ())
+        ended[str(self.me)] = (bool(getattr(self.platform, "held", False)), sum(valves))
+
+    monkeypatch.setattr(AgentRuntime, "control_step", failing_step)
+    monkeypatch.setattr(AgentRuntime, "close", recorded_close)
+    argv = ["host", *files, "-m", "peer", "--cfg", "scouting/multicast/enabled:false"]
+    code = cli.main([*argv, "--duration", "20"])  # bounded: the fault comes after 1 s
+    assert code == 1
+    assert "avionics stopped answering (injected); every agent's valves closed" in (
+        capsys.readouterr().err
+    )
+    assert steps["rome/a1"] > 20 and steps["rome/a3"] > 20  # the others were flying
+    assert ended == {who: (True, 0) for who in ("rome/a1", "rome/a2", "rome/a3")}

@@ -3,7 +3,7 @@ runs, and for no other (``labs.<lab>.hosted``, ``fedlab host``).
 
 The federation is generated from one file (``fedlab deploy generate --local``) and run
 on loopback over TLS with real certificates and per-agent access control: Kiruna's
-leader and its hosted process ``kiruna/sim`` (running ``f1`` and ``f2``) show
+leader and its hosted process ``kiruna/hosts/sim`` (running ``f1`` and ``f2``) show
 certificates; Rome's follower logs in with a password. Every wait is bounded; every
 process is stopped by pid (the ``labs`` fixture); every Zenoh session opened here is
 closed.
@@ -152,6 +152,25 @@ def test_a_hosted_process_flies_its_agents_and_speaks_for_no_other(
                 assert {key for key, _ in got} == {allowed}, got
         finally:
             sub.undeclare()
+        # Nor can it hold another agent's liveliness token or answer its queries (f3, not
+        # running: anything seen under its name would be the host's); its own agent's work.
+        f3, f1 = "fedlab/default/kiruna/f3", "fedlab/default/kiruna/f1"
+        declared = [
+            speaker.liveliness().declare_token(f3),
+            speaker.declare_queryable(f"{f3}/sync", lambda q: q.reply(q.key_expr, b"forged")),
+            speaker.declare_queryable(f"{f1}/probe", lambda q: q.reply(q.key_expr, b"own")),
+        ]
+        try:
+            assert wait_for(
+                lambda: any(r.ok is not None for r in listener.get(f"{f1}/probe", timeout=0.5)),
+                timeout=10,
+            ), "the host's own agent's queryable never answered"
+            for _ in range(3):  # bounded: three queries and liveliness queries of f3
+                assert [r.ok for r in listener.get(f"{f3}/sync", timeout=0.5) if r.ok] == []
+                assert [r.ok for r in listener.liveliness().get(f3, timeout=0.5) if r.ok] == []
+        finally:
+            for item in reversed(declared):
+                item.undeclare()
     finally:
         speaker.close()
         listener.close()
@@ -173,4 +192,4 @@ def test_a_host_refuses_an_agent_its_identity_may_not_speak_for(
     assert code == 2
     assert time.monotonic() - started < 5  # at load: no router is dialled
     err = capsys.readouterr().err
-    assert "kiruna/f3 not among the agents the certificate CN 'kiruna/sim' may speak for" in err
+    assert "kiruna/f3 not among the agents the certificate CN 'kiruna/hosts/sim'" in err

@@ -161,3 +161,34 @@ def test_a_folder_stands_for_its_agent_files(
     empty.mkdir()
     assert cli.main(["host", str(empty), "-e", ENDPOINT]) == 2
     assert f"{empty}: a folder without agent files" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("field", ["status_json", "record"])
+def test_two_agents_writing_one_file_are_refused(
+    tmp_path: Path, field: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    shared = tmp_path / "shared.out"
+    one = agent_file(tmp_path, "a1", **{field: str(shared)})
+    two = agent_file(tmp_path, "a2", **{field: str(shared)})
+    assert cli.main(["host", str(one), str(two), "-e", ENDPOINT]) == 2
+    err = capsys.readouterr().err
+    assert f"{two}: {field}: {shared} is also {one} ({field})'s" in err
+
+
+def test_fedlab_agent_takes_its_part_by_the_files_lab_and_name(tmp_path: Path) -> None:
+    """``fedlab agent --agent-config FILE --experiment EXP``: the file's lab and name pick
+    the part (as for ``fedlab host``); the flags, when given, still win."""
+    from federation.cli.agent import agent_config
+
+    experiment = tmp_path / "exp.toml"
+    experiment.write_text(
+        'name = "pair"\nduration = 30\n'
+        '[[participants]]\nagent = "rome/a1"\nrole = "leader"\n'
+        '[[participants]]\nagent = "rome/a2"\nrole = "follower"\nfollow = "rome/a1"\n'
+    )
+    file = agent_file(tmp_path, "a2")
+    parser = cli.build_parser(("agent",))
+    argv = ["agent", "--agent-config", str(file), "--experiment", str(experiment)]
+    config = agent_config(parser.parse_args(argv))
+    assert (str(config.agent), config.role, config.follow) == ("rome/a2", "follower", "rome/a1")
+    assert agent_config(parser.parse_args([*argv, "--name", "a1"])).role == "leader"

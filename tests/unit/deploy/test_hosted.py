@@ -76,24 +76,24 @@ def test_a_host_writes_for_exactly_its_agents_which_have_no_identity(tmp_path: P
     fed = load_federation(write(tmp_path, HOSTED))
     kiruna = gen.router_config(fed, "kiruna", gen.DEFAULT_ROOT)
     rome = gen.router_config(fed, "rome", gen.DEFAULT_ROOT)
-    assert acl(kiruna, "kiruna/sim")[0] == own("kiruna/f1", "kiruna/f2")
-    assert acl(rome, "rome/pad")[0] == own("rome/r1", "rome/r2")
+    assert acl(kiruna, "kiruna/hosts/sim")[0] == own("kiruna/f1", "kiruna/f2")
+    assert acl(rome, "rome/hosts/pad")[0] == own("rome/r1", "rome/r2")
     for who in ("kiruna/f1", "kiruna/f2"):  # no subject of their own: only the host speaks
         assert acl(kiruna, who) == (set(), set())
     assert acl(kiruna, "kiruna/f3")[0] == own("kiruna/f3")  # not hosted: as before
     assert acl(kiruna, "kiruna/knatte")[0] == own("kiruna/knatte")
     subjects = {s["id"]: s for s in kiruna["access_control"]["subjects"]}
-    assert subjects["host-sim"] == {"id": "host-sim", "cert_common_names": ["kiruna/sim"]}
+    assert subjects["host-sim"] == {"id": "host-sim", "cert_common_names": ["kiruna/hosts/sim"]}
     subjects = {s["id"]: s for s in rome["access_control"]["subjects"]}
-    assert subjects["host-pad"] == {"id": "host-pad", "usernames": ["rome/pad"]}
+    assert subjects["host-pad"] == {"id": "host-pad", "usernames": ["rome/hosts/pad"]}
 
 
 def test_generate_writes_each_hosts_config_and_its_agents_settings(tmp_path: Path) -> None:
     out = tmp_path / "fed"
     done = gen.generate(load_federation(write(tmp_path, HOSTED)), out)
-    assert "kiruna/sim" in done.issued and "kiruna/f1" not in done.issued
+    assert "kiruna/hosts/sim" in done.issued and "kiruna/f1" not in done.issued
     certs = {p.name for p in (out / "kiruna" / "certs").iterdir()}
-    assert {"kiruna.sim.pem", "kiruna.sim.key", "kiruna.f3.pem"} <= certs
+    assert {"kiruna.hosts.sim.pem", "kiruna.hosts.sim.key", "kiruna.f3.pem"} <= certs
     assert not {"kiruna.f1.pem", "kiruna.f2.pem"} & certs
     agents = {p.name for p in (out / "kiruna" / "agents").iterdir()}
     assert agents == {"knatte.toml", "knatte.json5", "f3.toml", "f3.json5"}
@@ -108,9 +108,11 @@ def test_generate_writes_each_hosts_config_and_its_agents_settings(tmp_path: Pat
             assert config.lab == lab
     kiruna = zenoh.Config.from_file(str(out / "kiruna" / "hosts" / "sim.json5"))
     cert = json.loads(kiruna.get_json("transport/link/tls/connect_certificate"))
-    assert cert.endswith("kiruna.sim.pem")
+    assert cert.endswith("kiruna.hosts.sim.pem")
     users = (out / "rome" / "rome.users").read_text()
-    assert "rome/pad:" in users and "rome/r1:" not in users
+    assert "rome/hosts/pad:" in users and "rome/r1:" not in users
+    rome = zenoh.Config.from_file(str(out / "rome" / "hosts" / "pad.json5"))
+    assert json.loads(rome.get_json("transport/auth/usrpwd/user")) == "rome/hosts/pad"
     units = {p.name for p in (out / "kiruna" / "systemd").iterdir()}
     assert "fedlab-host@.service" in units
 
@@ -120,9 +122,13 @@ def test_one_edit_moves_agents_into_and_out_of_a_host(tmp_path: Path) -> None:
     source = write(tmp_path, BASE)
     gen.generate(load_federation(source), out)
     assert (out / "kiruna" / "agents" / "f1.json5").exists()
+    assert "rome/r1:" in (out / "rome" / "rome.users").read_text()
     source.write_text(HOSTED)
     done = gen.generate(load_federation(source), out)
-    assert out / "kiruna" / "agents" / "f1.json5" in done.removed  # its identity is gone
+    # Its identity is gone: no config, no certificate in the lab's folder, no password.
+    assert out / "kiruna" / "agents" / "f1.json5" in done.removed
+    assert out / "kiruna" / "certs" / "kiruna.f1.pem" in done.removed
+    assert "rome/r1:" not in (out / "rome" / "rome.users").read_text()
     assert (out / "kiruna" / "hosts" / "sim" / "f1.toml").exists()
     source.write_text(BASE)  # and back
     done = gen.generate(load_federation(source), out)
@@ -165,7 +171,7 @@ def test_a_host_config_speaks_only_for_the_agents_it_lists(tmp_path: Path) -> No
     f1, f2, f3 = (AgentId("kiruna", n) for n in ("f1", "f2", "f3"))
     check_hosted_identity(sim, [f1, f2], "sim.json5")
     check_hosted_identity(sim, [f2], "sim.json5")
-    with pytest.raises(IdentityError, match=r"kiruna/f3 not among the agents .* 'kiruna/sim'"):
+    with pytest.raises(IdentityError, match=r"kiruna/f3 not among .* 'kiruna/hosts/sim'"):
         check_hosted_identity(sim, [f1, f3], "sim.json5")
     # An agent's own config speaks for it alone.
     knatte = zenoh.Config.from_file(str(out / "kiruna" / "agents" / "knatte.json5"))
@@ -173,3 +179,34 @@ def test_a_host_config_speaks_only_for_the_agents_it_lists(tmp_path: Path) -> No
     with pytest.raises(IdentityError, match="lists no hosted agents"):
         check_hosted_identity(knatte, [AgentId("kiruna", "knatte"), f3], "knatte.json5")
     check_hosted_identity(zenoh.Config(), [f1, f2, f3], "plain tcp")  # nothing to prove
+
+
+def test_a_host_named_like_a_former_agent_gets_a_new_identity(tmp_path: Path) -> None:
+    """Agent f3 leaves and a host takes its name: the host's certificate is a new one
+    (CN kiruna/hosts/f3), so f3's old key, wherever it still is, speaks for nothing."""
+    out = tmp_path / "fed"
+    source = write(tmp_path, BASE)
+    gen.generate(load_federation(source), out)
+    old_cert = (out / "ca" / "kiruna.f3.pem").read_bytes()
+    text = BASE.replace('agents.f3 = { role = "follower", follow = "kiruna/knatte" }\n', "")
+    source.write_text(text + '[labs.kiruna.hosted]\nf3 = ["f1", "f2"]\n')
+    done = gen.generate(load_federation(source), out)
+    assert "kiruna/hosts/f3" in done.issued
+    assert (out / "kiruna" / "certs" / "kiruna.hosts.f3.pem").read_bytes() != old_cert
+    router = gen.router_config(load_federation(source), "kiruna", gen.DEFAULT_ROOT)
+    assert acl(router, "kiruna/f3") == (set(), set())
+    assert acl(router, "kiruna/hosts/f3")[0] == own("kiruna/f1", "kiruna/f2")
+
+
+@pytest.mark.parametrize("key", ["platform", "role", "follow", "lab", "name", "federation"])
+def test_settings_cannot_override_what_the_entry_sets(tmp_path: Path, key: str) -> None:
+    """A hosted agent's platform is checked on its entry: settings may not change it (nor
+    any other field the entry or the file sets)."""
+    value = "serial:/dev/ttyUSB0" if key == "platform" else "x"
+    text = BASE.replace(
+        'agents.f1 = { role = "follower", follow = "kiruna/knatte" }',
+        f'agents.f1 = {{ role = "follower", follow = "kiruna/knatte", '
+        f'settings = {{ {key} = "{value}" }} }}',
+    )
+    with pytest.raises(ConfigError, match=rf"labs\.kiruna\.agents\.f1\.settings\.{key}'"):
+        load_federation(write(tmp_path, text))
