@@ -128,8 +128,8 @@ def _per_thread(
 ) -> dict[str, float]:
     """The workers' CPU by thread name between two readings, in ms per agent-second:
     which threads the extra over the floor lands on (the interpreter's own thread
-    runs the agents' loop and the recorder's writer; Zenoh's ``rx-#`` threads run
-    the callbacks). Taken thread by thread: one that started meanwhile counts from
+    runs the agents' loop, ``fedlab-recorder`` the recorders' writer; Zenoh's ``rx-#``
+    threads run the callbacks). Taken thread by thread: one that started meanwhile counts from
     zero, one that ended meanwhile is left out (its CPU since the first reading is
     not known), so neither takes from the others of its name."""
     total: dict[str, float] = {}

@@ -79,9 +79,13 @@ def run(args: argparse.Namespace) -> int:
     if args.deploy_command == "check":
         for lab, entry in fed.labs.items():
             dials = f", dials {', '.join(entry.dial)}" if entry.dial else ""
+            hosted = ""
+            if entry.hosted:
+                runs = [f"{h} runs {', '.join(names)}" for h, names in entry.hosted.items()]
+                hosted = f", {len(entry.hosted)} hosted process(es) ({'; '.join(runs)})"
             print(
                 f"{lab}: {entry.auth}, {len(entry.agents)} agent(s), "
-                f"{len(entry.operators)} operator(s){dials}"
+                f"{len(entry.operators)} operator(s){hosted}{dials}"
             )
         return 0
     root: Path = args.root

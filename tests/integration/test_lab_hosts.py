@@ -5,8 +5,9 @@ Rome's lab network has two hosts behind its masquerading gateway: ``rome``
 session dials that router over the lab network. Kiruna's leader is across the WAN
 (20 ms one way through the packet stage). The follower needs only its lab router's
 address: it syncs with the leader and follows its pose through the two routers,
-while nothing outside the lab can open a connection to its host. Needs root,
-nftables and /dev/net/tun; skips saying which is missing.
+while nothing outside the lab can open a connection to its host. With three hosts,
+``rome2`` and ``rome3`` each run three followers as one ``fedlab host`` process.
+Needs root, nftables and /dev/net/tun; skips saying which is missing.
 """
 
 from __future__ import annotations
@@ -136,6 +137,87 @@ def test_an_agent_on_a_second_lab_host_needs_only_its_lab_router(tmp_path: Path)
         f"{following_after:.1f} s: {line['peers'][LEADER]['samples']} sync samples, "
         f"{line['counters']['pose_received']} poses, pose age {line['pose_age'] * 1e3:.0f} ms; "
         f"everything stopped and removed in {closed:.1f} s"
+    )
+
+
+def test_a_lab_runs_its_agents_as_hosted_processes_on_two_hosts(tmp_path: Path) -> None:
+    """Rome's six followers run as two ``fedlab host`` processes of three, on rome2 and
+    rome3: each process holds one connection (to the lab router), and its three agents
+    share one sync exchange with the leader (one clock per process)."""
+    groups = {"rome2": ("a1", "a2", "a3"), "rome3": ("b1", "b2", "b3")}
+    files: dict[str, list[str]] = {}
+    for host, names in groups.items():
+        files[host] = []
+        for name in names:
+            path = tmp_path / f"{name}.toml"
+            path.write_text(
+                f'lab = "rome"\nname = "{name}"\nrole = "follower"\nfollow = "{LEADER}"\n'
+                f"status_period = 0.5\nsync_window = 3.0\nduration = 60.0\n"
+            )
+            files[host].append(str(path))
+    status = tmp_path / "status"
+    with Testbed(tmp_path, PacketOptions(delay=0.02), rome_hosts=3) as bed:
+        bed.fedlab(
+            "kiruna",
+            "router-kiruna",
+            ["router", "-c", str(ROUTERS / "kiruna.json5"), "-l", f"tcp/0.0.0.0:{PORT}"],
+        )
+        bed.fedlab(
+            "rome",
+            "router-rome",
+            ["router", "-c", str(ROUTERS / "rome.json5"), "-l", ROME_ROUTER,
+             "-e", f"tcp/{ADDR.kiruna}:{PORT}"],
+        )  # fmt: skip
+        bed.fedlab(
+            "kiruna",
+            "leader",
+            ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte",
+             "-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5", "--duration", "60"],
+        )  # fmt: skip
+        for host in groups:
+            bed.fedlab(
+                host, f"host-{host}",
+                ["host", *files[host], "-e", ROME_ROUTER, "--status-dir", str(status)],
+            )  # fmt: skip
+        names = [name for group in groups.values() for name in group]
+        seen: dict[str, dict[str, Any]] = {}
+        started = time.monotonic()
+
+        def everyone_follows() -> bool:
+            for name in names:
+                line = last_status(status / f"rome-{name}.jsonl")
+                if line is None:
+                    return False
+                seen[name] = line
+                leader = line["peers"].get(LEADER, {})
+                if not (
+                    leader.get("locked")
+                    and line["counters"].get("pose_received", 0) >= 20
+                    and line["hold"] is None
+                    and line["pose_age"] is not None
+                    and line["pose_age"] < 0.25
+                ):
+                    return False
+            return True
+
+        assert wait_for(everyone_follows, 40.0, 0.2), (
+            f"not every hosted follower synced with and followed {LEADER} within 40 s; "
+            f"last status {seen}\n{bed.log('host-rome2')[-1500:]}\n{bed.log('host-rome3')[-1500:]}"
+        )
+        following_after = time.monotonic() - started
+        for name in names:  # three agents on one exchange, per process
+            assert seen[name]["peers"][LEADER]["sharing"] == 3, seen[name]["peers"]
+        for host in groups:  # one connection per process, to the lab router
+            conns = _established(bed, host)
+            assert [peer for _, peer in conns] == [f"{ADDR.rome}:{PORT}"], (host, conns)
+    exits = {name: proc.returncode for name, proc in bed.fleet.procs.items()}
+    assert exits == dict.fromkeys(
+        ["router-kiruna", "router-rome", "leader", "host-rome2", "host-rome3", "stage"], 0
+    )
+    ages = [seen[name]["pose_age"] * 1e3 for name in names]
+    print(
+        f"\nsix hosted followers on rome2 and rome3 locked and following after "
+        f"{following_after:.1f} s; pose ages {min(ages):.0f} to {max(ages):.0f} ms"
     )
 
 

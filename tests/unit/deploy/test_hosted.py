@@ -210,3 +210,16 @@ def test_settings_cannot_override_what_the_entry_sets(tmp_path: Path, key: str) 
     )
     with pytest.raises(ConfigError, match=rf"labs\.kiruna\.agents\.f1\.settings\.{key}'"):
         load_federation(write(tmp_path, text))
+
+
+def test_deploy_check_lists_each_labs_hosts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from federation import cli
+
+    assert cli.main(["deploy", "check", str(write(tmp_path, HOSTED))]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "kiruna: certificate, 4 agent(s), 0 operator(s), 1 hosted process(es) (sim runs f1, f2)"
+        in out
+    )

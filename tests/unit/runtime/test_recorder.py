@@ -243,3 +243,27 @@ def test_the_report_reads_old_and_new_recordings_alike(tmp_path: Path) -> None:
     recovered = load_run(new_dir)
     assert any("damaged or unfinished recording; 11 messages" in n for n in recovered.notes)
     assert recovered.agents["kiruna/knatte"].channel("/pose/sent") == sent
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="Linux /proc only")
+def test_the_writer_thread_carries_its_name_for_the_os(tmp_path: Path) -> None:
+    """``fedlab bench scale`` reports the writer's CPU apart from the agents' loop."""
+    import os
+
+    from federation.runtime.recorder import WRITER_THREAD
+
+    recorder = Recorder(tmp_path / "a.mcap", "rome/a")
+
+    def names() -> set[str]:
+        out = set()
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                out.add(Path(f"/proc/self/task/{tid}/comm").read_text().strip())
+            except OSError:  # a thread that ended meanwhile
+                continue
+        return out
+
+    try:
+        assert wait_for(lambda: WRITER_THREAD in names(), 5.0, 0.05), names()
+    finally:
+        recorder.close()
