@@ -160,8 +160,9 @@ file): ``settings`` may not override them (a hosted agent's platform is checked 
 
 def _check_hosted(lab: str, entry: LabEntry) -> None:
     """A hosted process has a name of its own and runs agents of its lab, each on one
-    host only, none with a real platform."""
+    host only, none with a real platform, no two writing one status or recording file."""
     owner: dict[str, str] = {}
+    files: dict[tuple[str, str, str], str] = {}
     for host, names in entry.hosted.items():
         where = f"labs.{lab}.hosted.{host}"
         if host in entry.agents or host in entry.operators:
@@ -178,6 +179,16 @@ def _check_hosted(lab: str, entry: LabEntry) -> None:
                     f"{name!r} is already run by {owner[name]!r}: one host per agent",
                 )
             owner[name] = host
+            for field in ("status_json", "record"):
+                path = entry.agents[name].settings.get(field)
+                if path is not None and (host, field, str(path)) in files:
+                    other = files[(host, field, str(path))]
+                    raise _field_error(
+                        f"labs.{lab}.agents.{name}.settings.{field}",
+                        f"{path} is also {other}'s, in one process ({host}): one file each",
+                    )
+                if path is not None:
+                    files[(host, field, str(path))] = name
             platform = entry.agents[name].platform
             if platform.startswith("serial:"):
                 raise _field_error(
@@ -200,6 +211,10 @@ class FederationFile(base.Model):
 
     @model_validator(mode="after")
     def _topology(self) -> FederationFile:
+        if "ca" in self.labs:
+            raise _field_error(
+                "labs.ca", "'ca' is the CA's folder (DIR/ca): name the lab otherwise"
+            )
         for lab, entry in self.labs.items():
             for i, other in enumerate(entry.dial):
                 if other not in self.labs:

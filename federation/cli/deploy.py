@@ -11,6 +11,7 @@ from pathlib import Path
 
 from federation.cli.common import Formatter, Subparsers
 from federation.deploy import generate
+from schemas.base import ConfigError
 from schemas.federation import load_federation
 
 __all__ = ["add", "run"]
@@ -78,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
     fed = load_federation(args.file)  # a ConfigError is reported by main(), exit 2
     if args.deploy_command == "check":
         for lab, entry in fed.labs.items():
+            try:
+                generate.access_control(fed, lab)  # its ids are unique
+            except ConfigError as error:
+                raise ConfigError(f"{args.file}: {error}") from None
             dials = f", dials {', '.join(entry.dial)}" if entry.dial else ""
             hosted = ""
             if entry.hosted:
@@ -95,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         done = generate.generate(fed, args.out, root=root, local=args.local)
     except (ValueError, OSError) as error:  # CertError is a ValueError
-        print(f"fedlab deploy: error: {error}", file=sys.stderr)
+        where = f"{args.file}: " if isinstance(error, ConfigError) else ""
+        print(f"fedlab deploy: error: {where}{error}", file=sys.stderr)
         return 2
     out = args.out.resolve()
     for path in done.files:

@@ -50,8 +50,9 @@ from cryptography import x509
 
 from federation.core.keys import control_key
 from federation.deploy import certs
-from federation.deploy.identity import HOSTED_FIELD
+from federation.deploy.identity import HOSTED_FIELD, certificate_cn
 from federation.runtime.session import DATA_QUEUE_BATCHES
+from schemas.base import ConfigError
 from schemas.federation import FederationFile, LabEntry
 
 __all__ = [
@@ -178,6 +179,14 @@ def access_control(fed: FederationFile, lab: str) -> dict[str, Any]:
         policies.append(
             {"id": "operators", "rules": ["control", "reads", "deliver"], "subjects": ["operators"]}
         )
+    for kind, items in (("rule", rules), ("subject", subjects), ("policy", policies)):
+        ids = [item["id"] for item in items]
+        twice = sorted({i for i in ids if ids.count(i) > 1})
+        if twice:  # e.g. a host "a-router" and the router of a neighbouring lab "host-a"
+            raise ConfigError(
+                f"labs.{lab}: two entries make the access-control {kind} id {twice[0]!r} "
+                f"(an agent, host or neighbouring lab's name runs into another's): rename one"
+            )
     return {
         "enabled": True,
         "default_permission": "deny",
@@ -463,12 +472,19 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
             out.issued.append(lab)
         if entry.auth == "certificate":
             for who in _identities(lab, entry):
-                if not (ca / f"{who.stem}.pem").exists():
+                existing = ca / f"{who.stem}.pem"
+                # A pair made for another name (an earlier layout's) is never reused.
+                if not existing.exists() or _common_name(existing) != who.name:
                     if who.host:
-                        certs.issue_host(ca, lab, who.name.rsplit("/", 1)[1])
+                        certs.issue_host(ca, lab, who.name.rsplit("/", 1)[1], force=True)
                     else:
-                        certs.issue_agent(ca, lab, who.name.split("/", 1)[1])
+                        certs.issue_agent(ca, lab, who.name.split("/", 1)[1], force=True)
                     out.issued.append(who.name)
+
+
+def _common_name(path: Path) -> str:
+    """The Common Name of the certificate at ``path``."""
+    return certificate_cn(path.read_bytes(), str(path))
 
 
 def _copy(src: Path, dst: Path, out: Generated) -> None:

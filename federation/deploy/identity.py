@@ -7,7 +7,7 @@ publish into keys the router drops, silently. :func:`check_identity` refuses tha
 at start, before a session is opened, naming the file and both names.
 
 A hosted process (``fedlab host``, a lab's ``hosted`` in the federation file) has an
-identity of its own, ``lab/<host>``, which writes for the agents it runs; its
+identity of its own, ``lab/hosts/<host>``, which writes for the agents it runs; its
 generated Zenoh config lists them (``metadata.fedlab_hosted``), and
 :func:`check_hosted_identity` refuses an agent not listed, for the same reason.
 """
@@ -87,6 +87,12 @@ def identities(conf: zenoh.Config, source: str) -> dict[str, str]:
 def check_identity(conf: zenoh.Config, agent: AgentId, source: str) -> None:
     """Refuse (IdentityError) if ``conf`` proves an identity other than ``agent``."""
     for what, value in identities(conf, source).items():
+        if value != str(agent) and _hosted(conf) is not None:
+            raise IdentityError(
+                f"{source}: the {what} is {value!r}, a hosted process's (it lists the agents "
+                f"it runs in metadata.{HOSTED_FIELD}): run it with fedlab host, not as agent "
+                f"{agent}"
+            )
         if value != str(agent):
             raise IdentityError(
                 f"{source}: the {what} is {value!r} but this agent is {agent}: the router "
@@ -103,8 +109,7 @@ def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str
     proved = identities(conf, source)
     if not proved:
         return
-    metadata = config_value(conf, "metadata")  # Zenoh reads no key inside it
-    listed = metadata.get(HOSTED_FIELD) if isinstance(metadata, dict) else None
+    listed = _hosted(conf)
     if listed is None:
         if len(agents) == 1:
             check_identity(conf, agents[0], source)
@@ -130,3 +135,9 @@ def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str
             f"{'it' if len(missing) == 1 else 'them'} to this host in the federation file "
             f"and generate again"
         )
+
+
+def _hosted(conf: zenoh.Config) -> object:
+    """What a Zenoh config lists at ``metadata.fedlab_hosted`` (None without it)."""
+    metadata = config_value(conf, "metadata")  # Zenoh reads no key inside it
+    return metadata.get(HOSTED_FIELD) if isinstance(metadata, dict) else None

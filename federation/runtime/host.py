@@ -149,8 +149,10 @@ def host(
     ``stop`` is set or every one's duration has passed; then close every one (each
     platform held). Agents tick in groups of ``group``, the groups spread over
     ``spread`` seconds (default: the shortest pose period). ``on_started`` is called
-    once every agent is up, before the first tick. Raises what an agent raises
-    (NameTaken at start, a platform's error in the loop) after closing them all."""
+    once every agent is up, before the first tick. Raises ConfigError for what one
+    process must not host (:func:`check_hosted`), before anything is declared, and
+    what an agent raises (NameTaken at start, a platform's error in the loop) after
+    closing them all."""
     if group < 1:
         raise ValueError(f"group must be at least 1 agent, not {group!r}")
     check_hosted([(str(config.agent), config) for config in configs])

@@ -165,6 +165,8 @@ def test_a_hosted_process_flies_its_agents_and_speaks_for_no_other(
                 lambda: any(r.ok is not None for r in listener.get(f"{f1}/probe", timeout=0.5)),
                 timeout=10,
             ), "the host's own agent's queryable never answered"
+            # f1's token (held by the host, which runs it) is seen where f3's is not.
+            assert [r.ok for r in listener.liveliness().get(f1, timeout=2.0) if r.ok], "no f1"
             for _ in range(3):  # bounded: three queries and liveliness queries of f3
                 assert [r.ok for r in listener.get(f"{f3}/sync", timeout=0.5) if r.ok] == []
                 assert [r.ok for r in listener.liveliness().get(f3, timeout=0.5) if r.ok] == []

@@ -130,12 +130,16 @@ def test_one_edit_moves_agents_into_and_out_of_a_host(tmp_path: Path) -> None:
     assert out / "kiruna" / "certs" / "kiruna.f1.pem" in done.removed
     assert "rome/r1:" not in (out / "rome" / "rome.users").read_text()
     assert (out / "kiruna" / "hosts" / "sim" / "f1.toml").exists()
-    source.write_text(BASE)  # and back
+    source.write_text(BASE)  # and back: the host's identity is gone everywhere
     done = gen.generate(load_federation(source), out)
     assert out / "kiruna" / "hosts" / "sim.json5" in done.removed
+    assert out / "kiruna" / "certs" / "kiruna.hosts.sim.pem" in done.removed
     assert not (out / "kiruna" / "hosts" / "sim").exists()
     assert (out / "kiruna" / "agents" / "f1.json5").exists()
-    assert "kiruna/sim" not in (out / "kiruna" / "routers" / "kiruna.json5").read_text()
+    router = (out / "kiruna" / "routers" / "kiruna.json5").read_text()
+    assert "kiruna/hosts/sim" not in router and "host-sim" not in router
+    assert "rome/hosts/pad" not in (out / "rome" / "rome.users").read_text()
+    assert "rome/hosts/pad" not in (out / "rome" / "routers" / "rome.json5").read_text()
 
 
 @pytest.mark.parametrize(
@@ -223,3 +227,70 @@ def test_deploy_check_lists_each_labs_hosts(
         "kiruna: certificate, 4 agent(s), 0 operator(s), 1 hosted process(es) (sim runs f1, f2)"
         in out
     )
+
+
+def test_two_entries_making_one_access_control_id_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A host "a-link" of Kiruna and a neighbouring lab "host-a" would both make the
+    policy id "host-a-link": refused by deploy check and generate, nothing written."""
+    from federation import cli
+
+    text = BASE.replace("[labs.rome]", "[labs.host-a]")
+    source = write(tmp_path, text + '[labs.kiruna.hosted]\n"a-link" = ["f1"]\n')
+    said = "labs.kiruna: two entries make the access-control policy id 'host-a-link'"
+    assert cli.main(["deploy", "check", str(source)]) == 2
+    assert f"{source}: {said}" in capsys.readouterr().err
+    out = tmp_path / "fed"
+    assert cli.main(["deploy", "generate", str(source), "--out", str(out), "--local"]) == 2
+    assert f"{source}: {said}" in capsys.readouterr().err
+    assert not (out / "kiruna" / "routers").exists()
+
+
+def test_a_pair_issued_for_another_name_is_never_reused(tmp_path: Path) -> None:
+    """A pair in the CA folder whose certificate names someone else (copied, renamed,
+    or left by another layout) is replaced, not handed to the new name."""
+    import shutil
+
+    from federation.deploy.identity import certificate_cn
+
+    out = tmp_path / "fed"
+    gen.generate(load_federation(write(tmp_path, BASE)), out)
+    ca = out / "ca"
+    for suffix in (".pem", ".key"):  # f3's pair where sim's would be
+        shutil.copyfile(ca / f"kiruna.f3{suffix}", ca / f"kiruna.sim{suffix}")
+    text = BASE.replace("agents.knatte", 'agents.sim = { role = "member" }\nagents.knatte')
+    done = gen.generate(load_federation(write(tmp_path, text)), out)
+    assert "kiruna/sim" in done.issued
+    fresh = (ca / "kiruna.sim.pem").read_bytes()
+    assert certificate_cn(fresh, "sim") == "kiruna/sim"
+    assert (ca / "kiruna.sim.key").read_bytes() != (ca / "kiruna.f3.key").read_bytes()
+
+
+def test_a_lab_named_ca_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"labs\.ca': 'ca' is the CA's folder"):
+        load_federation(write(tmp_path, BASE.replace("[labs.rome]", "[labs.ca]")))
+
+
+def test_two_agents_of_one_host_writing_one_file_are_refused(tmp_path: Path) -> None:
+    text = BASE
+    for name in ("f1", "f2"):
+        text = text.replace(
+            f'agents.{name} = {{ role = "follower", follow = "kiruna/knatte" }}',
+            f'agents.{name} = {{ role = "follower", follow = "kiruna/knatte", '
+            'settings = { status_json = "s.jsonl" } }',
+        )
+    said = r"agents\.f2\.settings\.status_json': s\.jsonl is also f1"
+    with pytest.raises(ConfigError, match=said):
+        load_federation(write(tmp_path, text + '[labs.kiruna.hosted]\nsim = ["f1", "f2"]\n'))
+    load_federation(write(tmp_path, text))  # apart, in two processes, they may
+
+
+def test_a_hosts_config_run_as_an_agent_says_so(tmp_path: Path) -> None:
+    from federation.deploy.identity import check_identity
+
+    out = tmp_path / "fed"
+    gen.generate(load_federation(write(tmp_path, HOSTED)), out, local=True)
+    sim = zenoh.Config.from_file(str(out / "kiruna" / "hosts" / "sim.json5"))
+    with pytest.raises(IdentityError, match=r"a hosted process's .* run it with fedlab host"):
+        check_identity(sim, AgentId("kiruna", "f1"), "sim.json5")
