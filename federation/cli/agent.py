@@ -13,13 +13,14 @@ from pathlib import Path
 from typing import Any
 
 from federation.cli.common import (
+    AGENT_CPUS_HELP,
     Formatter,
     Subparsers,
     add_cpus_flag,
     add_zenoh_flags,
+    client_conf,
     open_session,
     stop_on_signals,
-    zenoh_options,
 )
 from federation.core import paper
 from federation.core.estimators import ESTIMATORS
@@ -148,10 +149,7 @@ def add(sub: Subparsers) -> None:
         const=True,
         help="hold still until a start command (fedlab ctl start) instead of starting at once",
     )
-    add_cpus_flag(
-        p, "run on these cores only, e.g. 1-3 (Linux): on a host shared with the lab's router, "
-        "the cores it does not use (fedlab router --cpus; docs/deploy.md)",
-    )  # fmt: skip
+    add_cpus_flag(p, AGENT_CPUS_HELP)
     add_zenoh_flags(p)
     p.set_defaults(func=run)
 
@@ -280,11 +278,9 @@ def _check_identity(args: argparse.Namespace, config: AgentConfig) -> None:
     """Identity = name: the certificate CN or user name in the Zenoh config must be the
     agent's lab/name (an IdentityError, a ConfigError: exit 2), before any session."""
     from federation.deploy.identity import check_identity
-    from federation.runtime.session import build_config
 
-    options = zenoh_options(args)
-    source = str(options.config) if options.config else "Zenoh flags"
-    check_identity(build_config(options, default_mode="client"), config.agent, source)
+    conf, source = client_conf(args)
+    check_identity(conf, config.agent, source)
 
 
 def run(args: argparse.Namespace) -> int:

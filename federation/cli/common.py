@@ -246,6 +246,23 @@ def cpus(text: str) -> frozenset[int]:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+AGENT_CPUS_HELP = (
+    "run on these cores only, e.g. 1-3 (Linux): on a host shared with the lab's router, "
+    "the cores it does not use (fedlab router --cpus; docs/deploy.md)"
+)
+"""``--cpus`` of the commands that run agents (``fedlab agent``, ``fedlab host``)."""
+
+
+def client_conf(args: argparse.Namespace) -> tuple[Any, str]:
+    """The Zenoh client config the command's flags give, and how errors name it (the
+    config file, or "Zenoh flags"), for the identity checks before any session."""
+    from federation.runtime.session import build_config
+
+    options = zenoh_options(args)
+    source = str(options.config) if options.config else "Zenoh flags"
+    return build_config(options, default_mode="client"), source
+
+
 def add_cpus_flag(parser: argparse.ArgumentParser, help: str) -> None:
     """``--cpus LIST``: the cores the process (every thread of it) runs on."""
     parser.add_argument("--cpus", type=cpus, metavar="LIST", help=help)

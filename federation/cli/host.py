@@ -13,13 +13,14 @@ from pathlib import Path
 
 from federation.cli.agent import build_agent_config
 from federation.cli.common import (
+    AGENT_CPUS_HELP,
     Formatter,
     Subparsers,
     add_cpus_flag,
     add_zenoh_flags,
+    client_conf,
     open_session,
     stop_on_signals,
-    zenoh_options,
 )
 from schemas.config import AgentConfig, ConfigError
 
@@ -74,10 +75,7 @@ def add(sub: Subparsers) -> None:
         help="agents that tick on one wake-up: fewer wake-ups cost less CPU, but each "
         "holds the interpreter longer (docs/scale.md)",
     )
-    add_cpus_flag(
-        p, "run on these cores only, e.g. 1-3 (Linux): on a host shared with the lab's router, "
-        "the cores it does not use (fedlab router --cpus; docs/deploy.md)",
-    )  # fmt: skip
+    add_cpus_flag(p, AGENT_CPUS_HELP)
     add_zenoh_flags(p)
     p.set_defaults(func=run)
 
@@ -130,11 +128,8 @@ def _check_identity(args: argparse.Namespace, hosted: list[tuple[str, AgentConfi
     every hosted agent: the lab router drops what it sends for any other (an
     IdentityError: exit 2)."""
     from federation.deploy.identity import check_hosted_identity
-    from federation.runtime.session import build_config
 
-    options = zenoh_options(args)
-    source = str(options.config) if options.config else "Zenoh flags"
-    conf = build_config(options, default_mode="client")
+    conf, source = client_conf(args)
     check_hosted_identity(conf, [config.agent for _, config in hosted], source)
 
 

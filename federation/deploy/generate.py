@@ -523,10 +523,11 @@ def generate(
         header = _header(fed, lab)
         users = folder / f"{lab}.users"
         passwords = _passwords(users) if entry.auth == "password" else {}
-        for who in _identities(lab, entry):
-            if entry.auth == "password":
+        identities = _identities(lab, entry)
+        if entry.auth == "password":
+            for who in identities:
                 passwords.setdefault(who.name, secrets.token_urlsafe(_PASSWORD_BYTES))
-        wanted = {who.name for who in _identities(lab, entry)}
+        wanted = {who.name for who in identities}
         passwords = {u: p for u, p in passwords.items() if u in wanted}
         if entry.auth == "password":
             _write(users, "".join(f"{u}:{p}\n" for u, p in passwords.items()), 0o600, out)
@@ -560,7 +561,7 @@ def generate(
 
         stems = ["ca", lab]
         if entry.auth == "certificate":
-            stems += [who.stem for who in _identities(lab, entry)]
+            stems += [who.stem for who in identities]
         kept = []
         for stem in stems:
             for suffix in (".pem", ".key"):

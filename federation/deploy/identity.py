@@ -87,19 +87,20 @@ def identities(conf: zenoh.Config, source: str) -> dict[str, str]:
 def check_identity(conf: zenoh.Config, agent: AgentId, source: str) -> None:
     """Refuse (IdentityError) if ``conf`` proves an identity other than ``agent``."""
     for what, value in identities(conf, source).items():
-        if value != str(agent) and _hosted(conf) is not None:
+        if value == str(agent):
+            continue
+        if _hosted(conf) is not None:
             raise IdentityError(
                 f"{source}: the {what} is {value!r}, a hosted process's (it lists the agents "
                 f"it runs in metadata.{HOSTED_FIELD}): run it with fedlab host, not as agent "
                 f"{agent}"
             )
-        if value != str(agent):
-            raise IdentityError(
-                f"{source}: the {what} is {value!r} but this agent is {agent}: the router "
-                f"lets {value!r} write only under its own keys. Run it as --lab "
-                f"{value.partition('/')[0]} --name {value.partition('/')[2]}, or give it its "
-                f"own certificate or user (fedlab deploy generate, fedlab certs issue-agent)"
-            )
+        raise IdentityError(
+            f"{source}: the {what} is {value!r} but this agent is {agent}: the router "
+            f"lets {value!r} write only under its own keys. Run it as --lab "
+            f"{value.partition('/')[0]} --name {value.partition('/')[2]}, or give it its "
+            f"own certificate or user (fedlab deploy generate, fedlab certs issue-agent)"
+        )
 
 
 def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str) -> None:
@@ -109,12 +110,12 @@ def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str
     proved = identities(conf, source)
     if not proved:
         return
+    what, value = next(iter(proved.items()))
     listed = _hosted(conf)
     if listed is None:
         if len(agents) == 1:
             check_identity(conf, agents[0], source)
             return
-        what, value = next(iter(proved.items()))
         raise IdentityError(
             f"{source}: the {what} is {value!r}, which lists no hosted agents "
             f"(metadata.{HOSTED_FIELD}): the lab router lets it write only under its own "
@@ -127,7 +128,6 @@ def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str
         raise IdentityError(f"{source}: metadata.{HOSTED_FIELD}: a list of lab/name expected")
     missing = [str(a) for a in agents if str(a) not in listed]
     if missing:
-        what, value = next(iter(proved.items()))
         raise IdentityError(
             f"{source}: {', '.join(missing)} not among the agents the {what} {value!r} may "
             f"speak for ({', '.join(listed) or 'none'}): the lab router would drop what "

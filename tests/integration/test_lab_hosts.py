@@ -52,30 +52,36 @@ def _established(bed: Testbed, host: str) -> list[tuple[str, str]]:
     return [(f[2], f[3]) for f in (line.split() for line in out.splitlines()) if len(f) >= 4]
 
 
+def start_routers_and_leader(bed: Testbed) -> None:
+    """Both labs' routers (Rome's on its lab network, dialling Kiruna across the WAN)
+    and Kiruna's leader, for 60 s."""
+    bed.fedlab(
+        "kiruna",
+        "router-kiruna",
+        ["router", "-c", str(ROUTERS / "kiruna.json5"), "-l", f"tcp/0.0.0.0:{PORT}"],
+    )
+    bed.fedlab(
+        "rome",
+        "router-rome",
+        ["router", "-c", str(ROUTERS / "rome.json5"), "-l", ROME_ROUTER,
+         "-e", f"tcp/{ADDR.kiruna}:{PORT}"],
+    )  # fmt: skip
+    bed.fedlab(
+        "kiruna",
+        "leader",
+        ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte",
+         "-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5", "--duration", "60"],
+    )  # fmt: skip
+
+
 def test_an_agent_on_a_second_lab_host_needs_only_its_lab_router(tmp_path: Path) -> None:
     status = tmp_path / "follower.jsonl"
     t0 = time.monotonic()
     with Testbed(tmp_path, PacketOptions(delay=0.02), rome_hosts=2) as bed:
         built = time.monotonic() - t0
         rome2 = ADDR.rome_host("rome2")
-        bed.fedlab(
-            "kiruna",
-            "router-kiruna",
-            ["router", "-c", str(ROUTERS / "kiruna.json5"), "-l", f"tcp/0.0.0.0:{PORT}"],
-        )
-        bed.fedlab(
-            "rome",
-            "router-rome",
-            ["router", "-c", str(ROUTERS / "rome.json5"), "-l", ROME_ROUTER,
-             "-e", f"tcp/{ADDR.kiruna}:{PORT}"],
-        )  # fmt: skip
+        start_routers_and_leader(bed)
         common = ["--status-period", "0.5", "--duration", "60"]
-        bed.fedlab(
-            "kiruna",
-            "leader",
-            ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte",
-             "-e", f"tcp/127.0.0.1:{PORT}", *common],
-        )  # fmt: skip
         bed.fedlab(
             "rome2",
             "follower",
@@ -157,23 +163,7 @@ def test_a_lab_runs_its_agents_as_hosted_processes_on_two_hosts(tmp_path: Path) 
             files[host].append(str(path))
     status = tmp_path / "status"
     with Testbed(tmp_path, PacketOptions(delay=0.02), rome_hosts=3) as bed:
-        bed.fedlab(
-            "kiruna",
-            "router-kiruna",
-            ["router", "-c", str(ROUTERS / "kiruna.json5"), "-l", f"tcp/0.0.0.0:{PORT}"],
-        )
-        bed.fedlab(
-            "rome",
-            "router-rome",
-            ["router", "-c", str(ROUTERS / "rome.json5"), "-l", ROME_ROUTER,
-             "-e", f"tcp/{ADDR.kiruna}:{PORT}"],
-        )  # fmt: skip
-        bed.fedlab(
-            "kiruna",
-            "leader",
-            ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte",
-             "-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5", "--duration", "60"],
-        )  # fmt: skip
+        start_routers_and_leader(bed)
         for host in groups:
             bed.fedlab(
                 host, f"host-{host}",
