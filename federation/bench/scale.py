@@ -86,24 +86,26 @@ DEFAULT_AGENTS = (2, 8, 16, 32, 64)
 """Agent counts run when none is given."""
 
 
-def _stat_cpu(stat: str) -> float:
-    """User + system CPU seconds from a ``/proc/.../stat`` line (a process's or a
+def _stat_cpu(stat: str) -> tuple[float, float]:
+    """User and system CPU seconds from a ``/proc/.../stat`` line (a process's or a
     thread's; fields after the parenthesised name, which may hold spaces and ``)``)."""
     fields = stat.rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    tick = os.sysconf("SC_CLK_TCK")
+    return int(fields[11]) / tick, int(fields[12]) / tick
 
 
 def _cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process so far (Linux /proc)."""
     with open(f"/proc/{pid}/stat", encoding="ascii") as f:
-        return _stat_cpu(f.read())
+        return sum(_stat_cpu(f.read()))
 
 
-def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
+def _thread_cpu(pid: int) -> dict[int, tuple[str, float, float]]:
     """Each thread of a process so far: its name, digits folded (Zenoh's ``rx-0``,
     ``rx-1`` -> ``rx-#``; before Python 3.14 Python's threads all carry the
-    interpreter's name), and its CPU seconds, by thread id (Linux /proc)."""
-    out: dict[int, tuple[str, float]] = {}
+    interpreter's name), its CPU seconds and the part of them in the kernel, by
+    thread id (Linux /proc)."""
+    out: dict[int, tuple[str, float, float]] = {}
     try:
         tasks = os.listdir(f"/proc/{pid}/task")
     except OSError:  # the process is gone
@@ -117,25 +119,31 @@ def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
         if "(" not in stat or ")" not in stat:
             continue
         name = re.sub(r"\d+", "#", stat[stat.index("(") + 1 : stat.rindex(")")])
-        out[int(tid)] = (name, _stat_cpu(stat))
+        user, system = _stat_cpu(stat)
+        out[int(tid)] = (name, user + system, system)
     return out
 
 
 def _per_thread(
-    before: list[dict[int, tuple[str, float]]],
-    after: list[dict[int, tuple[str, float]]],
+    before: list[dict[int, tuple[str, float, float]]],
+    after: list[dict[int, tuple[str, float, float]]],
     agent_seconds: float,
+    kernel: bool = False,
 ) -> dict[str, float]:
     """The workers' CPU by thread name between two readings, in ms per agent-second:
     which threads the extra over the floor lands on (the interpreter's own thread
     runs the agents' loop, ``fedlab-recorder`` the recorders' writer; Zenoh's ``rx-#``
-    threads run the callbacks). Taken thread by thread: one that started meanwhile counts from
-    zero, one that ended meanwhile is left out (its CPU since the first reading is
-    not known), so neither takes from the others of its name."""
+    threads run the callbacks); with ``kernel``, only the part spent in the kernel
+    (system calls, sleeps and wake-ups, lock handovers). Taken thread by thread: one
+    that started meanwhile counts from zero, one that ended meanwhile is left out (its
+    CPU since the first reading is not known), so neither takes from the others of its
+    name."""
+    part = 2 if kernel else 1
     total: dict[str, float] = {}
     for b, a in zip(before, after, strict=True):
-        for tid, (name, seconds) in a.items():
-            spent = seconds - b.get(tid, (name, 0.0))[1]
+        for tid, reading in a.items():
+            name = reading[0]
+            spent = reading[part] - (b[tid][part] if tid in b else 0.0)
             total[name] = total.get(name, 0.0) + spent
     return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
 
@@ -175,7 +183,8 @@ def run_one(
     as the kernel has them),
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
     ``cpu_per_agent`` (all processes' over ``n``), ``worker_threads_ms`` (the
-    workers' CPU by thread name, ms per agent-second),
+    workers' CPU by thread name, ms per agent-second), ``worker_threads_kernel_ms``
+    (the part of it in the kernel),
     ``p50_ms``, ``p99_ms``, ``loss``, ``samples``, ``sync_per_s`` and the workers'
     total ``rss_mib`` sampled every few seconds (the first after a quarter of the run)."""
     if n < 2:
@@ -232,8 +241,9 @@ def run_one(
                 rss.append((round(time.monotonic() - t0, 1), round(total, 1)))
         cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
         wall = time.monotonic() - t0
-        threads = _per_thread(threads0, [_thread_cpu(fleet.procs[w].pid) for w in workers],
-                              wall * n)  # fmt: skip
+        threads1 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
+        threads = _per_thread(threads0, threads1, wall * n)
+        kernel = _per_thread(threads0, threads1, wall * n, kernel=True)
         wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
     scores = _score_bare(out, leader) if mode == "bare" else _score(out, agents, seconds)
     total = sum(cpu.values()) / wall
@@ -250,6 +260,7 @@ def run_one(
         "cpu_routers_cores": sum(v for k, v in cpu.items() if k not in workers) / wall,
         "cpu_per_agent": total / n,
         "worker_threads_ms": threads,
+        "worker_threads_kernel_ms": kernel,
         "rss_mib": rss,
         "seconds": seconds,
     }

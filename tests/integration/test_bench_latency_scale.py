@@ -60,6 +60,9 @@ def test_scale_short(tmp_path: Path) -> None:
         assert threads and not any(ch.isdigit() for name in threads for ch in name), threads
         workers_ms = 1e3 * r["cpu_workers_cores"] / r["n"]
         assert 0 < sum(threads.values()) <= workers_ms * 1.05 + 0.5, (threads, workers_ms)
+        # Of which in the kernel: a thread's part no more than its whole.
+        kernel = r["worker_threads_kernel_ms"]
+        assert all(0 < ms <= threads[name] for name, ms in kernel.items()), (kernel, threads)
         # The leader publishes every 50 ms: its largest gap is at least that.
         assert r["leader_gap_max_ms"] >= 40 and r["leader_gaps_over_2x"] >= 0, r
         # Over the whole run too, start-up included: at least the steady state's.
