@@ -138,12 +138,15 @@ def _per_thread(
     that started meanwhile counts from zero, one that ended meanwhile is left out (its
     CPU since the first reading is not known), so neither takes from the others of its
     name."""
-    part = 2 if kernel else 1
+
+    def part(reading: tuple[str, float, float]) -> float:
+        return reading[2] if kernel else reading[1]
+
     total: dict[str, float] = {}
     for b, a in zip(before, after, strict=True):
         for tid, reading in a.items():
             name = reading[0]
-            spent = reading[part] - (b[tid][part] if tid in b else 0.0)
+            spent = part(reading) - (part(b[tid]) if tid in b else 0.0)
             total[name] = total.get(name, 0.0) + spent
     return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
 
