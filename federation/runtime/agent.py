@@ -77,6 +77,10 @@ MAX_SMALL_PAYLOAD = 1024
 """Bytes: a pose sample is 56, a sync request 8 and its reply 64; a payload larger than
 this on those keys is junk, dropped and counted before it is copied (issue 13)."""
 
+NAME_CHECK_AFTER = 2.0
+"""s after start: the name is looked up once more, for a second process that started
+under it at the same time (both passed the check before either had declared it)."""
+
 
 class NameTaken(ValueError):
     """Another agent already uses this lab/name in the federation."""
@@ -220,6 +224,10 @@ class AgentRuntime:
         self._silent_warned: set[str] = set()  # peers' names
         self._clock_stepped = False
         self._left_area = False  # the scenario's platform left its area (held for good)
+        # Host monotonic time of the second look at the name (start + NAME_CHECK_AFTER);
+        # why the name is taken twice, once that look has found another holder.
+        self._name_check_at = math.inf
+        self.name_clash: str | None = None
         self.counters: Counter[str] = Counter()
         self.lateness = FloatRing(2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
@@ -314,6 +322,7 @@ class AgentRuntime:
         if self.config.runs_dir is not None:
             self.recording_server = RecordingServer(s, fed, self.me, self.config.runs_dir)
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
+        self._name_check_at = time.monotonic() + NAME_CHECK_AFTER
         if self.config.status_json is not None:
             path = Path(self.config.status_json)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -329,6 +338,51 @@ class AgentRuntime:
                     f"agent {self.me} is already in federation {self.config.federation}: "
                     "stop it first or choose another --name"
                 )
+
+    def _check_name_again(self, host: float) -> None:
+        """Once, ``NAME_CHECK_AFTER`` s after start (host monotonic ``host``): ask who
+        answers this agent's own sync key. Two processes that started under one name
+        at once both passed :meth:`_refuse_taken_name`; each now hears two repliers (its
+        own session and the other's), and each holds for good (:meth:`_hold_for_name`):
+        which one is genuine cannot be told in-band. A sync query, not a liveliness
+        lookup: a session that watches liveliness answers one token per name, however
+        many hold it. Asynchronous: the replies come on Zenoh's threads, and a query
+        that fails concludes nothing."""
+        if host < self._name_check_at:
+            return
+        self._name_check_at = math.inf
+        repliers: set[str] = set()
+
+        def replied(reply: zenoh.Reply) -> None:
+            replier = reply.replier_id
+            if reply.ok is not None and replier is not None:
+                repliers.add(str(replier.zid))
+
+        def done() -> None:
+            if len(repliers) > 1:
+                self.name_clash = (
+                    f"{len(repliers)} processes answer for {self.me} in federation "
+                    f"{self.config.federation} (sessions {', '.join(sorted(repliers))})"
+                )
+
+        try:
+            self.session.get(
+                self.key(self.me, "sync"),
+                zenoh.handlers.Callback(replied, done, indirect=False),
+                payload=wire.encode_request(self.clock.now()),
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=1.0,
+            )
+        except Exception as error:  # the session closing: nothing to conclude
+            log.warning("second look at the name %s failed: %s", self.me, error)
+
+    def _hold_for_name(self, t_exec: float, host: float) -> None:
+        """Safe hold for good: another process runs under this agent's name."""
+        self.hold_reason = "name_taken"
+        self.platform.hold()
+        self.count("name_taken_holds")
+        log.error("%s: safe hold for good; stop one of them and restart the other", self.name_clash)
+        self._event("name_taken_hold", t_exec, host, self.name_clash or "")
 
     def others(self) -> dict[str, tuple[float, wire.Pose]]:
         """Every other agent's latest pose, stamped on simulation (reference) time: the
@@ -439,6 +493,8 @@ class AgentRuntime:
             run_time = self.run_state.run_time(t_sim)
         if events:
             self._apply(events, t_exec, host)
+        if self.name_clash is not None and self.hold_reason != "name_taken":
+            self._hold_for_name(t_exec, host)
         self._watch_link(t_exec, host)
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
@@ -447,7 +503,8 @@ class AgentRuntime:
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
             self._left_area = True
-            self.hold_reason = "workspace"
+            if self.hold_reason != "name_taken":  # held for the name already: it says why
+                self.hold_reason = "workspace"
             log.warning("safe hold: %s", self.scenario.hold_reason)
             self._event("workspace_hold", t_exec, host, self.scenario.hold_reason or "")
 
@@ -462,8 +519,8 @@ class AgentRuntime:
     def _watch_link(self, t_exec: float, host: float) -> None:
         """Safe hold while the followed pose is stale; resume once it flows again and a
         sync exchange has completed since (re-synchronized). An abort overrides it."""
-        if self.follow is None or self.hold_reason in ("aborted", "done", "reset"):
-            return  # held by the run, not the link: only the run releases it
+        if self.follow is None or self.hold_reason in ("aborted", "done", "reset", "name_taken"):
+            return  # held by the run or the name, not the link: the link releases nothing
         if self._contest_hold(t_exec, host):
             return
         received = self.pose_received_at.get(self.follow)
@@ -555,7 +612,8 @@ class AgentRuntime:
         recording when a start arms; log and record each."""
         for event in events:
             if event.kind in ("aborted", "done", "reset"):
-                self.hold_reason = event.kind
+                if self.hold_reason != "name_taken":  # held for good: no run releases it
+                    self.hold_reason = event.kind
                 self.platform.hold()
             elif event.kind == "armed":
                 if self.hold_reason in ("done", "reset"):
@@ -738,7 +796,7 @@ class AgentRuntime:
     def readiness(self, t_exec: float) -> Readiness:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         detail = ""
-        if self.hold_reason in ("stale", "aborted"):
+        if self.hold_reason in ("stale", "aborted", "name_taken"):
             detail = f"held ({self.hold_reason})"
         else:
             chain = getattr(self.platform, "chain", None)
@@ -799,6 +857,7 @@ class AgentRuntime:
                 log.info("%s answers again", name)
 
     def publish_status(self) -> None:
+        self._check_name_again(time.monotonic())
         status = self.status()
         self.check_delay_margin(status)
         self.warn_silent_peers(status)

@@ -5,10 +5,14 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
-from loopback import LEADER, Labs
+import zenoh
+from loopback import LEADER, Labs, client_config
 
 from federation.fleet.launch import wait_for
 
@@ -55,3 +59,50 @@ def test_a_taken_name_is_refused_clearly(labs: Labs) -> None:
     assert second.returncode == 2
     assert "kiruna/knatte is already in federation default" in second.stderr
     assert first.alive()
+
+
+def test_two_processes_started_under_one_name_at_once_both_hold_for_good(labs: Labs) -> None:
+    """The race the start-up check cannot see: a second holder of the name that declares
+    it right after the agent has (both passed the check before either declared). The
+    agent's second look, two seconds after start, finds two tokens: it holds, says why,
+    is not ready, and stays held once the other has gone."""
+    router = labs.router("kiruna")
+    key = f"fedlab/default/{LEADER}"
+    conf = client_config(router.endpoint)
+    conf.insert_json5("connect/timeout_ms", "10000")  # the router may still be starting
+    racer = zenoh.open(conf)
+    tokens: list[Any] = []
+    up = threading.Event()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            up.set()
+
+    watch = racer.liveliness().declare_subscriber(key, on_token)
+    try:
+        leader = labs.leader(router)
+        assert up.wait(30), "the agent never declared its name"
+        # Within ms of the agent's declarations, as a second `fedlab agent` makes them.
+        tokens.append(racer.liveliness().declare_token(key))
+        tokens.append(racer.declare_queryable(f"{key}/sync", _answer))
+        held = leader.until(lambda line: line.get("hold") == "name_taken", 10, "name hold")
+        assert held["counters"].get("name_taken_holds") == 1, held["counters"]
+        assert held["ready"]["platform"] is False
+        assert "name_taken" in held["ready"]["platform_detail"]
+        assert "2 processes answer for kiruna/knatte in federation default" in leader.log()
+        while tokens:  # the other one stops: this one stays held
+            tokens.pop().undeclare()
+        time.sleep(3.0)
+        line = leader.latest()
+        assert line["hold"] == "name_taken" and line["counters"]["name_taken_holds"] == 1, line
+        assert leader.alive()
+    finally:
+        for token in tokens:
+            token.undeclare()
+        watch.undeclare()  # type: ignore[no-untyped-call]
+        racer.close()  # type: ignore[no-untyped-call]
+
+
+def _answer(query: zenoh.Query) -> None:
+    """A sync reply of the paper's size (what a second agent's queryable sends)."""
+    query.reply(query.key_expr, bytes(64))
