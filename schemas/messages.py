@@ -144,7 +144,8 @@ class Status(BaseModel):
     hold: str | None = Field(
         None,
         description="why every valve is held closed: stale (link lost), contested, aborted, "
-        "name_taken (another process runs under this name: held for good)",
+        "done, reset, workspace, name_taken (another process runs under this name: held "
+        "for good)",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"

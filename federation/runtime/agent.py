@@ -77,9 +77,10 @@ MAX_SMALL_PAYLOAD = 1024
 """Bytes: a pose sample is 56, a sync request 8 and its reply 64; a payload larger than
 this on those keys is junk, dropped and counted before it is copied (issue 13)."""
 
-NAME_CHECK_AFTER = 2.0
-"""s after start: the name is looked up once more, for a second process that started
-under it at the same time (both passed the check before either had declared it)."""
+NAME_CHECKS_AFTER = (2.0, 10.0)
+"""s after start: the name is looked up again, for a second process that started under
+it at the same time (both passed the check before either had declared it); the later
+look finds one that declared it more slowly (the last agents of a large host)."""
 
 
 class NameTaken(ValueError):
@@ -208,8 +209,10 @@ class AgentRuntime:
         self.timebase = TimeBase(self.me, self.reference, self.peers)
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
-        # Why valves are held: "stale" (link), "aborted", "done" (run over) or "reset"
-        # (waiting after an abort); the last two are released by the next start.
+        # Why valves are held: "stale" (link), "contested" (the followed agent),
+        # "aborted", "done" (run over), "reset" (waiting after an abort), "workspace" or
+        # "name_taken" (another process under this name: for good); the next start
+        # releases "done" and "reset".
         self.hold_reason: str | None = None
         self.link_watch = LinkWatch(config.stale_after)
         # The followed agent's poses, admitted once for the agents of this session that
@@ -224,9 +227,9 @@ class AgentRuntime:
         self._silent_warned: set[str] = set()  # peers' names
         self._clock_stepped = False
         self._left_area = False  # the scenario's platform left its area (held for good)
-        # Host monotonic time of the second look at the name (start + NAME_CHECK_AFTER);
-        # why the name is taken twice, once that look has found another holder.
-        self._name_check_at = math.inf
+        # Host monotonic times of the later looks at the name (start + NAME_CHECKS_AFTER),
+        # the next first; why the name is taken twice, once a look found another holder.
+        self._name_checks: list[float] = []
         self.name_clash: str | None = None
         self.counters: Counter[str] = Counter()
         self.lateness = FloatRing(2000)  # control ticks' lateness (s)
@@ -322,7 +325,8 @@ class AgentRuntime:
         if self.config.runs_dir is not None:
             self.recording_server = RecordingServer(s, fed, self.me, self.config.runs_dir)
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
-        self._name_check_at = time.monotonic() + NAME_CHECK_AFTER
+        started = time.monotonic()
+        self._name_checks = [started + after for after in NAME_CHECKS_AFTER]
         if self.config.status_json is not None:
             path = Path(self.config.status_json)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -340,17 +344,18 @@ class AgentRuntime:
                 )
 
     def _check_name_again(self, host: float) -> None:
-        """Once, ``NAME_CHECK_AFTER`` s after start (host monotonic ``host``): ask who
-        answers this agent's own sync key. Two processes that started under one name
-        at once both passed :meth:`_refuse_taken_name`; each now hears two repliers (its
-        own session and the other's), and each holds for good (:meth:`_hold_for_name`):
-        which one is genuine cannot be told in-band. A sync query, not a liveliness
-        lookup: a session that watches liveliness answers one token per name, however
-        many hold it. Asynchronous: the replies come on Zenoh's threads, and a query
-        that fails concludes nothing."""
-        if host < self._name_check_at:
+        """At each of ``NAME_CHECKS_AFTER`` after start (host monotonic ``host``; called at
+        every control step): ask who answers this agent's own sync key. Two processes
+        that started under one name at once both passed :meth:`_refuse_taken_name`; each
+        now hears two repliers (its own session and the other's), and each holds for
+        good (:meth:`_hold_for_name`): which one is genuine cannot be told in-band. A
+        sync query, not a liveliness lookup: a session that watches liveliness answers
+        one token per name, however many hold it. Asynchronous: the replies come on
+        Zenoh's threads; a query that cannot be sent is tried again a period later."""
+        checks = self._name_checks
+        if not checks or host < checks[0]:
             return
-        self._name_check_at = math.inf
+        checks.pop(0)
         repliers: set[str] = set()
 
         def replied(reply: zenoh.Reply) -> None:
@@ -370,11 +375,13 @@ class AgentRuntime:
                 self.key(self.me, "sync"),
                 zenoh.handlers.Callback(replied, done, indirect=False),
                 payload=wire.encode_request(self.clock.now()),
+                target=zenoh.QueryTarget.ALL,  # every queryable on the key, not the best
                 consolidation=zenoh.ConsolidationMode.NONE,
                 timeout=1.0,
             )
-        except Exception as error:  # the session closing: nothing to conclude
-            log.warning("second look at the name %s failed: %s", self.me, error)
+        except Exception as error:  # the session closing, or Zenoh refusing the query
+            log.warning("looking again at the name %s failed: %s", self.me, error)
+            checks.insert(0, host + NAME_CHECKS_AFTER[0])
 
     def _hold_for_name(self, t_exec: float, host: float) -> None:
         """Safe hold for good: another process runs under this agent's name."""
@@ -487,6 +494,7 @@ class AgentRuntime:
         if self.config.clock_step is not None:
             self._rehearse_clock_step()
         t_exec, host = self.clock.read()
+        self._check_name_again(host)
         t_sim = self.sim_time(t_exec)
         with self._lock:
             events = self.run_state.update(t_sim)
@@ -857,7 +865,6 @@ class AgentRuntime:
                 log.info("%s answers again", name)
 
     def publish_status(self) -> None:
-        self._check_name_again(time.monotonic())
         status = self.status()
         self.check_delay_margin(status)
         self.warn_silent_peers(status)

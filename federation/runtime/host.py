@@ -118,8 +118,9 @@ def refuse_taken_names(session: zenoh.Session, configs: Sequence[AgentConfig]) -
     on the same session was answered at once and empty while another process held its
     name (seen with three hosted agents): the check for all comes first. Two processes
     that start one name within the same moment both pass, as two ``fedlab agent`` do;
-    each agent's contest watch then marks the name contested (two sources), and an
-    agent that follows it holds."""
+    each agent then finds the other answering its sync key when it looks again
+    (:meth:`AgentRuntime._check_name_again`) and holds for good, and the agents that
+    follow it hold as the name is contested (two sources)."""
     if not configs:
         return
     federation = configs[0].federation

@@ -29,7 +29,8 @@ rejected        rejected sync replies (all peers) + every counter ending ``_malf
 late p99        control loop lateness, 99th percentile (``status.loop.late_p99_ms``)
 run             ``status.run_id``: the run started last
 run time        ``status.run_time`` / ``status.duration`` (progress, %)
-hold            ``status.hold``: why every valve is closed (stale, aborted, done, reset)
+hold            ``status.hold``: why every valve is closed (stale, contested, aborted,
+                done, reset, workspace, name_taken); a fault's in red
 silent          an alarm, in red: the peers it reports alive but silent (answering
                 no sync request for 2 s, ``peers.<agent>.silent``) and for how long;
                 never left out on a narrow terminal
@@ -347,7 +348,8 @@ def _run_time(row: Row) -> str:
 def _hold(row: Row) -> Text:
     if row.hold is None:
         return Text(_DASH)
-    return Text(row.hold, style="red" if row.hold in ("stale", "aborted") else "yellow")
+    fault = row.hold in ("stale", "contested", "aborted", "name_taken", "workspace")
+    return Text(row.hold, style="red" if fault else "yellow")
 
 
 def _silent_cell(row: Row) -> Text:

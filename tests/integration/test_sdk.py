@@ -61,11 +61,14 @@ def test_a_taken_name_is_refused_clearly(labs: Labs) -> None:
     assert first.alive()
 
 
-def test_two_processes_started_under_one_name_at_once_both_hold_for_good(labs: Labs) -> None:
+def test_a_second_process_under_its_name_at_start_holds_the_agent_for_good(
+    labs: Labs,
+) -> None:
     """The race the start-up check cannot see: a second holder of the name that declares
     it right after the agent has (both passed the check before either declared). The
-    agent's second look, two seconds after start, finds two tokens: it holds, says why,
-    is not ready, and stays held once the other has gone."""
+    agent's look 2 s after start hears two sessions answer its sync key: it holds, says
+    why, is not ready, and stays held once the other has gone. (A second fedlab agent
+    would do the same on its side.)"""
     router = labs.router("kiruna")
     key = f"fedlab/default/{LEADER}"
     conf = client_config(router.endpoint)

@@ -1,5 +1,5 @@
-"""Two processes under one name: the agent's second look at its name, two seconds
-after start, and the hold it leads to, for good (on a real Zenoh session)."""
+"""Two processes under one name: the agent's later looks at its name (2 s and 10 s
+after start), and the hold they lead to, for good (on a real Zenoh session)."""
 
 from __future__ import annotations
 
@@ -12,19 +12,34 @@ from federation.core.runstate import Event
 from federation.runtime import agent as agent_module
 
 
-def test_the_second_look_alone_on_its_name_finds_no_clash(session: zenoh.Session) -> None:
+def test_alone_on_its_name_an_agent_finds_no_clash(session: zenoh.Session) -> None:
     # Its own session answers its sync key; nobody else does.
     with cohosted(session, leader_config()) as (_, _, (lead,)):
-        assert lead._name_check_at < float("inf")  # due once, after start
-        lead._check_name_again(lead._name_check_at)
-        assert lead._name_check_at == float("inf")  # looked once: never again
-        time.sleep(1.5)  # the query's 1 s timeout, and its end
+        checks = list(lead._name_checks)
+        assert len(checks) == len(agent_module.NAME_CHECKS_AFTER)
+        for due in checks:
+            lead._check_name_again(due)
+        assert lead._name_checks == []  # each look once
+        time.sleep(1.5)  # the queries' 1 s timeout, and their end
         assert lead.name_clash is None
+        served = lead.counters["sync_requests_served"]
+        assert served == 2, lead.counters  # its own two looks, answered by itself
         run_for([lead], 0.5)
         assert lead.hold_reason is None and not lead.platform.held  # type: ignore[attr-defined]
 
 
-def test_a_clash_holds_for_good_through_runs_and_link(session: zenoh.Session) -> None:
+def test_the_looks_are_due_after_start_and_not_before(session: zenoh.Session) -> None:
+    before = time.monotonic()
+    with cohosted(session, leader_config()) as (_, _, (lead,)):
+        after = time.monotonic()
+        for due, wait in zip(lead._name_checks, agent_module.NAME_CHECKS_AFTER, strict=True):
+            assert before + wait <= due <= after + wait
+        first = lead._name_checks[0]
+        lead._check_name_again(first - 0.1)  # not yet: nothing asked
+        assert lead._name_checks[0] == first
+
+
+def test_a_clash_holds_for_good_through_runs(session: zenoh.Session) -> None:
     with cohosted(session, leader_config(), follower_config("f1")) as (_, _, (lead, f1)):
         run_for([lead, f1], 1.0)
         for agent in (lead, f1):
@@ -41,24 +56,22 @@ def test_a_clash_holds_for_good_through_runs_and_link(session: zenoh.Session) ->
                 agent._apply([Event(kind, None)], t_exec, host)  # type: ignore[arg-type]
                 assert agent.hold_reason == "name_taken"
                 assert agent.platform.held  # type: ignore[attr-defined]
-        # The followed pose flowing and sync fresh release no one held for the name.
-        t_exec, host = f1.clock.read()
-        f1.pose_received_at[LEAD] = t_exec
-        f1._watch_link(t_exec, host)
-        assert f1.hold_reason == "name_taken"
-        run_for([lead, f1], 1.0)  # still held after more steps, counted once
-        for agent in (lead, f1):
-            assert agent.hold_reason == "name_taken" and agent.counters["name_taken_holds"] == 1
             assert agent.status().hold == "name_taken"
 
 
-def test_the_look_is_due_two_seconds_after_start(session: zenoh.Session) -> None:
-    before = time.monotonic()
-    with cohosted(session, leader_config()) as (_, _, (lead,)):
-        after = time.monotonic()
-        due = lead._name_check_at
-        assert (
-            before + agent_module.NAME_CHECK_AFTER <= due <= after + agent_module.NAME_CHECK_AFTER
-        )
-        lead._check_name_again(due - 0.1)  # not yet: nothing asked
-        assert lead._name_check_at == due
+def test_a_clash_over_a_stale_hold_outlasts_the_link_coming_back(session: zenoh.Session) -> None:
+    """A follower held for a stale link, then found under a taken name: the leader's
+    poses and sync flowing again (which release a stale hold) release nothing."""
+    with cohosted(session, leader_config(), follower_config("f1")) as (_, _, (lead, f1)):
+        run_for([lead, f1], 1.5)  # synced, the leader's pose flowing
+        t_exec, host = f1.clock.read()
+        f1.pose_received_at[LEAD] = t_exec - 1.0  # as if the link had gone quiet
+        f1._watch_link(t_exec, host)
+        assert f1.hold_reason == "stale" and f1.counters["stale_holds"] == 1
+        f1.name_clash = "2 processes answer for lab1/f1 in federation default"
+        f1.control_step()
+        assert f1.hold_reason == "name_taken"
+        run_for([lead, f1], 2.0)  # poses and sync exchanges again: a stale hold would end
+        assert f1.pose_received_at[LEAD] > t_exec  # the link did come back
+        assert f1.hold_reason == "name_taken" and f1.platform.held  # type: ignore[attr-defined]
+        assert f1.counters["name_taken_holds"] == 1  # never released, so never held again
