@@ -48,6 +48,7 @@ def test_scale_short(tmp_path: Path) -> None:
     rows = out["rows"]
     assert [(r["n"], r["mode"]) for r in rows] == [(2, "default"), (2, "bare"), (6, "default"),
                                                    (6, "bare")]  # fmt: skip
+    assert rows[2]["worker_threads_ms"], rows[2]  # fedlab's six agents: the loop's thread at least
     for r in rows:
         assert r["samples"] > 0 and r["p50_ms"] > 0, r
         assert r["loss"] < 0.01, r
@@ -55,11 +56,15 @@ def test_scale_short(tmp_path: Path) -> None:
         assert r["rss_mib"], r  # sampled after warm-up
         assert r["group"] == 2, r  # fedlab's workers and the bare floor tick in pairs
         # The workers' CPU by thread name (digits folded), together no more than the
-        # workers' total (a short run may leave a thread under one clock tick: absent).
+        # workers' total. /proc counts 10 ms ticks: a short run may leave a thread under
+        # one (absent), and workers that took ten in the measured window (seconds - 1)
+        # show in at least one thread; two agents of the floor may take fewer.
         threads = r["worker_threads_ms"]
-        assert threads and not any(ch.isdigit() for name in threads for ch in name), threads
+        assert not any(ch.isdigit() for name in threads for ch in name), threads
         workers_ms = 1e3 * r["cpu_workers_cores"] / r["n"]
-        assert 0 < sum(threads.values()) <= workers_ms * 1.05 + 0.5, (threads, workers_ms)
+        assert sum(threads.values()) <= workers_ms * 1.05 + 0.5, (threads, workers_ms)
+        if r["cpu_workers_cores"] * (r["seconds"] - 1) >= 0.1:
+            assert threads, r
         # Of which in the kernel: a thread's part no more than its whole.
         kernel = r["worker_threads_kernel_ms"]
         assert all(0 < ms <= threads[name] for name, ms in kernel.items()), (kernel, threads)
