@@ -75,3 +75,32 @@ def test_a_clash_over_a_stale_hold_outlasts_the_link_coming_back(session: zenoh.
         assert f1.pose_received_at[LEAD] > t_exec  # the link did come back
         assert f1.hold_reason == "name_taken" and f1.platform.held  # type: ignore[attr-defined]
         assert f1.counters["name_taken_holds"] == 1  # never released, so never held again
+
+
+class _LeftItsArea:
+    """A scenario whose platform has just left its area (what control_step reads)."""
+
+    workspace_held = True
+    hold_reason = "left its area"
+
+    def reference(self, *args: object) -> None:
+        return None
+
+
+def test_a_workspace_hold_after_the_clash_keeps_the_name_as_the_reason(
+    session: zenoh.Session,
+) -> None:
+    with cohosted(session, leader_config()) as (_, _, (lead,)):
+        run_for([lead], 0.5)
+        lead.name_clash = "2 processes answer for lab0/lead in federation default"
+        lead.control_step()
+        assert lead.hold_reason == "name_taken"
+        lead.scenario = _LeftItsArea()  # type: ignore[assignment]
+        try:
+            lead.control_step()  # the workspace hold comes after: held, reason kept
+        finally:
+            lead.scenario = None
+        assert lead._left_area and lead.hold_reason == "name_taken"
+        assert lead.platform.held  # type: ignore[attr-defined]
+        lead.control_step()
+        assert lead.counters["name_taken_holds"] == 1  # the reason never changed
