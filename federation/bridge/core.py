@@ -35,6 +35,12 @@ Reference of a follower bridge without ``follow``
     is followed. A reference whose liveliness token comes back after going away has a
     new clock: its link starts afresh.
 Anything malformed is dropped and counted in ``counters``.
+Its name taken
+    Another process answers for the legacy agent's name (:meth:`BridgeCore.hold_for_name`):
+    for good, the bridge no longer speaks for it. The legacy agent's requests get no
+    reply (no reference time, no pose to steer by), its replies are not published, the
+    federation's sync queries are not answered, its liveliness token stays away, and
+    status says ``hold: name_taken``.
 """
 
 from __future__ import annotations
@@ -62,7 +68,7 @@ class Outcome(NamedTuple):
     reply: bytes | None = None  # send back to the datagram's source
     pose: bytes | None = None  # publish as the legacy agent's pose sample
     rejected: str | None = None  # why it was dropped, for the log
-    kind: str | None = None  # what was dropped: "malformed", "unsynced" or "sync reply"
+    kind: str | None = None  # what was dropped: "malformed", "unsynced", "sync reply", "held"
 
 
 class Maintenance(NamedTuple):
@@ -101,6 +107,21 @@ class BridgeCore:
         self._seen_gone: set[AgentId] = set()  # agents whose token went away
         self._rejoined = False  # the reference's token came back: a new clock
         self._leaders_said = False
+        self.name_clash: str | None = None  # why the bridge no longer speaks for the name
+
+    def hold_for_name(self, detail: str) -> bool:
+        """Another process runs under the legacy agent's name: stop speaking for it, for
+        good (which of the two is genuine cannot be told in-band). True the first time."""
+        if self.name_clash is not None:
+            return False
+        self.name_clash = detail
+        self.counters["name_taken_holds"] += 1
+        return True
+
+    def name_alive_elsewhere(self) -> bool:
+        """Whether the legacy agent's name has a liveliness token while the bridge holds
+        none for it (asked before it declares its own)."""
+        return self.me in self._alive
 
     def _client(self) -> SyncClient:
         cfg = self.config
@@ -132,6 +153,9 @@ class BridgeCore:
     def on_datagram(self, data: bytes, now: float) -> Outcome:
         """A datagram from the legacy agent, read at ``now``: its request (8 bytes) or its
         reply to ours (64 bytes)."""
+        if self.name_clash is not None:
+            self.counters["udp_held_for_name"] += 1
+            return Outcome(rejected=f"not speaking for {self.me}: {self.name_clash}", kind="held")
         if len(data) == wire.REQUEST_SIZE:
             return self._on_legacy_request(data, now)
         if len(data) == wire.REPLY_SIZE:
@@ -189,7 +213,11 @@ class BridgeCore:
     def on_sync_query(self, payload: bytes, now: float) -> tuple[bytes, float] | None:
         """A federation agent's sync request arriving at ``now``: the 64-byte reply on the
         legacy agent's behalf and the legacy offset it used (to stamp the send time on
-        the legacy clock), or None (no reply). Raises wire.DecodeError if malformed."""
+        the legacy clock), or None (no reply; none either once the name is taken
+        elsewhere). Raises wire.DecodeError if malformed."""
+        if self.name_clash is not None:
+            self.counters["sync_requests_held"] += 1
+            return None
         try:
             t1 = wire.decode_request(payload)
         except wire.DecodeError:
@@ -258,7 +286,7 @@ class BridgeCore:
     def maintain(self, now: float) -> Maintenance:
         """Every sync period: is the legacy agent still answering, has the reference
         rejoined, and (a follower without ``follow``) which leader to follow."""
-        legacy_alive = self.check_legacy(now)
+        legacy_alive = self.check_legacy(now) and self.name_clash is None
         if self.config.role != "follower":
             return Maintenance(legacy_alive)
         rejoined, self._rejoined = self._rejoined, False
@@ -313,6 +341,7 @@ class BridgeCore:
             mode="unmanaged",
             platform=f"udp:{cfg.peer_text}",
             follow=None if follow is None else str(follow),
+            hold=None if self.name_clash is None else "name_taken",
             pose_age=pose_age,
             pose=pose,
             peers=peers,

@@ -66,6 +66,13 @@ from federation.core.schedule import next_tick
 from federation.runtime.agent import RateLimitedLog
 from federation.runtime.clock import ExecClock
 from federation.runtime.heap import freeze_startup_heap
+from federation.runtime.names import (
+    NAME_CHECKS_AFTER,
+    NameTaken,
+    clash_message,
+    look_for_others,
+    name_alive,
+)
 from schemas.bridge import UdpBridgeConfig, format_address
 from schemas.config import ConfigError
 from schemas.messages import Status
@@ -115,6 +122,7 @@ class UdpBridge:
         self._receiver: threading.Thread | None = None
         self._stop = threading.Event()
         self._status_file: IO[str] | None = None
+        self._name_checks: list[float] = []  # host monotonic times of the next looks
 
     @property
     def listen_address(self) -> tuple[str, int]:
@@ -130,7 +138,15 @@ class UdpBridge:
 
     # -- lifecycle -------------------------------------------------------------------
     def start(self) -> None:
+        """Declare everything; refuse (NameTaken) if the name is already in the federation."""
         s, cfg, callback = self.session, self.config, zenoh.handlers.Callback
+        # Before the liveliness subscriber: once a session watches liveliness, its own
+        # lookups may come back empty (federation/runtime/host.py).
+        if name_alive(s, self.key(self.me)):
+            raise NameTaken(
+                f"agent {self.me} is already in federation {cfg.federation}: stop it first "
+                "or bridge the legacy agent under another --as"
+            )
         self._declared.append(
             s.declare_queryable(self.key(self.me, "sync"), callback(self._on_query, indirect=False))
         )
@@ -238,9 +254,11 @@ class UdpBridge:
             log.warning("sync request to %s failed: %s", reference, error)
 
     def _maintain(self) -> None:
-        """Liveliness token while the legacy agent answers; reference found or rejoined."""
+        """Liveliness token while the legacy agent answers (and the name is its own);
+        reference found or rejoined."""
         with self._lock:
             found = self.core.maintain(self.clock.now())
+        self._check_name_again(time.monotonic())
         self._set_token(found.legacy_alive)
         if found.rejoined is not None:
             log.info("reference %s rejoined: forgetting its old clock", found.rejoined)
@@ -278,7 +296,18 @@ class UdpBridge:
 
     def _set_token(self, present: bool, quiet: bool = False) -> None:
         if present and self._token is None:
+            with self._lock:
+                # Another process took the name while the legacy agent was away (or before
+                # it first answered): the bridge no longer speaks for it.
+                taken = self.core.name_alive_elsewhere() and self.core.hold_for_name(
+                    f"{self.me} is alive in federation {self.config.federation} in another process"
+                )
+            if taken:
+                self._say_held()
+            if self.core.name_clash is not None:
+                return
             self._token = self.session.liveliness().declare_token(self.key(self.me))
+            self._name_checks = [time.monotonic() + after for after in NAME_CHECKS_AFTER]
             log.info("legacy agent at %s answers: %s joined", self.config.peer_text, self.me)
         elif not present and self._token is not None:
             _undeclare(self._token)
@@ -288,6 +317,39 @@ class UdpBridge:
                     "legacy agent at %s silent for %.1f s: %s left",
                     self.config.peer_text, self.config.legacy_timeout, self.me,
                 )  # fmt: skip
+
+    def _check_name_again(self, host: float) -> None:
+        """At each of ``NAME_CHECKS_AFTER`` after the token is declared (host monotonic
+        ``host``): ask who answers the legacy agent's sync key, as every agent does
+        (:func:`~federation.runtime.names.look_for_others`); another session there
+        means another process under the name, and the bridge stops speaking for it
+        for good (:meth:`BridgeCore.hold_for_name`)."""
+        checks = self._name_checks
+        if not checks or host < checks[0]:
+            return
+        checks.pop(0)
+
+        def clash(sessions: list[str]) -> None:
+            with self._lock:
+                held = self.core.hold_for_name(
+                    clash_message(str(self.me), self.config.federation, sessions)
+                )
+            if held:
+                self._say_held()
+
+        try:
+            request = wire.encode_request(self.clock.now())
+            look_for_others(self.session, self.key(self.me, "sync"), request, clash)
+        except Exception as error:  # the session closing, or Zenoh refusing the query
+            log.warning("looking again at the name %s failed: %s", self.me, error)
+            checks.insert(0, host + NAME_CHECKS_AFTER[0])
+
+    def _say_held(self) -> None:
+        log.error(
+            "%s: the bridge no longer speaks for the legacy agent at %s (no replies to it, "
+            "no pose from it); stop one of them and restart the other",
+            self.core.name_clash, self.config.peer_text,
+        )  # fmt: skip
 
     def status(self) -> Status:
         t, host = self.clock.read()

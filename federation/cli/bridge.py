@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -241,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
     import zenoh
 
     from federation.bridge.udp import bind_udp, run_bridge
+    from federation.runtime.names import NameTaken
     from federation.runtime.session import build_config
 
     config = bridge_config(args)
@@ -256,5 +258,9 @@ def run(args: argparse.Namespace) -> int:
         sock.close()
         return 0
     with session:
-        run_bridge(config, session, sock, stop)
+        try:
+            run_bridge(config, session, sock, stop)
+        except NameTaken as error:
+            print(f"fedlab bridge udp: error: {error}", file=sys.stderr)
+            return 2
     return 0

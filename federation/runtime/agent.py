@@ -58,6 +58,13 @@ from federation.runtime.collect import RecordingServer
 from federation.runtime.fanout import Fanout, Received
 from federation.runtime.links import PoseFeed, SyncLink, SyncLinks
 from federation.runtime.loop import Schedule, run_together
+from federation.runtime.names import (
+    NAME_CHECKS_AFTER,
+    NameTaken,
+    clash_message,
+    look_for_others,
+    name_alive,
+)
 from federation.runtime.recorder import Message, Recorder, Shared
 from federation.runtime.runs import RunRecording
 from federation.runtime.session import undeclare_all
@@ -76,15 +83,6 @@ log = logging.getLogger("fedlab.agent")
 MAX_SMALL_PAYLOAD = 1024
 """Bytes: a pose sample is 56, a sync request 8 and its reply 64; a payload larger than
 this on those keys is junk, dropped and counted before it is copied (issue 13)."""
-
-NAME_CHECKS_AFTER = (2.0, 10.0)
-"""s after start: the name is looked up again, for a second process that started under
-it at the same time (both passed the check before either had declared it); the later
-look finds one that declared it more slowly (the last agents of a large host)."""
-
-
-class NameTaken(ValueError):
-    """Another agent already uses this lab/name in the federation."""
 
 
 class RateLimitedLog:
@@ -335,50 +333,32 @@ class AgentRuntime:
 
     def _refuse_taken_name(self) -> None:
         """Two agents may not share a name: ask liveliness whether ours is alive."""
-        replies = self.session.liveliness().get(self.key(self.me), timeout=1.0)
-        for reply in replies:
-            if reply.ok is not None:
-                raise NameTaken(
-                    f"agent {self.me} is already in federation {self.config.federation}: "
-                    "stop it first or choose another --name"
-                )
+        if name_alive(self.session, self.key(self.me)):
+            raise NameTaken(
+                f"agent {self.me} is already in federation {self.config.federation}: "
+                "stop it first or choose another --name"
+            )
 
     def _check_name_again(self, host: float) -> None:
         """At each of ``NAME_CHECKS_AFTER`` after start (host monotonic ``host``; called at
-        every control step): ask who answers this agent's own sync key. Two processes
-        that started under one name at once both passed :meth:`_refuse_taken_name`; each
-        now hears two repliers (its own session and the other's), and each holds for
-        good (:meth:`_hold_for_name`): which one is genuine cannot be told in-band. A
-        sync query, not a liveliness lookup: a session that watches liveliness answers
-        one token per name, however many hold it. Asynchronous: the replies come on
-        Zenoh's threads; a query that cannot be sent is tried again a period later."""
+        every control step): ask who answers this agent's own sync key
+        (:func:`~federation.runtime.names.look_for_others`). Two processes that started
+        under one name at once both passed :meth:`_refuse_taken_name`; each now hears
+        the other's session besides its own, and each holds for good
+        (:meth:`_hold_for_name`): which one is genuine cannot be told in-band. The
+        replies come on Zenoh's threads; a query that cannot be sent is tried again a
+        period later."""
         checks = self._name_checks
         if not checks or host < checks[0]:
             return
         checks.pop(0)
-        repliers: set[str] = set()
 
-        def replied(reply: zenoh.Reply) -> None:
-            replier = reply.replier_id
-            if reply.ok is not None and replier is not None:
-                repliers.add(str(replier.zid))
-
-        def done() -> None:
-            if len(repliers) > 1:
-                self.name_clash = (
-                    f"{len(repliers)} processes answer for {self.me} in federation "
-                    f"{self.config.federation} (sessions {', '.join(sorted(repliers))})"
-                )
+        def clash(sessions: list[str]) -> None:
+            self.name_clash = clash_message(str(self.me), self.config.federation, sessions)
 
         try:
-            self.session.get(
-                self.key(self.me, "sync"),
-                zenoh.handlers.Callback(replied, done, indirect=False),
-                payload=wire.encode_request(self.clock.now()),
-                target=zenoh.QueryTarget.ALL,  # every queryable on the key, not the best
-                consolidation=zenoh.ConsolidationMode.NONE,
-                timeout=1.0,
-            )
+            request = wire.encode_request(self.clock.now())
+            look_for_others(self.session, self.key(self.me, "sync"), request, clash)
         except Exception as error:  # the session closing, or Zenoh refusing the query
             log.warning("looking again at the name %s failed: %s", self.me, error)
             checks.insert(0, host + NAME_CHECKS_AFTER[0])

@@ -13,12 +13,14 @@ import math
 import socket
 import struct
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from loopback import LEADER, Agent, Labs, Tap
+import zenoh
+from loopback import LEADER, Agent, Labs, Tap, client_config
 
 from federation.core import wire
 from federation.core.paper import CLOCK_OFFSET
@@ -182,3 +184,80 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         )
     finally:
         tap.close()
+
+
+@pytest.mark.integration
+def test_a_bridge_refuses_a_name_already_in_the_federation(labs: Labs, fleet: Fleet) -> None:
+    router = labs.router("kiruna")
+    leader = labs.leader(router)
+    leader.wait_status(timeout=10)
+    bridge_port, legacy_port = free_udp_port(), free_udp_port()
+    argv = [
+        "bridge", "udp", "--as", LEADER, "--listen", f"127.0.0.1:{bridge_port}",
+        "--peer", f"127.0.0.1:{legacy_port}", "-e", router.endpoint,
+    ]  # fmt: skip
+    fleet.start("bridge", argv)
+    assert wait_for(lambda: not fleet.alive("bridge"), timeout=20), "the bridge kept running"
+    assert fleet.stop("bridge") == 2
+    log = fleet.log_path("bridge").read_text()
+    assert f"agent {LEADER} is already in federation default" in log, log
+    assert leader.alive() and leader.latest()["hold"] is None
+
+
+@pytest.mark.integration
+def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_good(
+    labs: Labs, fleet: Fleet
+) -> None:
+    """The race the start-up check cannot see: another session answers the legacy agent's
+    sync key just after the bridge declared the name. The bridge's look 2 s later hears
+    it: it stops speaking for the legacy agent (no more replies to it, no pose from it,
+    no token), says why, and stays so once the other has gone."""
+    router = labs.router("kiruna")
+    leader = labs.leader(router)
+    key = f"fedlab/default/{LEGACY}"
+    conf = client_config(router.endpoint)
+    conf.insert_json5("connect/timeout_ms", "10000")
+    racer = zenoh.open(conf)
+    declared: list[Any] = []
+    up = threading.Event()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            up.set()
+
+    watch = racer.liveliness().declare_subscriber(key, on_token)
+    try:
+        bridge_port, legacy_port = free_udp_port(), free_udp_port()
+        start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
+        bridge = start_bridge(
+            labs,
+            "--listen", f"127.0.0.1:{bridge_port}", "--peer", f"127.0.0.1:{legacy_port}",
+            "--follow", LEADER, "-e", router.endpoint, "--status-period", "0.5",
+        )  # fmt: skip
+        assert up.wait(30), "the bridge never declared the legacy agent's name"
+        declared.append(racer.declare_queryable(f"{key}/sync", _answer))
+        held = bridge.until(lambda line: line.get("hold") == "name_taken", 10, "name hold")
+        assert held["counters"]["name_taken_holds"] == 1, held["counters"]
+        assert "2 processes answer for rome/legacy in federation default" in bridge.log()
+        # Held: the legacy agent gets no more replies, and the token went.
+        leader.until(gone, timeout=5, what=f"{LEGACY} gone")
+        time.sleep(0.5)
+        before = legacy_lines(fleet)[-1]["samples"]
+        while declared:  # the other one stops: the bridge stays held
+            declared.pop().undeclare()
+        time.sleep(2.0)
+        assert legacy_lines(fleet)[-1]["samples"] == before
+        line = bridge.latest()
+        assert line["hold"] == "name_taken" and line["counters"]["name_taken_holds"] == 1
+        assert line["counters"]["udp_held_for_name"] > 0
+        assert bridge.alive()
+    finally:
+        for entity in declared:
+            entity.undeclare()
+        watch.undeclare()  # type: ignore[no-untyped-call]
+        racer.close()  # type: ignore[no-untyped-call]
+
+
+def _answer(query: zenoh.Query) -> None:
+    """A sync reply of the paper's size (what a second process's queryable sends)."""
+    query.reply(query.key_expr, bytes(64))

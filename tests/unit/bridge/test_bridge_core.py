@@ -256,3 +256,29 @@ def test_the_core_does_no_io() -> None:
         )
     }  # fmt: skip
     assert not imported & {"zenoh", "socket", "time", "threading", "asyncio", "argparse"}
+
+
+def test_a_name_taken_elsewhere_stops_the_bridge_speaking_for_it_for_good() -> None:
+    core = BridgeCore(config())
+    now = sync_core(core, CLOCK_OFFSET, -3.0)
+    assert core.maintain(now).legacy_alive
+    assert not core.name_alive_elsewhere()
+    core.on_liveliness(liveliness(LEGACY), True)  # another process's token (none is ours)
+    assert core.name_alive_elsewhere()
+    assert core.hold_for_name("2 processes answer for rome/legacy")
+    assert not core.hold_for_name("again")  # said and counted once
+    assert core.counters["name_taken_holds"] == 1
+    # The legacy agent's request: no reply, so no reference time and no pose to steer by.
+    held = core.on_datagram(wire.encode_request(1.0), now)
+    assert held.reply is None and held.pose is None and held.kind == "held"
+    assert "2 processes answer" in (held.rejected or "")
+    # Its reply to the bridge: not published.
+    reply = wire.encode_reply(wire.decode_request(core.legacy_request(now)), now, wire.Pose())
+    assert core.on_datagram(reply, now + 0.001).pose is None
+    # The federation's sync queries on its behalf: unanswered; its token stays away.
+    assert core.on_sync_query(wire.encode_request(5.0), now) is None
+    assert not core.maintain(now + 0.1).legacy_alive
+    status = core.status(now, now)
+    assert status.hold == "name_taken"
+    assert status.counters["udp_held_for_name"] == 2
+    assert status.counters["sync_requests_held"] == 1
