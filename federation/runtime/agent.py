@@ -605,8 +605,14 @@ class AgentRuntime:
                 self.platform.hold()
             elif event.kind == "armed":
                 if self.hold_reason in ("done", "reset"):
-                    self.hold_reason = None
-                    self.platform.release()
+                    if self.link_watch.holding:
+                        # Held for a stale pose before the run ended: a new run does not
+                        # make the pose fresh. The link watch releases it once the pose
+                        # flows again and a sync exchange has completed since.
+                        self.hold_reason = "stale"
+                    else:
+                        self.hold_reason = None
+                        self.platform.release()
                 self._begin_run_recording()
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(
@@ -786,6 +792,8 @@ class AgentRuntime:
         detail = ""
         if self.hold_reason in ("stale", "aborted", "name_taken"):
             detail = f"held ({self.hold_reason})"
+        elif self.link_watch.holding:  # stale before the run ended: still stale
+            detail = "held (stale)"
         else:
             chain = getattr(self.platform, "chain", None)
             reason = getattr(chain, "reason", None)

@@ -1,0 +1,104 @@
+"""Holds across runs: a new run does not release what the run's end did not cause
+(an agent with no Zenoh session, its clock and its inputs driven by hand)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+
+from federation.core import wire
+from federation.core.keys import AgentId
+from federation.runtime.agent import AgentRuntime
+from federation.runtime.clock import ExecClock
+from schemas.config import AgentConfig
+
+LEAD = AgentId.parse("rome/l")
+
+
+class _Payload:
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+class _Sample:
+    """What ``_on_control`` reads of a zenoh.Sample."""
+
+    def __init__(self, command: dict[str, Any]):
+        self.payload = _Payload(json.dumps(command).encode())
+        self.key_expr = "fedlab/default/@control"
+
+
+class Follower:
+    def __init__(self) -> None:
+        self.now = 1000.0
+        self.clock = ExecClock(source=lambda: self.now)
+        config = AgentConfig(lab="kiruna", name="f", role="follower", follow=str(LEAD))
+        self.agent = AgentRuntime(config, session=None, clock=self.clock)  # type: ignore[arg-type]
+        self.agent.peer_seen(LEAD, True)
+        self.seq = 0
+
+    def sync(self) -> None:
+        """One sync exchange with the leader (its clock 5 ms ahead, 10 ms round trip)."""
+        link = self.agent.peers[LEAD].link
+        assert link is not None
+        t1 = wire.decode_request(link.client.request(self.clock.now()))
+        self.now += 0.01
+        link.client.receive(wire.encode_reply(t1, t1 + 0.010, wire.Pose()), self.clock.now())
+
+    def pose(self) -> None:
+        t = self.clock.now()
+        self.agent.latest_poses[LEAD] = wire.PoseSample(t, wire.Pose(heading=1.0, omega=0.5))
+        self.agent.pose_received_at[LEAD] = t
+
+    def command(self, name: str, **fields: Any) -> None:
+        self.seq += 1
+        command = {"command": name, "seq": self.seq, "issuer": "op"} | fields
+        self.agent._on_control(_Sample(command))  # type: ignore[arg-type]
+
+    def step(self, dt: float = 0.01) -> None:
+        self.now += dt
+        self.agent.control_step()
+
+
+@pytest.mark.parametrize("ending", ["done", "abort, reset"])
+def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending: str) -> None:
+    f = Follower()
+    for _ in range(5):
+        f.sync()
+        f.now += 0.09
+    f.command("start", run_id="r1", duration=1.5)
+    f.pose()
+    f.step()
+    assert f.agent.run_state.mode == "running" and f.agent.hold_reason is None
+    f.step(1.0)  # the leader's pose stops: stale hold
+    assert f.agent.hold_reason == "stale" and f.agent.platform.held
+    if ending == "done":
+        f.step(1.0)  # the run's 1.5 s are over
+    else:
+        f.command("abort")
+        f.step()
+        f.command("reset")
+        f.step()
+    assert f.agent.run_state.mode in ("done", "waiting", "armed"), f.agent.run_state.mode
+    assert f.agent.hold_reason in ("done", "reset")
+    assert f.agent.platform.held
+    ready = f.agent.readiness(f.clock.now())
+    assert not ready.platform and ready.platform_detail == "held (stale)"
+    f.command("start", run_id="r2")
+    for _ in range(3):
+        f.sync()  # the leader still answers sync; only its pose has stopped
+        f.step(0.5)
+        assert f.agent.platform.held, f.agent.run_state.mode
+        assert f.agent.hold_reason == "stale"
+    # The pose flows again and a sync completes since: the link watch releases it.
+    f.pose()
+    f.step()
+    f.sync()
+    f.pose()
+    f.step()
+    assert f.agent.hold_reason is None and not f.agent.platform.held
