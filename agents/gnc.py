@@ -24,7 +24,18 @@ Every valve stays closed, and :attr:`GncChain.reason` says why, while
 - ``"no_fix"``: no metrology fix has come in yet (the estimate is a guess);
 - ``"stale_fix"``: the latest fix is older than ``control.fix_timeout`` (dead
   reckoning on the IMU alone drifts; out of the cameras' view, say);
+- ``"stale_imu"``: no IMU sample for ``control.imu_timeout`` (or none yet): the filter
+  would predict on the last gyro reading for ever;
+- ``"nonfinite"``: a reference, the estimate or a demand is not a finite number (a
+  comparison with NaN is false, so a clip would pass it and a latch open on it). The
+  filter is rebuilt and waits for the next fix;
 - ``"held"``: :meth:`GncChain.hold` is in force (safe hold).
+
+Sensor data the chain cannot trust is dropped and counted, never used: an IMU sample
+that is not finite or beyond the sensor's range (``imu.gyro_range``,
+``imu.accel_range``; one such sample would carry the heading off for good), and a fix
+that is not finite. Time that runs backwards (the clock stepped back) makes every
+fix and IMU sample before it unusable: the filter is rebuilt from the next fix.
 
 Each closed step is counted (:attr:`GncChain.counters`). When control resumes, the PID's
 integral and the PWM period start afresh (bumpless restart).
@@ -32,6 +43,7 @@ integral and the PWM period start afresh (bumpless restart).
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from agents.control import HeadingPid, PositionHold, PulseWidthModulator, allocate
@@ -47,7 +59,7 @@ __all__ = ["CLOSED", "GncChain", "Reason"]
 CLOSED: tuple[bool, ...] = (False,) * len(THRUSTERS)
 """Every valve closed."""
 
-Reason = Literal["held", "no_fix", "stale_fix"]
+Reason = Literal["held", "no_fix", "stale_fix", "stale_imu", "nonfinite"]
 """Why every valve is closed."""
 
 
@@ -76,20 +88,14 @@ class GncChain:
         fix_timeout: float | None = None,
     ):
         self.config = config
-        c, v, i, n = config.control, config.vision, config.imu, config.navigation
+        c, i = config.control, config.imu
         self.rate: float = c.rate
         self.fix_timeout = c.fix_timeout if fix_timeout is None else fix_timeout
         if not self.fix_timeout > 0:
             raise ValueError(f"fix_timeout must be positive seconds, not {self.fix_timeout!r}")
-        self.filter = NavigationFilter(
-            gyro_noise=i.gyro_noise,
-            accel_noise=i.accel_noise,
-            position_noise=v.position_noise,
-            heading_noise=v.heading_noise,
-            unmodelled_accel=n.unmodelled_accel,
-            gyro_bias_walk=n.gyro_bias_walk,
-            accel_bias_walk=n.accel_bias_walk,
-        )
+        self.imu_timeout = c.imu_timeout
+        self._gyro_range, self._accel_range = i.gyro_range, i.accel_range
+        self.filter = self._new_filter()
         self.pid = HeadingPid(c.kp, c.ki, c.kd, config.pair_torque, c.integral_limit)
         # Channels: body x force, body y force, torque. The torque pairs share valves
         # with the x pairs, so x pulses sit at the end of the period, torque at the start.
@@ -111,7 +117,9 @@ class GncChain:
         self._force_scale = 1.0 / config.pair_force
         self._torque_scale = 1.0 / config.pair_torque
         self._imu = ImuSample(0.0, 0.0, 0.0)
+        self._imu_at: float | None = None  # ``now`` of the latest IMU sample used
         self._fix_at: float | None = None  # ``now`` of the latest fix
+        self._last_now: float | None = None
         self._held = False
         self._closed = True  # the last step was forced closed: restart PID and PWM
         self._valves = CLOSED
@@ -121,8 +129,31 @@ class GncChain:
             "closed_held": 0,
             "closed_no_fix": 0,
             "closed_stale_fix": 0,
+            "closed_stale_imu": 0,
+            "closed_nonfinite": 0,
+            "imu_rejected": 0,
+            "fix_rejected": 0,
+            "clock_steps_back": 0,
         }
-        """Control steps closed, per reason."""
+        """Control steps closed, per reason; sensor data dropped; clock steps back."""
+
+    def _new_filter(self) -> NavigationFilter:
+        i, v, n = self.config.imu, self.config.vision, self.config.navigation
+        return NavigationFilter(
+            gyro_noise=i.gyro_noise,
+            accel_noise=i.accel_noise,
+            position_noise=v.position_noise,
+            heading_noise=v.heading_noise,
+            unmodelled_accel=n.unmodelled_accel,
+            gyro_bias_walk=n.gyro_bias_walk,
+            accel_bias_walk=n.accel_bias_walk,
+        )
+
+    def _restart_estimate(self) -> None:
+        """Forget the estimate and every sensor time: closed until a new fix and IMU."""
+        self.filter = self._new_filter()
+        self._fix_at = self._imu_at = None
+        self._imu = ImuSample(0.0, 0.0, 0.0)
 
     # ------------------------------------------------------------------ one step
 
@@ -151,8 +182,20 @@ class GncChain:
             A position reference with its rates (this chain's frame, the table's); None:
             hold the target if position hold is on, else no force.
         """
+        if self._last_now is not None and now < self._last_now:
+            self.counters["clock_steps_back"] += 1
+            self._restart_estimate()
+        self._last_now = now
         if imu is not None:
-            self._imu = imu
+            if self._plausible_imu(imu):
+                self._imu, self._imu_at = imu, now
+            else:
+                self.counters["imu_rejected"] += 1
+        if fix is not None and not (
+            math.isfinite(fix.x) and math.isfinite(fix.y) and math.isfinite(fix.heading)
+        ):
+            self.counters["fix_rejected"] += 1
+            fix = None
         self.filter.predict(now, self._imu)
         if fix is not None:
             self.filter.correct(now, fix)
@@ -163,28 +206,46 @@ class GncChain:
                 self._target_set = True
         reason = self._closed_reason(now)
         if reason is not None:
-            self.counters[f"closed_{reason}"] += 1
-            self.reason = reason
-            self._closed = True
-            self._valves = CLOSED
-            return CLOSED
+            return self._close(reason)
+        est = self.filter.estimate
+        if not all(map(math.isfinite, est)):
+            self._restart_estimate()  # a NaN in the filter stays there: start afresh
+            return self._close("nonfinite")
+        if not (math.isfinite(heading_ref) and math.isfinite(rate_ref)):
+            return self._close("nonfinite")
         if self._closed:  # resuming: no integral or PWM period left from before
             self._closed = False
             self.pid.reset()
             self.pwm.reset()
         self.reason = None
-        est = self.filter.estimate
         torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
         fx = fy = 0.0
         if track is not None:
             fx, fy = self.position.update(est, track)
         elif self.position_hold is not None:
             fx, fy = self.position_hold.update(est)
-        signs = self.pwm.update(
-            now, (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)
-        )
+        demands = (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)
+        if not all(map(math.isfinite, demands)):  # a track's NaN, an overflow
+            return self._close("nonfinite")
+        signs = self.pwm.update(now, demands)
         self._valves = allocate(*signs)
         return self._valves
+
+    def _close(self, reason: Reason) -> tuple[bool, ...]:
+        self.counters[f"closed_{reason}"] += 1
+        self.reason = reason
+        self._closed = True
+        self._valves = CLOSED
+        return CLOSED
+
+    def _plausible_imu(self, imu: ImuSample) -> bool:
+        gyro, ax, ay = imu
+        # ``not x <= r`` is true for NaN, where ``x > r`` is not.
+        return (
+            abs(gyro) <= self._gyro_range
+            and abs(ax) <= self._accel_range
+            and abs(ay) <= self._accel_range
+        )
 
     def _closed_reason(self, now: float) -> Reason | None:
         if self._held:
@@ -193,6 +254,8 @@ class GncChain:
             return "no_fix"
         if now - self._fix_at > self.fix_timeout:
             return "stale_fix"
+        if self._imu_at is None or now - self._imu_at > self.imu_timeout:
+            return "stale_imu"
         return None
 
     # ------------------------------------------------------------------ safe hold

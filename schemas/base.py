@@ -32,9 +32,10 @@ def name(what: str) -> AfterValidator:
 
 
 class Model(BaseModel):
-    """Frozen, and an unknown field is an error (a typo never passes silently)."""
+    """Frozen, an unknown field is an error (a typo never passes silently), and no number
+    is infinite or NaN (a gain of ``inf`` or a noise of ``nan`` would reach the valves)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 M = TypeVar("M", bound=BaseModel)

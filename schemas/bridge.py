@@ -62,7 +62,7 @@ Seconds = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 class UdpBridgeConfig(BaseModel):
     """What ``fedlab bridge udp`` was asked to do."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     agent: AgentRef = Field(description="LAB/NAME the legacy agent joins the federation as")
     listen: Address = Field(

@@ -66,6 +66,20 @@ class ImuConfig(_Model):
         (0.002, -0.001),
         description="constant accelerometer bias along body x and y, m/s^2 (unknown to the filter)",
     )
+    gyro_range: float = Field(
+        8.7,
+        gt=0,
+        le=100,
+        description="largest gyro reading the sensor can give, rad/s (500 deg/s): a sample "
+        "beyond it is a fault, dropped and counted",
+    )
+    accel_range: float = Field(
+        39.2,
+        gt=0,
+        le=2000,
+        description="largest accelerometer reading the sensor can give, m/s^2 (4 g): a sample "
+        "beyond it is a fault, dropped and counted",
+    )
 
 
 class VisionConfig(_Model):
@@ -134,6 +148,13 @@ class ControlConfig(_Model):
         gt=0,
         le=10,
         description="seconds without a metrology (vision) fix after which every valve closes",
+    )
+    imu_timeout: float = Field(
+        0.1,
+        gt=0,
+        le=10,
+        description="seconds without an IMU sample after which every valve closes (the "
+        "filter would predict on the last gyro reading)",
     )
 
     @model_validator(mode="after")
@@ -219,6 +240,11 @@ class PlatformConfig(_Model):
             raise ValueError(
                 f"control.fix_timeout ({self.control.fix_timeout} s) is shorter than one vision "
                 f"period (1/vision.rate = {1.0 / self.vision.rate} s): no valve would ever open"
+            )
+        if self.control.imu_timeout * self.imu.rate < 1.0:
+            raise ValueError(
+                f"control.imu_timeout ({self.control.imu_timeout} s) is shorter than one IMU "
+                f"period (1/imu.rate = {1.0 / self.imu.rate} s): no valve would ever open"
             )
         return self
 

@@ -797,8 +797,12 @@ class AgentRuntime:
         else:
             chain = getattr(self.platform, "chain", None)
             reason = getattr(chain, "reason", None)
-            if reason in ("no_fix", "stale_fix"):
-                detail = "no metrology fix yet" if reason == "no_fix" else "metrology fix stale"
+            detail = {
+                "no_fix": "no metrology fix yet",
+                "stale_fix": "metrology fix stale",
+                "stale_imu": "IMU silent",
+                "nonfinite": "estimate or reference not finite",
+            }.get(reason or "", "")
         locked, bound = True, 0.0 if self.reference == self.me else None
         if self.reference != self.me:
             peer = self.peers.get(self.reference)

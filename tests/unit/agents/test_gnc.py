@@ -44,7 +44,16 @@ def test_no_valve_opens_before_the_first_fix() -> None:
     assert chain.reason == "no_fix" and chain.valves == CLOSED
     assert set(run(chain, 0.0, 2.0)) == {CLOSED}  # IMU only: a 1 rad error, nothing fires
     assert chain.reason == "no_fix"
-    assert chain.counters == {"closed_held": 0, "closed_no_fix": 201, "closed_stale_fix": 0}
+    assert chain.counters == {
+        "closed_held": 0,
+        "closed_no_fix": 201,
+        "closed_stale_fix": 0,
+        "closed_stale_imu": 0,
+        "closed_nonfinite": 0,
+        "imu_rejected": 0,
+        "fix_rejected": 0,
+        "clock_steps_back": 0,
+    }
     # The first fix: the chain controls from this very step.
     valves = chain.update(2.01, 1.0, 0.0, imu=STILL, fix=Pose())
     assert valves == PLUS_TORQUE and chain.reason is None
@@ -161,3 +170,89 @@ def test_every_platform_is_a_platform() -> None:
     simulated.close()
     assert simulated.valves == CLOSED
     kinematic.close()
+
+
+# -- faults: what the chain cannot trust closes the valves -------------------------------
+def _flying(chain: GncChain, t: float = 0.0) -> float:
+    """Steps at rest towards 1 rad with fixes and IMU until the chain controls; the time."""
+    assert set(run(chain, t, t + 0.2, fix_every=0.05)) == {PLUS_TORQUE}
+    return t + 0.2
+
+
+def test_a_nonfinite_reference_closes_the_valves_for_that_step() -> None:
+    chain = GncChain(KNATTE)
+    t = _flying(chain)
+    for bad in (math.nan, math.inf):
+        t += TICK
+        assert chain.update(t, bad, 0.0, imu=STILL, fix=Pose()) == CLOSED
+        assert chain.reason == "nonfinite"
+        t += TICK
+        assert chain.update(t, 1.0, bad, imu=STILL, fix=Pose()) == CLOSED
+    assert chain.counters["closed_nonfinite"] == 4
+    assert chain.update(t + TICK, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
+
+
+def test_a_nonfinite_estimate_restarts_the_filter_and_waits_for_a_fix() -> None:
+    chain = GncChain(KNATTE)
+    t = _flying(chain)
+    chain.filter.kf.x[0, 0] = math.nan  # however it got there
+    t += TICK
+    assert chain.update(t, 1.0, 0.0, imu=STILL) == CLOSED and chain.reason == "nonfinite"
+    t += TICK
+    assert chain.update(t, 1.0, 0.0, imu=STILL) == CLOSED and chain.reason == "no_fix"
+    assert chain.update(t + TICK, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
+    assert all(map(math.isfinite, chain.estimate))
+
+
+def test_an_imu_sample_beyond_the_sensors_range_is_dropped_and_counted() -> None:
+    # One frame with a valid checksum and gyro 3e38 rad/s once carried the heading
+    # estimate 1e36 rad away for good, and the valves fired while every fix said "on
+    # the reference".
+    chain = GncChain(KNATTE)
+    t = 0.0
+    for k in range(100):
+        t = k * TICK
+        imu = ImuSample(3e38, 0.0, 0.0) if k == 50 else STILL
+        valves = chain.update(t, 0.0, 0.0, imu=imu, fix=Pose() if k % 5 == 0 else None)
+        assert valves == CLOSED, k  # at rest on its reference: nothing to do
+    assert chain.counters["imu_rejected"] == 1
+    assert abs(chain.estimate.heading) < 1e-3
+    for bad in (
+        ImuSample(0.0, math.nan, 0.0),
+        ImuSample(0.0, 0.0, -1e3),
+        ImuSample(math.inf, 0, 0),
+    ):
+        chain.update(t := t + TICK, 0.0, 0.0, imu=bad)
+    assert chain.counters["imu_rejected"] == 4
+
+
+def test_a_silent_imu_closes_the_valves_until_it_speaks_again() -> None:
+    chain = GncChain(KNATTE)
+    assert KNATTE.control.imu_timeout == 0.1
+    t = _flying(chain)
+    # The fixes go on; the IMU stops: the filter would predict on its last reading.
+    for k in range(1, 10):
+        assert chain.update(t + k * TICK, 1.0, 0.0, fix=Pose()) == PLUS_TORQUE, k
+    assert chain.update(t + 0.11, 1.0, 0.0, fix=Pose()) == CLOSED
+    assert chain.reason == "stale_imu" and chain.counters["closed_stale_imu"] == 1
+    assert chain.update(t + 0.12, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
+    # None at all yet: closed, even with fixes.
+    fresh = GncChain(KNATTE)
+    assert fresh.update(0.0, 1.0, 0.0, fix=Pose()) == CLOSED and fresh.reason == "stale_imu"
+
+
+def test_time_running_backwards_restarts_the_estimate_from_the_next_fix() -> None:
+    # After a step back of 2 s, the last fix looked 2 s in the future: never stale.
+    chain = GncChain(KNATTE)
+    t = _flying(chain, 10.0)
+    back = t - 2.0
+    assert chain.update(back, 1.0, 0.0, imu=STILL) == CLOSED and chain.reason == "no_fix"
+    assert chain.counters["clock_steps_back"] == 1
+    assert set(run(chain, back + TICK, back + 0.5)) == {CLOSED}  # no fix: still closed
+    assert chain.update(back + 0.51, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
+
+
+def test_a_nonfinite_fix_is_dropped_and_counted() -> None:
+    chain = GncChain(KNATTE)
+    assert chain.update(0.0, 1.0, 0.0, imu=STILL, fix=Pose(x=math.nan)) == CLOSED
+    assert chain.reason == "no_fix" and chain.counters["fix_rejected"] == 1

@@ -156,9 +156,10 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
 
 def test_hold_sends_all_closed_at_once_and_until_release(pty_dev: Pty) -> None:
     with SerialPlatform(pty_dev.path) as plat:
-        pty_dev.send(encode_pose(0.0, Pose()))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert _valves_of(pty_dev.received()) == [0b110]
+        pty_dev.send(encode_imu(0.01, 0.0, 0.0, 0.0))
         plat.hold()
         assert plat.valves == CLOSED and plat.held
         assert pty_dev.received() == [Valves(1, 0)]  # sent now, not at the next step
@@ -173,8 +174,9 @@ def test_hold_sends_all_closed_at_once_and_until_release(pty_dev: Pty) -> None:
 
 def test_stale_pose_closes_the_valves(pty_dev: Pty) -> None:
     with SerialPlatform(pty_dev.path, pose_timeout=0.5) as plat:
-        pty_dev.send(encode_pose(0.0, Pose()))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(10.0, AHEAD, 0.0)
+        pty_dev.send(encode_imu(0.5, 0.0, 0.0, 0.0))  # the IMU goes on; the fixes stop
         plat.step(10.5, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
         plat.step(10.51, AHEAD, 0.0)
@@ -191,7 +193,7 @@ def test_a_failing_chain_closes_the_valves_before_raising(pty_dev: Pty) -> None:
             return super().update(now, *args, **kwargs)
 
     with SerialPlatform(pty_dev.path, chain=Broken(KNATTE)) as plat:
-        pty_dev.send(encode_pose(0.0, Pose()))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         with pytest.raises(ZeroDivisionError):
             plat.step(0.01, AHEAD, 0.0)
@@ -201,7 +203,7 @@ def test_a_failing_chain_closes_the_valves_before_raising(pty_dev: Pty) -> None:
 
 def test_close_sends_all_closed_then_refuses_to_step(pty_dev: Pty) -> None:
     plat = SerialPlatform(pty_dev.path)
-    pty_dev.send(encode_pose(0.0, Pose()))
+    pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
     plat.step(0.0, AHEAD, 0.0)
     plat.close()
     assert _valves_of(pty_dev.received()) == [0b110, 0]
@@ -214,7 +216,7 @@ def test_close_sends_all_closed_then_refuses_to_step(pty_dev: Pty) -> None:
 def test_vanished_port_stops_actuation_with_a_clear_error(pty_dev: Pty) -> None:
     plat = SerialPlatform(pty_dev.path)
     try:
-        pty_dev.send(encode_pose(0.0, Pose()))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
         pty_dev.close_master()  # the device is gone
@@ -249,11 +251,11 @@ def test_it_flies_the_gnc_chain_of_its_preset(pty_dev: Pty) -> None:
     # The fix wraps next to the estimate and the error wraps (Eq. 1): from 179 to -179
     # degrees is +2 degrees, a positive torque.
     with SerialPlatform(pty_dev.path) as plat:
-        pty_dev.send(encode_pose(0.0, Pose(heading=3.124)))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose(heading=3.124)))
         plat.step(0.0, -3.124, 0.0)
         assert plat.valves == POSITIVE_TORQUE
     with SerialPlatform(pty_dev.path) as plat:
-        pty_dev.send(encode_pose(0.0, Pose()))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, -AHEAD, 0.0)
         assert plat.valves == NEGATIVE_TORQUE
 
@@ -466,7 +468,7 @@ def test_scripted_frames_sent_by_the_host_are_the_documented_ones(pty_dev: Pty) 
     # One step = HEARTBEAT then VALVES with the same seq: the device's failsafe
     # clears before the command is read.
     with SerialPlatform(pty_dev.path) as plat:
-        pty_dev.send(encode(DevicePose(0.0, Pose())))
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode(DevicePose(0.0, Pose())))
         plat.step(2.5, -AHEAD, 0.0)
         time.sleep(0.02)
         raw = os.read(pty_dev.master, 4096)

@@ -115,6 +115,12 @@ def test_missing_file(tmp_path: Path) -> None:
         ("[vision]\norigin = [1.0]", "vision.origin.1", "Field required"),
         ("[disturbance]\ncomponents = 0", "disturbance.components", "greater than or equal"),
         ("[disturbance]\nwobble = 3", "disturbance.wobble", "unknown field"),
+        # inf * 0 is NaN, and a NaN demand once latched the valves open at full thrust.
+        ("[control]\nkd = inf", "control.kd", "finite number"),
+        ("[vision]\nposition_noise = inf", "vision.position_noise", "finite number"),
+        ("[imu]\ngyro_noise = nan", "imu.gyro_noise", "finite number"),
+        ("[imu]\ngyro_range = 0", "imu.gyro_range", "greater than 0"),
+        ("[imu]\nrate = 5.0", "(top level)", "imu_timeout"),
     ],
 )
 def test_bad_field_names_file_and_field(
