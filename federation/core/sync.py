@@ -233,6 +233,11 @@ def read_send_time(attachment: bytes | bytearray | memoryview) -> float:
     return wire.decode_request(attachment)
 
 
+MAX_OFFSET = 1e10
+"""s (317 years): the largest offset between two clocks a reply may give; clocks on
+the Unix epoch are 1.8e9 s from one that starts at 0."""
+
+
 class SyncClient:
     """Client side of the exchange with one server.
 
@@ -269,6 +274,7 @@ class SyncClient:
         self.last_step: float | None = None  # size of the last one (s)
         self.step_margin = step_margin
         self._suspects: list[Exchange] = []
+        self._warmup: list[Exchange] = []  # the first exchanges, until three agree
         # The recent exchanges' offsets and error bounds, side by side (sorted in C).
         self._recent: deque[float] = deque(maxlen=8)
         self._recent_bounds: deque[float] = deque(maxlen=8)
@@ -337,6 +343,11 @@ class SyncClient:
             # nothing to estimate from, and nothing the delay window could order.
             self._reject("malformed")
             return None
+        if abs(exchange.offset) > MAX_OFFSET:
+            # No two clocks of a federation are centuries apart; such a t2 would only
+            # overflow the estimator's sums (an offset of inf stamped every pose).
+            self._reject("implausible")
+            return None
         if not self._consistent(exchange):
             return None
         self.accepted += 1
@@ -352,6 +363,8 @@ class SyncClient:
         and a margin together means a clock jumped. ``STEP_CONFIRM`` such exchanges in
         a row are a step: the estimate is reset and starts again from them; fewer are
         rejected as ``inconsistent``."""
+        if len(self._recent) < 3:
+            return self._warm_up(exchange)
         if len(self._recent) >= 3:
             offsets = sorted(self._recent)
             bounds = sorted(self._recent_bounds)
@@ -369,11 +382,53 @@ class SyncClient:
         self._recent_bounds.append(exchange.error_bound)
         return True
 
+    def _warm_up(self, exchange: Exchange) -> bool:
+        """The first exchanges (after a start or a reset) have no recent ones to be
+        checked against: once there are three, the one that disagrees with the other
+        two (as :meth:`_consistent` judges) is taken out, the estimate rebuilt without
+        it if it was already fed. One wild reply first (a ``t2`` ten seconds off) thus
+        never reaches the estimate, where the paper's window would have held it for
+        good and the clock filter weighed it for its whole horizon."""
+        warm = [*self._warmup, exchange]
+        if len(warm) < 3:
+            self._warmup = warm
+            self._recent.append(exchange.offset)
+            self._recent_bounds.append(exchange.error_bound)
+            return True
+        median = sorted(e.offset for e in warm)[1]
+        bound = sorted(e.error_bound for e in warm)[1]
+
+        def agrees(e: Exchange) -> bool:
+            return abs(e.offset - median) <= e.error_bound + bound + self.step_margin
+
+        if not agrees(exchange):
+            self._reject("inconsistent")  # the first two stay; the warm-up goes on
+            return False
+        kept = [e for e in warm[:-1] if agrees(e)]
+        if len(kept) < len(warm) - 1:  # an earlier one was wild: rebuild without it
+            for _ in range(len(warm) - 1 - len(kept)):
+                self.accepted -= 1
+                self._reject("inconsistent")
+            self.estimator.reset()
+            self._delays.clear()
+            self._recent.clear()
+            self._recent_bounds.clear()
+            for e in kept:
+                self._recent.append(e.offset)
+                self._recent_bounds.append(e.error_bound)
+                self._delays.add(e.delay)
+                self.estimator.add(e)
+        self._warmup = [*kept, exchange] if len(kept) < 2 else []
+        self._recent.append(exchange.offset)
+        self._recent_bounds.append(exchange.error_bound)
+        return True
+
     def _restart(self, jump: float) -> None:
         """A clock step: forget the estimate, start again from the suspect exchanges."""
         self.steps += 1
         self.last_step = jump
         suspects, self._suspects = self._suspects, []
+        self._warmup = []
         self.estimator.reset()
         self._delays.clear()
         self._recent.clear()
@@ -415,6 +470,7 @@ class SyncClient:
         self._recent.clear()
         self._recent_bounds.clear()
         self._suspects.clear()
+        self._warmup = []
         self.last = None
 
 

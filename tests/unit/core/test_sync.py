@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 
 from federation.core import wire
 from federation.core.clockfilter import ClockFilter
+from federation.core.estimators import make_estimator
 from federation.core.sync import (
     DEFAULT_WINDOW,
     Exchange,
@@ -888,3 +889,48 @@ def test_a_running_median_of_no_values_is_refused() -> None:
 
     with pytest.raises(ValueError, match="at least 1"):
         _Median(0)
+
+
+# -- a wild reply among the first ones --------------------------------------------------
+def _one_a_tenth(client: SyncClient, offsets: list[float], t: float = 100.0) -> float:
+    """One exchange per offset (server clock ``offset`` ahead, 10 ms round trip), 0.1 s
+    apart; the client's time after the last."""
+    for offset in offsets:
+        t1 = wire.decode_request(client.request(t))
+        client.receive(encode_reply(t1, t1 + 0.005 + offset, Pose()), t + 0.01)
+        t += 0.1
+    return t
+
+
+@pytest.mark.parametrize("estimator", ["mean", "median", "clockfilter"])
+@pytest.mark.parametrize("wild_at", [0, 1, 2])
+def test_one_wild_reply_among_the_first_never_reaches_the_estimate(
+    estimator: str, wild_at: int
+) -> None:
+    # The paper's window, on the server's clock, once started at a first reply 10 s
+    # behind and closed at the next: offset -10 s, locked, bound 0, for good.
+    client = SyncClient(make_estimator(estimator, 10.0))
+    offsets = [0.0] * 150
+    offsets[wild_at] = -10.0
+    t = _one_a_tenth(client, offsets)
+    offset = client.offset_at(t)
+    assert offset is not None and abs(offset) < 0.001, offset
+    assert client.rejected["inconsistent"] == 1
+    assert client.accepted == 149
+    assert client.estimator.locked
+
+
+def test_a_reply_centuries_off_is_rejected_and_the_estimate_stays_finite() -> None:
+    client = SyncClient(make_estimator("clockfilter", 10.0))
+    t = _one_a_tenth(client, [0.0] * 5)
+    for t2 in (1e300, 1e200, 1e15, -1e11):
+        t1 = wire.decode_request(client.request(t))
+        assert client.receive(encode_reply(t1, t2, Pose()), t + 0.01) is None
+        assert client.last_rejection == "implausible"
+        t += 0.1
+    offset = client.offset_at(t)
+    assert offset is not None and math.isfinite(offset) and abs(offset) < 0.001
+    # Clocks on the Unix epoch against one that starts at 0: a real offset.
+    far = SyncClient(make_estimator("clockfilter", 10.0))
+    t = _one_a_tenth(far, [1.8e9] * 5)
+    assert far.offset_at(t) == pytest.approx(1.8e9, abs=1e-3)
