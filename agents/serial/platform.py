@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from types import TracebackType
 
 import serial
@@ -112,6 +113,9 @@ class SerialPlatform:
         except (serial.SerialException, OSError, ValueError) as error:
             raise PlatformError(f"cannot open serial port {port}: {error}") from error
         self._decoder = FrameDecoder(DEVICE_TO_HOST)
+        # One writer at a time: a hold from another thread (an abort arriving on Zenoh's)
+        # between the chain's open valves and their frame would be overwritten by them.
+        self._lock = threading.RLock()
         self._valves = CLOSED
         self._seq = 0
         self._failure: str | None = None
@@ -127,6 +131,8 @@ class SerialPlatform:
             "frames_sent": 0,
             "write_timeouts": 0,
             "device_failsafe_reports": 0,
+            "device_frames_not_newer": 0,
+            "device_pose_stale": 0,
         }
 
     # -- Platform ----------------------------------------------------------------
@@ -143,26 +149,28 @@ class SerialPlatform:
             If the port has vanished or was closed; every valve is marked closed first.
             An exception from the chain propagates after an all-closed VALVES.
         """
-        self._check_open()
-        try:
-            self._read()
-        except (serial.SerialException, OSError) as error:
-            self._vanished(error)
-        imu, fix = self._new_imu, self._new_fix
-        self._new_imu = self._new_fix = None
-        try:
-            valves = tuple(
-                bool(v)
-                for v in self.chain.update(t, heading_ref, rate_ref, imu=imu, fix=fix, track=track)
-            )
-            if len(valves) != N_VALVES:
-                raise ValueError(f"the chain gave {len(valves)} valve states, not {N_VALVES}")
-        except BaseException:
-            self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
-            raise
-        seq = self._next_seq()
-        self._send(encode_heartbeat(seq, t) + encode_valves(seq, valves), 2, valves)
-        return self.chain.estimate
+        with self._lock:
+            self._check_open()
+            try:
+                self._read()
+            except (serial.SerialException, OSError) as error:
+                self._vanished(error)
+            imu, fix = self._new_imu, self._new_fix
+            self._new_imu = self._new_fix = None
+            chain = self.chain
+            try:
+                valves = tuple(
+                    bool(v)
+                    for v in chain.update(t, heading_ref, rate_ref, imu=imu, fix=fix, track=track)
+                )
+                if len(valves) != N_VALVES:
+                    raise ValueError(f"the chain gave {len(valves)} valve states, not {N_VALVES}")
+            except BaseException:
+                self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
+                raise
+            seq = self._next_seq()
+            self._send(encode_heartbeat(seq, t) + encode_valves(seq, valves), 2, valves)
+            return chain.estimate
 
     def hold(self) -> None:
         """Close every valve now and keep them closed until :meth:`release`.
@@ -170,13 +178,15 @@ class SerialPlatform:
         Best effort: a port that has vanished is logged here and raised by the next
         :meth:`step` (the device's heartbeat failsafe closes its valves anyway).
         """
-        self.chain.hold()
-        self._valves = CLOSED
-        if self._failure is None:
-            try:
-                self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
-            except PlatformError as error:
-                log.warning("hold: %s", error)
+        with self._lock:
+            self.chain.hold()
+            if self._failure is None:
+                try:
+                    self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
+                except PlatformError as error:
+                    log.warning("hold: %s", error)
+            else:
+                self._valves = CLOSED  # the port is gone: the device's failsafe closed them
 
     def release(self) -> None:
         """End :meth:`hold`: the chain drives the valves again from the next step."""
@@ -204,16 +214,17 @@ class SerialPlatform:
 
     def close(self) -> None:
         """Send all-valves-closed (best effort) and close the port. Idempotent."""
-        self.chain.hold()
-        if self._failure is None:
-            try:
-                self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
-            except PlatformError as error:
-                log.warning("close: %s", error)
-        self._valves = CLOSED
-        if self._failure is None:
-            self._failure = f"serial port {self.port} is closed"
-        self._close_port()
+        with self._lock:
+            self.chain.hold()
+            if self._failure is None:
+                try:
+                    self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
+                except PlatformError as error:
+                    log.warning("close: %s", error)
+            self._valves = CLOSED  # closed port: the device's heartbeat failsafe closes them
+            if self._failure is None:
+                self._failure = f"serial port {self.port} is closed"
+            self._close_port()
 
     def __enter__(self) -> SerialPlatform:
         return self
@@ -243,10 +254,21 @@ class SerialPlatform:
                 return
             for message in self._decoder.feed(data):
                 if isinstance(message, DevicePose):
+                    if self.pose_time is not None and message.t <= self.pose_time:
+                        self._host["device_frames_not_newer"] += 1  # replayed or reordered
+                        continue
                     self.device_pose = message.pose
                     self.pose_time = message.t
+                    if self.imu is not None and self.imu.t - message.t > self.chain.fix_timeout:
+                        # Older, on the device's clock, than the fix timeout allows: a
+                        # backlog read after a stall. Not a fix of now.
+                        self._host["device_pose_stale"] += 1
+                        continue
                     self._new_fix = message.pose
                 elif isinstance(message, Imu):
+                    if self.imu is not None and message.t <= self.imu.t:
+                        self._host["device_frames_not_newer"] += 1
+                        continue
                     self.imu = message
                     self._new_imu = ImuSample(message.gyro, message.ax, message.ay)
                 elif isinstance(message, Status):
@@ -260,8 +282,19 @@ class SerialPlatform:
         try:
             self._serial.write(frames)
         except serial.SerialTimeoutException:
-            # The device is not draining the line; its own failsafe covers actuation.
+            # The device is not draining the line: what it applies is unknown, so the
+            # valves last commanded stay as they were; a hold sends its 0 again at every
+            # step, and the device's heartbeat failsafe covers a line that stays stuck.
             self._host["write_timeouts"] += 1
+            if (
+                self._host["write_timeouts"] in (1, 10, 100)
+                or self._host["write_timeouts"] % 1000 == 0
+            ):
+                log.warning(
+                    "serial port %s: write timed out (%d so far); valves %s not confirmed",
+                    self.port, self._host["write_timeouts"], _mask_text(valves),
+                )  # fmt: skip
+            return
         except (serial.SerialException, OSError) as error:
             self._vanished(error)
         self._host["frames_sent"] += count
@@ -279,3 +312,7 @@ class SerialPlatform:
             self._serial.close()
         except (serial.SerialException, OSError) as error:
             log.debug("closing %s: %s", self.port, error)
+
+
+def _mask_text(valves: tuple[bool, ...]) -> str:
+    return "all closed" if not any(valves) else "".join("1" if v else "0" for v in valves)

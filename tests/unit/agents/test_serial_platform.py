@@ -15,6 +15,7 @@ import os
 import re
 import signal
 import sys
+import threading
 import time
 import tty
 from collections.abc import Iterator
@@ -473,3 +474,83 @@ def test_scripted_frames_sent_by_the_host_are_the_documented_ones(pty_dev: Pty) 
         time.sleep(0.02)
         raw = os.read(pty_dev.master, 4096)
     assert raw.startswith(encode_heartbeat(0, 2.5) + encode_valves(0, 0b1001))
+
+
+# -- faults found in review ---------------------------------------------------------------
+def test_a_hold_from_another_thread_during_a_step_is_the_last_word(pty_dev: Pty) -> None:
+    """An abort arrives on Zenoh's thread while the loop's step is between the chain's
+    open valves and their frame: the hold's all-closed must not be overwritten."""
+    deciding, decided = threading.Event(), threading.Event()
+
+    class Slow(GncChain):
+        def update(self, now: float, *args: Any, **kwargs: Any) -> tuple[bool, ...]:
+            valves = super().update(now, *args, **kwargs)
+            if now > 0:
+                deciding.set()
+                decided.wait(0.05)  # the hold comes in meanwhile
+            return valves
+
+    with SerialPlatform(pty_dev.path, chain=Slow(KNATTE)) as plat:
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert _valves_of(pty_dev.received()) == [0b110]
+
+        def abort() -> None:
+            deciding.wait(2.0)
+            plat.hold()
+
+        holder = threading.Thread(target=abort)
+        holder.start()
+        plat.step(0.01, AHEAD, 0.0)
+        holder.join(2.0)
+        decided.set()
+        time.sleep(0.02)
+        masks = _valves_of(pty_dev.received())
+        assert masks[-1] == 0, masks  # the step's open mask first, then the hold's 0
+        assert plat.held and plat.valves == CLOSED
+
+
+def test_device_frames_not_newer_and_a_stale_backlog_are_not_fixes(pty_dev: Pty) -> None:
+    with SerialPlatform(pty_dev.path) as plat:
+        pty_dev.send(encode_imu(1.0, 0.0, 0.0, 0.0) + encode_pose(1.0, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert plat.valves == POSITIVE_TORQUE
+        # The same POSE again (replayed) and an older IMU: dropped, counted.
+        pty_dev.send(encode_imu(0.99, 0.0, 0.0, 0.0) + encode_pose(1.0, Pose(heading=AHEAD)))
+        plat.step(0.01, AHEAD, 0.0)
+        assert plat.counters["device_frames_not_newer"] == 2
+        assert plat.device_pose == Pose()
+    with SerialPlatform(pty_dev.path) as plat:
+        # After a stall, a POSE 0.7 s older than the IMU beside it (the device's clock):
+        # not a fix of now, though it arrives now.
+        pty_dev.send(encode_imu(5.0, 0.0, 0.0, 0.0) + encode_pose(4.3, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert plat.counters["device_pose_stale"] == 1
+        assert plat.valves == CLOSED and plat.chain.reason == "no_fix"
+
+
+def test_a_hold_whose_frame_times_out_does_not_claim_closed_valves(
+    pty_dev: Pty, caplog: pytest.LogCaptureFixture
+) -> None:
+    import serial
+
+    with SerialPlatform(pty_dev.path) as plat:
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert plat.valves == POSITIVE_TORQUE
+        real = plat._serial.write
+
+        def stuck(data: bytes) -> int:
+            raise serial.SerialTimeoutException("Write timeout")
+
+        plat._serial.write = stuck  # type: ignore[method-assign, assignment]
+        with caplog.at_level("WARNING", logger="fedlab.serial"):
+            plat.hold()
+        assert plat.held and plat.valves == POSITIVE_TORQUE  # not known to be closed
+        assert plat.counters["write_timeouts"] == 1
+        assert "write timed out" in caplog.text and "not confirmed" in caplog.text
+        plat._serial.write = real  # type: ignore[method-assign]
+        pty_dev.send(encode_imu(0.01, 0.0, 0.0, 0.0))
+        plat.step(0.01, AHEAD, 0.0)  # held: the 0 goes out again
+        assert plat.valves == CLOSED
+        assert _valves_of(pty_dev.received())[-1] == 0
