@@ -235,6 +235,10 @@ def _experiment_part(path: Path, lab: str | None, name: str | None, record: bool
         "role": part.role,
         "platform": part.platform,
         "follow": part.follow,
+        # Runs start at the leader's time (ctl start's ``at``): every participant's
+        # reference is the leader, also a follower of a follower (whose default, the
+        # agent it follows, would start it early or late by that agent's clock).
+        "reference": str(experiment.leader),
         "latency_compensation": part.latency_compensation,
         "maneuver": experiment.maneuver.model_dump(),
         "wait_start": True,
@@ -248,15 +252,13 @@ def _experiment_part(path: Path, lab: str | None, name: str | None, record: bool
 
 def _scenario_part(experiment: Any, me: Any) -> dict[str, Any]:
     """Issue 14: a formation, docking or adaptive-gain part (none for plain attitude
-    tracking). Everyone's clock reference is the leader; formation members watch every
-    pose; a participant's seed, if given."""
+    tracking): formation members watch every pose; a participant's seed, if given."""
     scenario = experiment.part(me)
     if scenario is None:
         return {}
     part = experiment.participant(me)
     return {
         "scenario": scenario.model_dump(),
-        "reference": str(experiment.leader),
         **({"watch_all": True} if experiment.kind == "formation" else {}),
         **({"seed": part.seed} if part.seed is not None else {}),
     }

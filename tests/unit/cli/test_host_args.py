@@ -192,3 +192,24 @@ def test_fedlab_agent_takes_its_part_by_the_files_lab_and_name(tmp_path: Path) -
     config = agent_config(parser.parse_args(argv))
     assert (str(config.agent), config.role, config.follow) == ("rome/a2", "follower", "rome/a1")
     assert agent_config(parser.parse_args([*argv, "--name", "a1"])).role == "leader"
+
+
+def test_every_participant_keeps_the_leaders_clock_a_follower_of_a_follower_too(
+    tmp_path: Path,
+) -> None:
+    """ctl start's ``at`` is on the leader's clock: an agent that follows a follower
+    must not take that follower's clock for reference time (its own default)."""
+    from federation.cli.agent import build_agent_config
+
+    experiment = tmp_path / "chain.toml"
+    experiment.write_text(
+        'name = "chain"\nduration = 30\n'
+        '[[participants]]\nagent = "rome/l"\nrole = "leader"\n'
+        '[[participants]]\nagent = "kiruna/a"\nrole = "follower"\nfollow = "rome/l"\n'
+        '[[participants]]\nagent = "paris/b"\nrole = "follower"\nfollow = "kiruna/a"\n'
+    )
+    for lab, name in (("rome", "l"), ("kiruna", "a"), ("paris", "b")):
+        config = build_agent_config(None, experiment, {"lab": lab, "name": name})
+        assert config.reference == "rome/l", (lab, name)
+    b = build_agent_config(None, experiment, {"lab": "paris", "name": "b"})
+    assert b.follow == "kiruna/a"
