@@ -212,6 +212,10 @@ def is_abort(payload: bytes) -> bool:
         data = json.loads(payload)
     except (ValueError, UnicodeDecodeError):
         return False
+    except RecursionError:
+        # Nested too deep to read (``{"command": "abort", "a": [[[...]]]}``): an abort
+        # that cannot be read is still honoured, since honouring one only closes valves.
+        return b'"abort"' in bytes(payload)
     return isinstance(data, dict) and data.get("command") == "abort"
 
 

@@ -102,3 +102,28 @@ def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending:
     f.pose()
     f.step()
     assert f.agent.hold_reason is None and not f.agent.platform.held
+
+
+def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
+    # json.loads raised RecursionError on it; the handler logged a traceback and held
+    # nothing: "an abort is honoured when it says abort in JSON" was broken.
+    f = Follower()
+    for _ in range(5):
+        f.sync()
+        f.now += 0.09
+    f.command("start", run_id="r1")
+    f.pose()
+    f.step()
+    assert f.agent.run_state.mode == "running" and not f.agent.platform.held
+    deep = b'{"command": "abort", "a": ' + b"[" * 200_000 + b"]" * 200_000 + b"}"
+    f.agent._on_control(_RawSample(deep))  # type: ignore[arg-type]
+    assert f.agent.platform.held
+    f.step()
+    assert f.agent.run_state.mode == "aborted" and f.agent.hold_reason == "aborted"
+    assert f.agent.counters["control_malformed"] == 1
+
+
+class _RawSample:
+    def __init__(self, data: bytes):
+        self.payload = _Payload(data)
+        self.key_expr = "fedlab/default/@control"
