@@ -14,7 +14,8 @@ now when latency compensation is on) and takes
     \\qquad \\mathbf{p}_{ref,i} = \\hat{\\mathbf{c}}_i + \\mathbf{o}_i
 
 with :math:`w_0 = 1 -` ``consensus_weight`` and :math:`J` the others whose pose is
-fresher than ``stale_after`` (none: the path alone). Latency compensation moves each
+fresher than ``stale_after``, and not stamped further ahead than that (none: the path
+alone). Latency compensation moves each
 shared pose on by its age :math:`a = t - s_j` with its velocity and the centre's
 acceleration, which every member knows from the path:
 :math:`\\mathbf{p}_j + \\mathbf{v}_j a + \tfrac12 \\ddot{\\mathbf{c}} a^2`,
@@ -133,7 +134,10 @@ class FormationGuidance:
         for agent, (stamp, pose) in others.items():
             slot = cfg.slots.get(agent)
             age = t - stamp
-            if slot is None or agent == self.me or age > cfg.stale_after:
+            # A pose stamped further ahead than the stale window is no fresher than a
+            # stale one: its sender's clock estimate is wrong, and it would otherwise
+            # count for as long as it lies ahead once its sender went silent.
+            if slot is None or agent == self.me or not -cfg.stale_after <= age <= cfg.stale_after:
                 continue
             if self.compensate:  # on to now, with the centre's acceleration every member shares
                 dt = min(max(age, 0.0), cfg.stale_after)

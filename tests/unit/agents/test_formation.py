@@ -84,3 +84,12 @@ def test_slot_errors() -> None:
     c = CirclePath(CONFIG)(30.0)
     errors = slot_errors(CONFIG, 30.0, {"a/x": Pose(c.x + 0.03, c.y + 1.04), "q/q": Pose()})
     assert errors == {"a/x": pytest.approx(0.05)}
+
+
+def test_a_pose_stamped_far_ahead_is_left_out() -> None:
+    # A sender whose reference estimate is 100 s off: its last pose would count for
+    # 100 s after it went silent.
+    g = FormationGuidance("a/x", CONFIG)
+    others = {"b/y": (110.0, Pose(-0.5, 0.0)), "c/z": (10.5, Pose(1.0, 0.0))}
+    g.reference(10.0, 0.0, others)
+    assert g.used == 1  # c's half a second ahead is within the window; b's is not
