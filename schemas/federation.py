@@ -267,6 +267,20 @@ class FederationFile(base.Model):
                     raise _field_error(
                         f"labs.{lab}.agents.{name}.follow", f"{agent.follow} is not an agent here"
                     )
+        named: dict[str, str] = {}
+        for lab, entry in self.labs.items():
+            for host in entry.cert_hosts():
+                if _loopback(host):
+                    continue  # a federation on one host (tests, rehearsals): all local
+                if host in named:
+                    # Each router's certificate would then pass the name check for the
+                    # other: one lab's router could stand in for the other's.
+                    raise _field_error(
+                        f"labs.{lab}",
+                        f"{host} is also a name of {named[host]}'s router certificate: "
+                        "each lab's router needs names of its own",
+                    )
+                named[host] = lab
         unreachable = sorted(set(self.labs) - self.reachable(next(iter(self.labs))))
         if unreachable:
             raise _field_error(
@@ -304,6 +318,15 @@ class FederationFile(base.Model):
     def message_limit(self) -> int:
         """Bytes: :attr:`max_message_size`, or fedlab's largest message."""
         return self.max_message_size or CHUNK_SIZE + 64 * 1024
+
+
+def _loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
 
 
 def _field_error(where: str, message: str) -> ValueError:

@@ -28,7 +28,8 @@ liveliness token, reply) only on its own address, ``fedlab/<fed>/<lab>/<name>``
 and below; a hosted process (``fedlab host``, the lab's ``hosted``) only on the
 addresses of the agents it runs, which have no identity of their own; operators
 only put on the control key; another lab's router only
-under the labs reached through it, and the control key; every listed identity
+under the labs reached through it, and the control key if an operator is among those
+labs; every listed identity
 reads the federation's keys. A certificate CN (or user name) no subject lists
 can do nothing.
 """
@@ -89,6 +90,7 @@ class Generated:
     files: list[Path] = field(default_factory=list)
     issued: list[str] = field(default_factory=list)
     removed: list[Path] = field(default_factory=list)
+    role_changed: list[str] = field(default_factory=list)  # identities now of another kind
 
 
 LEASE_MS = 10000
@@ -142,8 +144,13 @@ def access_control(fed: FederationFile, lab: str) -> dict[str, Any]:
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
     for other in fed.neighbours(lab):
-        keys = [f"{prefix}/{behind}/**" for behind in fed.behind(lab, other)]
-        rules.append(_rule(f"from-{other}", "ingress", WRITES, [*keys, control]))
+        behind = fed.behind(lab, other)
+        keys = [f"{prefix}/{far}/**" for far in behind]
+        # Control crosses a link only when an operator sits behind it: a lab with no
+        # operator has nobody whose start or abort its router may carry.
+        if any(fed.labs[far].operators for far in behind):
+            keys.append(control)
+        rules.append(_rule(f"from-{other}", "ingress", WRITES, keys))
         subjects.append({"id": f"{other}-router", "cert_common_names": [other]})
         policies.append(
             {
@@ -444,18 +451,62 @@ class _Identity:
     name: str
     stem: str
     host: bool = False
+    kind: str = "agent"  # agent, operator or host: what its pair or password may do
 
 
 def _identities(lab: str, entry: LabEntry) -> list[_Identity]:
     """The agents that run on their own, the operators, and the hosted processes (whose
     agents have no identity of their own: their host speaks for them)."""
     alone = [n for n in [*entry.agents, *entry.operators] if entry.host_of(n) is None]
-    out = [_Identity(certs.agent_common_name(lab, n), certs.agent_stem(lab, n)) for n in alone]
+    out = [
+        _Identity(
+            certs.agent_common_name(lab, n),
+            certs.agent_stem(lab, n),
+            kind="operator" if n in entry.operators else "agent",
+        )
+        for n in alone
+    ]
     for host in entry.hosted:
         out.append(
-            _Identity(certs.host_common_name(lab, host), certs.host_stem(lab, host), host=True)
+            _Identity(certs.host_common_name(lab, host), certs.host_stem(lab, host), True, "host")
         )
     return out
+
+
+ROLES_FILE = "roles.json"
+"""In the CA folder: each identity's kind (agent, operator, host) when it was last
+generated. A pair or password is never carried over to another kind, nor to a name
+listed again after it was removed (its key may be the leaked one)."""
+
+
+def _retire_old_identities(
+    fed: FederationFile, ca: Path, before: dict[str, str], now: dict[str, str], out: Generated
+) -> None:
+    """Move the pairs of identities no longer listed, or listed as another kind than
+    ``before`` says, to ``ca/retired/``: listing the name again issues a new pair."""
+    labs = {*fed.labs, "ca"}
+    for pem in sorted(ca.glob("*.pem")):
+        if pem.stem in labs:
+            continue  # the CA and the labs' own pairs
+        cn = _common_name(pem)
+        if cn in now and before.get(cn, now[cn]) == now[cn]:
+            continue
+        retired = ca / "retired"
+        retired.mkdir(exist_ok=True)
+        serial = x509.load_pem_x509_certificate(pem.read_bytes()).serial_number
+        for part in (pem, pem.with_suffix(".key")):
+            if part.exists():
+                part.rename(retired / f"{part.stem}.{serial:x}{part.suffix}")
+                out.removed.append(part)
+
+
+def _read_roles(ca: Path) -> dict[str, str]:
+    path = ca / ROLES_FILE
+    try:
+        data = json.loads(path.read_text()) if path.exists() else {}
+    except ValueError:
+        return {}
+    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
 
 
 def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
@@ -464,6 +515,9 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
     if not (ca / "ca.pem").exists():
         certs.init_ca(ca, fed.federation)
         out.issued.append(certs.ca_common_name(fed.federation))
+    before = _read_roles(ca)
+    now = {who.name: who.kind for lab, e in fed.labs.items() for who in _identities(lab, e)}
+    _retire_old_identities(fed, ca, before, now, out)
     for lab, entry in fed.labs.items():
         hosts = entry.cert_hosts() or list(certs.DEFAULT_HOSTS)
         existing = ca / f"{lab}.pem"
@@ -480,6 +534,8 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
                     else:
                         certs.issue_agent(ca, lab, who.name.split("/", 1)[1], force=True)
                     out.issued.append(who.name)
+    _write(ca / ROLES_FILE, json.dumps(now, indent=2, sort_keys=True) + "\n", 0o644, out)
+    out.role_changed = sorted(n for n, k in now.items() if before.get(n, k) != k)
 
 
 def _common_name(path: Path) -> str:
@@ -523,6 +579,8 @@ def generate(
         header = _header(fed, lab)
         users = folder / f"{lab}.users"
         passwords = _passwords(users) if entry.auth == "password" else {}
+        for name in out.role_changed:  # a password is never carried to another kind
+            passwords.pop(name, None)
         identities = _identities(lab, entry)
         if entry.auth == "password":
             for who in identities:

@@ -87,7 +87,9 @@ def test_a_neighbour_router_writes_only_the_labs_behind_it() -> None:
     kiruna = gen.router_config(fed, "kiruna", gen.DEFAULT_ROOT)
     lund = gen.router_config(fed, "lund", gen.DEFAULT_ROOT)
     assert _writes(kiruna, "rome") == {"fedlab/default/rome/**", "fedlab/default/control"}
-    assert _writes(kiruna, "lund") == {"fedlab/default/lund/**", "fedlab/default/control"}
+    # Lund lists no operator: its router carries no control (its pair could otherwise
+    # start, or reset, every platform of the federation).
+    assert _writes(kiruna, "lund") == {"fedlab/default/lund/**"}
     assert _writes(lund, "kiruna") == {
         "fedlab/default/kiruna/**",
         "fedlab/default/rome/**",
@@ -171,6 +173,10 @@ def test_local_points_every_path_into_the_labs_folder(tmp_path: Path) -> None:
          "rome/nobody is not an agent here"),
         ('[labs.lund]\nlisten = ["tls/127.0.0.1:1"]\ndail = ["kiruna"]\n', "labs.lund.dail",
          "unknown field"),
+        # Kiruna's router's name on Lund's certificate: either could stand in for the other.
+        ('[labs.lund]\nlisten = ["tls/127.0.0.1:1"]\ndial = ["kiruna"]\n'
+         'hosts = ["kiruna.example.org"]\n', "labs.lund",
+         "kiruna.example.org is also a name of kiruna's router certificate"),
     ],
 )  # fmt: skip
 def test_a_bad_federation_file_fails_naming_the_field(
@@ -256,3 +262,64 @@ def test_the_deployment_docs_match_the_generators_output(tmp_path: Path) -> None
             argv = line.split("#")[0].split()[1:]
             args = cli.build_parser().parse_args(argv)
             assert args.command == "deploy"
+
+
+def _serial(path: Path) -> int:
+    from cryptography import x509
+
+    return x509.load_pem_x509_certificate(path.read_bytes()).serial_number
+
+
+def test_a_removed_or_recast_identity_never_gets_its_old_key_or_password_back(
+    tmp_path: Path,
+) -> None:
+    """Removing an agent is how a leaked key is shut out: listing the name again (as an
+    agent, or worse as an operator, whose CN has the same form) must not trust it."""
+    text = THREE.read_text()
+    pin = (
+        'agents.pinocchio = { role = "follower", platform = "pinocchio", '
+        + 'follow = "kiruna/knatte" }'
+    )
+    y = 'agents.y = { role = "follower", platform = "pinocchio", follow = "kiruna/knatte" }'
+    assert pin in text
+    with_x = text.replace(
+        'agents.knatte = { role = "leader", platform = "knatte" }',
+        'agents.knatte = { role = "leader", platform = "knatte" }\n'
+        'agents.x = { role = "follower", platform = "knatte", follow = "kiruna/knatte" }',
+    ).replace(pin, f"{pin}\n{y}")
+    as_operator = with_x.replace(
+        'agents.x = { role = "follower", platform = "knatte", follow = "kiruna/knatte" }', ""
+    ).replace('operators = ["ctl"]\nagents.knatte', 'operators = ["ctl", "x"]\nagents.knatte')
+    as_operator = as_operator.replace(y, "").replace(
+        'operators = ["ctl"]\nagents.pinocchio', 'operators = ["ctl", "y"]\nagents.pinocchio'
+    )
+    files = {}
+    for name, body in (("x", with_x), ("none", text), ("op", as_operator)):
+        files[name] = tmp_path / f"{name}.toml"
+        files[name].write_text(body)
+    out = tmp_path / "fed"
+    pem = out / "ca" / "kiruna.x.pem"
+
+    def password(user: str) -> str | None:
+        for line in (out / "rome" / "rome.users").read_text().splitlines():
+            if line.startswith(f"{user}:"):
+                return line.split(":", 1)[1]
+        return None
+
+    gen.generate(load_federation(files["x"]), out)
+    first = _serial(pem)
+    gen.generate(load_federation(files["x"]), out)
+    assert _serial(pem) == first  # kept while listed as the same kind
+    # Removed (its key leaked, say), then listed again as an operator: a new pair.
+    gen.generate(load_federation(files["none"]), out)
+    assert not pem.exists() and (out / "ca" / "retired" / f"kiruna.x.{first:x}.pem").exists()
+    gen.generate(load_federation(files["op"]), out)
+    assert _serial(pem) != first
+    # Recast in one run, agent to operator: a new pair, a new password.
+    gen.generate(load_federation(files["x"]), out)
+    again, before = _serial(pem), password("rome/y")
+    assert before is not None
+    recast = gen.generate(load_federation(files["op"]), out)
+    assert _serial(pem) != again
+    assert password("rome/y") not in (None, before)
+    assert set(recast.role_changed) == {"kiruna/x", "rome/y"}
