@@ -175,6 +175,20 @@ class DockingGuidance:
         self._heading: float | None = None
         self.last_measurement: RelativeMeasurement | None = None
 
+    def new_run(self) -> None:
+        """A new run: phase, reference point and target estimate begin afresh (a chaser
+        left at contact would otherwise be sent straight to the contact point, and a
+        target filter would carry the last run's target). Counters are kept."""
+        self.sensor = RelativeSensor(self.sensor_config)
+        self.target = TargetFilter()
+        self.phase = APPROACH
+        self._carrot = None
+        self._t = None
+        self._settled_since = None
+        self._last_measurement = None
+        self._heading = None
+        self.last_measurement = None
+
     def _go(self, t: float, phase: str) -> None:
         if phase != self.phase:
             self.phase = phase
@@ -186,9 +200,12 @@ class DockingGuidance:
         run_time: float | None,
         target_shared: tuple[float, Pose] | None,
         own: Pose,
+        frozen: bool = False,
     ) -> Reference:
         """The reference at reference time ``t`` (s); ``target_shared`` = the target's
-        shared pose and its stamp on reference time (what the sensor is emulated from)."""
+        shared pose and its stamp on reference time (what the sensor is emulated from).
+        ``frozen``: the run is paused: the reference point and the phase stay where
+        they are (the target is still tracked), and the track asks no motion."""
         if self._heading is None:
             self._heading = own.heading
         if t is None or run_time is None:
@@ -204,6 +221,8 @@ class DockingGuidance:
         self._t = t
         tgt = self.target.at(t)
         here = contact_state(own, tgt)
+        if frozen and self._carrot is not None:
+            return self._track(tgt, still=True)
         self._advance(t, dt, here)
         return self._track(tgt)
 
@@ -251,7 +270,7 @@ class DockingGuidance:
         elif t - self._settled_since >= c.hold_time:
             self._go(t, FINAL)
 
-    def _track(self, tgt: Pose) -> Reference:
+    def _track(self, tgt: Pose, still: bool = False) -> Reference:
         c = self.config
         assert self._carrot is not None
         s, lat = self._carrot
@@ -259,6 +278,9 @@ class DockingGuidance:
         n = (-a[1], a[0])
         ds = -c.final_speed if self.phase == FINAL and s > c.contact_distance - OVERSHOOT else 0.0
         w = tgt.omega
+        if still:  # paused: the point where it is, no rates
+            point = Track(tgt.x + s * a[0] + lat * n[0], tgt.y + s * a[1] + lat * n[1], 0.0, 0.0)
+            return Reference(tgt.heading + math.pi, 0.0, point)
         # d/dt (p_T + s a + l n) = v_T + ds a + w (s n - l a)
         vx = tgt.vx + ds * a[0] + w * (s * n[0] - lat * a[0])
         vy = tgt.vy + ds * a[1] + w * (s * n[1] - lat * a[1])
@@ -276,9 +298,14 @@ class TargetGuidance:
         self._start: Pose | None = None
         self._heading: float | None = None
 
-    def reference(self, run_time: float | None, own: Pose) -> Reference:
+    def new_run(self) -> None:
+        """A new run starts from where the target is then, not where the last one did."""
+        self._start = None
+        self._heading = None
+
+    def reference(self, run_time: float | None, own: Pose, frozen: bool = False) -> Reference:
         """The target's reference at ``run_time`` (None before the start: keep the
-        heading it had first, no track)."""
+        heading it had first, no track); ``frozen``: paused, so no rates."""
         if self._heading is None:
             self._heading = own.heading
         if run_time is None:
@@ -286,5 +313,6 @@ class TargetGuidance:
         if self._start is None:
             self._start = own._replace(heading=self._heading)
         p, t = self._start, max(0.0, run_time)
-        track = Track(p.x + self.drift[0] * t, p.y + self.drift[1] * t, *self.drift)
-        return Reference(p.heading + self.rate * t, self.rate, track)
+        vx, vy, rate = (0.0, 0.0, 0.0) if frozen else (*self.drift, self.rate)
+        track = Track(p.x + self.drift[0] * t, p.y + self.drift[1] * t, vx, vy)
+        return Reference(p.heading + self.rate * t, rate, track)

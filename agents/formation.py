@@ -121,13 +121,21 @@ class FormationGuidance:
         """How many others the last reference used."""
 
     def reference(
-        self, t: float | None, run_time: float | None, others: Mapping[str, tuple[float, Pose]]
+        self,
+        t: float | None,
+        run_time: float | None,
+        others: Mapping[str, tuple[float, Pose]],
+        frozen: bool = False,
     ) -> Reference:
         """The reference at reference time ``t`` and run time ``run_time`` (s); None
-        before the run: no track (the platform keeps its position)."""
+        before the run: no track (the platform keeps its position). ``frozen``: the run
+        is paused, so the centre stands still where it is (no rates: a track that kept
+        them would hold each platform off its point by what they ask)."""
         if t is None or run_time is None:
             return Reference(self.heading, 0.0, None)
         c = self.path(run_time)
+        if frozen:
+            c = PathPoint(c.x, c.y)
         cfg = self.config
         sx = sy = svx = svy = 0.0
         n = 0
@@ -158,6 +166,8 @@ class FormationGuidance:
         else:
             w = cfg.consensus_weight
             sx, sy, svx, svy = sx / n, sy / n, svx / n, svy / n
+        if frozen:
+            svx = svy = 0.0
         track = Track(
             (1 - w) * c.x + w * sx + self.slot[0],
             (1 - w) * c.y + w * sy + self.slot[1],

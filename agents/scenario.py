@@ -93,23 +93,37 @@ class ScenarioGuidance:
                 raise ValueError(f"adaptive gains need a platform with a GNC chain, not {kind}")
             self.adaptive = AdaptiveGains(part.adaptive, chain.pid)
 
+    def new_run(self) -> None:
+        """A run was armed: what one run's guidance keeps (the docking's phase, point and
+        target estimate, the target's start) begins afresh."""
+        if self.docking is not None:
+            self.docking.new_run()
+        if self.target is not None:
+            self.target.new_run()
+
     def reference(
-        self, t: float | None, run_time: float | None, others: Others, own: Pose
+        self,
+        t: float | None,
+        run_time: float | None,
+        others: Others,
+        own: Pose,
+        frozen: bool = False,
     ) -> Reference | None:
         """The reference at reference time ``t`` and run time ``run_time`` (s; None
-        before sync or before the start); None: use the runtime's heading guidance."""
-        self.last = self._reference(t, run_time, others, own)
+        before sync or before the start); None: use the runtime's heading guidance.
+        ``frozen``: the run is paused (the reference stands still)."""
+        self.last = self._reference(t, run_time, others, own, frozen)
         return self.last
 
     def _reference(
-        self, t: float | None, run_time: float | None, others: Others, own: Pose
+        self, t: float | None, run_time: float | None, others: Others, own: Pose, frozen: bool
     ) -> Reference | None:
         if self.adaptive is not None and self.follow is not None:
             sample = others.get(self.follow)
             if sample is not None:
                 self.adaptive.observe(sample[0], sample[1].omega)
         if self.formation is not None:
-            return self.formation.reference(t, run_time, others)
+            return self.formation.reference(t, run_time, others, frozen)
         if isinstance(self.platform, FramedPlatform) and not self.platform.has_fix:
             # Valves are closed without a fix: nothing to steer, and the estimate is
             # only the filter's prior, not a heading to keep.
@@ -117,9 +131,10 @@ class ScenarioGuidance:
         if self.docking is not None:
             assert self.part.docking is not None
             # The chaser sees the target only through its emulated relative sensor.
-            return self.docking.reference(t, run_time, others.get(self.part.docking.target), own)
+            target = others.get(self.part.docking.target)
+            return self.docking.reference(t, run_time, target, own, frozen)
         if self.target is not None:
-            return self.target.reference(run_time, own)
+            return self.target.reference(run_time, own, frozen)
         return None
 
     @property

@@ -170,6 +170,8 @@ class AgentRuntime:
             )  # fmt: skip
             self.platform = self.scenario.platform
         self.track: Track | None = None  # the last position reference, common frame
+        # The run (id, start) the scenario's guidance is for.
+        self._scenario_run: tuple[str | None, float | None] | None = None
         if config.reference is not None:
             self.reference = AgentId.parse(config.reference)
         elif config.role == "follower" and self.follow is not None:
@@ -491,6 +493,7 @@ class AgentRuntime:
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
             self._left_area = True
+            self.platform.hold()  # the area's frame holds it already; the agent says so too
             if self.hold_reason != "name_taken":  # held for the name already: it says why
                 self.hold_reason = "workspace"
             log.warning("safe hold: %s", self.scenario.hold_reason)
@@ -499,7 +502,8 @@ class AgentRuntime:
     def _scenario_reference(self, t_sim: float | None, run_time: float | None) -> None:
         """The scenario's 3-DOF reference from the others' poses on reference time."""
         assert self.scenario is not None
-        ref = self.scenario.reference(t_sim, run_time, self.others(), self.pose)
+        frozen = self.run_state.mode == "frozen"
+        ref = self.scenario.reference(t_sim, run_time, self.others(), self.pose, frozen)
         if ref is not None:
             self.guidance = (ref.heading, ref.rate)
             self.track = ref.track
@@ -507,8 +511,14 @@ class AgentRuntime:
     def _watch_link(self, t_exec: float, host: float) -> None:
         """Safe hold while the followed pose is stale; resume once it flows again and a
         sync exchange has completed since (re-synchronized). An abort overrides it."""
-        if self.follow is None or self.hold_reason in ("aborted", "done", "reset", "name_taken"):
-            return  # held by the run or the name, not the link: the link releases nothing
+        if self.follow is None or self.hold_reason in (
+            "aborted",
+            "done",
+            "reset",
+            "name_taken",
+            "workspace",
+        ):
+            return  # held by the run, the name or the area, not the link: it releases nothing
         if self._contest_hold(t_exec, host):
             return
         received = self.pose_received_at.get(self.follow)
@@ -600,10 +610,16 @@ class AgentRuntime:
         recording when a start arms; log and record each."""
         for event in events:
             if event.kind in ("aborted", "done", "reset"):
-                if self.hold_reason != "name_taken":  # held for good: no run releases it
+                # Held for good (the name, the area left): no run's end relabels it, so
+                # no start releases it, and status and preflight keep saying why.
+                if self.hold_reason not in ("name_taken", "workspace"):
                     self.hold_reason = event.kind
                 self.platform.hold()
             elif event.kind == "armed":
+                run = (self.run_state.run_id, self.run_state.start_at)
+                if self.scenario is not None and run != self._scenario_run:
+                    self._scenario_run = run
+                    self.scenario.new_run()  # nothing of the last run's guidance carries over
                 if self.hold_reason in ("done", "reset"):
                     if self.link_watch.holding:
                         # Held for a stale pose before the run ended: a new run does not
@@ -790,7 +806,7 @@ class AgentRuntime:
     def readiness(self, t_exec: float) -> Readiness:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         detail = ""
-        if self.hold_reason in ("stale", "aborted", "name_taken"):
+        if self.hold_reason in ("stale", "aborted", "name_taken", "workspace"):
             detail = f"held ({self.hold_reason})"
         elif self.link_watch.holding:  # stale before the run ended: still stale
             detail = "held (stale)"

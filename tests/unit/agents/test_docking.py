@@ -89,3 +89,61 @@ def test_target_holds_rotates_or_drifts_from_its_start() -> None:
 def test_final_speed_must_be_below_the_contact_speed() -> None:
     with pytest.raises(ValueError, match="final_speed"):
         DockingConfig(target="a/b", chaser="c/d", final_speed=0.03)
+
+
+def _dock(g: DockingGuidance, own: Pose, t0: float = 0.0, dt: float = 0.05) -> tuple[Pose, float]:
+    """Fly a chaser that is where its reference says to contact; (own, t) then."""
+    t = t0
+    for k in range(3000):
+        t = t0 + k * dt
+        ref = g.reference(t, t - t0, (t, Pose()), own)
+        if ref.track is not None:
+            own = Pose(ref.track.x, ref.track.y, ref.heading, ref.track.vx, ref.track.vy)
+        if g.phase == "contact":
+            break
+    assert g.phase == "contact"
+    return own, t
+
+
+def test_a_new_run_starts_the_docking_afresh() -> None:
+    # Left at contact, a chaser put back at 1.3 m for run 2 was sent straight to the
+    # contact point: a step of 0.8 m, full thrust.
+    g = DockingGuidance(DOCK, QUIET)
+    _, t = _dock(g, Pose(1.3, 0.1, math.pi))
+    g.new_run()
+    back = Pose(1.3, 0.1, math.pi)
+    t += 1.0
+    track = None
+    for k in range(5):
+        ref = g.reference(t + k * 0.05, k * 0.05, (t + k * 0.05, Pose()), back)
+        track = ref.track if ref.track is not None else track
+    assert g.phase == "approach"
+    assert track is not None and math.hypot(track.x - back.x, track.y - back.y) < 0.05
+
+
+def test_a_frozen_run_holds_the_docking_point_and_phase() -> None:
+    g = DockingGuidance(DOCK, QUIET)
+    own = Pose(1.3, 0.1, math.pi)
+    ref = g.reference(0.0, 0.0, (0.0, Pose()), own)
+    for k in range(1, 20):  # approaching
+        ref = g.reference(k * 0.05, k * 0.05, (k * 0.05, Pose()), own)
+    assert ref.track is not None and g.phase == "approach"
+    before, phase = ref.track, g.phase
+    for k in range(600):  # 30 s frozen: run time stays at 0.95 s
+        t = 1.0 + k * 0.05
+        ref = g.reference(t, 0.95, (t, Pose()), own, frozen=True)
+    assert g.phase == phase
+    assert ref.track is not None
+    assert (ref.track.x, ref.track.y) == pytest.approx((before.x, before.y), abs=1e-6)
+    assert (ref.track.vx, ref.track.vy) == (0.0, 0.0)
+
+
+def test_the_target_starts_a_new_run_where_it_is_and_stops_its_drift_when_frozen() -> None:
+    target = TargetGuidance(DOCK.model_copy(update={"target_drift": (0.01, 0.0)}))
+    target.reference(0.0, Pose(0.0, 0.0, 0.0))
+    assert target.reference(100.0, Pose(1.0, 0.0, 0.0)).track is not None
+    frozen = target.reference(100.0, Pose(1.0, 0.0, 0.0), frozen=True)
+    assert frozen.track is not None and (frozen.track.vx, frozen.rate) == (0.0, 0.0)
+    target.new_run()
+    ref = target.reference(0.0, Pose(0.3, 0.0, 0.0))  # put back at 0.3 m for run 2
+    assert ref.track is not None and ref.track.x == pytest.approx(0.3)

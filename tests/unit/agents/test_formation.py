@@ -93,3 +93,14 @@ def test_a_pose_stamped_far_ahead_is_left_out() -> None:
     others = {"b/y": (110.0, Pose(-0.5, 0.0)), "c/z": (10.5, Pose(1.0, 0.0))}
     g.reference(10.0, 0.0, others)
     assert g.used == 1  # c's half a second ahead is within the window; b's is not
+
+
+def test_a_frozen_run_asks_no_motion() -> None:
+    # Rates kept while frozen held each platform about 0.2 m off its frozen point.
+    g = FormationGuidance("a/x", CONFIG, compensate=False)
+    moving = g.reference(30.0, 20.0, {"b/y": (30.0, Pose(-1.0, 0.0, 0.0, 0.05, 0.0))})
+    frozen = g.reference(60.0, 20.0, {"b/y": (60.0, Pose(-1.0, 0.0, 0.0, 0.05, 0.0))}, frozen=True)
+    assert moving.track is not None and frozen.track is not None
+    assert (moving.track.vx, moving.track.vy) != (0.0, 0.0)
+    assert (frozen.track.x, frozen.track.y) == pytest.approx((moving.track.x, moving.track.y))
+    assert (frozen.track.vx, frozen.track.vy, frozen.track.ax, frozen.track.ay) == (0, 0, 0, 0)

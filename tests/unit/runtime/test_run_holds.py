@@ -127,3 +127,61 @@ class _RawSample:
     def __init__(self, data: bytes):
         self.payload = _Payload(data)
         self.key_expr = "fedlab/default/@control"
+
+
+class _LeftItsArea:
+    """A scenario whose platform has left its area (what control_step reads)."""
+
+    workspace_held = True
+    hold_reason = "left its area"
+
+    def __init__(self) -> None:
+        self.runs = 0
+        self.counters: dict[str, int] = {}
+
+    def workspace(self) -> None:
+        return None
+
+    def reference(self, *args: object) -> None:
+        return None
+
+    def new_run(self) -> None:
+        self.runs += 1
+
+
+@pytest.mark.parametrize("ending", ["abort, reset", "done"])
+def test_a_workspace_hold_outlasts_the_runs_end_and_the_next_start(ending: str) -> None:
+    # Relabelled done/reset, then cleared by the next start: status showed no hold and
+    # preflight passed, while the platform stayed held (or, on a platform without the
+    # area's own guard, was released).
+    f = Follower()
+    for _ in range(5):
+        f.sync()
+        f.now += 0.09
+    f.command("start", run_id="r1", duration=1.0)
+    f.pose()
+    f.step()
+    scenario = _LeftItsArea()
+    f.agent.scenario = scenario  # type: ignore[assignment]
+    f.pose()
+    f.step()
+    assert f.agent.hold_reason == "workspace" and f.agent.platform.held
+    if ending == "done":
+        f.pose()
+        f.step(1.0)
+    else:
+        f.command("abort")
+        f.step()
+        f.command("reset")
+        f.step()
+    assert f.agent.hold_reason == "workspace"
+    f.command("start", run_id="r2")
+    for _ in range(3):
+        f.sync()
+        f.pose()
+        f.step(0.1)
+    assert scenario.runs >= 1  # the new run's guidance starts afresh
+    assert f.agent.hold_reason == "workspace" and f.agent.platform.held
+    ready = f.agent.readiness(f.clock.now())
+    assert not ready.platform and ready.platform_detail == "held (workspace)"
+    assert f.agent.status().hold == "workspace"
