@@ -219,7 +219,13 @@ class DockingGuidance:
             return Reference(self._heading, 0.0, None)
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t
-        tgt = self.target.at(t)
+        last = self._last_measurement
+        if last is not None and t - last > self.config.lost_after:
+            # Lost: where it was last seen, not where its last rates would carry it (a
+            # target that stopped out of view was chased at its old drift for minutes).
+            tgt = self.target.at(last)._replace(vx=0.0, vy=0.0, omega=0.0)
+        else:
+            tgt = self.target.at(t)
         here = contact_state(own, tgt)
         if frozen and self._carrot is not None:
             return self._track(tgt, still=True)

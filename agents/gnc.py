@@ -114,6 +114,11 @@ class GncChain:
         """The position controller: follows a track when given one, else holds a point."""
         self.position_hold: PositionHold | None = self.position if position_hold else None
         self._target_set = target is not None
+        self._explicit_target = target is not None
+        # Where position hold holds is re-taken from the estimate when a track ends and
+        # when control resumes after a closed spell: holding the first fix's point
+        # instead sent a platform released between runs back across the table.
+        self._hold_here = False
         self._force_scale = 1.0 / config.pair_force
         self._torque_scale = 1.0 / config.pair_torque
         self._imu = ImuSample(0.0, 0.0, 0.0)
@@ -217,12 +222,17 @@ class GncChain:
             self._closed = False
             self.pid.reset()
             self.pwm.reset()
+            self._hold_here = True
         self.reason = None
         torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
         fx = fy = 0.0
         if track is not None:
             fx, fy = self.position.update(est, track)
+            self._hold_here = True  # when the track ends, hold where it left the platform
         elif self.position_hold is not None:
+            if self._hold_here and not self._explicit_target:
+                self.position_hold.target = (est.x, est.y)
+            self._hold_here = False
             fx, fy = self.position_hold.update(est)
         demands = (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)
         if not all(map(math.isfinite, demands)):  # a track's NaN, an overflow

@@ -88,7 +88,7 @@ class RelativeSensor:
         self.rng = np.random.default_rng(config.seed)
         self._period = 1.0 / config.rate
         self._next: float | None = None
-        self.counters = {"given": 0, "out_of_view": 0, "dropped": 0, "no_pose": 0}
+        self.counters = {"given": 0, "out_of_view": 0, "dropped": 0, "no_pose": 0, "stale_pose": 0}
 
     def due(self, now: float) -> bool:
         """Whether a measurement is due at ``now`` (s); schedules the next one."""
@@ -112,13 +112,18 @@ class RelativeSensor:
         self, now: float, other: tuple[float, Pose] | None, own: Pose
     ) -> RelativeMeasurement | None:
         """A measurement at ``now`` (reference time, s), or None: not due, nothing shared
-        yet, out of view or range, or dropped."""
+        yet or nothing shared within ``horizon``, out of view or range, or dropped."""
         if not self.due(now):
             return None
         if other is None:
             self.counters["no_pose"] += 1
             return None
         c = self.config
+        if now - other[0] > c.horizon:
+            # Older than the dead reckoning's horizon: the other has gone silent, and a
+            # measurement made from its last pose would say it is still there.
+            self.counters["stale_pose"] += 1
+            return None
         rel = self.true_relative(now, other, own)
         rng = math.hypot(rel.x, rel.y)
         bearing = math.atan2(rel.y, rel.x)

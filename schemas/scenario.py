@@ -15,6 +15,7 @@ Rule: imports :mod:`schemas.base` only, so :mod:`schemas.config` and
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from pydantic import Field, model_validator
@@ -81,6 +82,13 @@ class RelativeSensorConfig(Model):
     seed: int = Field(0, ge=0, description="seed of the noise and dropouts")
 
 
+MAX_PATH_SPEED = 0.5
+"""m/s: the fastest a formation's centre may move (docking's speeds are capped alike)."""
+MAX_PATH_ACCEL = 0.5
+"""m/s^2: the largest acceleration a formation's centre may ask (several times what a
+platform's thrusters give)."""
+
+
 class FormationConfig(Model):
     """N platforms keep slots around a virtual centre that follows a circle:
 
@@ -111,6 +119,24 @@ class FormationConfig(Model):
         default_factory=dict,
         description="LAB/NAME -> slot offset from the virtual centre, common frame, m",
     )
+
+    @model_validator(mode="after")
+    def _feasible(self) -> FormationConfig:
+        # As docking's speeds: a path no air-bearing platform can fly is a typo (a period
+        # of 0.5 s asks 5 m/s and 63 m/s^2), and the valves would saturate chasing it.
+        speed = 2.0 * math.pi * self.radius / self.period
+        accel = max(speed * speed / self.radius if self.radius else 0.0, speed / self.ramp)
+        if speed > MAX_PATH_SPEED:
+            raise ValueError(
+                f"the centre would move at {speed:.3g} m/s (2 pi radius / period), over "
+                f"{MAX_PATH_SPEED} m/s: a longer period or a smaller radius"
+            )
+        if accel > MAX_PATH_ACCEL:
+            raise ValueError(
+                f"the centre would accelerate at {accel:.3g} m/s^2 (on the circle or in "
+                f"the ramp), over {MAX_PATH_ACCEL} m/s^2: a longer period or ramp"
+            )
+        return self
 
 
 class ContactCriteria(Model):

@@ -147,3 +147,28 @@ def test_the_target_starts_a_new_run_where_it_is_and_stops_its_drift_when_frozen
     target.new_run()
     ref = target.reference(0.0, Pose(0.3, 0.0, 0.0))  # put back at 0.3 m for run 2
     assert ref.track is not None and ref.track.x == pytest.approx(0.3)
+
+
+def test_a_silent_target_is_lost_and_not_chased_at_its_old_drift() -> None:
+    # The sensor made measurements from a frozen shared pose for ever (never "lost"),
+    # and the filter carried a stopped target on at its last drift: the track crept on
+    # at 1 cm/s for minutes.
+    g = DockingGuidance(DOCK, QUIET)
+    own = Pose(1.3, 0.0, math.pi)
+    last = (0.0, Pose())
+    for k in range(200):  # 10 s of a target drifting at 1 cm/s along +x
+        t = k * 0.05
+        last = (t, Pose(0.01 * t, 0.0, 0.0, 0.01, 0.0))
+        g.reference(t, t, last, own)
+    given = g.sensor.counters["given"]
+    tracks = []
+    for k in range(1, 2400):  # 120 s: its last pose is all that is shared
+        t = 10.0 + k * 0.05
+        ref = g.reference(t, t, last, own)
+        tracks.append(ref.track)
+    assert g.sensor.counters["given"] <= given + round(QUIET.horizon * QUIET.rate) + 1
+    assert g.sensor.counters["stale_pose"] > 0
+    final = tracks[-1]
+    assert final is not None and (final.vx, final.vy) == (0.0, 0.0)
+    minute_before = tracks[-1200]
+    assert minute_before is not None and abs(final.x - minute_before.x) < 1e-3  # not 0.6 m on

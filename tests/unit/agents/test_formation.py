@@ -104,3 +104,18 @@ def test_a_frozen_run_asks_no_motion() -> None:
     assert (moving.track.vx, moving.track.vy) != (0.0, 0.0)
     assert (frozen.track.x, frozen.track.y) == pytest.approx((moving.track.x, moving.track.y))
     assert (frozen.track.vx, frozen.track.vy, frozen.track.ax, frozen.track.ay) == (0, 0, 0, 0)
+
+
+@pytest.mark.parametrize(
+    ("settings", "reason"),
+    [
+        ({"period": 0.5}, "move at 5.03 m/s"),  # 63 m/s^2 on the circle too
+        ({"radius": 0.1, "period": 2.5}, "accelerate at 0.632"),
+        ({"ramp": 0.05, "radius": 2.0, "period": 30.0}, "in the ramp"),
+    ],
+)
+def test_a_path_no_platform_can_fly_is_refused(settings: dict[str, float], reason: str) -> None:
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match=reason):
+        FormationConfig(**settings)

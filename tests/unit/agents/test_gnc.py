@@ -12,6 +12,7 @@ import pytest
 
 from agents.dynamics import PAIRS
 from agents.gnc import CLOSED, GncChain
+from agents.guidance import Track
 from agents.kinematic import KinematicPlatform
 from agents.platform import Platform, make_platform
 from agents.sensors import ImuSample
@@ -256,3 +257,19 @@ def test_a_nonfinite_fix_is_dropped_and_counted() -> None:
     chain = GncChain(KNATTE)
     assert chain.update(0.0, 1.0, 0.0, imu=STILL, fix=Pose(x=math.nan)) == CLOSED
     assert chain.reason == "no_fix" and chain.counters["fix_rejected"] == 1
+
+
+def test_when_a_track_ends_the_platform_holds_where_it_is() -> None:
+    # Position hold kept the first fix's point: a platform released between runs with
+    # no track thrust back across the table to it (0.5 m here).
+    plat = SimulatedPlatform(KNATTE, seed=1)
+    assert plat.chain.position_hold is not None
+    t = 0.0
+    while t < 40.0:
+        plat.step(t, 0.0, 0.0, Track(0.5, 0.0) if t > 2.0 else None)
+        t += TICK
+    assert plat.truth.x == pytest.approx(0.5, abs=0.05)
+    while t < 80.0:
+        plat.step(t, 0.0, 0.0, None)
+        t += TICK
+    assert plat.truth.x == pytest.approx(0.5, abs=0.05)

@@ -45,7 +45,13 @@ def test_field_of_view_range_and_rate() -> None:
     assert sensor.measure(0.1, (0.0, Pose(3.0, 0.0)), own) is None  # beyond max range
     assert sensor.measure(0.2, (0.0, Pose(1.0, 0.1)), own) is not None
     assert sensor.measure(0.3, None, own) is None
-    assert sensor.counters == {"given": 1, "out_of_view": 2, "dropped": 0, "no_pose": 1}
+    assert sensor.counters == {
+        "given": 1,
+        "out_of_view": 2,
+        "dropped": 0,
+        "no_pose": 1,
+        "stale_pose": 0,
+    }
 
 
 def test_noise_grows_with_range_and_is_seeded() -> None:
