@@ -185,7 +185,8 @@ def _router_args(lab: str, transport: str, cfg: Sequence[str] = ()) -> list[str]
     t = TRANSPORTS[transport]
     listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if lab == "rome" else []
     config = ROUTERS.joinpath(*t.get("config", []), f"{lab}.json5")
-    return ["router", "-c", str(config), *listen, *t[lab], *_cfg_flags(cfg)]
+    # --open: the testbed's namespaces are the network, with nothing else on it.
+    return ["router", "-c", str(config), "--open", *listen, *t[lab], *_cfg_flags(cfg)]
 
 
 def _cfg_flags(cfg: Sequence[str]) -> list[str]:

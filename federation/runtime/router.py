@@ -11,6 +11,7 @@ name is kept in ``metadata.lab`` so the same file works with the official binary
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import threading
 from typing import Any
@@ -19,6 +20,7 @@ import zenoh
 
 from federation.runtime.session import ZenohConfigError, build_config, config_value
 from schemas.config import ConfigError, RouterConfig, ZenohOptions, validate
+from schemas.federation import endpoint_host
 
 __all__ = ["load_router_config", "run_router"]
 
@@ -31,8 +33,13 @@ _ROUTER_DEFAULTS: dict[str, Any] = {
 }
 
 
-def load_router_config(options: ZenohOptions, lab: str | None) -> tuple[RouterConfig, zenoh.Config]:
-    """Validated router settings and the Zenoh config that realises them."""
+def load_router_config(
+    options: ZenohOptions, lab: str | None, open_: bool = False
+) -> tuple[RouterConfig, zenoh.Config]:
+    """Validated router settings and the Zenoh config that realises them. A listener
+    reachable beyond this host without access control (enabled, default deny) is
+    refused unless ``open_``: whoever reaches its port could publish control or another
+    agent's pose, and move a platform."""
     source = str(options.config) if options.config else "command line"
     conf = build_config(options, default_mode="router", extra=_ROUTER_DEFAULTS)
     mode = config_value(conf, "mode")
@@ -56,9 +63,44 @@ def load_router_config(options: ZenohOptions, lab: str | None) -> tuple[RouterCo
         raise ConfigError(
             f"{source}: field 'listen': a router needs at least one listen or connect endpoint"
         )
+    if not open_:
+        _refuse_open_listeners(conf, settings.listen, source)
     # Keep the lab name in the config so it shows in Zenoh's admin space.
     conf.insert_json5("metadata", f'{{"lab": "{settings.lab}"}}')
     return settings, conf
+
+
+def _refuse_open_listeners(conf: zenoh.Config, listen: list[str], source: str) -> None:
+    acl = config_value(conf, "access_control") or {}
+    guarded = (
+        isinstance(acl, dict) and acl.get("enabled") is True
+        and acl.get("default_permission") == "deny"
+    )  # fmt: skip
+    if guarded:
+        return
+    for endpoint in listen:
+        if not _local_only(endpoint):
+            raise ConfigError(
+                f"{source}: field 'listen': {endpoint} is reachable beyond this host and no "
+                "access control is on (access_control.enabled, default_permission deny): "
+                "whoever reaches the port could publish control or an agent's pose. Use the "
+                "configs of fedlab deploy generate (TLS, access control), listen on a "
+                "loopback address, or pass --open on a network you trust (a testbed)"
+            )
+
+
+def _local_only(endpoint: str) -> bool:
+    """Whether an endpoint listens on this host only (a loopback address, a Unix socket)."""
+    proto = endpoint.partition("/")[0]
+    if proto.startswith("unixsock"):
+        return True
+    host = endpoint_host(endpoint)
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a name, or the wildcard's empty host: assume the world
 
 
 def _endpoints(value: Any) -> list[str]:

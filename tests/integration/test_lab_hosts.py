@@ -58,12 +58,12 @@ def start_routers_and_leader(bed: Testbed) -> None:
     bed.fedlab(
         "kiruna",
         "router-kiruna",
-        ["router", "-c", str(ROUTERS / "kiruna.json5"), "-l", f"tcp/0.0.0.0:{PORT}"],
+        ["router", "-c", str(ROUTERS / "kiruna.json5"), "--open", "-l", f"tcp/0.0.0.0:{PORT}"],
     )
     bed.fedlab(
         "rome",
         "router-rome",
-        ["router", "-c", str(ROUTERS / "rome.json5"), "-l", ROME_ROUTER,
+        ["router", "-c", str(ROUTERS / "rome.json5"), "--open", "-l", ROME_ROUTER,
          "-e", f"tcp/{ADDR.kiruna}:{PORT}"],
     )  # fmt: skip
     bed.fedlab(

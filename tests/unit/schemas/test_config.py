@@ -353,3 +353,35 @@ def test_empty_toml_reports_every_missing_field(tmp_path: Path) -> None:
 
 def test_config_error_is_value_error() -> None:
     assert issubclass(ConfigError, ValueError)
+
+
+@pytest.mark.parametrize(
+    ("listen", "refused"),
+    [
+        ("tcp/127.0.0.1:7447", False),
+        ("tcp/[::1]:7447", False),
+        ("tcp/localhost:7447", False),
+        ("tcp/0.0.0.0:7447", True),
+        ("tcp/[::]:7447", True),
+        ("udp/192.0.2.1:7447", True),
+        ("tls/kiruna.example.org:7447", True),
+    ],
+)
+def test_a_router_open_beyond_its_host_without_access_control_is_refused(
+    listen: str, refused: bool
+) -> None:
+    from federation.runtime.router import load_router_config
+    from schemas.config import ZenohOptions
+
+    options = ZenohOptions(listen=[listen])
+    if refused:
+        with pytest.raises(ConfigError, match=r"field 'listen': .* no access control is on"):
+            load_router_config(options, "kiruna")
+        load_router_config(options, "kiruna", open_=True)  # said on purpose
+        guarded = ZenohOptions(
+            listen=[listen],
+            cfg=["access_control/enabled:true", 'access_control/default_permission:"deny"'],
+        )
+        load_router_config(guarded, "kiruna")
+    else:
+        load_router_config(options, "kiruna")
