@@ -85,6 +85,17 @@ MAX_SMALL_PAYLOAD = 1024
 this on those keys is junk, dropped and counted before it is copied (issue 13)."""
 
 
+def _fix_check(platform: Any) -> Callable[[], bool] | None:
+    """How to ask ``platform`` whether its estimate rests on a metrology fix yet (None:
+    it has no filter to ask)."""
+    if hasattr(platform, "has_fix"):
+        return lambda: bool(platform.has_fix)
+    chain = getattr(platform, "chain", None)
+    if chain is not None and hasattr(chain, "fix_time"):
+        return lambda: chain.fix_time is not None
+    return None
+
+
 class RateLimitedLog:
     """Logs the first ``burst`` events of a kind, then every ``every``-th, with its count."""
 
@@ -169,6 +180,9 @@ class AgentRuntime:
                 None if self.follow is None else str(self.follow), config.latency_compensation,
             )  # fmt: skip
             self.platform = self.scenario.platform
+        # Whether the platform's estimate rests on a fix (None: it has no filter, as a
+        # kinematic one): before its first fix a filter's estimate is only its prior.
+        self._has_fix = _fix_check(self.platform)
         self.track: Track | None = None  # the last position reference, common frame
         # The run (id, start) the scenario's guidance is for.
         self._scenario_run: tuple[str | None, float | None] | None = None
@@ -566,6 +580,11 @@ class AgentRuntime:
         )
 
     def publish_pose(self) -> None:
+        if self._has_fix is not None and not self._has_fix():
+            # Its prior is not a pose: a follower would steer by it, a formation pull
+            # towards it (a restarted member's table origin moved another's track 0.27 m).
+            self.count("pose_withheld_no_fix")
+            return
         t_exec, host = self.clock.read()
         self._pose_pub.put(
             wire.encode_pose(t_exec, self.pose),

@@ -185,3 +185,27 @@ def test_a_workspace_hold_outlasts_the_runs_end_and_the_next_start(ending: str) 
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and ready.platform_detail == "held (workspace)"
     assert f.agent.status().hold == "workspace"
+
+
+def test_no_pose_is_published_before_the_platforms_first_fix() -> None:
+    # A restarted member published its filter's prior (its table's origin) as its pose,
+    # and another member's formation track moved 0.27 m towards it.
+    now = [1000.0]
+    clock = ExecClock(source=lambda: now[0])
+    config = AgentConfig(lab="rome", name="l", role="leader", platform="knatte")
+    agent = AgentRuntime(config, session=None, clock=clock)  # type: ignore[arg-type]
+    sent: list[bytes] = []
+
+    class Publisher:
+        def put(self, payload: bytes, **kwargs: Any) -> None:
+            sent.append(payload)
+
+    agent._pose_pub = Publisher()
+    agent._source_info = lambda: None  # type: ignore[assignment, method-assign, return-value]
+    agent.publish_pose()
+    assert sent == [] and agent.counters["pose_withheld_no_fix"] == 1
+    for _ in range(20):  # the simulated cameras give a fix within a vision period
+        now[0] += 0.01
+        agent.control_step()
+    agent.publish_pose()
+    assert len(sent) == 1
