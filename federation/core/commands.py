@@ -3,7 +3,9 @@
 The rules, in the order :meth:`CommandGate.admit` applies them:
 
 1. ``abort`` is always admitted, whatever its issuer, ``seq`` or timestamps: no value
-   in a command can stop an abort (the run state makes a repeat harmless).
+   in a command can stop an abort (the run state makes a repeat harmless). Its seq
+   becomes the issuer's last only where rule 4 would let it, so an abort with a wild
+   seq cannot make that issuer's later reset and start stale.
 2. A ``seq`` outside ``0 <= seq <= MAX_SEQ`` is dropped (``seq out of range``): a
    counter, not a wall clock, and small enough for any JSON reader.
 3. Order is per issuer. Each issuer (``fedlab ctl`` makes a new one per invocation:
@@ -60,7 +62,10 @@ class CommandGate:
         """Whether to act on ``command`` number ``seq`` from ``issuer``."""
         in_range = 0 <= seq <= MAX_SEQ
         if command == "abort":
-            if in_range and seq > self.last.get(issuer, -1):
+            last = self.last.get(issuer)
+            # Remembered only as a command in order would be (rule 4): an abort with a
+            # wild seq is acted on but does not make later commands of its issuer stale.
+            if in_range and (last is None or last < seq <= last + self.max_jump):
                 self._remember(issuer, seq)
             return Verdict("admitted")
         if not in_range:

@@ -49,7 +49,7 @@ from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch, SilenceWatch
 from federation.core.ring import FloatRing
-from federation.core.runstate import Event, RunState
+from federation.core.runstate import HOLD_MODES, Event, RunState
 from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient, read_send_time, serve
 from federation.core.timebase import TimeBase
@@ -500,6 +500,15 @@ class AgentRuntime:
         if self.name_clash is not None and self.hold_reason != "name_taken":
             self._hold_for_name(t_exec, host)
         self._watch_link(t_exec, host)
+        mode = self.run_state.mode
+        if mode in HOLD_MODES and not self.platform.held:
+            # An abort handled on Zenoh's thread while this step released a link hold it
+            # had judged before: the run's end wins, whatever else let go.
+            self.platform.hold()
+            if self.hold_reason is None:
+                self.hold_reason = mode
+            self.count("holds_restored")
+            log.warning("run %s: the platform was released; held again", mode)
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
             self._scenario_reference(t_sim, run_time)
@@ -825,7 +834,7 @@ class AgentRuntime:
     def readiness(self, t_exec: float) -> Readiness:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         detail = ""
-        if self.hold_reason in ("stale", "aborted", "name_taken", "workspace"):
+        if self.hold_reason in ("stale", "aborted", "name_taken", "workspace", "contested"):
             detail = f"held ({self.hold_reason})"
         elif self.link_watch.holding:  # stale before the run ended: still stale
             detail = "held (stale)"

@@ -57,3 +57,13 @@ def test_the_issuer_table_is_bounded() -> None:
         gate.admit("start", f"forged-{i}", 1)
     assert len(gate.last) == 4
     assert list(gate.last) == [f"forged-{i}" for i in range(96, 100)]
+
+
+def test_an_abort_with_a_wild_seq_does_not_silence_its_issuer() -> None:
+    gate = CommandGate()
+    assert gate.admit("start", "ops", 1).admitted
+    assert gate.admit("abort", "ops", 10**9).admitted  # acted on
+    assert gate.admit("reset", "ops", 2).admitted  # and the issuer's next still is
+    assert gate.admit("start", "ops", 3).admitted
+    assert gate.admit("abort", "ops", 4).admitted
+    assert gate.admit("reset", "ops", 4).outcome == "repeat"  # in order: remembered

@@ -209,3 +209,40 @@ def test_no_pose_is_published_before_the_platforms_first_fix() -> None:
         agent.control_step()
     agent.publish_pose()
     assert len(sent) == 1
+
+
+def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
+    # The step judged the link resumed; before it released, the abort ran in full on
+    # Zenoh's thread (hold, aborted). The release then undid the abort's hold.
+    f = Follower()
+    for _ in range(5):
+        f.sync()
+        f.now += 0.09
+    f.command("start", run_id="r1")
+    f.pose()
+    f.step()
+    f.step(1.0)  # stale hold
+    assert f.agent.hold_reason == "stale"
+    f.pose()
+    f.sync()
+    real = f.agent.link_watch.update
+
+    def abort_meanwhile(*args: Any, **kwargs: Any) -> Any:
+        action = real(*args, **kwargs)
+        assert action == "link_resumed"
+        f.command("abort")  # on "Zenoh's thread", between the judgement and the release
+        return action
+
+    f.agent.link_watch.update = abort_meanwhile  # type: ignore[method-assign]
+    f.pose()
+    f.step()
+    assert f.agent.run_state.mode == "aborted"
+    assert f.agent.platform.held
+    assert f.agent.hold_reason == "aborted" and f.agent.counters["holds_restored"] == 1
+
+
+def test_a_follower_held_for_a_contested_leader_is_not_ready() -> None:
+    f = Follower()
+    f.agent.hold_reason = "contested"
+    ready = f.agent.readiness(f.clock.now())
+    assert not ready.platform and ready.platform_detail == "held (contested)"
