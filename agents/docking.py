@@ -178,8 +178,8 @@ class DockingGuidance:
     def new_run(self) -> None:
         """A new run: phase, reference point and target estimate begin afresh (a chaser
         left at contact would otherwise be sent straight to the contact point, and a
-        target filter would carry the last run's target). Counters are kept."""
-        self.sensor = RelativeSensor(self.sensor_config)
+        target filter would carry the last run's target). Counters, and the sensor with
+        its own, are kept."""
         self.target = TargetFilter()
         self.phase = APPROACH
         self._carrot = None

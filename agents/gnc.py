@@ -116,8 +116,9 @@ class GncChain:
         self._target_set = target is not None
         self._explicit_target = target is not None
         # Where position hold holds is re-taken from the estimate when a track ends and
-        # when control resumes after a closed spell: holding the first fix's point
-        # instead sent a platform released between runs back across the table.
+        # when a hold is released: holding the first fix's point instead sent a platform
+        # released between runs back across the table. (Not after a camera's gap: the
+        # point it held is still the one to hold.)
         self._hold_here = False
         self._force_scale = 1.0 / config.pair_force
         self._torque_scale = 1.0 / config.pair_torque
@@ -222,7 +223,6 @@ class GncChain:
             self._closed = False
             self.pid.reset()
             self.pwm.reset()
-            self._hold_here = True
         self.reason = None
         torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
         fx = fy = 0.0
@@ -278,8 +278,10 @@ class GncChain:
         self.reason = "held"
 
     def release(self) -> None:
-        """End the hold; control resumes (from a clean start) at the next :meth:`update`."""
+        """End the hold; control resumes (from a clean start) at the next :meth:`update`,
+        holding position (if it does) where the platform is then, not where it was."""
         self._held = False
+        self._hold_here = True
 
     @property
     def held(self) -> bool:

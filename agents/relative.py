@@ -119,9 +119,10 @@ class RelativeSensor:
             self.counters["no_pose"] += 1
             return None
         c = self.config
-        if now - other[0] > c.horizon:
+        if not -c.horizon <= now - other[0] <= c.horizon:
             # Older than the dead reckoning's horizon: the other has gone silent, and a
-            # measurement made from its last pose would say it is still there.
+            # measurement made from its last pose would say it is still there (or its
+            # stamp lies ahead by more: its sender's clock estimate is wrong).
             self.counters["stale_pose"] += 1
             return None
         rel = self.true_relative(now, other, own)

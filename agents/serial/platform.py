@@ -133,6 +133,7 @@ class SerialPlatform:
             "device_failsafe_reports": 0,
             "device_frames_not_newer": 0,
             "device_pose_stale": 0,
+            "device_restarts": 0,
         }
 
     # -- Platform ----------------------------------------------------------------
@@ -248,25 +249,43 @@ class SerialPlatform:
         return seq
 
     def _read(self) -> None:
+        self._read_frames()
+        # Judged once everything waiting is read: a backlog comes in the device's order,
+        # its POSE before the IMU samples that followed it.
+        if (
+            self._new_fix is not None
+            and self.imu is not None
+            and self.pose_time is not None
+            and self.imu.t - self.pose_time > self.chain.fix_timeout
+        ):
+            self._host["device_pose_stale"] += 1  # older than the fix timeout: not a fix of now
+            self._new_fix = None
+
+    def _read_frames(self) -> None:
         for _ in range(_MAX_READS):
             data = self._serial.read(_READ_CHUNK)
             if not data:
                 return
             for message in self._decoder.feed(data):
                 if isinstance(message, DevicePose):
-                    if self.pose_time is not None and message.t <= self.pose_time:
+                    last = self.pose_time
+                    if (
+                        last is not None
+                        and message.t <= last
+                        and not self._device_restarted(last - message.t)
+                    ):
                         self._host["device_frames_not_newer"] += 1  # replayed or reordered
                         continue
                     self.device_pose = message.pose
                     self.pose_time = message.t
-                    if self.imu is not None and self.imu.t - message.t > self.chain.fix_timeout:
-                        # Older, on the device's clock, than the fix timeout allows: a
-                        # backlog read after a stall. Not a fix of now.
-                        self._host["device_pose_stale"] += 1
-                        continue
                     self._new_fix = message.pose
                 elif isinstance(message, Imu):
-                    if self.imu is not None and message.t <= self.imu.t:
+                    imu = self.imu
+                    if (
+                        imu is not None
+                        and message.t <= imu.t
+                        and not self._device_restarted(imu.t - message.t)
+                    ):
                         self._host["device_frames_not_newer"] += 1
                         continue
                     self.imu = message
@@ -277,6 +296,20 @@ class SerialPlatform:
                         self._host["device_failsafe_reports"] += 1
             if len(data) < _READ_CHUNK:
                 return
+
+    def _device_restarted(self, back: float) -> bool:
+        """A frame ``back`` s older than the last of its kind: a device whose clock went
+        back by more than the fix timeout has restarted (a reset, a brownout), and its
+        frames from now on are new. Anything less is a replay or a reordering."""
+        if back <= self.chain.fix_timeout:
+            return False
+        self._host["device_restarts"] += 1
+        log.warning("serial device on %s restarted (its clock went back %.3f s)", self.port, back)
+        self.pose_time = None
+        self.imu = None
+        self._new_fix = None
+        self._new_imu = None
+        return True
 
     def _send(self, frames: bytes, count: int, valves: tuple[bool, ...]) -> None:
         try:

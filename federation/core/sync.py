@@ -348,12 +348,17 @@ class SyncClient:
             # overflow the estimator's sums (an offset of inf stamped every pose).
             self._reject("implausible")
             return None
-        if not self._consistent(exchange):
+        if len(self._recent) < 3:
+            verdict = self._warm_up(exchange)
+        else:
+            verdict = "feed" if self._consistent(exchange) else "reject"
+        if verdict == "reject":
             return None
         self.accepted += 1
         self.last = exchange
         self._delays.add(exchange.delay)
-        self.estimator.add(exchange)
+        if verdict == "feed":
+            self.estimator.add(exchange)
         return reply
 
     def _consistent(self, exchange: Exchange) -> bool:
@@ -363,8 +368,6 @@ class SyncClient:
         and a margin together means a clock jumped. ``STEP_CONFIRM`` such exchanges in
         a row are a step: the estimate is reset and starts again from them; fewer are
         rejected as ``inconsistent``."""
-        if len(self._recent) < 3:
-            return self._warm_up(exchange)
         if len(self._recent) >= 3:
             offsets = sorted(self._recent)
             bounds = sorted(self._recent_bounds)
@@ -382,19 +385,21 @@ class SyncClient:
         self._recent_bounds.append(exchange.error_bound)
         return True
 
-    def _warm_up(self, exchange: Exchange) -> bool:
+    def _warm_up(self, exchange: Exchange) -> Literal["feed", "held", "reject"]:
         """The first exchanges (after a start or a reset) have no recent ones to be
-        checked against: once there are three, the one that disagrees with the other
-        two (as :meth:`_consistent` judges) is taken out, the estimate rebuilt without
-        it if it was already fed. One wild reply first (a ``t2`` ten seconds off) thus
-        never reaches the estimate, where the paper's window would have held it for
-        good and the clock filter weighed it for its whole horizon."""
+        checked against, so none reaches the estimate until three agree (as
+        :meth:`_consistent` judges): the first two are held back (``held``), and at the
+        third the one that disagrees with the other two is dropped as ``inconsistent``
+        and the rest fed. One wild reply first (a ``t2`` ten seconds off) thus never
+        reaches the estimate, where the paper's window would have held it for good and
+        the clock filter weighed it for its whole horizon. A third that disagrees is
+        rejected, and ``STEP_CONFIRM`` of them in a row are a clock step during the
+        warm-up: they replace the first two (else two exchanges from before a step
+        would outvote every one after it for good)."""
         warm = [*self._warmup, exchange]
         if len(warm) < 3:
             self._warmup = warm
-            self._recent.append(exchange.offset)
-            self._recent_bounds.append(exchange.error_bound)
-            return True
+            return "held"
         median = sorted(e.offset for e in warm)[1]
         bound = sorted(e.error_bound for e in warm)[1]
 
@@ -402,26 +407,31 @@ class SyncClient:
             return abs(e.offset - median) <= e.error_bound + bound + self.step_margin
 
         if not agrees(exchange):
-            self._reject("inconsistent")  # the first two stay; the warm-up goes on
-            return False
-        kept = [e for e in warm[:-1] if agrees(e)]
-        if len(kept) < len(warm) - 1:  # an earlier one was wild: rebuild without it
-            for _ in range(len(warm) - 1 - len(kept)):
-                self.accepted -= 1
+            self._suspects.append(exchange)
+            if len(self._suspects) < self.STEP_CONFIRM:
                 self._reject("inconsistent")
-            self.estimator.reset()
-            self._delays.clear()
-            self._recent.clear()
-            self._recent_bounds.clear()
-            for e in kept:
-                self._recent.append(e.offset)
-                self._recent_bounds.append(e.error_bound)
-                self._delays.add(e.delay)
-                self.estimator.add(e)
-        self._warmup = [*kept, exchange] if len(kept) < 2 else []
-        self._recent.append(exchange.offset)
-        self._recent_bounds.append(exchange.error_bound)
-        return True
+                return "reject"
+            suspects, self._suspects = self._suspects, []
+            self.steps += 1
+            self.last_step = suspects[-1].offset - median
+            self.accepted += len(suspects) - 1 - len(self._warmup)  # now these are held
+            self._warmup = suspects[:-1]
+            return self._warm_up(suspects[-1])
+        self._suspects.clear()
+        kept = [e for e in warm[:-1] if agrees(e)]
+        for _ in range(len(warm) - 1 - len(kept)):  # held back and counted: no longer
+            self.accepted -= 1
+            self._reject("inconsistent")
+        if len(kept) < 2:  # not yet three that agree: hold this one back too
+            self._warmup = [*kept, exchange]
+            return "held"
+        self._warmup = []
+        for e in (*kept, exchange):
+            self._recent.append(e.offset)
+            self._recent_bounds.append(e.error_bound)
+        for e in kept:
+            self.estimator.add(e)
+        return "feed"
 
     def _restart(self, jump: float) -> None:
         """A clock step: forget the estimate, start again from the suspect exchanges."""

@@ -186,6 +186,7 @@ class AgentRuntime:
         self.track: Track | None = None  # the last position reference, common frame
         # The run (id, start) the scenario's guidance is for.
         self._scenario_run: tuple[str | None, float | None] | None = None
+        self._scenario_new_run = False
         if config.reference is not None:
             self.reference = AgentId.parse(config.reference)
         elif config.role == "follower" and self.follow is not None:
@@ -511,6 +512,9 @@ class AgentRuntime:
             log.warning("run %s: the platform was released; held again", mode)
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
+            if self._scenario_new_run:
+                self._scenario_new_run = False
+                self.scenario.new_run()
             self._scenario_reference(t_sim, run_time)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
@@ -646,8 +650,10 @@ class AgentRuntime:
             elif event.kind == "armed":
                 run = (self.run_state.run_id, self.run_state.start_at)
                 if self.scenario is not None and run != self._scenario_run:
+                    # Nothing of the last run's guidance carries over; begun on the loop's
+                    # thread at its next step, not under a reference it is computing.
                     self._scenario_run = run
-                    self.scenario.new_run()  # nothing of the last run's guidance carries over
+                    self._scenario_new_run = True
                 if self.hold_reason in ("done", "reset"):
                     if self.link_watch.holding:
                         # Held for a stale pose before the run ended: a new run does not

@@ -124,6 +124,7 @@ class Federation:
         self.federation = federation
         self.status: dict[str, dict[str, Any]] = {}
         self.received: dict[str, float] = {}  # agent -> time.monotonic() of its last status
+        self.mismatched = 0  # statuses whose agent is not the one their key names: ignored
         self._lock = threading.Lock()
         self._sub = session.declare_subscriber(
             keys.all_of(federation, "status"),
@@ -133,6 +134,13 @@ class Federation:
     def _on_status(self, sample: Any) -> None:
         try:
             status = json.loads(sample.payload.to_bytes())
+            # Filed under the key it came on, which only that agent may write: a status
+            # naming another agent (an insider's "kiruna/knatte: aborted") is not that
+            # agent's confirmation.
+            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
+            if parsed is None or parsed[1] != "status" or status["agent"] != str(parsed[0]):
+                self.mismatched += 1
+                return
             with self._lock:
                 self.status[status["agent"]] = status
                 self.received[status["agent"]] = time.monotonic()

@@ -77,3 +77,13 @@ def test_dropouts_at_the_configured_rate() -> None:
     for k in range(5000):
         sensor.measure(k * 0.1, (k * 0.1, Pose(1.0, 0.0)), Pose())
     assert sensor.counters["dropped"] / 5000 == pytest.approx(0.2, abs=0.02)
+
+
+def test_a_shared_pose_older_or_further_ahead_than_the_horizon_gives_no_measurement() -> None:
+    # From a silent target's frozen pose it measured for ever, so docking never lost it.
+    sensor = RelativeSensor(QUIET)
+    own = Pose(1.0, 0.0, math.pi)
+    assert sensor.measure(10.0, (9.5, Pose()), own) is not None  # within the 1 s horizon
+    assert sensor.measure(10.1, (8.5, Pose()), own) is None  # 1.6 s old
+    assert sensor.measure(10.2, (100.0, Pose()), own) is None  # 90 s ahead
+    assert sensor.counters["stale_pose"] == 2

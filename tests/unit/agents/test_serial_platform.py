@@ -554,3 +554,29 @@ def test_a_hold_whose_frame_times_out_does_not_claim_closed_valves(
         plat.step(0.01, AHEAD, 0.0)  # held: the 0 goes out again
         assert plat.valves == CLOSED
         assert _valves_of(pty_dev.received())[-1] == 0
+
+
+def test_a_backlog_in_the_devices_order_is_not_a_fix(pty_dev: Pty) -> None:
+    # POSE(4.3) then the IMU samples that followed it, up to 5.0: read together after a
+    # stall, the POSE was once judged against the IMU before it, and taken as a fix.
+    with SerialPlatform(pty_dev.path) as plat:
+        backlog = encode_imu(4.29, 0.0, 0.0, 0.0) + encode_pose(4.3, Pose())
+        backlog += b"".join(encode_imu(4.3 + 0.01 * k, 0.0, 0.0, 0.0) for k in range(1, 71))
+        pty_dev.send(backlog)
+        plat.step(0.0, AHEAD, 0.0)
+        assert plat.counters["device_pose_stale"] == 1
+        assert plat.valves == CLOSED and plat.chain.reason == "no_fix"
+
+
+def test_a_device_that_restarts_is_heard_again(pty_dev: Pty) -> None:
+    # Its clock starts again from 0: every frame "not newer" kept the valves closed for
+    # good while frames were arriving.
+    with SerialPlatform(pty_dev.path) as plat:
+        pty_dev.send(encode_imu(100.0, 0.0, 0.0, 0.0) + encode_pose(100.0, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert plat.valves == POSITIVE_TORQUE
+        pty_dev.send(encode_imu(0.5, 0.0, 0.0, 0.0) + encode_pose(0.5, Pose()))
+        plat.step(0.01, AHEAD, 0.0)
+        assert plat.counters["device_restarts"] >= 1
+        assert plat.counters["device_frames_not_newer"] == 0
+        assert plat.valves == POSITIVE_TORQUE and plat.pose_time == 0.5

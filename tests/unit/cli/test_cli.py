@@ -370,3 +370,28 @@ def test_library_never_imports_argparse_nor_defines_a_command() -> None:
             ):
                 found.append(f"{where}:{node.lineno} defines {node.name}()")
     assert not found, "command-line code outside federation/cli:\n" + "\n".join(found)
+
+
+def test_ctl_files_a_status_under_the_agent_its_key_names_only() -> None:
+    """An insider may write only its own keys; a status it publishes there naming
+    another agent ("kiruna/knatte: aborted") must not count as that agent's."""
+    import json as json_
+
+    from federation.runtime.control import Federation
+
+    class Session:
+        def declare_subscriber(self, *args: Any, **kwargs: Any) -> Any:
+            return None
+
+    class Sample:
+        def __init__(self, key: str, status: dict[str, Any]):
+            self.key_expr = key
+            self.payload = type("P", (), {"to_bytes": lambda _: json_.dumps(status).encode()})()
+
+    fed = Federation(Session(), "default")
+    fed._on_status(Sample("fedlab/default/lab3/ghost/status", {"agent": "kiruna/knatte",
+                                                                "mode": "aborted"}))  # fmt: skip
+    assert fed.snapshot() == {} and fed.mismatched == 1
+    fed._on_status(Sample("fedlab/default/kiruna/knatte/status", {"agent": "kiruna/knatte",
+                                                                  "mode": "running"}))  # fmt: skip
+    assert fed.snapshot()["kiruna/knatte"]["mode"] == "running"

@@ -351,8 +351,13 @@ def test_accepted_reply_builds_exchange_and_feeds_estimator() -> None:
     assert client.last == Exchange(1.0, 27.5, 1.5)
     assert client.accepted == 1
     assert client.pending == 0
-    assert client.offset == 26.25
     assert client.delay == 0.25
+    # Held back until three exchanges agree (a wild first one must not be the estimate).
+    assert client.offset is None
+    for t in (2.0, 3.0):
+        client.receive(reply_to(client.request(t), t + 26.5), now=t + 0.5)
+    assert client.accepted == 3
+    assert client.offset == 26.25
     assert client.estimator.offset == 26.25
     assert client.last_rejection is None
 
@@ -415,12 +420,14 @@ def test_duplicate_does_not_feed_estimator_twice() -> None:
     client = SyncClient(PaperEstimator("mean"), timeout=1.0)
     r1 = client.request(0.0)
     r2 = client.request(0.25)
+    r3 = client.request(0.375)
     client.receive(reply_to(r1, 10.0), now=0.5)  # offset 9.75
     client.receive(reply_to(r2, 10.0), now=0.5)  # offset 9.625
+    client.receive(reply_to(r3, 10.0), now=0.5)  # offset 9.5625
     for _ in range(5):
         client.receive(reply_to(r1, 10.0), now=0.5)
     assert client.rejected["duplicate"] == 5
-    assert client.offset == pytest.approx((9.75 + 9.625) / 2)
+    assert client.offset == pytest.approx((9.75 + 9.625 + 9.5625) / 3)
 
 
 def test_unmatched_reply_rejected() -> None:
@@ -604,8 +611,8 @@ def test_delay_window_keeps_only_recent() -> None:
 
 def test_client_reset() -> None:
     client = make_client(timeout=1.0)
-    r1 = client.request(0.0)
-    client.receive(reply_to(r1, 30.0), now=0.25)
+    for t in (0.0, 0.05, 0.1):
+        client.receive(reply_to(client.request(t), t + 30.0), now=t + 0.25)
     client.receive(bytes(1), now=0.25)
     r2 = client.request(0.5)
     assert client.offset is not None
@@ -617,8 +624,8 @@ def test_client_reset() -> None:
     assert client.pending == 0
     assert client.estimator.offset is None
     # Counters are kept.
-    assert client.sent == 2
-    assert client.accepted == 1
+    assert client.sent == 4
+    assert client.accepted == 3
     assert client.rejected == {"malformed": 1}
     # A reply to a request sent before the reset is no longer matched.
     assert client.receive(reply_to(r2, 30.5), now=0.75) is None
@@ -627,6 +634,8 @@ def test_client_reset() -> None:
     r3 = client.request(1.0)
     assert wire.decode_request(r3) == 1.0
     assert client.receive(reply_to(r3, -5.0), now=1.5) is not None
+    for t in (2.0, 3.0):  # three that agree: the estimate
+        client.receive(reply_to(client.request(t), t - 6.0), now=t + 0.5)
     assert client.offset == -6.25
 
 
@@ -934,3 +943,25 @@ def test_a_reply_centuries_off_is_rejected_and_the_estimate_stays_finite() -> No
     far = SyncClient(make_estimator("clockfilter", 10.0))
     t = _one_a_tenth(far, [1.8e9] * 5)
     assert far.offset_at(t) == pytest.approx(1.8e9, abs=1e-3)
+
+
+@pytest.mark.parametrize("estimator", ["mean", "median", "clockfilter"])
+def test_the_wild_first_reply_is_never_the_estimate_even_briefly(estimator: str) -> None:
+    client = SyncClient(make_estimator(estimator, 10.0))
+    t = 100.0
+    seen = []
+    for offset in [-10.0, 0.0, 0.0, 0.0]:
+        t = _one_a_tenth(client, [offset], t)
+        seen.append(client.offset_at(t))
+    assert seen[:2] == [None, None]  # held back until three agree
+    assert all(abs(o) < 0.001 for o in seen[2:] if o is not None) and seen[3] is not None
+
+
+@pytest.mark.parametrize("estimator", ["mean", "median", "clockfilter"])
+def test_a_clock_step_during_the_warm_up_does_not_jam_the_client(estimator: str) -> None:
+    # Two exchanges before a 2 s step outvoted every one after it, for good.
+    client = SyncClient(make_estimator(estimator, 10.0))
+    t = _one_a_tenth(client, [0.0, 0.0] + [2.0] * 20)
+    offset = client.offset_at(t)
+    assert offset is not None and abs(offset - 2.0) < 0.001, offset
+    assert client.steps == 1 and client.rejected["inconsistent"] == 2
