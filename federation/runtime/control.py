@@ -24,6 +24,7 @@ agent reports the command's mode, and says for each one that did not why not
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import os
@@ -263,15 +264,34 @@ def why_not(status: dict[str, Any] | None, command: Command) -> str:
 
 
 def publish(session: Any, federation: str, command: Command, copies: int = 3) -> float:
-    """Publish ``command`` ``copies`` times (50 ms apart); the monotonic time of the first."""
+    """Publish ``command`` ``copies`` times (50 ms apart); the monotonic time of the first.
+    An abort goes at real-time priority, express, and waits for room in a congested
+    queue rather than being dropped (Zenoh's default for data is to drop)."""
+    import zenoh
+
     payload = command.model_dump_json()
     key = keys.control_key(federation)
+    options: dict[str, Any] = {}
+    if command.command == "abort":
+        options = {
+            "priority": zenoh.Priority.REAL_TIME,
+            "congestion_control": zenoh.CongestionControl.BLOCK,
+            "express": True,
+        }
     first = time.monotonic()
     for i in range(copies):
         if i:
             time.sleep(0.05)
-        session.put(key, payload)
+        session.put(key, payload, **options)
     return first
+
+
+RESEND_PERIOD = 0.5
+"""s between copies of an abort while ctl waits for its confirmations."""
+START_CONFIRM_MARGIN = 0.5
+"""s before a start by which every participant must have confirmed it (else ctl aborts)."""
+START_CONFIRM_MIN = 0.5
+"""s: the least ctl waits for a start's confirmations."""
 
 
 def send(
@@ -297,14 +317,20 @@ def confirm(
     fed: Federation,
     timeout: float,
     progress: Callable[[str], None],
+    resend: Callable[[], object] | None = None,
 ) -> dict[str, str]:
-    """Wait (at most ``timeout`` s) until every ``expected`` agent reports ``command``."""
+    """Wait (at most ``timeout`` s) until every ``expected`` agent reports ``command``;
+    ``resend`` (an abort's) is called every :data:`RESEND_PERIOD` s meanwhile."""
     deadline = time.monotonic() + timeout
+    next_send = time.monotonic() + RESEND_PERIOD
     while True:
         seen = fed.snapshot()
         pending = {a for a in expected if a not in seen or not _accepted(seen[a], command)}
         if not pending or time.monotonic() > deadline:
             break
+        if resend is not None and time.monotonic() >= next_send:
+            resend()  # the same command again: a repeat where it arrived, an abort where not
+            next_send = time.monotonic() + RESEND_PERIOD
         time.sleep(0.05)
     if pending:
         progress(f"no confirmation within {timeout:g} s from: {', '.join(sorted(pending))}")
@@ -456,8 +482,19 @@ def issue(
                     f"no agent found in federation {federation!r} within {discover:g} s "
                     f"({action} was published on {keys.control_key(federation)})"
                 )
-            modes = confirm(command, expected, fed, wait, progress)
+            again = None
+            if action == "abort":
+
+                def again() -> None:
+                    publish(session, federation, command, copies=1)
+
+            modes = confirm(command, expected, fed, wait, progress, resend=again)
             return _result(command, None, expected, modes, sent, fed)
+        if duration is None and experiment is None:
+            raise ConfigError(
+                "a run must end: give --duration SECONDS or --experiment FILE (whose "
+                "duration it takes)"
+            )
         rows = status(
             session, federation=federation, experiment=experiment, discover=discover,
             max_bound=max_bound, fed=fed,
@@ -497,8 +534,24 @@ def issue(
             else None,
         )
         sent = publish(session, federation, command)
-        modes = confirm(command, expected, fed, wait, progress)
-        return _result(command, ref, expected, modes, sent, fed, rows, overridden)
+        # Every participant confirms before the start, or none starts: a run without one
+        # of its platforms is not the experiment (and the others would fly it alone).
+        before_start = max(START_CONFIRM_MIN, start_in - START_CONFIRM_MARGIN)
+        modes = confirm(command, expected, fed, min(wait, before_start), progress)
+        result = _result(command, ref, expected, modes, sent, fed, rows, overridden)
+        if result.pending and not force:
+            abort = Command(
+                command="abort", seq=issuer.next_seq(), issuer=issuer.name,
+                experiment=experiment.name if experiment else None,
+            )  # fmt: skip
+            publish(session, federation, abort)
+            missing = ", ".join(result.pending)
+            progress(f"run {run_id} aborted: {missing} had not confirmed the start before it")
+            reasons = {
+                a: f"{r}; the run was aborted before its start" for a, r in result.reasons.items()
+            }
+            return dataclasses.replace(result, reasons=reasons)
+        return result
     finally:
         fed.close()
 

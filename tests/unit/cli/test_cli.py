@@ -395,3 +395,78 @@ def test_ctl_files_a_status_under_the_agent_its_key_names_only() -> None:
     fed._on_status(Sample("fedlab/default/kiruna/knatte/status", {"agent": "kiruna/knatte",
                                                                   "mode": "running"}))  # fmt: skip
     assert fed.snapshot()["kiruna/knatte"]["mode"] == "running"
+
+
+class _Recorder:
+    """A session that records what ctl puts (nothing is sent)."""
+
+    def __init__(self) -> None:
+        self.puts: list[tuple[str, dict[str, Any], dict[str, Any]]] = []
+
+    def put(self, key: str, payload: str, **options: Any) -> None:
+        import json as json_
+
+        self.puts.append((key, json_.loads(payload), options))
+
+    def declare_subscriber(self, *args: Any, **kwargs: Any) -> Any:
+        return type("S", (), {"undeclare": lambda self: None})()
+
+
+def _fake_federation(statuses: dict[str, dict[str, Any]]) -> type:
+    class Fed:
+        def __init__(self, session: Any, federation: str) -> None:
+            pass
+
+        def snapshot(self) -> dict[str, dict[str, Any]]:
+            return statuses
+
+        def ages(self) -> dict[str, float]:
+            return {a: 0.1 for a in statuses}
+
+        def close(self) -> None:
+            pass
+
+    return Fed
+
+
+def test_ctl_sends_an_abort_urgently_and_again_until_confirmed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import zenoh
+
+    monkeypatch.setattr(control, "Federation", _fake_federation({"lab/a": {"mode": "running"}}))
+    session = _Recorder()
+    result = control.issue(session, "abort", wait=1.3, discover=0.05)
+    aborts = [p for p in session.puts if p[1]["command"] == "abort"]
+    assert not result.ok and len(aborts) >= 3 + 2  # three at once, then every 0.5 s
+    for _, _, options in aborts:
+        assert options["priority"] == zenoh.Priority.REAL_TIME
+        assert options["congestion_control"] == zenoh.CongestionControl.BLOCK
+
+
+def test_ctl_refuses_a_start_that_would_never_end() -> None:
+    with pytest.raises(ConfigError, match="a run must end"):
+        control.issue(_Recorder(), "start", discover=0.0, wait=0.1)  # no experiment, no duration
+
+
+def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    statuses = {
+        "lab/a": {"mode": "armed", "run_id": "r1"},
+        "lab/b": {"mode": "waiting"},  # never got it
+    }
+    monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
+    monkeypatch.setattr(control, "status", lambda *a, **k: [])
+    monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
+    session = _Recorder()
+    t0 = time.monotonic()
+    result = control.issue(
+        session, "start", reference=AgentId.parse("lab/a"), start_in=1.0, wait=5.0,
+        discover=0.0, run_id="r1", duration=10.0,
+    )  # fmt: skip
+    assert time.monotonic() - t0 < 1.0  # decided before the start, not after the 5 s wait
+    commands = [p[1]["command"] for p in session.puts]
+    assert commands[:3] == ["start"] * 3 and "abort" in commands[3:]
+    assert result.pending == ["lab/b"]
+    assert "aborted before its start" in result.reasons["lab/b"]
