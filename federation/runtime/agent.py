@@ -187,6 +187,7 @@ class AgentRuntime:
         # The run (id, start) the scenario's guidance is for.
         self._scenario_run: tuple[str | None, float | None] | None = None
         self._scenario_new_run = False
+        self._status_now = False  # a command was applied: report it at the next step
         if config.reference is not None:
             self.reference = AgentId.parse(config.reference)
         elif config.role == "follower" and self.follow is not None:
@@ -525,6 +526,9 @@ class AgentRuntime:
                 self.hold_reason = "workspace"
             log.warning("safe hold: %s", self.scenario.hold_reason)
             self._event("workspace_hold", t_exec, host, self.scenario.hold_reason or "")
+        if self._status_now:
+            self._status_now = False
+            self.publish_status()
 
     def _scenario_reference(self, t_sim: float | None, run_time: float | None) -> None:
         """The scenario's 3-DOF reference from the others' poses on reference time."""
@@ -1211,6 +1215,7 @@ class AgentRuntime:
                 },
             )
             self._apply(events, t_exec, host)
+            self._status_now = True  # ctl waits for it: at the next step, not in a second
         except Exception:
             log.exception("control sample on %s failed", sample.key_expr)
 

@@ -33,12 +33,24 @@ class _Sample:
         self.key_expr = "fedlab/default/@control"
 
 
+class _Sink:
+    """A status publisher that keeps what it is given."""
+
+    def __init__(self, into: list[str]):
+        self.into = into
+
+    def put(self, payload: str, **kwargs: Any) -> None:
+        self.into.append(payload)
+
+
 class Follower:
     def __init__(self) -> None:
         self.now = 1000.0
         self.clock = ExecClock(source=lambda: self.now)
         config = AgentConfig(lab="kiruna", name="f", role="follower", follow=str(LEAD))
         self.agent = AgentRuntime(config, session=None, clock=self.clock)  # type: ignore[arg-type]
+        self.statuses: list[str] = []
+        self.agent._status_pub = _Sink(self.statuses)
         self.agent.peer_seen(LEAD, True)
         self.seq = 0
 
@@ -246,3 +258,15 @@ def test_a_follower_held_for_a_contested_leader_is_not_ready() -> None:
     f.agent.hold_reason = "contested"
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and ready.platform_detail == "held (contested)"
+
+
+def test_an_applied_command_is_reported_at_the_next_step_not_a_second_later() -> None:
+    # ctl waits for it before a start: with a status a second apart, a start 1.5 s
+    # ahead was often aborted for want of a confirmation.
+    f = Follower()
+    f.step()
+    before = len(f.statuses)
+    f.command("start", run_id="r1")
+    f.step()
+    assert len(f.statuses) == before + 1
+    assert json.loads(f.statuses[-1])["commands"][-1]["command"] == "start"
