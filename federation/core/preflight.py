@@ -84,9 +84,14 @@ class Row:
         }
 
 
-def _synced(status: Mapping[str, Any], max_bound: float) -> Check:
+def _synced(status: Mapping[str, Any], max_bound: float, reference: str | None = None) -> Check:
     ready = status.get("ready") or {}
-    if status.get("reference") == status.get("agent"):
+    own = status.get("reference")
+    if reference is not None and own != reference:
+        # A start's instant is on the reference's clock; an agent counting time on
+        # another's (its own, say) would start early or late by their difference.
+        return Check(False, f"on {own}'s clock, not the reference {reference}'s")
+    if own == status.get("agent"):
         return Check(True, "reference")
     if status.get("t_sim") is None:
         return Check(False, "no reference time yet")
@@ -126,7 +131,11 @@ def _peers(status: Mapping[str, Any]) -> Check:
 
 
 def _row(
-    agent: str, status: Mapping[str, Any] | None, age: float | None, limits: tuple[float, float]
+    agent: str,
+    status: Mapping[str, Any] | None,
+    age: float | None,
+    limits: tuple[float, float],
+    reference: str | None = None,
 ) -> Row:
     max_bound, stale_after = limits
     if status is None or age is None:
@@ -137,7 +146,7 @@ def _row(
     checks = {
         "present": Check(age <= stale_after, f"last status {age:.1f} s ago"),
         "waiting": Check(mode in ("waiting", "done"), f"mode {mode}"),
-        "synced": _synced(status, max_bound),
+        "synced": _synced(status, max_bound, reference),
         "platform": Check(
             bool(ready.get("platform")),
             str(ready.get("platform_detail") or "no readiness reported"),
@@ -156,12 +165,15 @@ def preflight(
     ages: Mapping[str, float],
     max_bound: float = DEFAULT_MAX_BOUND,
     stale_after: float = DEFAULT_STALE_AFTER,
+    reference: str | None = None,
 ) -> list[Row]:
-    """One row per participant (sorted), then one per other agent seen."""
+    """One row per participant (sorted), then one per other agent seen; ``reference``:
+    the agent whose clock a start's instant is on (each participant must count time
+    on it)."""
     expected = sorted(set(participants))
     others = sorted(set(statuses) - set(expected))
     limits = (max_bound, stale_after)
-    rows = [_row(a, statuses.get(a), ages.get(a), limits) for a in expected]
+    rows = [_row(a, statuses.get(a), ages.get(a), limits, reference) for a in expected]
     for agent in others:
         row = _row(agent, statuses.get(agent), ages.get(agent), limits)
         rows.append(Row(row.agent, row.checks, row.mode, row.run_id, participant=False))

@@ -503,13 +503,16 @@ def issue(
         expected = _expected(experiment, seen)
         if not expected:
             raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
+        ref = choose_reference(reference, experiment, seen)
+        # Each participant must count time on the clock the start's instant is on.
+        participants = [p.agent for p in experiment.participants] if experiment else list(seen)
+        rows = preflight(participants, seen, fed.ages(), max_bound, reference=str(ref))
         failed = blocking(rows)
         overridden = [f"{r.agent}: {m}" for r in failed for m in r.missing]
         if failed and not force:
             raise PreflightFailed(rows)
         for line in overridden:
             progress(f"--force: starting although {line}")
-        ref = choose_reference(reference, experiment, seen)
         clock = ExecClock()
         ref_now = reference_now(session, federation, ref, clock)
         ref_offset = ref_now - clock.now()

@@ -458,6 +458,7 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     }
     monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
     monkeypatch.setattr(control, "status", lambda *a, **k: [])
+    monkeypatch.setattr(control, "preflight", lambda *a, **k: [])  # passed, for this test
     monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
     session = _Recorder()
     t0 = time.monotonic()

@@ -99,3 +99,17 @@ def test_peers_that_answer_pass_and_odd_peer_entries_are_not_alarms() -> None:
     for line in (status(FOLLOWER, peers=peers), status(FOLLOWER), status(FOLLOWER, peers=[])):
         (row,) = preflight([FOLLOWER], {FOLLOWER: line}, {FOLLOWER: 0.1})
         assert row.ok and row.checks["peers"].detail == "none silent"
+
+
+def test_a_participant_counting_time_on_another_clock_than_the_references_is_not_synced() -> None:
+    # An SDK or ROS 2 agent is its own reference by default: it passed, and started
+    # when its own clock reached an instant given on the leader's.
+    own = status("lab3/sdk", reference="lab3/sdk")
+    statuses = {LEADER: status(LEADER), FOLLOWER: status(FOLLOWER), "lab3/sdk": own}
+    ages = dict.fromkeys(statuses, 0.1)
+    rows = {r.agent: r for r in preflight(statuses, statuses, ages, reference=LEADER)}
+    assert rows[LEADER].ok and rows[FOLLOWER].ok
+    assert rows["lab3/sdk"].missing == [
+        "synced: on lab3/sdk's clock, not the reference kiruna/knatte's"
+    ]
+    assert all(r.ok for r in preflight(statuses, statuses, ages))  # no reference: as before
