@@ -48,6 +48,8 @@ __all__ = ["HOLD_MODES", "Event", "Mode", "RunCommand", "RunState"]
 Mode = Literal["waiting", "armed", "running", "frozen", "done", "aborted"]
 
 HOLD_MODES: frozenset[str] = frozenset({"done", "aborted"})
+LATE_START = 1.0
+"""s: a start received later than this after its instant is refused (``ignored``)."""
 """Modes in which every valve stays closed."""
 
 
@@ -123,6 +125,10 @@ class RunState:
                 return [Event("ignored", t_sim, f"start while {self.mode}: abort first")]
             if cmd.at is None and t_sim is None:
                 return [Event("ignored", None, "start now, but not synchronized yet")]
+            if cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START:
+                # Begun part-way, the run would not be the one the others fly: ctl aborts
+                # a start not every participant confirmed before it; ask again.
+                return [Event("ignored", t_sim, f"start instant passed {t_sim - cmd.at:.1f} s ago")]
             self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
             self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
             self.run_id = getattr(cmd, "run_id", None)
@@ -130,6 +136,8 @@ class RunState:
             self.duration = self.default_duration if duration is None else duration
             return [Event("armed", self.start_at), *self.update(t_sim)]
         at = t_sim if cmd.at is None or t_sim is None else min(cmd.at, t_sim)
+        if kind == "freeze" and at is not None and self.start_at is not None:
+            at = max(at, self.start_at)  # an instant before the run is not one of its own
         if kind == "freeze" and self.mode == "running" and at is not None:
             self.mode, self.frozen_at = "frozen", at
             return [Event("frozen", at)]

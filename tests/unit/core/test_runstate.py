@@ -299,3 +299,24 @@ def test_autostart_counts_run_time_from_the_first_reference_time() -> None:
     assert state.update(None) == []
     assert state.update(7.5) == [Event("started", 7.5)]
     assert state.run_time(8.0) == pytest.approx(0.5)
+
+
+def test_a_start_whose_instant_has_passed_is_refused() -> None:
+    # At 1000 s a start "at 0" began running at run time 1000: the leader entered its
+    # maneuver part-way.
+    state = RunState()
+    (event,) = state.command(Cmd("start", 0, at=0.0), t_sim=1000.0)
+    assert event.kind == "ignored" and "start instant passed 1000.0 s ago" in event.detail
+    assert state.mode == "waiting"
+    # Within a second of it (a command on a slow path): armed, and running at once.
+    assert [e.kind for e in state.command(Cmd("start", 1, at=999.5), t_sim=1000.0)] == [
+        "armed",
+        "started",
+    ]
+
+
+def test_a_freeze_before_the_runs_start_freezes_at_its_start() -> None:
+    # A freeze "at 0" rewound the run time to 0, and moved the run's end later.
+    state = in_mode("running")  # started at 5 s
+    assert state.command(Cmd("freeze", 1, at=0.0), t_sim=8.0) == [Event("frozen", 5.0)]
+    assert state.run_time(20.0) == 0.0
