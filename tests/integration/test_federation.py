@@ -33,9 +33,15 @@ def test_follower_estimates_leader_clock_across_two_labs(labs: Labs) -> None:
     assert abs(view["offset"] - truth) < 0.002, (view["offset"], truth)
     assert 0 < view["delay"] < 0.005
     assert view["rejected"] == 0
-    # The leader queries the follower too (the paper's two channels), with the opposite sign.
-    back = leader.peer(FOLLOWER)
-    assert back is not None and back["samples"] > 0
+    # The leader queries the follower too (the paper's two channels), with the opposite
+    # sign: once a second, so its estimate comes with the third exchange, 2 to 3 s in.
+    line = leader.until(
+        lambda line: (line["peers"].get(FOLLOWER) or {}).get("offset") is not None,
+        timeout=10,
+        what=f"the leader's estimate of {FOLLOWER}'s clock",
+    )
+    back = line["peers"][FOLLOWER]
+    assert back["samples"] >= 3
     assert abs(back["offset"] + truth) < 0.002
     # The follower tracks the leader's heading on simulation time (Eq. 5).
     line = follower.last()
