@@ -180,13 +180,8 @@ class SerialPlatform:
         :meth:`step` (the device's heartbeat failsafe closes its valves anyway).
         """
         with self._lock:
-            self.chain.hold()
-            if self._failure is None:
-                try:
-                    self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
-                except PlatformError as error:
-                    log.warning("hold: %s", error)
-            else:
+            self._close_valves("hold")
+            if self._failure is not None:
                 self._valves = CLOSED  # the port is gone: the device's failsafe closed them
 
     def release(self) -> None:
@@ -216,12 +211,7 @@ class SerialPlatform:
     def close(self) -> None:
         """Send all-valves-closed (best effort) and close the port. Idempotent."""
         with self._lock:
-            self.chain.hold()
-            if self._failure is None:
-                try:
-                    self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
-                except PlatformError as error:
-                    log.warning("close: %s", error)
+            self._close_valves("close")
             self._valves = CLOSED  # closed port: the device's heartbeat failsafe closes them
             if self._failure is None:
                 self._failure = f"serial port {self.port} is closed"
@@ -239,6 +229,15 @@ class SerialPlatform:
         self.close()
 
     # -- internals -----------------------------------------------------------------
+    def _close_valves(self, why: str) -> None:
+        """Hold the chain and send all-closed at once (best effort on a live port)."""
+        self.chain.hold()
+        if self._failure is None:
+            try:
+                self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
+            except PlatformError as error:
+                log.warning("%s: %s", why, error)
+
     def _check_open(self) -> None:
         if self._failure is not None:
             raise PlatformError(self._failure)

@@ -70,7 +70,7 @@ from federation.runtime.names import (
     NAME_CHECKS_AFTER,
     NameTaken,
     clash_message,
-    look_for_others,
+    look_again,
     name_alive,
 )
 from schemas.bridge import UdpBridgeConfig, format_address
@@ -324,10 +324,6 @@ class UdpBridge:
         (:func:`~federation.runtime.names.look_for_others`); another session there
         means another process under the name, and the bridge stops speaking for it
         for good (:meth:`BridgeCore.hold_for_name`)."""
-        checks = self._name_checks
-        if not checks or host < checks[0]:
-            return
-        checks.pop(0)
 
         def clash(sessions: list[str]) -> None:
             with self._lock:
@@ -337,12 +333,8 @@ class UdpBridge:
             if held:
                 self._say_held()
 
-        try:
-            request = wire.encode_request(self.clock.now())
-            look_for_others(self.session, self.key(self.me, "sync"), request, clash)
-        except Exception as error:  # the session closing, or Zenoh refusing the query
-            log.warning("looking again at the name %s failed: %s", self.me, error)
-            checks.insert(0, host + NAME_CHECKS_AFTER[0])
+        key = self.key(self.me, "sync")
+        look_again(self._name_checks, host, self.session, key, self.clock.now, clash)
 
     def _say_held(self) -> None:
         log.error(

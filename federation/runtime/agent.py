@@ -62,7 +62,7 @@ from federation.runtime.names import (
     NAME_CHECKS_AFTER,
     NameTaken,
     clash_message,
-    look_for_others,
+    look_again,
     name_alive,
 )
 from federation.runtime.recorder import Message, Recorder, Shared
@@ -366,20 +366,12 @@ class AgentRuntime:
         (:meth:`_hold_for_name`): which one is genuine cannot be told in-band. The
         replies come on Zenoh's threads; a query that cannot be sent is tried again a
         period later."""
-        checks = self._name_checks
-        if not checks or host < checks[0]:
-            return
-        checks.pop(0)
 
         def clash(sessions: list[str]) -> None:
             self.name_clash = clash_message(str(self.me), self.config.federation, sessions)
 
-        try:
-            request = wire.encode_request(self.clock.now())
-            look_for_others(self.session, self.key(self.me, "sync"), request, clash)
-        except Exception as error:  # the session closing, or Zenoh refusing the query
-            log.warning("looking again at the name %s failed: %s", self.me, error)
-            checks.insert(0, host + NAME_CHECKS_AFTER[0])
+        key = self.key(self.me, "sync")
+        look_again(self._name_checks, host, self.session, key, self.clock.now, clash)
 
     def _hold_for_name(self, t_exec: float, host: float) -> None:
         """Safe hold for good: another process runs under this agent's name."""

@@ -14,12 +14,24 @@ however many sessions hold it.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from typing import Any
 
 import zenoh
 
-__all__ = ["NAME_CHECKS_AFTER", "NameTaken", "clash_message", "look_for_others", "name_alive"]
+from federation.core import wire
+
+__all__ = [
+    "NAME_CHECKS_AFTER",
+    "NameTaken",
+    "clash_message",
+    "look_again",
+    "look_for_others",
+    "name_alive",
+]
+
+log = logging.getLogger("fedlab.names")
 
 NAME_CHECKS_AFTER = (2.0, 10.0)
 """s after start: the name is looked up again, for a second process that started under
@@ -69,6 +81,28 @@ def look_for_others(
         consolidation=zenoh.ConsolidationMode.NONE,
         timeout=timeout,
     )
+
+
+def look_again(
+    checks: list[float],
+    host: float,
+    session: zenoh.Session,
+    sync_key: str,
+    now: Callable[[], float],
+    on_clash: Callable[[list[str]], None],
+) -> None:
+    """The look due at host monotonic ``host``, if any (a sync request stamped with the
+    clock ``now`` reads): ``checks`` are the times of the looks still to make (the first
+    is taken off when made); a look that cannot be sent is tried again a first look's
+    delay later. See :func:`look_for_others`."""
+    if not checks or host < checks[0]:
+        return
+    checks.pop(0)
+    try:
+        look_for_others(session, sync_key, wire.encode_request(now()), on_clash)
+    except Exception as error:  # the session closing, or Zenoh refusing the query
+        log.warning("looking again at who answers %s failed: %s", sync_key, error)
+        checks.insert(0, host + NAME_CHECKS_AFTER[0])
 
 
 def clash_message(who: str, federation: str, sessions: list[str]) -> str:

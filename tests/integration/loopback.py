@@ -353,3 +353,9 @@ class Labs:
     ) -> Agent:
         """A follower (rome/pinocchio by default) tracking ``follow``."""
         return self.agent(who, at, *extra, role="follower", follow=follow, **kw)
+
+
+def answer_sync(query: zenoh.Query) -> None:
+    """A sync reply of the paper's size, as a second process under an agent's name
+    answers its sync key (the name checks' tests)."""
+    query.reply(query.key_expr, bytes(64))

@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from loopback import LEADER, Agent, Labs, Tap, client_config
+from loopback import LEADER, Agent, Labs, Tap, answer_sync, client_config
 
 from federation.core import wire
 from federation.core.paper import CLOCK_OFFSET
@@ -235,7 +235,7 @@ def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_go
             "--follow", LEADER, "-e", router.endpoint, "--status-period", "0.5",
         )  # fmt: skip
         assert up.wait(30), "the bridge never declared the legacy agent's name"
-        declared.append(racer.declare_queryable(f"{key}/sync", _answer))
+        declared.append(racer.declare_queryable(f"{key}/sync", answer_sync))
         held = bridge.until(lambda line: line.get("hold") == "name_taken", 10, "name hold")
         assert held["counters"]["name_taken_holds"] == 1, held["counters"]
         assert "2 processes answer for rome/legacy in federation default" in bridge.log()
@@ -256,8 +256,3 @@ def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_go
             entity.undeclare()
         watch.undeclare()  # type: ignore[no-untyped-call]
         racer.close()  # type: ignore[no-untyped-call]
-
-
-def _answer(query: zenoh.Query) -> None:
-    """A sync reply of the paper's size (what a second process's queryable sends)."""
-    query.reply(query.key_expr, bytes(64))

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from loopback import LEADER, Labs, client_config
+from loopback import LEADER, Labs, answer_sync, client_config
 
 from federation.fleet.launch import wait_for
 
@@ -87,7 +87,7 @@ def test_a_second_process_under_its_name_at_start_holds_the_agent_for_good(
         assert up.wait(30), "the agent never declared its name"
         # Within ms of the agent's declarations, as a second `fedlab agent` makes them.
         tokens.append(racer.liveliness().declare_token(key))
-        tokens.append(racer.declare_queryable(f"{key}/sync", _answer))
+        tokens.append(racer.declare_queryable(f"{key}/sync", answer_sync))
         held = leader.until(lambda line: line.get("hold") == "name_taken", 10, "name hold")
         assert held["counters"].get("name_taken_holds") == 1, held["counters"]
         assert held["ready"]["platform"] is False
@@ -104,8 +104,3 @@ def test_a_second_process_under_its_name_at_start_holds_the_agent_for_good(
             token.undeclare()
         watch.undeclare()  # type: ignore[no-untyped-call]
         racer.close()  # type: ignore[no-untyped-call]
-
-
-def _answer(query: zenoh.Query) -> None:
-    """A sync reply of the paper's size (what a second agent's queryable sends)."""
-    query.reply(query.key_expr, bytes(64))

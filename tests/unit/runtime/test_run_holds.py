@@ -62,6 +62,12 @@ class Follower:
         self.now += 0.01
         link.client.receive(wire.encode_reply(t1, t1 + 0.010, wire.Pose()), self.clock.now())
 
+    def synced(self) -> None:
+        """Five exchanges with the leader, 0.1 s apart: its clock is known."""
+        for _ in range(5):
+            self.sync()
+            self.now += 0.09
+
     def pose(self) -> None:
         t = self.clock.now()
         self.agent.latest_poses[LEAD] = wire.PoseSample(t, wire.Pose(heading=1.0, omega=0.5))
@@ -80,9 +86,7 @@ class Follower:
 @pytest.mark.parametrize("ending", ["done", "abort, reset"])
 def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending: str) -> None:
     f = Follower()
-    for _ in range(5):
-        f.sync()
-        f.now += 0.09
+    f.synced()
     f.command("start", run_id="r1", duration=1.5)
     f.pose()
     f.step()
@@ -120,9 +124,7 @@ def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
     # json.loads raised RecursionError on it; the handler logged a traceback and held
     # nothing: "an abort is honoured when it says abort in JSON" was broken.
     f = Follower()
-    for _ in range(5):
-        f.sync()
-        f.now += 0.09
+    f.synced()
     f.command("start", run_id="r1")
     f.pose()
     f.step()
@@ -167,9 +169,7 @@ def test_a_workspace_hold_outlasts_the_runs_end_and_the_next_start(ending: str) 
     # preflight passed, while the platform stayed held (or, on a platform without the
     # area's own guard, was released).
     f = Follower()
-    for _ in range(5):
-        f.sync()
-        f.now += 0.09
+    f.synced()
     f.command("start", run_id="r1", duration=1.0)
     f.pose()
     f.step()
@@ -227,9 +227,7 @@ def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
     # The step judged the link resumed; before it released, the abort ran in full on
     # Zenoh's thread (hold, aborted). The release then undid the abort's hold.
     f = Follower()
-    for _ in range(5):
-        f.sync()
-        f.now += 0.09
+    f.synced()
     f.command("start", run_id="r1")
     f.pose()
     f.step()
