@@ -25,9 +25,11 @@ The caller decides what "not used" means (a follower holds its platform).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, TypeVar
 
-__all__ = ["Channel", "ContestWatch", "Outcome"]
+__all__ = ["Channel", "ContestWatch", "Outcome", "in_order"]
+
+K = TypeVar("K")
 
 Channel = Literal["pose", "sync"]
 """What the source spoke on: pose samples, or replies to this agent's sync queries."""
@@ -40,6 +42,23 @@ DEFAULT_WINDOW = 2.0
 """s: two sources heard this close together contest a peer."""
 DEFAULT_QUIET = 5.0
 """s without a second source after which a contest clears."""
+
+
+def in_order(
+    last: dict[K, tuple[str | None, float]], peer: K, source: str | None, t: float
+) -> bool:
+    """Whether ``peer``'s pose stamped ``t`` (its own clock) from ``source`` is newer than
+    the last taken from that source, recorded in ``last`` if so. One no newer (a sample
+    reordered on the way or delivered twice) would put an older pose in place of a
+    newer one; the caller drops it. A pose from another source is taken (its sender
+    restarted with a new session and may count time afresh; two sources at once are
+    the contest's to judge): the caller forgets ``peer`` when it leaves or rejoins, so a
+    restarted sender that carries no source id is taken again from its return."""
+    seen = last.get(peer)
+    if seen is not None and seen[0] == source and not t > seen[1]:
+        return False
+    last[peer] = (source, t)
+    return True
 
 
 def _short(source: str | None) -> str:

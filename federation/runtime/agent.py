@@ -44,7 +44,7 @@ from federation.core import keys, wire
 from federation.core.channels import Channel
 from federation.core.commands import CommandGate
 from federation.core.contest import Channel as ContestChannel
-from federation.core.contest import ContestWatch
+from federation.core.contest import ContestWatch, in_order
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch, SilenceWatch
@@ -224,6 +224,9 @@ class AgentRuntime:
         # Own clock <-> reference time <-> a peer's clock, through the peers' estimates.
         self.timebase = TimeBase(self.me, self.reference, self.peers)
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
+        # Each peer's last pose taken: (its source, its t). One from that source no newer
+        # is dropped (a reordered or repeated sample); forgotten when the peer leaves.
+        self._pose_order: dict[AgentId, tuple[str | None, float]] = {}
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
         # Why valves are held: "stale" (link), "contested" (the followed agent),
         # "aborted", "done" (run over), "reset" (waiting after an abort), "workspace" or
@@ -1043,6 +1046,12 @@ class AgentRuntime:
                 return
             decoded, stamp = read
             self.count("pose_received")
+            if parsed is not None:
+                with self._lock:
+                    fresh = in_order(self._pose_order, parsed[0], sample.source(), decoded.t)
+                if not fresh:
+                    self.count("pose_out_of_order")
+                    return
             if (
                 parsed is not None
                 and parsed[0] == self.follow
@@ -1128,6 +1137,12 @@ class AgentRuntime:
             if read is None:
                 return
             decoded, stamp = read
+            with feed.lock:
+                fresh = in_order(feed.order, agent, sample.source(), decoded.t)
+            if not fresh:
+                _count_all(users, "pose_received")
+                _count_all(users, "pose_out_of_order")  # never overwrites a newer one
+                return
             # Dated by the estimate of the link they share: read through the first of
             # them that has seen the agent (liveliness may reach one before another).
             judge = (
@@ -1237,10 +1252,12 @@ class AgentRuntime:
             if peer is not None and peer.alive != alive:
                 with self._contest_lock:  # a restarted agent has a new session id
                     self.contest.forget(str(agent))
+                self._pose_order.pop(agent, None)  # and may count time afresh
                 feed = self.feed
                 if feed is not None and feed.agent == agent:
                     with feed.lock:
                         feed.contest.forget(str(agent))
+                        feed.order.pop(agent, None)
             if peer is None:
                 if not alive:
                     return

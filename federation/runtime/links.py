@@ -81,6 +81,8 @@ class PoseFeed:
     contest: ContestWatch = field(default_factory=ContestWatch)
     agents: tuple[Any, ...] = ()  # the agents that follow it (AgentRuntime)
     subscription: Any = None  # on the peer's pose key, declared by the first of them
+    # The peer's last pose taken: (its source, its t); see federation.core.contest.in_order.
+    order: dict[AgentId, tuple[str | None, float]] = field(default_factory=dict)
     # Held while the contest record or the subscription changes: Zenoh's callback
     # threads and the agents' threads all reach them.
     lock: threading.Lock = field(default_factory=threading.Lock)

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from federation.core.contest import Channel, ContestWatch, Outcome
+from federation.core.contest import Channel, ContestWatch, Outcome, in_order
 
 LEADER, EVIL = "a1" * 16, "e7" * 16  # session ids as Zenoh prints them
 
@@ -148,3 +148,28 @@ def test_observe_agrees_with_the_rule_written_out(
             peer, channel, source, now
         )
         assert (watch.reason(peer, now) is not None) == reference.contested(peer, now)
+
+
+def test_a_pose_no_newer_from_its_source_is_out_of_order() -> None:
+    last: dict[str, tuple[str | None, float]] = {}
+    assert in_order(last, "lead", "aaaa", 10.0)
+    assert in_order(last, "lead", "aaaa", 10.05)
+    assert not in_order(last, "lead", "aaaa", 10.0)  # reordered: older than the last
+    assert not in_order(last, "lead", "aaaa", 10.05)  # delivered twice
+    assert last["lead"] == ("aaaa", 10.05)  # a dropped one changes nothing
+    assert in_order(last, "other", "aaaa", 1.0)  # each peer on its own
+    # A restarted sender (a new session) counts time afresh: taken from its return.
+    assert in_order(last, "lead", "bbbb", 2.0)
+    assert not in_order(last, "lead", "bbbb", 1.9)
+    # No source id: ordered by t alone, until the caller forgets the peer.
+    assert in_order(last, "legacy", None, 5.0)
+    assert not in_order(last, "legacy", None, 4.0)
+    del last["legacy"]
+    assert in_order(last, "legacy", None, 4.0)
+
+
+@given(st.lists(st.floats(-1e6, 1e6), max_size=30))
+def test_the_poses_taken_from_one_source_only_move_forward(ts: list[float]) -> None:
+    last: dict[str, tuple[str | None, float]] = {}
+    taken = [t for t in ts if in_order(last, "p", "s", t)]
+    assert taken == sorted(set(taken)) and len(taken) == len(set(taken))

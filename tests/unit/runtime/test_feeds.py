@@ -176,6 +176,36 @@ def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
             assert LEAD not in follower.latest_poses  # never reaches a controller
 
 
+def test_a_reordered_pose_never_replaces_a_newer_one(session: zenoh.Session) -> None:
+    """A pose no newer than the last from its source (reordered on the way, or
+    delivered twice) is dropped and counted for each follower; the newer stays."""
+    with _feed_of_two(session) as (f1, f2, feed):
+        now = f1.clock.now()
+        for t in (now, now + 0.05, now + 0.02, now + 0.05):
+            agent_module._on_feed_pose(feed, _Sample(t, "aaaa"))  # type: ignore[arg-type]
+        for follower in (f1, f2):
+            assert follower.counters["pose_out_of_order"] == 2
+            assert follower.latest_poses[LEAD].t == now + 0.05
+        # The leader leaves and comes back (a restart): its clock may start afresh.
+        for follower in (f1, f2):
+            follower.peer_seen(LEAD, False)
+            follower.peer_seen(LEAD, True)
+        agent_module._on_feed_pose(feed, _Sample(now - 5.0, "aaaa"))  # type: ignore[arg-type]
+        assert f1.latest_poses[LEAD].t == now - 5.0
+
+
+def test_an_agent_on_its_own_drops_a_reordered_pose(session: zenoh.Session) -> None:
+    """The same for an agent that reads every pose itself (no shared feed)."""
+    with cohosted(session, follower_config("f1", watch_all=True)) as (_, _, (f1,)):
+        f1.peer_seen(LEAD, True)
+        assert f1.feed is None
+        now = f1.clock.now()
+        for t in (now + 0.05, now):
+            f1._on_pose(_Sample(t, "aaaa"))  # type: ignore[arg-type]
+        assert f1.counters["pose_out_of_order"] == 1
+        assert f1.latest_poses[LEAD].t == now + 0.05
+
+
 def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
     session: zenoh.Session,
 ) -> None:
