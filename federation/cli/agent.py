@@ -18,7 +18,7 @@ from federation.cli.common import (
     Subparsers,
     add_cpus_flag,
     add_zenoh_flags,
-    client_conf,
+    check_agent_identity,
     open_session,
     stop_on_signals,
 )
@@ -276,22 +276,13 @@ def _clock_step(text: str) -> tuple[float, float]:
         ) from None
 
 
-def _check_identity(args: argparse.Namespace, config: AgentConfig) -> None:
-    """Identity = name: the certificate CN or user name in the Zenoh config must be the
-    agent's lab/name (an IdentityError, a ConfigError: exit 2), before any session."""
-    from federation.deploy.identity import check_identity
-
-    conf, source = client_conf(args)
-    check_identity(conf, config.agent, source)
-
-
 def run(args: argparse.Namespace) -> int:
     from agents.platform import PlatformError
     from federation.runtime.agent import AgentRuntime, NameTaken
     from federation.runtime.heap import freeze_startup_heap
 
     config = agent_config(args)
-    _check_identity(args, config)
+    check_agent_identity(args, config.agent)
     if args.cpus is not None:
         from federation.runtime.cpus import pin_process
 

@@ -16,6 +16,7 @@ from federation.cli.common import (
     Subparsers,
     add_zenoh_flags,
     agent_id,
+    check_agent_identity,
     federation_name,
     integer_in,
     open_interruptible,
@@ -208,6 +209,8 @@ def run_ros2(args: argparse.Namespace) -> int:
     from federation.runtime.agent import NameTaken
 
     join = ros2_join_config(args)
+    if join is not None:
+        check_agent_identity(args, join.agent)  # the joined platform's name is its identity
     stop = stop_on_signals()
     session = open_session(args, stop)
     if session is None:
@@ -246,6 +249,7 @@ def run(args: argparse.Namespace) -> int:
     from federation.runtime.session import build_config
 
     config = bridge_config(args)
+    check_agent_identity(args, config.agent)  # the legacy agent's name is its identity
     conf = build_config(zenoh_options(args), default_mode="client")
     sock = bind_udp(config.listen_address)  # a port in use fails now, not after the router
     stop = stop_on_signals()

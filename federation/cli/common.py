@@ -263,6 +263,17 @@ def client_conf(args: argparse.Namespace) -> tuple[Any, str]:
     return build_config(options, default_mode="client"), source
 
 
+def check_agent_identity(args: argparse.Namespace, agent: object) -> None:
+    """Identity = name: the certificate CN or user name the command's Zenoh config proves
+    must be ``agent``'s lab/name (an IdentityError, a ConfigError: exit 2), checked before
+    any session. The lab router lets an identity write only under its own keys: under
+    another name, what the agent sends would be dropped, silently."""
+    from federation.deploy.identity import check_identity
+
+    conf, source = client_conf(args)
+    check_identity(conf, str(agent), source)
+
+
 def add_cpus_flag(parser: argparse.ArgumentParser, help: str) -> None:
     """``--cpus LIST``: the cores the process (every thread of it) runs on."""
     parser.add_argument("--cpus", type=cpus, metavar="LIST", help=help)

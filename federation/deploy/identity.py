@@ -84,8 +84,9 @@ def identities(conf: zenoh.Config, source: str) -> dict[str, str]:
     return out
 
 
-def check_identity(conf: zenoh.Config, agent: AgentId, source: str) -> None:
-    """Refuse (IdentityError) if ``conf`` proves an identity other than ``agent``."""
+def check_identity(conf: zenoh.Config, agent: AgentId | str, source: str) -> None:
+    """Refuse (IdentityError) if ``conf`` proves an identity other than ``agent``
+    (``lab/name``)."""
     for what, value in identities(conf, source).items():
         if value == str(agent):
             continue
@@ -110,6 +111,7 @@ def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str
     proved = identities(conf, source)
     if not proved:
         return
+    _one_identity(proved, source)
     what, value = next(iter(proved.items()))
     listed = _hosted(conf)
     if listed is None:
@@ -134,6 +136,18 @@ def check_hosted_identity(conf: zenoh.Config, agents: list[AgentId], source: str
             f"{'it sends' if len(missing) == 1 else 'they send'}. Add "
             f"{'it' if len(missing) == 1 else 'them'} to this host in the federation file "
             f"and generate again"
+        )
+
+
+def _one_identity(proved: dict[str, str], source: str) -> None:
+    """Refuse a config that proves two identities (a certificate CN and a user name that
+    differ): the router would judge it by either, so which agents it speaks for is not
+    one answer."""
+    if len(set(proved.values())) > 1:
+        said = " and ".join(f"the {what} is {value!r}" for what, value in proved.items())
+        raise IdentityError(
+            f"{source}: {said}: one session proves one identity; give both the same "
+            f"name, or drop one"
         )
 
 

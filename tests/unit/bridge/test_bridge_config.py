@@ -99,3 +99,23 @@ def test_flags_become_the_config() -> None:
 def test_a_bad_flag_fails_naming_the_field() -> None:
     with pytest.raises(ConfigError, match="field 'sync_period'"):
         bridge_cli.bridge_config(parse(*REQUIRED, "--sync-period", "0"))
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["bridge", "udp", *REQUIRED],
+        ["bridge", "ros2", "--as", "rome/legacy", "--odom", "/rover/odom"],
+    ],
+)
+def test_a_bridge_speaking_as_an_agent_under_another_identity_is_refused(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Identity = name for the agent a bridge speaks for, as for ``fedlab agent``: refused
+    (exit 2) before any socket or session, naming both names."""
+    from federation import cli
+
+    other = ["--cfg", 'transport/auth/usrpwd/user:"rome/other"', "-e", "tcp/127.0.0.1:9"]
+    assert cli.main([*argv, *other]) == 2
+    err = capsys.readouterr().err
+    assert "the user name is 'rome/other' but this agent is rome/legacy" in err

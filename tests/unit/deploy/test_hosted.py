@@ -183,6 +183,13 @@ def test_a_host_config_speaks_only_for_the_agents_it_lists(tmp_path: Path) -> No
     with pytest.raises(IdentityError, match="lists no hosted agents"):
         check_hosted_identity(knatte, [AgentId("kiruna", "knatte"), f3], "knatte.json5")
     check_hosted_identity(zenoh.Config(), [f1, f2, f3], "plain tcp")  # nothing to prove
+    # The host's certificate beside another identity's user name: refused, whichever
+    # of the two the router would judge it by (only the certificate had been read).
+    sim.insert_json5("transport/auth/usrpwd/user", '"kiruna/knatte"')
+    with pytest.raises(IdentityError, match="CN is 'kiruna/hosts/sim' and the user name is"):
+        check_hosted_identity(sim, [f1, f2], "sim.json5")
+    sim.insert_json5("transport/auth/usrpwd/user", '"kiruna/hosts/sim"')
+    check_hosted_identity(sim, [f1, f2], "sim.json5")  # one identity, said twice
 
 
 def test_a_host_named_like_a_former_agent_gets_a_new_identity(tmp_path: Path) -> None:
