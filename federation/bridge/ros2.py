@@ -21,6 +21,14 @@ A ROS 2 platform joins (``--as LAB/NAME --odom TOPIC``, :class:`Ros2Agent`)
     holds (status ``hold: "stale"``) and publishes no pose, so its followers see the
     link go quiet and hold too (fail closed); a fresh odometry releases it. A sample
     that is not finite or not level is dropped and counted (``odom_malformed``).
+    Its actuators are ROS's to command, so what the federation decided goes to ROS
+    (:class:`RunStateToRos`): ``/fedlab/LAB/NAME/hold`` (``std_msgs/msg/Bool``, true
+    while it must not move: no run running, an abort, a stale link or odometry, ...)
+    and ``/fedlab/LAB/NAME/run`` (``std_msgs/msg/String``, the run's mode), written at
+    the control step that sees a change, again every second, and ``hold`` true when
+    the bridge stops. A ROS node that moves the platform should stop on ``hold`` true,
+    and on no ``hold`` for more than a second or two (the bridge gone). With
+    ``--wait-start`` it waits for ``fedlab ctl start`` as other agents do.
 QoS, as ROS 2 users expect
     Odometry and ``/tf`` are written reliable, keep-last (10 and 100, ``tf2_ros``'s
     depth), volatile: a ROS 2 subscriber with the default profile or the sensor-data
@@ -55,8 +63,15 @@ from pydantic import ValidationError
 from agents.guidance import Track
 from agents.kinematic import KinematicPlatform
 from federation.bridge import ros2_core as conv
-from federation.bridge.ros2_typehash import ODOMETRY, TF_MESSAGE, user_data
-from federation.bridge.ros2_types import Odometry, TFMessage, odometry_message, tf_message
+from federation.bridge.ros2_typehash import BOOL, ODOMETRY, STRING_MESSAGE, TF_MESSAGE, user_data
+from federation.bridge.ros2_types import (
+    Bool,
+    Odometry,
+    String,
+    TFMessage,
+    odometry_message,
+    tf_message,
+)
 from federation.core import keys, wire
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
@@ -70,9 +85,11 @@ __all__ = [
     "FederationToRos",
     "OdometryPlatform",
     "Ros2Agent",
+    "RunStateToRos",
     "odometry_reader_qos",
     "odometry_writer_qos",
     "run_ros2_bridge",
+    "state_writer_qos",
     "tf_writer_qos",
 ]
 
@@ -108,6 +125,18 @@ def tf_writer_qos() -> Qos:
         Policy.Durability.Volatile,
         _XCDR1,
         _type_hash(TF_MESSAGE),
+    )
+
+
+def state_writer_qos(type_name: str) -> Qos:
+    """A joined platform's hold and run mode: reliable, transient local, keep last 1, so
+    a ROS node that subscribes late (with transient local) gets the current value."""
+    return Qos(
+        Policy.Reliability.Reliable(duration(milliseconds=100)),
+        Policy.History.KeepLast(1),
+        Policy.Durability.TransientLocal,
+        _XCDR1,
+        _type_hash(type_name),
     )
 
 
@@ -361,17 +390,54 @@ class OdometryPlatform(KinematicPlatform):
         return self.pose
 
 
+class RunStateToRos:
+    """A joined platform's hold and run mode on ROS 2 (``/fedlab/LAB/NAME/hold`` and
+    ``/run``): :meth:`publish` at each control step writes what changed, and each again
+    every second; :meth:`close` writes ``hold`` true last."""
+
+    def __init__(
+        self,
+        participant: DomainParticipant,
+        agent: AgentId,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.clock = clock
+        hold = Topic(participant, conv.dds_topic(conv.agent_topic(agent, "hold")), Bool)
+        run = Topic(participant, conv.dds_topic(conv.agent_topic(agent, "run")), String)
+        self._hold = DataWriter(participant, hold, state_writer_qos(BOOL))
+        self._run = DataWriter(participant, run, state_writer_qos(STRING_MESSAGE))
+        self._hold_news, self._run_news = conv.Repeated(), conv.Repeated()
+        self.counters: Counter[str] = Counter()
+
+    def publish(self, mode: str, hold_reason: str | None) -> None:
+        """Write the hold (:func:`~federation.bridge.ros2_core.must_hold`) and ``mode``
+        if changed or due again."""
+        now = self.clock()
+        hold = conv.must_hold(mode, hold_reason)
+        if self._hold_news.due(hold, now):
+            self._hold.write(Bool(hold))
+            self.counters["ros_hold_written"] += 1
+        if self._run_news.due(mode, now):
+            self._run.write(String(mode))
+
+    def close(self) -> None:
+        """The bridge stops: hold, for whoever still listens."""
+        self._hold.write(Bool(True))
+
+
 class Ros2Agent(AgentRuntime):
     """An agent whose pose is a ROS 2 platform's odometry (:class:`OdometryPlatform`).
 
-    Holds (``hold: "stale"``) and publishes no pose while the odometry is stale."""
+    Holds (``hold: "stale"``) and publishes no pose while the odometry is stale; tells
+    ROS whether the platform may move (``state``, :class:`RunStateToRos`)."""
 
     platform: OdometryPlatform
 
     def __init__(self, config: AgentConfig, session: zenoh.Session, platform: OdometryPlatform,
-                 odom_topic: str):  # fmt: skip
+                 odom_topic: str, state: RunStateToRos | None = None):  # fmt: skip
         super().__init__(config, session, platform=platform)
         self.odom_topic = odom_topic
+        self.state = state
 
     def control_step(self) -> None:
         super().control_step()
@@ -385,6 +451,8 @@ class Ros2Agent(AgentRuntime):
         elif not stale and self.hold_reason == "stale":
             self.hold_reason = None
             log.info("odometry on %s flows again: released", self.odom_topic)
+        if self.state is not None:
+            self.state.publish(self.run_state.mode, self.hold_reason)
 
     def publish_pose(self) -> None:
         if self.platform.stale:
@@ -393,7 +461,8 @@ class Ros2Agent(AgentRuntime):
         super().publish_pose()
 
     def counter_snapshot(self) -> dict[str, int]:
-        return super().counter_snapshot() | dict(self.platform.counters)
+        state = {} if self.state is None else dict(self.state.counters)
+        return super().counter_snapshot() | dict(self.platform.counters) | state
 
     def status(self) -> Status:
         return super().status().model_copy(update={"platform": f"ros2:{self.odom_topic}"})
@@ -423,7 +492,8 @@ def run_ros2_bridge(
             topic = Topic(participant, conv.dds_topic(odom_topic), Odometry)
             reader = DataReader(participant, topic, odometry_reader_qos())
             platform = OdometryPlatform(reader, odom_timeout, rate=join.pose_rate)
-            agent = Ros2Agent(join, session, platform, conv.ros_topic(odom_topic))
+            state = RunStateToRos(participant, join.agent)
+            agent = Ros2Agent(join, session, platform, conv.ros_topic(odom_topic), state)
             agent.start()
             thread = threading.Thread(target=agent.run, args=(agent_stop,), name="ros2-agent")
             thread.start()
@@ -447,3 +517,5 @@ def run_ros2_bridge(
         forward.close()
         if agent is not None:
             agent.close()
+            if agent.state is not None:
+                agent.state.close()

@@ -40,6 +40,14 @@ Time
     where :math:`\theta` is the reference clock minus the bridge's monotonic clock
     (the bridge's own sync with the reference), :math:`m_{now}` and :math:`w_{now}` the
     bridge's monotonic and wall clocks read together.
+A joined platform's run state (what ROS must obey)
+    A ROS 2 platform's actuators are commanded in ROS, so the bridge tells ROS what the
+    federation decided: ``/fedlab/LAB/NAME/hold`` (``std_msgs/msg/Bool``) is true
+    whenever the platform must not move (:func:`must_hold`: no run running, or held for
+    any reason: an abort, a stale link or odometry, a contest, a name taken) and
+    ``/fedlab/LAB/NAME/run`` (``std_msgs/msg/String``) says the run's mode. Each is
+    written when it changes and again every ``STATE_REPEAT`` seconds
+    (:class:`Repeated`), and ``hold`` true once more when the bridge stops.
 """
 
 from __future__ import annotations
@@ -55,14 +63,18 @@ __all__ = [
     "COMMON_FRAME",
     "LEVEL_TOLERANCE",
     "QUATERNION_TOLERANCE",
+    "STATE_REPEAT",
     "OdometryError",
     "OdometryFields",
+    "Repeated",
     "TransformFields",
     "agent_frame",
+    "agent_topic",
     "dds_topic",
     "dds_type_name",
     "heading_quaternion",
     "host_stamp",
+    "must_hold",
     "odometry_fields",
     "odometry_topic",
     "pose_from_odometry",
@@ -79,6 +91,9 @@ QUATERNION_TOLERANCE = 1e-3
 """Largest accepted | |q| - 1 | of a received orientation."""
 LEVEL_TOLERANCE = 0.05
 """Largest accepted roll or pitch of a received orientation, rad (air bearings are level)."""
+
+STATE_REPEAT = 1.0
+"""s: a joined platform's hold and run mode are written again this often, unchanged."""
 
 _TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -113,7 +128,37 @@ def dds_type_name(ros_type: str) -> str:
 
 def odometry_topic(agent: AgentId) -> str:
     """The ROS 2 topic of an agent's odometry: ``/fedlab/LAB/NAME/odom``."""
-    return f"/fedlab/{agent.lab}/{agent.name}/odom"
+    return agent_topic(agent, "odom")
+
+
+def agent_topic(agent: AgentId, leaf: str) -> str:
+    """An agent's ROS 2 topic ``/fedlab/LAB/NAME/<leaf>`` (``odom``, ``hold``, ``run``)."""
+    return f"/fedlab/{agent.lab}/{agent.name}/{leaf}"
+
+
+def must_hold(mode: str, hold_reason: str | None) -> bool:
+    """Whether a joined ROS 2 platform must not move: unless its run is running (waiting,
+    armed, frozen, done, aborted) or while the agent holds it (``hold_reason``)."""
+    return mode != "running" or hold_reason is not None
+
+
+class Repeated:
+    """When to write a value that a late ROS subscriber must learn and a silent writer
+    must not hide: on a change, and again every ``every`` seconds of the caller's clock."""
+
+    def __init__(self, every: float = STATE_REPEAT):
+        if not every > 0:
+            raise ValueError(f"every must be positive seconds, not {every!r}")
+        self.every = every
+        self._last: object = None
+        self._at: float | None = None
+
+    def due(self, value: object, now: float) -> bool:
+        """Whether ``value`` is to be written at ``now`` (s); if so, it is taken as written."""
+        if self._at is not None and value == self._last and now - self._at < self.every:
+            return False
+        self._last, self._at = value, now
+        return True
 
 
 def agent_frame(agent: AgentId) -> str:

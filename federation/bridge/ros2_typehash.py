@@ -29,7 +29,9 @@ from collections.abc import Mapping
 from typing import Any
 
 __all__ = [
+    "BOOL",
     "ODOMETRY",
+    "STRING_MESSAGE",
     "TF_MESSAGE",
     "TYPES",
     "type_description",
@@ -39,12 +41,15 @@ __all__ = [
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+BOOL = "std_msgs/msg/Bool"
+STRING_MESSAGE = "std_msgs/msg/String"
 
 # type_description_interfaces/msg/FieldType: the ids of the field types used here.
 NESTED = 1
 INT32 = 6
 UINT32 = 7
 DOUBLE = 11
+BOOLEAN = 15
 STRING = 17
 ARRAY = 48  # added to a type id: fixed-size array of it
 UNBOUNDED_SEQUENCE = 144  # added to a type id: sequence<it>
@@ -99,6 +104,8 @@ TYPES: Mapping[str, list[Field]] = {
             "geometry_msgs/msg/TransformStamped",
         )
     ],
+    BOOL: [("data", BOOLEAN, 0, "")],
+    STRING_MESSAGE: [("data", STRING, 0, "")],
 }
 """The fields of each type, in ``.msg`` order."""
 

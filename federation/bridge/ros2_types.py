@@ -17,6 +17,8 @@ Cyclone DDS (``rmw_cyclonedds_cpp``) or any RTPS middleware reads and writes the
 ``geometry_msgs/msg/Transform``     Vector3 translation, Quaternion rotation
 ``.../TransformStamped``            Header header, string child_frame_id, Transform transform
 ``tf2_msgs/msg/TFMessage``          sequence<TransformStamped> transforms
+``std_msgs/msg/Bool``               boolean data
+``std_msgs/msg/String``             string data
 ==================================  ========================================================
 
 No I/O here: :mod:`federation.bridge.ros2` makes topics, readers and writers of them.
@@ -32,12 +34,14 @@ from cyclonedds.idl import types as t
 from federation.bridge.ros2_core import OdometryFields, TransformFields
 
 __all__ = [
+    "Bool",
     "Header",
     "Odometry",
     "Point",
     "Pose",
     "PoseWithCovariance",
     "Quaternion",
+    "String",
     "TFMessage",
     "Time",
     "Transform",
@@ -147,6 +151,16 @@ Transforms = Annotated[Sequence[TransformStamped], t.sequence(TransformStamped)]
 @dataclass
 class TFMessage(IdlStruct, typename="tf2_msgs.msg.dds_.TFMessage_"):
     transforms: Transforms = field(default_factory=list)
+
+
+@dataclass
+class Bool(IdlStruct, typename="std_msgs.msg.dds_.Bool_"):
+    data: bool = False
+
+
+@dataclass
+class String(IdlStruct, typename="std_msgs.msg.dds_.String_"):
+    data: str = ""
 
 
 def odometry_message(f: OdometryFields) -> Odometry:

@@ -120,7 +120,9 @@ def add(sub: Subparsers) -> None:
 
 _ROS2_EXAMPLE = (
     "  fedlab bridge ros2 --domain-id 0 -e tcp/127.0.0.1:7447\n"
-    "  fedlab bridge ros2 --as ros2lab/rover --odom /rover/odom -e tcp/127.0.0.1:7447"
+    "  fedlab bridge ros2 --as ros2lab/rover --odom /rover/odom -e tcp/127.0.0.1:7447\n"
+    "  fedlab bridge ros2 --as ros2lab/rover --odom /rover/odom --reference kiruna/knatte \\\n"
+    "      --wait-start --runs-dir runs -e tcp/127.0.0.1:7447   # a participant of ctl runs"
 )
 
 
@@ -139,7 +141,10 @@ def _add_ros2(kinds: Any) -> None:
             "mapped to this host's clock. With --as LAB/NAME --odom TOPIC, a ROS 2\n"
             "platform's odometry is that agent's pose: it answers sync, holds a token and\n"
             "publishes pose and status; with no odometry for --odom-timeout seconds it holds\n"
-            "(status hold: stale) and publishes no pose. Cyclone DDS reads CYCLONEDDS_URI."
+            "(status hold: stale) and publishes no pose. Its actuators are ROS's: the\n"
+            "bridge writes /fedlab/LAB/NAME/hold (std_msgs/msg/Bool, true while it must not\n"
+            "move: no run running, an abort, a stale link...) and /fedlab/LAB/NAME/run (the\n"
+            "run's mode) for the ROS node that moves it. Cyclone DDS reads CYCLONEDDS_URI."
         ),
         epilog="Examples:\n" + _ROS2_EXAMPLE,
     )
@@ -166,6 +171,18 @@ def _add_ros2(kinds: Any) -> None:
     p.add_argument(
         "--role", choices=["member", "leader"], default="member",
         help="the joined agent's role; leader: its clock is the reference time",
+    )  # fmt: skip
+    p.add_argument(
+        "--reference", type=agent_id, metavar="LAB/NAME",
+        help="joined agent: whose clock is reference time (a run's leader; default: its own)",
+    )  # fmt: skip
+    p.add_argument(
+        "--wait-start", action="store_true",
+        help="joined agent: wait for fedlab ctl start (else its run starts at reference time 0)",
+    )  # fmt: skip
+    p.add_argument(
+        "--runs-dir", type=Path, metavar="DIR",
+        help="joined agent: record each run into DIR/<run-id>/ (what ctl start checks for)",
     )  # fmt: skip
     p.add_argument("--status-period", type=positive, metavar="S", help="joined agent: status (1)")
     p.add_argument(
@@ -194,6 +211,8 @@ def ros2_join_config(args: argparse.Namespace) -> Any:
     data: dict[str, Any] = {
         "federation": args.federation, "lab": args.as_agent.lab, "name": args.as_agent.name,
         "role": args.role, "watch_all": False, "status_json": args.status_json,
+        "wait_start": args.wait_start, "runs_dir": args.runs_dir,
+        "reference": None if args.reference is None else str(args.reference),
     }  # fmt: skip
     if args.status_period is not None:
         data["status_period"] = args.status_period

@@ -8,8 +8,11 @@ loopback interface (no multicast; unicast discovery on 127.0.0.1) on a domain of
 test's own. The conversions, time passed in, are tested in tests/unit/bridge/.
 """
 
+import json
 import math
 import os
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -372,6 +375,110 @@ def test_a_ros2_platform_joins_and_a_fedlab_follower_follows_it(
     finally:
         platform.close()
     assert rover.alive()
+
+
+@dataclass
+class BoolMsg(IdlStruct, typename="std_msgs.msg.dds_.Bool_"):
+    data: bool = False
+
+
+@dataclass
+class StringMsg(IdlStruct, typename="std_msgs.msg.dds_.String_"):
+    data: str = ""
+
+
+class StateReader:
+    """A ROS node's view of the joined platform's ``hold`` and ``run`` topics, subscribed
+    late with transient local (it gets the current value): every value, timed on arrival."""
+
+    def __init__(self, participant: DomainParticipant, agent: str):
+        qos = Qos(
+            Policy.Reliability.Reliable(duration(seconds=1)),
+            Policy.History.KeepLast(10),
+            Policy.Durability.TransientLocal,
+        )
+        base = f"rt/fedlab/{agent}"
+        self.hold_reader = DataReader(participant, Topic(participant, f"{base}/hold", BoolMsg), qos)
+        self.run_reader = DataReader(participant, Topic(participant, f"{base}/run", StringMsg), qos)
+        self.holds: list[tuple[float, bool]] = []
+        self.runs: list[str] = []
+
+    def read(self) -> None:
+        # Timed by the writer's source timestamp (wall clock), on this host's monotonic one.
+        to_monotonic = time.monotonic() - time.time()
+        self.holds += [
+            (s.sample_info.source_timestamp * 1e-9 + to_monotonic, s.data)
+            for s in self.hold_reader.take(N=100)
+            if isinstance(s, BoolMsg)
+        ]
+        self.runs += [s.data for s in self.run_reader.take(N=100) if isinstance(s, StringMsg)]
+
+    def until(self, hold: bool, run: str | None, timeout: float) -> float:
+        """Poll every 5 ms until the last hold is ``hold`` (and the run mode ``run``); when
+        that hold was first written (this host's monotonic clock)."""
+
+        def met() -> bool:
+            self.read()
+            if not self.holds or self.holds[-1][1] is not hold:
+                return False
+            return run is None or (bool(self.runs) and self.runs[-1] == run)
+
+        said = (hold, run, self.holds[-3:], self.runs[-3:])
+        assert wait_for(met, timeout=timeout, interval=0.005), said
+        first = len(self.holds) - 1
+        while first > 0 and self.holds[first - 1][1] is hold:
+            first -= 1
+        return self.holds[first][0]
+
+
+@pytest.mark.integration
+def test_a_joined_ros2_platform_is_told_to_hold_unless_its_run_runs(
+    labs: Labs, dds: DomainParticipant
+) -> None:
+    """The joined platform is a participant of a ctl run (--reference, --wait-start,
+    --runs-dir): ROS is told to hold while it waits, to move once the run starts, to hold
+    within 200 ms of an abort, and to hold when the bridge stops mid-run."""
+    pair = labs.pair()
+    runs = labs.tmp / "runs"
+    leader = labs.leader(pair.kiruna, "--wait-start", "--runs-dir", str(runs))
+    platform = OdometryWriter(dds, "rt/rover/odom")
+    platform.start()
+    rover = start_bridge(
+        labs, "--as", ROVER, "--odom", "/rover/odom", "--reference", LEADER, "--wait-start",
+        "--runs-dir", str(runs), "-e", pair.rome.endpoint, who=ROVER,
+    )  # fmt: skip
+    try:
+        ready = lambda s: (s.get("ready") or {}).get("reference_locked") and s["hold"] is None  # noqa: E731
+        rover.until(ready, timeout=30, what="the rover locked on the leader's clock")
+        leader.wait_status(timeout=15)
+        state = StateReader(dds, ROVER)
+        state.until(True, "waiting", timeout=3)  # a late subscriber learns it at once
+
+        def ctl(*args: str) -> dict[str, Any]:
+            done = subprocess.run(
+                [sys.executable, "-m", "federation", "ctl", *args, "--reference", LEADER,
+                 "--json", "-e", pair.kiruna.endpoint],
+                capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+            )  # fmt: skip
+            assert done.returncode == 0, done.stdout + done.stderr
+            return json.loads(done.stdout)  # type: ignore[no-any-return]
+
+        ctl("start", "--in", "2", "--duration", "60")
+        state.until(False, "running", timeout=10)
+        sent = ctl("abort")["sent_monotonic"]  # this host's clock
+        held = state.until(True, "aborted", timeout=5)
+        print(f"hold written to ROS {(held - sent) * 1e3:.1f} ms after ctl sent abort")
+        assert 0 <= held - sent < 0.200  # the next control step (20 Hz) writes it
+
+        ctl("reset")
+        state.until(True, "waiting", timeout=5)
+        ctl("start", "--in", "2", "--duration", "60")
+        state.until(False, "running", timeout=10)
+        rover.stop()  # mid-run: the last word to ROS is hold
+        state.until(True, None, timeout=5)
+        assert rover.latest()["counters"]["ros_hold_written"] >= 4
+    finally:
+        platform.close()
 
 
 def test_types_here_are_named_as_ros2_names_them() -> None:

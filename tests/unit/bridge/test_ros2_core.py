@@ -116,3 +116,40 @@ def test_dds_messages_carry_the_fields_and_serialize_as_xcdr1() -> None:
     tf = tf_message([conv.transform_fields(KNATTE, Pose(1.0, -2.0, 0.3), 12.5)])
     assert type(tf).__idl__.idl_transformed_typename == "tf2_msgs::msg::dds_::TFMessage_"
     assert type(tf).deserialize(tf.serialize()) == tf
+
+
+@pytest.mark.parametrize(
+    ("mode", "reason", "hold"),
+    [
+        ("running", None, False),
+        ("running", "stale", True),  # the link or the odometry
+        ("running", "contested", True),
+        ("waiting", None, True),
+        ("armed", None, True),
+        ("frozen", None, True),
+        ("aborted", "aborted", True),
+        ("done", "done", True),
+    ],
+)
+def test_a_joined_platform_may_move_only_in_a_running_run_not_held(
+    mode: str, reason: str | None, hold: bool
+) -> None:
+    assert conv.must_hold(mode, reason) is hold
+
+
+def test_state_is_written_on_a_change_and_again_every_period() -> None:
+    news = conv.Repeated(every=1.0)
+    assert news.due(True, 0.0)  # the first
+    assert not news.due(True, 0.5)
+    assert news.due(False, 0.6)  # a change: at once
+    assert not news.due(False, 1.5)
+    assert news.due(False, 1.6)  # unchanged for a period: again
+    assert news.due(True, 1.61)
+    with pytest.raises(ValueError, match="positive"):
+        conv.Repeated(every=0.0)
+
+
+def test_an_agents_topics_are_under_its_name() -> None:
+    rover = AgentId("ros2lab", "rover")
+    assert conv.agent_topic(rover, "hold") == "/fedlab/ros2lab/rover/hold"
+    assert conv.odometry_topic(rover) == "/fedlab/ros2lab/rover/odom"

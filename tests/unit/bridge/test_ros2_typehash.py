@@ -2,8 +2,8 @@
 
 The expected values are those ``rosidl_generator_c`` wrote into the ``*__description.c``
 files of public ROS 2 workspaces (``..._get_type_hash`` and ``..._EXPECTED_HASH``
-arrays, e.g. in a message package that nests Odometry and TFMessage): 13 types, every
-one the bridge's two messages are built from, so a wrong field id, capacity, order or
+arrays, e.g. in a message package that nests Odometry and TFMessage): 15 types, every
+one the bridge's messages are built from, so a wrong field id, capacity, order or
 JSON separator anywhere would show.
 """
 
@@ -42,6 +42,8 @@ PUBLISHED = {
     ),
     "nav_msgs/msg/Odometry": "3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
     "tf2_msgs/msg/TFMessage": "e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    "std_msgs/msg/Bool": "feb91e995ff9ebd09c0cb3d2aed18b11077585839fb5db80193b62d74528f6c9",
+    "std_msgs/msg/String": "df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
 }
 
 
