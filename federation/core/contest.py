@@ -69,6 +69,7 @@ def _short(source: str | None) -> str:
 class _Peer:
     seen: dict[Channel, dict[str | None, float]] = field(default_factory=dict)
     reason: str | None = None  # why it is contested, None when it is not
+    speaker: str | None = None  # the last source whose sample was used
     conflict_at: float = 0.0  # last time two sources were heard within the window
 
 
@@ -112,6 +113,17 @@ class ContestWatch:
         if self.reason(peer, now) is not None:
             return "held"
         return "ok"
+
+    def new_speaker(self, peer: str, source: str | None) -> bool:
+        """Record that ``source`` spoke for ``peer`` in a sample that was used (observed
+        ``ok``); True if it is not the source that did last (the first heard, or a new
+        session after :meth:`forget`: the peer restarted). None (no source id) is never
+        news."""
+        state = self._peers.get(peer)
+        if source is None or state is None or state.speaker == source:
+            return False
+        state.speaker = source
+        return True
 
     def reason(self, peer: str, now: float) -> str | None:
         """Why ``peer`` is contested at ``now``, or None if it is not (clears a contest

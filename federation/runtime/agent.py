@@ -23,6 +23,7 @@ and the periodic tasks' deadlines (:mod:`federation.core.schedule`, run by
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -80,6 +81,8 @@ __all__ = ["AgentRuntime", "NameTaken", "Schedule", "peer_status", "run_together
 
 log = logging.getLogger("fedlab.agent")
 
+_LOCAL_ABORT = Command(command="abort", seq=-1, issuer="fedlab (this agent)")
+"""The abort an agent gives itself (its reference restarted mid-run)."""
 MAX_SMALL_PAYLOAD = 1024
 """Bytes: a pose sample is 56, a sync request 8 and its reply 64; a payload larger than
 this on those keys is junk, dropped and counted before it is copied (issue 13)."""
@@ -241,6 +244,7 @@ class AgentRuntime:
         self.contest = ContestWatch()
         self._contest_lock = threading.Lock()
         self._contest_cleared: float | None = None  # own time a followed contest cleared
+        self._reference_zid: str | None = None  # the session last heard for the reference
         self._pose_sn = 0  # sequence number in the pose samples' source info
         self.silence = SilenceWatch()  # peers alive that answer no sync request
         self._silent_warned: set[str] = set()  # peers' names
@@ -1397,7 +1401,12 @@ class AgentRuntime:
         with lock:
             outcome = watch.observe(name, channel, source, host)
             reason = watch.reason(name, host) if outcome == "contested" else None
+            spoke = outcome == "ok" and watch.new_speaker(name, source)
         if outcome == "ok":
+            if spoke:  # first heard, or a new session for it
+                for user in users:
+                    if user.reference == agent:
+                        user._reference_session(source, host)
             return True
         _count_all(users, "contested_dropped")
         if outcome == "contested":
@@ -1410,6 +1419,28 @@ class AgentRuntime:
                     link.reset()  # the estimate of every agent on the link: all hold
             log.error("%s is contested: %s; nothing from it is used", agent, reason)
         return False
+
+    def _reference_session(self, source: str | None, host: float) -> None:
+        """The session speaking for the reference is ``source`` (first heard, or new). A
+        new one during a run started by ctl is the reference restarted: its new process
+        waits, flies no maneuver and may count time afresh, so the run is over here:
+        aborted, held, and said why (``reference_restarted``). A link cut longer than the
+        lease is not: the same session comes back."""
+        before, self._reference_zid = self._reference_zid, source
+        state = self.run_state
+        if before is None or before == source or state.run_id is None:
+            return
+        if state.mode not in ("armed", "running", "frozen"):
+            return
+        self.platform.hold()  # first: every valve closed
+        self.count("reference_restarted")
+        detail = f"{self.reference} restarted (session {before[:8]} now {source!s:.8})"
+        log.error("run %s: %s: aborted here", state.run_id, detail)
+        t_exec = self.clock.at(host)
+        with self._lock:
+            events = self.run_state.command(_LOCAL_ABORT, self.sim_time(t_exec))
+        self._apply([dataclasses.replace(e, detail=detail) for e in events], t_exec, host)
+        self._status_now = True
 
     def _contest_hold(self, t_exec: float, host: float) -> bool:
         """Safe hold while the followed agent is contested; once the contest clears,

@@ -207,3 +207,40 @@ def test_the_sdk_fails_fast_naming_the_endpoint() -> None:
         pass
     assert endpoint in str(error.value)
     assert time.monotonic() - start < 1.0 + 3.0
+
+
+@pytest.mark.scenario
+def test_the_leader_restarted_mid_run_ends_the_run_for_its_follower(
+    labs: Labs, tmp_path: Path
+) -> None:
+    """The leader's process is killed mid-run and started again at once (a new session,
+    waiting): the follower aborts the run and holds, saying why, instead of flying on
+    after a leader that flies no maneuver."""
+    pair = labs.pair()
+    experiment = write_experiment(tmp_path / "exp.toml", 60)
+    agents = participants(labs, pair, experiment)
+    follower, leader = agents[FOLLOWER], agents[LEADER]
+    follower.until(locked, timeout=LOCKED, what="reference clock locked")
+    started, _ = fedlab(
+        "ctl", "start", "--experiment", str(experiment), "--run-id", "restart",
+        "-e", pair.rome.endpoint,
+    )  # fmt: skip
+    assert started.returncode == 0, started.stdout + started.stderr
+    follower.until(lambda s: s["mode"] == "running", timeout=10, what="running")
+    leader.kill()
+    leader.start()
+    leader.until(lambda s: s["mode"] == "waiting", timeout=20, what="the leader back, waiting")
+    line = follower.until(
+        lambda s: s["mode"] == "aborted", timeout=10, what="the follower's run aborted"
+    )
+    assert line["hold"] == "aborted" and line["counters"]["reference_restarted"] == 1
+    assert "kiruna/knatte restarted" in follower.log()
+    # Nothing releases it but a reset and a new start: the pose flows again, still held.
+    time.sleep(2.0)
+    last = follower.lines()[-3:]
+    assert all(s["hold"] == "aborted" and s["pose_age"] < 0.5 for s in last), last
+    rec = read_messages(finalized(labs, FOLLOWER, "restart"))
+    aborted = next(e for e in rec["/control"] if e["event"] == "aborted")
+    assert "restarted" in aborted["detail"]
+    after = [r for r in rec["/reference"] if r["host_monotonic"] > aborted["host_monotonic"]]
+    assert all(r["valves_open"] == 0 for r in after)

@@ -173,3 +173,15 @@ def test_the_poses_taken_from_one_source_only_move_forward(ts: list[float]) -> N
     last: dict[str, tuple[str | None, float]] = {}
     taken = [t for t in ts if in_order(last, "p", "s", t)]
     assert taken == sorted(set(taken)) and len(taken) == len(set(taken))
+
+
+def test_a_new_speaker_is_news_once_and_again_after_forget() -> None:
+    watch = ContestWatch()
+    assert not watch.new_speaker("lead", "aaaa")  # never observed: nothing to say
+    assert watch.observe("lead", "pose", "aaaa", 0.0) == "ok"
+    assert watch.new_speaker("lead", "aaaa")  # first heard
+    assert not watch.new_speaker("lead", "aaaa")
+    assert not watch.new_speaker("lead", None)  # no source id: never news
+    watch.forget("lead")  # left and rejoined
+    assert watch.observe("lead", "pose", "bbbb", 10.0) == "ok"
+    assert watch.new_speaker("lead", "bbbb")  # a new session

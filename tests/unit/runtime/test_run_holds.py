@@ -268,3 +268,66 @@ def test_an_applied_command_is_reported_at_the_next_step_not_a_second_later() ->
     f.step()
     assert len(f.statuses) == before + 1
     assert json.loads(f.statuses[-1])["commands"][-1]["command"] == "start"
+
+
+def _heard(f: Follower, source: str) -> bool:
+    """A pose of the leader from session ``source`` reaches the follower."""
+    return f.agent._contest_verdict(LEAD, "pose", source, f.now)
+
+
+def _rejoins(f: Follower) -> None:
+    f.agent.peer_seen(LEAD, False)
+    f.now += 3.0
+    f.agent.peer_seen(LEAD, True)
+
+
+def test_the_reference_restarted_mid_run_aborts_the_run_here() -> None:
+    """Its new process waits, flies no maneuver and may count time afresh: the follower
+    had flown on, on the old clock, to the end of the run or never."""
+    f = Follower()
+    f.synced()
+    f.command("start", run_id="r1", duration=60.0)
+    assert _heard(f, "aaaa")
+    f.pose()
+    f.step()
+    assert f.agent.run_state.mode == "running" and not f.agent.platform.held
+    _rejoins(f)
+    assert _heard(f, "bbbb")  # a new session for the leader
+    assert f.agent.platform.held  # at once, on the thread that heard it
+    assert f.agent.run_state.mode == "aborted" and f.agent.hold_reason == "aborted"
+    assert f.agent.counters["reference_restarted"] == 1
+    f.step()
+    assert f.agent.platform.held
+    # A reset and a new start: the new session is the reference now.
+    f.command("reset")
+    f.synced()
+    f.command("start", run_id="r2", duration=60.0)
+    assert _heard(f, "bbbb")
+    f.pose()
+    f.step()
+    assert f.agent.run_state.mode == "running" and not f.agent.platform.held
+
+
+def test_a_cut_longer_than_the_lease_is_not_a_restart() -> None:
+    """The reference left and came back with the same session: the run goes on."""
+    f = Follower()
+    f.synced()
+    f.command("start", run_id="r1", duration=60.0)
+    assert _heard(f, "aaaa")
+    _rejoins(f)
+    assert _heard(f, "aaaa")
+    assert f.agent.run_state.mode == "running"
+    assert f.agent.counters["reference_restarted"] == 0
+
+
+@pytest.mark.parametrize("when", ["waiting", "no ctl run"])
+def test_a_new_reference_session_outside_a_ctl_run_aborts_nothing(when: str) -> None:
+    f = Follower()
+    if when == "no ctl run":  # an agent started on its own runs from reference time 0
+        f.agent.run_state = type(f.agent.run_state)(autostart=True)
+    f.synced()
+    assert _heard(f, "aaaa")
+    _rejoins(f)
+    assert _heard(f, "bbbb")
+    assert f.agent.run_state.mode != "aborted"
+    assert f.agent.counters["reference_restarted"] == 0
