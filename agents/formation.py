@@ -15,9 +15,24 @@ now when latency compensation is on) and takes
 
 with :math:`w_0 = 1 -` ``consensus_weight`` and :math:`J` the others whose pose is
 fresher than ``stale_after``, and not stamped further ahead than that (none: the path
-alone). Latency compensation moves each
-shared pose on by its age :math:`a = t - s_j` with its velocity and the centre's
-acceleration, which every member knows from the path:
+alone). A member's pose is taken in and let go gradually, so that one joining or
+leaving does not step every other's track: with a weight :math:`a_j \\in [0, 1]` that
+rises linearly over ``join_ramp`` seconds after its pose appears and falls linearly
+over the last half of ``stale_after`` as it ages,
+
+.. math::
+
+    \\hat{\\mathbf{c}}_i = \\mathbf{c}(t) + (1 - w_0)\\,
+        \\frac{\\sum_j a_j \\big(\\mathbf{p}_j(t) - \\mathbf{o}_j - \\mathbf{c}(t)\\big)}
+             {\\max\\big(1, \\sum_j a_j\\big)},
+
+which is the mean above once every :math:`a_j = 1`, and continuous in each: for a
+member :math:`e` off its slot, the track moves at most :math:`(1 - w_0)\\,e / T_{join}`
+as it joins (0.7 × 0.1 m / 2 s = 3.5 cm/s) and :math:`2 (1 - w_0)\\,e / t_{stale}` as
+it leaves (0.14 m/s), where it had stepped by :math:`(1 - w_0)\\,e` at once.
+
+Latency compensation moves each shared pose on by its age :math:`a = t - s_j` with
+its velocity and the centre's acceleration, which every member knows from the path:
 :math:`\\mathbf{p}_j + \\mathbf{v}_j a + \tfrac12 \\ddot{\\mathbf{c}} a^2`,
 :math:`\\mathbf{v}_j + \\ddot{\\mathbf{c}} a`. Without compensation every
 received pose is one delay old, and the consensus drags the formation behind the
@@ -119,6 +134,7 @@ class FormationGuidance:
         self.heading = math.radians(config.heading_deg)
         self.used = 0
         """How many others the last reference used."""
+        self._since: dict[str, float] = {}  # reference time each used member appeared
 
     def reference(
         self,
@@ -137,8 +153,9 @@ class FormationGuidance:
         if frozen:
             c = PathPoint(c.x, c.y)
         cfg = self.config
-        sx = sy = svx = svy = 0.0
-        n = 0
+        sx = sy = svx = svy = 0.0  # weighted sums of each member's difference from the path
+        n, total = 0, 0.0
+        since = {}
         for agent, (stamp, pose) in others.items():
             slot = cfg.slots.get(agent)
             age = t - stamp
@@ -146,6 +163,11 @@ class FormationGuidance:
             # stale one: its sender's clock estimate is wrong, and it would otherwise
             # count for as long as it lies ahead once its sender went silent.
             if slot is None or agent == self.me or not -cfg.stale_after <= age <= cfg.stale_after:
+                continue
+            since[agent] = first = self._since.get(agent, t)
+            half = cfg.stale_after / 2
+            a = min(1.0, max(0.0, (t - first) / cfg.join_ramp), (cfg.stale_after - abs(age)) / half)
+            if a <= 0.0:
                 continue
             if self.compensate:  # on to now, with the centre's acceleration every member shares
                 dt = min(max(age, 0.0), cfg.stale_after)
@@ -155,24 +177,20 @@ class FormationGuidance:
                     vx=pose.vx + c.ax * dt,
                     vy=pose.vy + c.ay * dt,
                 )
-            sx += pose.x - slot[0]
-            sy += pose.y - slot[1]
-            svx += pose.vx
-            svy += pose.vy
-            n += 1
+            sx += a * (pose.x - slot[0] - c.x)
+            sy += a * (pose.y - slot[1] - c.y)
+            svx += a * (pose.vx - c.vx)
+            svy += a * (pose.vy - c.vy)
+            n, total = n + 1, total + a
+        self._since = since  # a member not used now appears afresh when it comes back
         self.used = n
-        if n == 0:
-            w = 0.0
-        else:
-            w = cfg.consensus_weight
-            sx, sy, svx, svy = sx / n, sy / n, svx / n, svy / n
-        if frozen:
-            svx = svy = 0.0
+        k = cfg.consensus_weight / max(1.0, total)
+        dvx, dvy = (0.0, 0.0) if frozen else (k * svx, k * svy)
         track = Track(
-            (1 - w) * c.x + w * sx + self.slot[0],
-            (1 - w) * c.y + w * sy + self.slot[1],
-            (1 - w) * c.vx + w * svx,
-            (1 - w) * c.vy + w * svy,
+            c.x + k * sx + self.slot[0],
+            c.y + k * sy + self.slot[1],
+            c.vx + dvx,
+            c.vy + dvy,
             c.ax,
             c.ay,
         )

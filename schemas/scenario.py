@@ -115,6 +115,13 @@ class FormationConfig(Model):
     stale_after: float = Field(
         1.0, gt=0, le=10, description="seconds after which another's pose is left out"
     )
+    join_ramp: float = Field(
+        2.0,
+        gt=0,
+        le=60,
+        description="seconds over which another's pose is taken in after it appears "
+        "(its weight fades out alike over the last half of stale_after)",
+    )
     slots: dict[str, Vec2] = Field(
         default_factory=dict,
         description="LAB/NAME -> slot offset from the virtual centre, common frame, m",

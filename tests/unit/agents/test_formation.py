@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -32,6 +33,16 @@ def test_path_is_still_then_ramps_to_the_circle_speed_smoothly() -> None:
             )
 
 
+def taken_in(
+    g: FormationGuidance, t: float, run_time: float, others: dict[str, tuple[float, Pose]]
+) -> None:
+    """The others' poses seen ``join_ramp`` seconds before ``t`` (the same ages): taken in
+    fully by ``t``."""
+    ramp = g.config.join_ramp
+    earlier = {agent: (stamp - ramp, pose) for agent, (stamp, pose) in others.items()}
+    g.reference(t - ramp, run_time, earlier)
+
+
 def test_no_track_before_the_run() -> None:
     g = FormationGuidance("a/x", CONFIG)
     assert g.reference(None, None, {}).track is None
@@ -51,6 +62,7 @@ def test_the_others_pull_the_centre_estimate() -> None:
     g = FormationGuidance("a/x", CONFIG, compensate=False)
     # both others 10 cm to +x of their slots, at the start (path centre at 0, 0)
     others = {"b/y": (10.0, Pose(-0.9, 0.0)), "c/z": (10.0, Pose(1.1, 0.0))}
+    taken_in(g, 10.0, 0.0, others)
     ref = g.reference(10.0, 0.0, others)
     assert ref.track is not None
     assert ref.track.x == pytest.approx(0.7 * 0.1)
@@ -69,8 +81,11 @@ def test_compensation_moves_a_delayed_pose_to_now() -> None:
         "b/y": (9.75, Pose(-1.0, 0.0, 0.0, 0.04, 0.0)),
         "c/z": (9.75, Pose(1.0, 0.0, 0.0, 0.04, 0.0)),
     }
-    raw = FormationGuidance("a/x", CONFIG, compensate=False).reference(10.0, 0.0, moving)
-    comp = FormationGuidance("a/x", CONFIG, compensate=True).reference(10.0, 0.0, moving)
+    raw_g = FormationGuidance("a/x", CONFIG, compensate=False)
+    comp_g = FormationGuidance("a/x", CONFIG, compensate=True)
+    for g in (raw_g, comp_g):
+        taken_in(g, 10.0, 0.0, moving)
+    raw, comp = raw_g.reference(10.0, 0.0, moving), comp_g.reference(10.0, 0.0, moving)
     assert raw.track is not None and comp.track is not None
     assert comp.track.x - raw.track.x == pytest.approx(0.7 * 0.04 * 0.25)
 
@@ -91,6 +106,7 @@ def test_a_pose_stamped_far_ahead_is_left_out() -> None:
     # 100 s after it went silent.
     g = FormationGuidance("a/x", CONFIG)
     others = {"b/y": (110.0, Pose(-0.5, 0.0)), "c/z": (10.5, Pose(1.0, 0.0))}
+    taken_in(g, 10.0, 0.0, others)
     g.reference(10.0, 0.0, others)
     assert g.used == 1  # c's half a second ahead is within the window; b's is not
 
@@ -98,12 +114,35 @@ def test_a_pose_stamped_far_ahead_is_left_out() -> None:
 def test_a_frozen_run_asks_no_motion() -> None:
     # Rates kept while frozen held each platform about 0.2 m off its frozen point.
     g = FormationGuidance("a/x", CONFIG, compensate=False)
+    taken_in(g, 30.0, 20.0, {"b/y": (30.0, Pose(-1.0, 0.0, 0.0, 0.05, 0.0))})
     moving = g.reference(30.0, 20.0, {"b/y": (30.0, Pose(-1.0, 0.0, 0.0, 0.05, 0.0))})
     frozen = g.reference(60.0, 20.0, {"b/y": (60.0, Pose(-1.0, 0.0, 0.0, 0.05, 0.0))}, frozen=True)
     assert moving.track is not None and frozen.track is not None
     assert (moving.track.vx, moving.track.vy) != (0.0, 0.0)
     assert (frozen.track.x, frozen.track.y) == pytest.approx((moving.track.x, moving.track.y))
     assert (frozen.track.vx, frozen.track.vy, frozen.track.ax, frozen.track.ay) == (0, 0, 0, 0)
+
+
+def test_a_member_joining_or_leaving_moves_the_track_gradually() -> None:
+    """b sits 0.5 m off its slot. Its pose appearing, then going silent, had stepped the
+    others' track by 0.35 m (0.7 x 0.5) in one control step each way."""
+    g = FormationGuidance("a/x", CONFIG, compensate=False)
+    off = Pose(-0.5, 0.0)  # b's slot is (-1, 0): 0.5 m to +x of it
+    xs, dt = [], 0.01
+    for i in range(1200):  # 12 s at 100 Hz: b talks from 1 s to 6 s, then is silent
+        t = 10.0 + i * dt
+        last_heard = min(t, 16.0)
+        others = {"b/y": (last_heard, off)} if t >= 11.0 else {}
+        ref = g.reference(t, 0.0, others)
+        assert ref.track is not None
+        xs.append(ref.track.x)
+    steps = [abs(b - a) for a, b in itertools.pairwise(xs)]
+    assert max(steps[:600]) <= 0.7 * 0.5 / CONFIG.join_ramp * dt * 1.01  # ramp-in
+    assert max(xs) == pytest.approx(0.7 * 0.5)  # fully taken in
+    assert xs[-1] == pytest.approx(0.0)  # let go by the time it is stale
+    # The fade-out is as gradual: over the last half of stale_after, not at once.
+    assert max(steps) <= 0.7 * 0.5 / (CONFIG.stale_after / 2) * dt * 1.01
+    assert sum(s > 0 for s in steps[600:]) >= 45  # over about 50 steps, not one
 
 
 @pytest.mark.parametrize(
