@@ -1426,19 +1426,19 @@ class AgentRuntime:
         waits, flies no maneuver and may count time afresh, so the run is over here:
         aborted, held, and said why (``reference_restarted``). A link cut longer than the
         lease is not: the same session comes back."""
-        before, self._reference_zid = self._reference_zid, source
+        t_exec = self.clock.at(host)
         state = self.run_state
-        if before is None or before == source or state.run_id is None:
-            return
-        if state.mode not in ("armed", "running", "frozen"):
-            return
-        self.platform.hold()  # first: every valve closed
+        with self._lock:  # Zenoh's threads for poses and for sync replies both call it
+            before, self._reference_zid = self._reference_zid, source
+            if before is None or before == source or state.run_id is None:
+                return
+            if state.mode not in ("armed", "running", "frozen"):
+                return
+            events = state.command(_LOCAL_ABORT, self.sim_time(t_exec))
+        self.platform.hold()  # before anything else is said or recorded: every valve closed
         self.count("reference_restarted")
         detail = f"{self.reference} restarted (session {before[:8]} now {source!s:.8})"
         log.error("run %s: %s: aborted here", state.run_id, detail)
-        t_exec = self.clock.at(host)
-        with self._lock:
-            events = self.run_state.command(_LOCAL_ABORT, self.sim_time(t_exec))
         self._apply([dataclasses.replace(e, detail=detail) for e in events], t_exec, host)
         self._status_now = True
 
