@@ -98,6 +98,11 @@ class UdpBridgeConfig(BaseModel):
     legacy_timeout: Seconds = Field(
         2.0, description="seconds without an accepted reply before the legacy agent is gone"
     )
+    stale_after: Seconds = Field(
+        0.25,
+        description="seconds after which the followed pose is too old to send the legacy "
+        "agent (no reply then, as the agents hold)",
+    )
     status_period: Seconds = Field(1.0, description="seconds between status messages")
     status_json: Path | None = Field(None, description="file to append status lines (JSON) to")
     duration: float | None = Field(None, gt=0, description="seconds to run; none: until stopped")
@@ -106,6 +111,17 @@ class UdpBridgeConfig(BaseModel):
     def _not_itself(self) -> UdpBridgeConfig:
         if self.follow == self.agent:
             raise ValueError(f"{self.agent} cannot follow itself")
+        if parse_address(self.peer) == parse_address(self.listen):
+            raise ValueError(
+                f"peer {self.peer} is the bridge's own listen address: it would answer "
+                "itself and publish a legacy agent that does not exist"
+            )
+        if not self.legacy_timeout > self.sync_period + self.sync_timeout:
+            raise ValueError(
+                f"legacy_timeout {self.legacy_timeout:g} s must exceed sync_period + "
+                f"sync_timeout ({self.sync_period + self.sync_timeout:g} s): the legacy "
+                "agent would be lost between two of its replies"
+            )
         return self
 
     @property

@@ -20,20 +20,39 @@ The legacy agent's request (8 bytes, its ``t1``)
     .. math:: t_2 = t_{now} + \theta_R,
 
     so its own Eq. 4, :math:`t_2 - (t_1 + t_3)/2`, gives the reference clock minus its
-    own. No reply until :math:`\theta_R` is known (as for a lost packet).
+    own. No reply (as for a lost packet: the legacy agent's own design fails closed on
+    it) until :math:`\theta_R` is known, and none while there is nothing safe to steer
+    by: no followed pose yet, one older than ``stale_after`` (on the followed agent's
+    clock, and since it arrived), a reference gone or contested, or a ``fedlab ctl
+    abort`` until ``reset``. A request carrying one of the bridge's own ``t1`` (its own
+    request come back: ``--peer`` is the bridge itself) is dropped (``udp_self``).
 The legacy agent's reply (64 bytes) to the bridge's request
     is one exchange of the legacy link (Eq. 3, 4), and its pose sample, stamped with the
-    reply's ``t2`` (the legacy agent's clock), to publish.
+    reply's ``t2`` (the legacy agent's clock), to publish once the exchange agrees with
+    the estimate (not during the warm-up, not a wild one) and is newer than the last
+    published. A clock step of the legacy agent (it restarted) withdraws its liveliness
+    token for one sync period (``legacy_restarted``): the federation sees it leave and
+    come back, and forgets what it had of its old clock.
 A federation agent's sync request
     is answered on the legacy agent's behalf: :math:`t_2 = t_{now} + \theta_L` and the
     legacy agent's pose; no reply while :math:`\theta_L` is unknown.
 Loss
     No accepted reply for ``legacy_timeout`` seconds: the legacy agent is gone, its
     estimate and pose forgotten (it may come back with a restarted clock).
+The followed agent's poses and the reference's replies
+    only from its key; two sources speaking for it (sessions) contest it, as for every
+    agent (:class:`~federation.core.contest.ContestWatch`): nothing from it is used and
+    the reference link restarts; a pose no newer than the last from its source is
+    dropped (:func:`~federation.core.contest.in_order`).
+Execution control
+    A ``fedlab ctl abort`` (honoured whatever its issuer or seq, even malformed) holds
+    the legacy agent (no replies) until a ``reset``; status ``mode`` and ``hold`` say
+    ``aborted``, so ctl sees it confirmed. Other commands are ignored: a legacy agent
+    runs its own timeline (``mode: unmanaged``).
 Reference of a follower bridge without ``follow``
-    The first agent by name whose status says ``role: leader``, once no live reference
-    is followed. A reference whose liveliness token comes back after going away has a
-    new clock: its link starts afresh.
+    The first agent by name, alive, whose status (on its own key) says ``role:
+    leader``, once no live reference is followed. A reference whose liveliness token
+    comes back after going away has a new clock: its link starts afresh.
 Anything malformed is dropped and counted in ``counters``.
 Its name taken
     Another process answers for the legacy agent's name (:meth:`BridgeCore.hold_for_name`):
@@ -47,19 +66,29 @@ from __future__ import annotations
 
 import json
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from pydantic import ValidationError
+
 from federation.core import keys, wire
+from federation.core.commands import CommandGate
+from federation.core.contest import ContestWatch, in_order
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.status import peer_status
 from schemas.bridge import UdpBridgeConfig
-from schemas.messages import PeerStatus, Status
+from schemas.messages import Command, CommandOutcome, PeerStatus, Status, is_abort
 
 __all__ = ["BridgeCore", "Maintenance", "Outcome"]
+
+_AGREE_MARGIN = 0.002
+"""s: how far a legacy reply's offset may lie from the estimate beyond both error bounds
+for its pose to be published (the sync client's step margin)."""
+_MAX_LEADERS = 256
+"""Agents remembered as saying they lead (a flood of statuses cannot grow the bridge)."""
 
 
 class Outcome(NamedTuple):
@@ -68,13 +97,15 @@ class Outcome(NamedTuple):
     reply: bytes | None = None  # send back to the datagram's source
     pose: bytes | None = None  # publish as the legacy agent's pose sample
     rejected: str | None = None  # why it was dropped, for the log
-    kind: str | None = None  # what was dropped: "malformed", "unsynced", "sync reply", "held"
+    # What was dropped: "malformed", "unsynced", "sync reply", "held", "self".
+    kind: str | None = None
 
 
 class Maintenance(NamedTuple):
     """What :meth:`BridgeCore.maintain` found; the caller acts on it."""
 
     legacy_alive: bool  # hold the legacy agent's liveliness token while true
+    # (false for one sync period after the legacy agent restarted: it leaves and comes back)
     rejoined: AgentId | None = None  # the reference came back: its old clock is forgotten
     follow: AgentId | None = None  # the new reference: query its sync key, take its pose
     leaders: tuple[AgentId, ...] = ()  # several leaders, said once: ``follow`` is the first
@@ -108,6 +139,14 @@ class BridgeCore:
         self._rejoined = False  # the reference's token came back: a new clock
         self._leaders_said = False
         self.name_clash: str | None = None  # why the bridge no longer speaks for the name
+        self.aborted = False  # fedlab ctl abort, until a reset: the legacy agent held
+        self.gate = CommandGate()
+        self.commands: deque[CommandOutcome] = deque(maxlen=8)
+        self.contest = ContestWatch()  # who speaks for the followed agent
+        self._order: dict[AgentId, tuple[str | None, float]] = {}
+        self.followed_at: float | None = None  # bridge clock when the followed pose came
+        self._legacy_restarted = False  # withdraw the token for one period
+        self._legacy_steps = 0  # the legacy link's clock steps seen
 
     def hold_for_name(self, detail: str) -> bool:
         """Another process runs under the legacy agent's name: stop speaking for it, for
@@ -122,6 +161,12 @@ class BridgeCore:
         """Whether the legacy agent's name has a liveliness token while the bridge holds
         none for it (asked before it declares its own)."""
         return self.me in self._alive
+
+    @property
+    def followed_id(self) -> AgentId | None:
+        """The agent whose pose the legacy agent receives: the reference of a follower
+        bridge, ``follow`` of a leader bridge (None: none)."""
+        return self.reference_id if self.config.role == "follower" else self.config.followed
 
     def _client(self) -> SyncClient:
         cfg = self.config
@@ -170,14 +215,45 @@ class BridgeCore:
         except wire.DecodeError as error:
             self.counters["udp_malformed"] += 1
             return Outcome(rejected=str(error), kind="malformed")
+        if self.legacy.client.sent_here(t1):
+            self.counters["udp_self"] += 1
+            return Outcome(rejected="the bridge's own request came back (--peer)", kind="self")
+        if self.aborted:
+            self.counters["udp_requests_held"] += 1
+            return Outcome(rejected="aborted (fedlab ctl reset releases it)", kind="held")
         offset = self.reference_offset(now)
         if offset is None:
             self.counters["udp_requests_unsynced"] += 1
             return Outcome(rejected="no reference time yet", kind="unsynced")
+        why = self._nothing_to_steer_by(now, offset)
+        if why is not None:
+            self.counters[f"udp_requests_{why[0]}"] += 1
+            return Outcome(rejected=why[1], kind="held")
         pose = self.followed_pose.pose if self.followed_pose else wire.Pose()
         self.counters["udp_requests_served"] += 1
         # t2 on the reference clock: the legacy agent's Eq. 4 then gives leader minus itself.
         return Outcome(reply=wire.encode_reply(t1, now + offset, pose))
+
+    def _nothing_to_steer_by(self, now: float, offset: float) -> tuple[str, str] | None:
+        """Why the followed pose must not reach the legacy agent now (a counter's suffix
+        and the reason), None if it may; a leader bridge that follows no one sends none."""
+        target = self.followed_id
+        if target is None:
+            return None
+        contested = self.contest.reason(str(target), now)
+        if contested is not None:
+            return "contested", f"{target} is contested: {contested}"
+        if self.config.role == "follower" and not self.reference.alive:
+            return "reference_gone", f"{target} is not in the federation"
+        pose, limit = self.followed_pose, self.config.stale_after
+        if pose is None or self.followed_at is None:
+            return "no_pose", f"no pose of {target} yet"
+        since = now - self.followed_at
+        # On its clock (a follower's reference is synced): a pose old on arrival counts.
+        age = now + offset - pose.t if self.config.role == "follower" else since
+        if max(age, since) > limit:
+            return "stale", f"{target}'s pose is {max(age, since):.3f} s old"
+        return None
 
     def _on_legacy_reply(self, data: bytes, now: float) -> Outcome:
         link = self.legacy
@@ -192,7 +268,25 @@ class BridgeCore:
             link.alive = True
             self.counters["legacy_found"] += 1
         link.last_seen = now
-        link.client.offset_at(now)  # fit now, so a query's t2 costs no regression
+        if link.client.steps > self._legacy_steps:  # its clock jumped: it restarted
+            self._legacy_steps = link.client.steps
+            self._legacy_restarted = True
+            self.legacy_pose = None
+            self.counters["legacy_restarted"] += 1
+        estimate = link.client.offset_at(now)  # fit now, so a query's t2 costs no regression
+        exchange = link.client.last
+        bound = link.client.estimator.bound or 0.0
+        if (
+            estimate is None
+            or exchange is None
+            or abs(exchange.offset - estimate) > exchange.error_bound + bound + _AGREE_MARGIN
+        ):
+            # Held back by the warm-up, or not the estimate's: its t2 is not trusted.
+            self.counters["pose_unconfirmed"] += 1
+            return Outcome(rejected="not yet confirmed by the estimate", kind="sync reply")
+        if self.legacy_pose is not None and not reply.t2 > self.legacy_pose.t:
+            self.counters["pose_out_of_order"] += 1
+            return Outcome(rejected="no newer than the last published", kind="sync reply")
         self.legacy_pose = wire.PoseSample(reply.t2, reply.pose)
         self.counters["pose_published"] += 1
         return Outcome(pose=wire.encode_pose(reply.t2, reply.pose))
@@ -204,7 +298,8 @@ class BridgeCore:
         link = self.legacy
         if link.alive and now - link.last_seen > self.config.legacy_timeout:
             link.alive = False
-            link.client.reset()
+            link.client = self._client()  # it may come back with a restarted clock
+            self._legacy_steps = 0
             self.legacy_pose = None
             self.counters["legacy_lost"] += 1
         return link.alive
@@ -237,34 +332,114 @@ class BridgeCore:
             return None
         return self.reference.client.request(now)
 
-    def on_reference_reply(self, payload: bytes, now: float, t2s: float | None = None) -> bool:
-        """The reference's reply read at ``now``; False if rejected (the reason is
-        ``reference.client.last_rejection``)."""
+    def on_reference_reply(
+        self, payload: bytes, now: float, t2s: float | None = None, replier: str | None = None
+    ) -> bool:
+        """The reference's reply read at ``now`` from session ``replier``; False if
+        rejected (the reason is ``reference.client.last_rejection``, or ``contested``)."""
         link = self.reference
+        if self.reference_id is not None and not self._admitted(
+            self.reference_id, "sync", replier, now
+        ):
+            link.client.last_rejection = "contested"
+            return False
         if link.client.receive(payload, now, t2s) is None:
             return False
         link.last_seen = now
         link.client.offset_at(now)  # fit now, off the legacy agent's request path
         return True
 
-    def on_followed_pose(self, payload: bytes) -> None:
-        """A pose sample of the followed agent. Raises wire.DecodeError if malformed."""
+    def on_followed_pose(
+        self,
+        payload: bytes,
+        now: float,
+        agent: AgentId | None = None,
+        source: str | None = None,
+    ) -> None:
+        """A pose sample on ``agent``'s key (None: the followed agent's) from session
+        ``source``, read at ``now``; used only if it is the followed agent's, from its
+        one source, and newer than the last. Raises wire.DecodeError if malformed."""
+        target = self.followed_id
+        if target is None or (agent is not None and agent != target):
+            self.counters["pose_other_agent"] += 1  # a former reference's, still arriving
+            return
         try:
             sample = wire.decode_pose(payload)
         except wire.DecodeError:
             self.counters["pose_malformed"] += 1
             raise
-        self.followed_pose = sample
         self.counters["pose_received"] += 1
+        if not self._admitted(target, "pose", source, now):
+            return
+        if not in_order(self._order, target, source, sample.t):
+            self.counters["pose_out_of_order"] += 1
+            return
+        self.followed_pose, self.followed_at = sample, now
 
-    def on_status(self, payload: bytes) -> None:
-        """An agent's status line (JSON): notes the agents that say they lead."""
+    def _admitted(self, agent: AgentId, channel: str, source: str | None, now: float) -> bool:
+        """Whether ``source`` may speak for ``agent`` (its contest watch); a new contest
+        forgets its pose and restarts the reference link."""
+        outcome = self.contest.observe(str(agent), channel, source, now)  # type: ignore[arg-type]
+        if outcome == "ok":
+            return True
+        self.counters["contested_dropped"] += 1
+        if outcome == "contested":
+            self.counters["contested"] += 1
+            self.followed_pose = self.followed_at = None
+            if agent == self.reference_id and self.config.role == "follower":
+                self.reference = _Link(self._client(), self.reference.alive)
+        return False
+
+    def on_control(self, payload: bytes) -> str | None:
+        """A ``fedlab ctl`` command: an abort holds the legacy agent until a reset; others
+        are ignored (it runs its own timeline). What was done, for the log (None: a
+        repeat or nothing)."""
+        try:
+            command = Command.model_validate_json(payload)
+        except (ValidationError, ValueError):
+            self.counters["control_malformed"] += 1
+            if not is_abort(payload):
+                return None
+            command = Command(command="abort", seq=-1, issuer="malformed")
+        self.counters["control_received"] += 1
+        verdict = self.gate.admit(command.command, command.issuer, command.seq)
+        if not verdict.admitted:
+            if verdict.outcome != "repeat":
+                self._outcome(command, verdict.outcome, verdict.detail)
+            return None
+        if command.command == "abort":
+            done = "aborted: no replies to the legacy agent until fedlab ctl reset"
+            self.aborted = True
+        elif command.command == "reset" and self.aborted:
+            done, self.aborted = "reset: the legacy agent is answered again", False
+        else:
+            detail = "a legacy agent runs its own timeline"
+            self._outcome(command, "ignored", detail)
+            return None
+        self._outcome(command, "applied", "")
+        return done
+
+    def _outcome(self, command: Command, outcome: str, detail: str) -> None:
+        self.commands.append(
+            CommandOutcome(
+                command=command.command, issuer=command.issuer[:200], seq=command.seq,
+                outcome=outcome, detail=detail,
+            )
+        )  # fmt: skip
+
+    def on_status(self, payload: bytes, agent: AgentId | None = None) -> None:
+        """An agent's status line (JSON) on ``agent``'s key: notes the agents that say
+        they lead (only of themselves: a status naming another is not taken)."""
         try:
             status = json.loads(payload)
-            if status.get("role") == "leader":
-                self._leaders.add(AgentId.parse(str(status["agent"])))
-        except (ValueError, KeyError, TypeError, AttributeError):
-            pass  # a malformed status is the monitor's business
+            said = AgentId.parse(str(status["agent"]))
+            if agent is not None and said != agent:
+                self.counters["status_not_its_own"] += 1
+                return
+            if status.get("role") == "leader" and len(self._leaders) < _MAX_LEADERS:
+                self._leaders.add(said)
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError):
+            self.counters["status_malformed"] += 1  # the monitor's business, counted
 
     def on_liveliness(self, key: str, alive: bool) -> None:
         """An agent's liveliness token came (``alive``) or went; other keys are ignored."""
@@ -287,6 +462,8 @@ class BridgeCore:
         """Every sync period: is the legacy agent still answering, has the reference
         rejoined, and (a follower without ``follow``) which leader to follow."""
         legacy_alive = self.check_legacy(now) and self.name_clash is None
+        if self._legacy_restarted:  # away for one period: the federation forgets its clock
+            self._legacy_restarted, legacy_alive = False, False
         if self.config.role != "follower":
             return Maintenance(legacy_alive)
         rejoined, self._rejoined = self._rejoined, False
@@ -295,7 +472,7 @@ class BridgeCore:
         if rejoined and current is not None:
             self._sync_afresh(current)
             found = current
-        leaders = sorted(self._leaders - {self.me})
+        leaders = sorted((self._leaders & self._alive) - {self.me})
         if self.config.follow is not None or current in self._alive or not leaders:
             return Maintenance(legacy_alive, found)
         if current in leaders:
@@ -311,7 +488,9 @@ class BridgeCore:
         a new clock)."""
         self.reference_id = agent
         self.reference = _Link(self._client(), agent in self._alive)
-        self.followed_pose = None
+        self.followed_pose = self.followed_at = None
+        self.contest.forget(str(agent))
+        self._order.pop(agent, None)
 
     # -- status ------------------------------------------------------------------------
     def status(self, now: float, host: float) -> Status:
@@ -338,10 +517,11 @@ class BridgeCore:
             t_exec=now + base,
             host_monotonic=host,
             t_sim=None if ref is None else now + ref,
-            mode="unmanaged",
+            mode="aborted" if self.aborted else "unmanaged",
             platform=f"udp:{cfg.peer_text}",
             follow=None if follow is None else str(follow),
-            hold=None if self.name_clash is None else "name_taken",
+            hold="name_taken" if self.name_clash else ("aborted" if self.aborted else None),
+            commands=list(self.commands),
             pose_age=pose_age,
             pose=pose,
             peers=peers,

@@ -82,6 +82,8 @@ __all__ = ["UdpBridge", "bind_udp", "run_bridge"]
 log = logging.getLogger("fedlab.bridge")
 
 _DATAGRAM_MAX = 2048  # larger than any valid packet: an oversize one reads as wrong-sized
+_SMALL_MAX = 1024  # bytes: far more than a pose or a sync reply; larger ones are not read
+_STATUS_MAX = 1 << 20  # bytes: a status or a command larger than this is not read
 
 
 class UdpBridge:
@@ -158,6 +160,11 @@ class UdpBridge:
                 keys.all_agents(cfg.federation),
                 callback(self._on_liveliness, indirect=False),
                 history=True,
+            )
+        )
+        self._declared.append(
+            s.declare_subscriber(
+                keys.control_key(cfg.federation), callback(self._on_control, indirect=False)
             )
         )
         if cfg.role == "follower" and cfg.follow is None:
@@ -398,6 +405,8 @@ class UdpBridge:
             if not self._unsynced_noted:  # normal until the reference answers: say it once
                 log.info("legacy agent's requests wait for reference time (no reply yet)")
                 self._unsynced_noted = True
+        elif outcome.reply is not None:
+            self._unsynced_noted = False  # said again should reference time be lost again
         elif outcome.rejected is not None:
             self.rejects(f"udp datagram ({outcome.kind})", f"from {source}: {outcome.rejected}")
 
@@ -429,9 +438,14 @@ class UdpBridge:
             if reply.ok is None:
                 self._count("sync_reply_errors")
                 return
+            if len(reply.ok.payload) > _SMALL_MAX:
+                self._count("sync_reply_oversized")
+                return
             payload = reply.ok.payload.to_bytes()
+            replier = reply.replier_id
+            source = None if replier is None else str(replier.zid)
             with self._lock:
-                accepted = self.core.on_reference_reply(payload, now)
+                accepted = self.core.on_reference_reply(payload, now, replier=source)
                 reason = self.core.reference.client.last_rejection
                 reference = self.core.reference_id
             if not accepted:
@@ -440,10 +454,19 @@ class UdpBridge:
             log.exception("sync reply from %s failed", self.core.reference_id)
 
     def _on_pose(self, sample: Any) -> None:
+        now = self.clock.now()
         try:
+            if len(sample.payload) > _SMALL_MAX:
+                self._count("pose_oversized")
+                return
+            parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
+            info = sample.source_info
+            source = None if info is None else str(info.source_id.zid)
             payload = sample.payload.to_bytes()
             with self._lock:
-                self.core.on_followed_pose(payload)
+                self.core.on_followed_pose(
+                    payload, now, None if parsed is None else parsed[0], source
+                )
         except wire.DecodeError as error:
             self.rejects("pose sample", f"{sample.key_expr}: {error}")
         except Exception:
@@ -451,11 +474,30 @@ class UdpBridge:
 
     def _on_status(self, sample: Any) -> None:
         try:
+            if len(sample.payload) > _STATUS_MAX:
+                self._count("status_oversized")
+                return
+            parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
+            if parsed is None:
+                return
             payload = sample.payload.to_bytes()
             with self._lock:
-                self.core.on_status(payload)
+                self.core.on_status(payload, parsed[0])
         except Exception:
-            log.exception("status sample on %s failed", sample.key_expr)
+            self.rejects("status sample", f"{sample.key_expr}: failed")
+
+    def _on_control(self, sample: Any) -> None:
+        try:
+            if len(sample.payload) > _STATUS_MAX:
+                self._count("control_oversized")
+                return
+            payload = sample.payload.to_bytes()
+            with self._lock:
+                done = self.core.on_control(payload)
+            if done is not None:
+                log.warning("%s: %s", self.me, done)
+        except Exception:
+            log.exception("control sample on %s failed", sample.key_expr)
 
     def _on_liveliness(self, sample: Any) -> None:
         try:

@@ -111,6 +111,10 @@ def add(sub: Subparsers) -> None:
     _seconds(
         p, "--legacy-timeout", "seconds without a reply before the legacy agent counts as gone"
     )
+    _seconds(
+        p, "--stale-after",
+        "seconds after which the followed pose is too old to send (no reply: it holds)",
+    )  # fmt: skip
     _seconds(p, "--status-period", "seconds between status")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")

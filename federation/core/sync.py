@@ -293,6 +293,11 @@ class SyncClient:
         self.sent += 1
         return wire.encode_request(t1)
 
+    def sent_here(self, t1: float) -> bool:
+        """Whether ``t1`` is one of this client's own recent requests (pending, answered
+        or expired): a request carrying it came back to its sender."""
+        return t1 in self._pending or t1 in self._answered or t1 in self._expired
+
     def expire(self, now: float) -> None:
         while self._pending:
             t1 = next(iter(self._pending))

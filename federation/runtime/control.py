@@ -77,9 +77,10 @@ EXPECTED_MODE: dict[str, frozenset[str]] = {
     "freeze": frozenset({"frozen"}),
     "resume": frozenset({"running"}),
     "abort": frozenset({"aborted"}),
-    "reset": frozenset({"waiting"}),
+    "reset": frozenset({"waiting", "unmanaged"}),
 }
-"""The modes an agent reports once it has taken each command."""
+"""The modes an agent reports once it has taken each command (``unmanaged``: a legacy
+agent's bridge, held from an abort until a reset, which runs its own timeline again)."""
 ACTIONS: tuple[Action, ...] = ("start", "freeze", "resume", "abort", "reset")
 DEFAULT_START_IN = 3.0
 """s between the announcement and a start, without an experiment's ``start_delay``."""

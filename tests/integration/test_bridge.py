@@ -256,3 +256,55 @@ def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_go
             entity.undeclare()
         watch.undeclare()  # type: ignore[no-untyped-call]
         racer.close()  # type: ignore[no-untyped-call]
+
+
+@pytest.mark.integration
+def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
+    labs: Labs, fleet: Fleet
+) -> None:
+    """What fails closed for a legacy agent is no reply (its own design holds on a lost
+    link): after ctl abort until ctl reset, and once the leader it follows is gone. The
+    bridge had answered both with the last pose it held, for ever."""
+    import subprocess
+
+    router = labs.router("kiruna")
+    leader = labs.leader(router)
+    bridge_port, legacy_port = free_udp_port(), free_udp_port()
+    start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
+    bridge = start_bridge(
+        labs, "--listen", f"127.0.0.1:{bridge_port}", "--peer", f"127.0.0.1:{legacy_port}",
+        "--follow", LEADER, "-e", router.endpoint, "--status-period", "0.5",
+    )  # fmt: skip
+    leader.wait_status(timeout=10)
+    assert wait_for(lambda: legacy_samples(fleet) >= 20, timeout=20), legacy_lines(fleet)[-3:]
+
+    def ctl(command: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "federation", "ctl", command, "-e", router.endpoint],
+            capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+
+    def answered_for(seconds: float) -> int:
+        """Replies the legacy agent received over ``seconds`` (its lines are 1 s apart)."""
+        before = legacy_samples(fleet)
+        time.sleep(seconds)
+        return legacy_samples(fleet) - before
+
+    aborted = ctl("abort")
+    assert aborted.returncode == 0, aborted.stdout + aborted.stderr  # the bridge confirmed
+    bridge.until(lambda s: s["mode"] == "aborted" and s["hold"] == "aborted", 5, "aborted")
+    time.sleep(1.5)  # the line in flight
+    assert answered_for(2.5) == 0
+    reset = ctl("reset")
+    assert reset.returncode == 0, reset.stdout + reset.stderr
+    assert wait_for(lambda: answered_for(1.2) > 5, timeout=10)
+
+    assert leader.stop() == 0  # the pose it follows stops
+    time.sleep(1.5)
+    assert answered_for(2.5) == 0
+    counters = bridge.latest()["counters"]
+    assert counters["udp_requests_held"] > 0
+    assert (
+        counters.get("udp_requests_stale", 0) + counters.get("udp_requests_reference_gone", 0) > 0
+    )
+    assert bridge.alive()

@@ -119,3 +119,17 @@ def test_a_bridge_speaking_as_an_agent_under_another_identity_is_refused(
     assert cli.main([*argv, *other]) == 2
     err = capsys.readouterr().err
     assert "the user name is 'rome/other' but this agent is rome/legacy" in err
+
+
+@pytest.mark.parametrize(
+    ("overrides", "said"),
+    [
+        ({"peer": "127.0.0.1:9000"}, "own listen address"),
+        ({"legacy_timeout": 0.5}, "legacy_timeout 0.5 s must exceed"),
+    ],
+)
+def test_a_bridge_that_would_answer_itself_or_lose_its_agent_is_refused(
+    overrides: dict[str, Any], said: str
+) -> None:
+    with pytest.raises(ConfigError, match=said):
+        config(listen="127.0.0.1:9000", **overrides)

@@ -48,11 +48,12 @@ def exchange(client_request: bytes, server_offset: float, t_send: float, rtt: fl
 def sync_core(core: BridgeCore, legacy: float, reference: float, n: int = 20) -> float:
     """Feed ``n`` exchanges on both links (bridge clock starts at 100 s); returns now."""
     now = 100.0
-    for _ in range(n):
+    for i in range(n):
         request = core.legacy_request(now)
         reply = wire.decode_request(request)
         data = wire.encode_reply(reply, now + 0.0005 + legacy, wire.Pose(*LEGACY_POSE))
-        assert core.on_datagram(data, now + 0.001).pose is not None
+        # Published once the warm-up has fed the estimate (the third exchange on).
+        assert (core.on_datagram(data, now + 0.001).pose is not None) == (i >= 2)
         ref_request = core.reference_request(now)
         assert ref_request is not None
         assert core.on_reference_reply(exchange(ref_request, reference, now, 0.002), now + 0.002)
@@ -79,7 +80,8 @@ def test_legacy_request_before_reference_time_gets_no_reply() -> None:
 def test_replies_carry_reference_time_and_queries_legacy_time() -> None:
     core = BridgeCore(config())
     now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
-    core.on_followed_pose(wire.encode_pose(50.0, wire.Pose(0.5, 0.25, 0.7)))
+    core.on_liveliness(liveliness(LEADER), alive=True)
+    core.on_followed_pose(wire.encode_pose(now - 3.01, wire.Pose(0.5, 0.25, 0.7)), now)
     # The legacy agent's request: t2 on the leader's clock, the leader's pose.
     outcome = core.on_datagram(wire.encode_request(1234.5), now)
     assert outcome.reply is not None
@@ -105,7 +107,7 @@ def test_replies_carry_reference_time_and_queries_legacy_time() -> None:
     assert status.role == "follower" and status.reference == LEADER
     assert status.pose == list(LEGACY_POSE)
     assert status.mode == "unmanaged" and status.platform == "udp:127.0.0.1:9001"
-    assert status.pose_age == pytest.approx(now - 3.0 - 50.0, abs=1e-9)
+    assert status.pose_age == pytest.approx(0.01, abs=1e-9)
 
 
 def test_status_is_on_the_bridge_clock_before_the_legacy_agent_answers() -> None:
@@ -161,7 +163,7 @@ def test_malformed_federation_query_raises_decode_error_and_is_counted() -> None
 def test_malformed_followed_pose_raises_decode_error_and_is_counted() -> None:
     core = BridgeCore(config())
     with pytest.raises(wire.DecodeError):
-        core.on_followed_pose(b"\x00" * 3)
+        core.on_followed_pose(b"\x00" * 3, 10.0)
     assert core.counters["pose_malformed"] == 1 and core.followed_pose is None
 
 
@@ -183,7 +185,8 @@ def test_sync_client_accepts_the_bridges_legacy_replies_only_once() -> None:
     core = BridgeCore(config())
     t1 = wire.decode_request(core.legacy_request(10.0))
     data = wire.encode_reply(t1, 10.0 + CLOCK_OFFSET, wire.Pose())
-    assert core.on_datagram(data, 10.001).pose is not None
+    first = core.on_datagram(data, 10.001)
+    assert first.pose is None and first.rejected == "not yet confirmed by the estimate"
     again = core.on_datagram(data, 10.002)
     assert again.pose is None and again.rejected == "sync reply (duplicate)"
     assert isinstance(core.legacy.client, SyncClient)
@@ -200,7 +203,9 @@ def test_a_follower_without_follow_follows_the_first_live_leader_by_name() -> No
     assert core.maintain(0.1).follow is None
     core.on_status(status_line(LEADER, "leader"))
     core.on_status(status_line("lund/lasse", "leader"))
+    core.on_status(status_line("oslo/ghost", "leader"))  # says it leads, never alive
     core.on_liveliness(liveliness(LEADER), alive=True)
+    core.on_liveliness(liveliness("lund/lasse"), alive=True)
     found = core.maintain(0.2)
     assert found.follow == AgentId.parse(LEADER) and core.reference_id == found.follow
     assert found.leaders == (AgentId.parse(LEADER), AgentId.parse("lund/lasse"))
@@ -282,3 +287,146 @@ def test_a_name_taken_elsewhere_stops_the_bridge_speaking_for_it_for_good() -> N
     assert status.hold == "name_taken"
     assert status.counters["udp_held_for_name"] == 2
     assert status.counters["sync_requests_held"] == 1
+
+
+# -- nothing to steer by: no reply (the legacy agent's own design fails closed on it) ---
+def _serving(**overrides: Any) -> tuple[BridgeCore, float]:
+    """A follower bridge synced on both links, its leader alive with a fresh pose."""
+    core = BridgeCore(config(**overrides))
+    now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
+    core.on_liveliness(liveliness(LEADER), alive=True)
+    core.on_followed_pose(wire.encode_pose(now - 3.01, wire.Pose(0.5)), now, source="aaaa")
+    assert core.on_datagram(wire.encode_request(1.0), now).reply is not None
+    return core, now
+
+
+def test_no_reply_without_a_pose_of_the_followed_agent() -> None:
+    # A zero pose had been sent: the legacy platform steered to the origin, heading 0.
+    core = BridgeCore(config())
+    now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
+    core.on_liveliness(liveliness(LEADER), alive=True)
+    outcome = core.on_datagram(wire.encode_request(1.0), now)
+    assert outcome.reply is None and outcome.kind == "held"
+    assert core.counters["udp_requests_no_pose"] == 1
+
+
+@pytest.mark.parametrize("later", [0.3, 60.0, 3600.0])
+def test_no_reply_once_the_followed_pose_is_stale(later: float) -> None:
+    # The leader's poses stopped: its last pose (and its rates) had been sent for ever.
+    core, now = _serving()
+    outcome = core.on_datagram(wire.encode_request(1.0), now + later)
+    assert outcome.reply is None and "old" in (outcome.rejected or "")
+    assert core.counters["udp_requests_stale"] == 1
+    # A pose old on arrival (stamped 1 s back on the leader's clock) is stale too.
+    core.on_followed_pose(wire.encode_pose(now - 4.0 + later, wire.Pose()), now + later)
+    assert core.on_datagram(wire.encode_request(1.0), now + later).reply is None
+
+
+def test_no_reply_once_the_reference_left() -> None:
+    core, now = _serving()
+    core.on_liveliness(liveliness(LEADER), alive=False)
+    outcome = core.on_datagram(wire.encode_request(1.0), now + 0.01)
+    assert outcome.reply is None and core.counters["udp_requests_reference_gone"] == 1
+
+
+def test_a_contested_reference_is_not_relayed_and_its_link_restarts() -> None:
+    # A second session publishing the leader's pose had its poses relayed straight on.
+    core, now = _serving()
+    forged = wire.encode_pose(now - 3.0, wire.Pose(9.0))
+    core.on_followed_pose(forged, now + 0.01, source="bbbb")
+    assert core.counters["contested"] == 1 and core.followed_pose is None
+    assert core.reference_offset(now + 0.01) is None  # its estimate starts again
+    assert core.on_datagram(wire.encode_request(1.0), now + 0.02).reply is None
+    # Replies from another session contest it on the sync channel too.
+    core2, now2 = _serving()
+    ref_request = core2.reference_request(now2)
+    assert ref_request is not None
+    reply = exchange(ref_request, -3.0, now2, 0.002)
+    assert not core2.on_reference_reply(reply, now2 + 0.002, replier="cccc")
+    assert not core2.on_reference_reply(reply, now2 + 0.002, replier="dddd")
+    assert core2.counters["contested"] == 1
+
+
+def test_an_older_or_foreign_pose_never_replaces_the_followed_one() -> None:
+    core, now = _serving()
+    core.on_followed_pose(wire.encode_pose(now - 3.05, wire.Pose(7.0)), now, source="aaaa")
+    assert core.counters["pose_out_of_order"] == 1 and core.followed_pose is not None
+    assert core.followed_pose.pose.x == 0.5
+    other = AgentId.parse("lund/lasse")  # a former reference's pose, still arriving
+    core.on_followed_pose(wire.encode_pose(now, wire.Pose(8.0)), now, agent=other)
+    assert core.counters["pose_other_agent"] == 1 and core.followed_pose.pose.x == 0.5
+
+
+def test_an_abort_holds_the_legacy_agent_until_a_reset() -> None:
+    core, now = _serving()
+    assert core.on_control(b'{"command": "abort", "seq": 1, "issuer": "ctl@x"}') is not None
+    outcome = core.on_datagram(wire.encode_request(1.0), now + 0.01)
+    assert outcome.reply is None and core.counters["udp_requests_held"] == 1
+    status = core.status(now, 0.0)
+    assert status.mode == "aborted" and status.hold == "aborted"
+    assert status.commands[-1].outcome == "applied"
+    # Other commands are not its business; a malformed abort is still an abort.
+    core.on_control(b'{"command": "start", "seq": 2, "issuer": "ctl@x", "at": 1.0}')
+    assert core.status(now, 0.0).commands[-1].outcome == "ignored"
+    core.on_control(b'{"command": "reset", "seq": 3, "issuer": "ctl@x"}')
+    assert core.status(now, 0.0).mode == "unmanaged"
+    core.on_followed_pose(wire.encode_pose(now - 2.99, wire.Pose(0.5)), now + 0.02, "aaaa")
+    assert core.on_datagram(wire.encode_request(1.0), now + 0.02).reply is not None
+    core.on_control(b'{"command": "abort", "seq": "not a number"}')
+    assert core.aborted and core.counters["control_malformed"] == 1
+
+
+def test_the_bridges_own_request_coming_back_is_dropped() -> None:
+    # --peer the bridge itself: its own request was answered, its own reply accepted,
+    # and a legacy agent that does not exist was published.
+    core, now = _serving()
+    request = core.legacy_request(now)
+    outcome = core.on_datagram(request, now + 0.0001)
+    assert outcome.reply is None and outcome.kind == "self"
+    assert core.counters["udp_self"] == 1
+
+
+def test_a_wild_first_reply_is_not_published() -> None:
+    # The first reply, 1000 s off, had been published; followers then dropped every
+    # genuine pose as out of order for 1000 s.
+    core = BridgeCore(config())
+    now = 100.0
+    published = []
+    for i in range(8):
+        request = wire.decode_request(core.legacy_request(now))
+        offset = CLOCK_OFFSET + (1000.0 if i == 0 else 0.0)
+        data = wire.encode_reply(request, now + 0.0005 + offset, wire.Pose(*LEGACY_POSE))
+        outcome = core.on_datagram(data, now + 0.001)
+        if outcome.pose is not None:
+            published.append(wire.decode_pose(outcome.pose).t)
+        now += 0.1
+    assert published and all(abs(t - (100.0 + CLOCK_OFFSET)) < 1.0 for t in published)
+    assert published == sorted(published)
+
+
+def test_a_legacy_agent_that_restarts_leaves_and_comes_back() -> None:
+    # Its clock jumped back within legacy_timeout: the federation kept its old clock
+    # and dropped every new pose as out of order.
+    core = BridgeCore(config())
+    now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
+    assert core.maintain(now).legacy_alive
+    for _ in range(4):  # its clock restarts near 0
+        request = wire.decode_request(core.legacy_request(now))
+        core.on_datagram(wire.encode_reply(request, 1.0, wire.Pose()), now + 0.001)
+        now += 0.1
+    assert core.counters["legacy_restarted"] == 1
+    assert not core.maintain(now).legacy_alive  # away for one period: it left
+    assert core.maintain(now + 0.1).legacy_alive  # and is back, with its new clock
+
+
+def test_a_status_naming_another_agent_is_not_taken() -> None:
+    core = BridgeCore(config(follow=None))
+    ghost = status_line("aaa/ghost", "leader")
+    core.on_status(ghost, agent=AgentId.parse("oslo/olle"))  # an insider's forgery
+    core.on_liveliness(liveliness("aaa/ghost"), alive=True)
+    core.on_liveliness(liveliness(LEADER), alive=True)
+    core.on_status(status_line(LEADER, "leader"), agent=AgentId.parse(LEADER))
+    assert core.maintain(0.1).follow == AgentId.parse(LEADER)
+    assert core.counters["status_not_its_own"] == 1
+    core.on_status(b"[" * 100_000 + b"]" * 100_000, agent=AgentId.parse(LEADER))
+    assert core.counters["status_malformed"] == 1
