@@ -29,7 +29,10 @@ over the last half of ``stale_after`` as it ages,
 which is the mean above once every :math:`a_j = 1`, and continuous in each: for a
 member :math:`e` off its slot, the track moves at most :math:`(1 - w_0)\\,e / T_{join}`
 as it joins (0.7 × 0.1 m / 2 s = 3.5 cm/s) and :math:`2 (1 - w_0)\\,e / t_{stale}` as
-it leaves (0.14 m/s), where it had stepped by :math:`(1 - w_0)\\,e` at once.
+it leaves (0.14 m/s), where it had stepped by :math:`(1 - w_0)\\,e` at once. A pose's
+normal age (the one-way delay and up to a pose period) must stay below half of
+``stale_after`` (1 s by default; the relay case's 250 ms delay leaves room), else a
+healthy member is taken at less than its full weight.
 
 Latency compensation moves each shared pose on by its age :math:`a = t - s_j` with
 its velocity and the centre's acceleration, which every member knows from the path:
@@ -135,6 +138,10 @@ class FormationGuidance:
         self.used = 0
         """How many others the last reference used."""
         self._since: dict[str, float] = {}  # reference time each used member appeared
+
+    def new_run(self) -> None:
+        """A run was armed: every member's pose is taken in afresh over ``join_ramp``."""
+        self._since = {}
 
     def reference(
         self,

@@ -95,11 +95,13 @@ class ScenarioGuidance:
 
     def new_run(self) -> None:
         """A run was armed: what one run's guidance keeps (the docking's phase, point and
-        target estimate, the target's start) begins afresh."""
+        target estimate, the target's start, the formation members' ramps) begins afresh."""
         if self.docking is not None:
             self.docking.new_run()
         if self.target is not None:
             self.target.new_run()
+        if self.formation is not None:
+            self.formation.new_run()
 
     def reference(
         self,

@@ -82,6 +82,7 @@ from schemas.config import AgentConfig
 from schemas.messages import Status
 
 __all__ = [
+    "AgentLoopStopped",
     "FederationToRos",
     "OdometryPlatform",
     "Ros2Agent",
@@ -390,6 +391,11 @@ class OdometryPlatform(KinematicPlatform):
         return self.pose
 
 
+class AgentLoopStopped(RuntimeError):
+    """The joined agent's loop died (its exception is in the log): the bridge stops, ROS
+    told to hold."""
+
+
 class RunStateToRos:
     """A joined platform's hold and run mode on ROS 2 (``/fedlab/LAB/NAME/hold`` and
     ``/run``): :meth:`publish` at each control step writes what changed, and each again
@@ -408,21 +414,29 @@ class RunStateToRos:
         self._run = DataWriter(participant, run, state_writer_qos(STRING_MESSAGE))
         self._hold_news, self._run_news = conv.Repeated(), conv.Repeated()
         self.counters: Counter[str] = Counter()
+        self._lock = threading.Lock()
+        self._closed = False
 
     def publish(self, mode: str, hold_reason: str | None) -> None:
         """Write the hold (:func:`~federation.bridge.ros2_core.must_hold`) and ``mode``
-        if changed or due again."""
+        if changed or due again; nothing once closed."""
         now = self.clock()
         hold = conv.must_hold(mode, hold_reason)
-        if self._hold_news.due(hold, now):
-            self._hold.write(Bool(hold))
-            self.counters["ros_hold_written"] += 1
-        if self._run_news.due(mode, now):
-            self._run.write(String(mode))
+        with self._lock:
+            if self._closed:
+                return
+            if self._hold_news.due(hold, now):
+                self._hold.write(Bool(hold))
+                self.counters["ros_hold_written"] += 1
+            if self._run_news.due(mode, now):
+                self._run.write(String(mode))
 
     def close(self) -> None:
-        """The bridge stops: hold, for whoever still listens."""
-        self._hold.write(Bool(True))
+        """The bridge stops: hold, for whoever still listens, and the last word (a step
+        of the agent's loop still under way writes nothing after it)."""
+        with self._lock:
+            self._closed = True
+            self._hold.write(Bool(True))
 
 
 class Ros2Agent(AgentRuntime):
@@ -452,7 +466,12 @@ class Ros2Agent(AgentRuntime):
             self.hold_reason = None
             log.info("odometry on %s flows again: released", self.odom_topic)
         if self.state is not None:
-            self.state.publish(self.run_state.mode, self.hold_reason)
+            # Whatever holds it, said or not yet: a step's own reason, the platform held
+            # (an abort on Zenoh's thread), odometry gone stale since the check above.
+            reason = self.hold_reason
+            if reason is None and (self.platform.held or self.platform.stale):
+                reason = "held" if self.platform.held else "stale"
+            self.state.publish(self.run_state.mode, reason)
 
     def publish_pose(self) -> None:
         if self.platform.stale:
@@ -505,17 +524,23 @@ def run_ros2_bridge(
         deadline = None if duration_s is None else time.monotonic() + duration_s
         last_note = time.monotonic()
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            if thread is not None and not thread.is_alive():
+                # Its loop died (its exception is in the log): nothing tells ROS any more.
+                raise AgentLoopStopped(f"{join.agent if join else 'the agent'}: its loop stopped")
             forward.step(0.05)
             if time.monotonic() - last_note >= 10.0:
                 last_note = time.monotonic()
                 log.info("forwarded: %s", dict(forward.counters))
         return forward.counters
     finally:
+        if agent is not None and agent.state is not None:
+            try:  # first: ROS hears hold before anything here can wait or fail
+                agent.state.close()
+            except Exception:
+                log.exception("hold not written to ROS")
         agent_stop.set()
         if thread is not None:
             thread.join(10)
         forward.close()
         if agent is not None:
             agent.close()
-            if agent.state is not None:
-                agent.state.close()

@@ -228,7 +228,7 @@ def run_ros2(args: argparse.Namespace) -> int:
 
     from cyclonedds.core import DDSException
 
-    from federation.bridge.ros2 import run_ros2_bridge
+    from federation.bridge.ros2 import AgentLoopStopped, run_ros2_bridge
     from federation.runtime.agent import NameTaken
 
     join = ros2_join_config(args)
@@ -247,6 +247,9 @@ def run_ros2(args: argparse.Namespace) -> int:
         except NameTaken as error:
             print(f"fedlab bridge ros2: error: {error}", file=sys.stderr)
             return 2
+        except AgentLoopStopped as error:
+            print(f"fedlab bridge ros2: error: {error}; ROS told to hold", file=sys.stderr)
+            return 1
         except DDSException as error:
             uri = os.environ.get("CYCLONEDDS_URI", "(unset)")
             print(

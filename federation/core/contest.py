@@ -125,6 +125,11 @@ class ContestWatch:
         state.speaker = source
         return True
 
+    def speaker(self, peer: str) -> str | None:
+        """The last source whose sample was used for ``peer`` (None: none yet)."""
+        state = self._peers.get(peer)
+        return None if state is None else state.speaker
+
     def reason(self, peer: str, now: float) -> str | None:
         """Why ``peer`` is contested at ``now``, or None if it is not (clears a contest
         quiet for ``quiet`` seconds)."""

@@ -230,6 +230,7 @@ class AgentRuntime:
         # Each peer's last pose taken: (its source, its t). One from that source no newer
         # is dropped (a reordered or repeated sample); forgotten when the peer leaves.
         self._pose_order: dict[AgentId, tuple[str | None, float]] = {}
+        self._pose_lock = threading.Lock()  # the order and the latest pose, together
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
         # Why valves are held: "stale" (link), "contested" (the followed agent),
         # "aborted", "done" (run over), "reset" (waiting after an abort), "workspace" or
@@ -1007,6 +1008,7 @@ class AgentRuntime:
                 for user in users:
                     user.count("clock_steps")
                     user._event("clock_step", t3, host, f"{link.agent}: {jump:+.6f} s")
+                    user._clock_stepped_at(link.agent, jump, host)
             if accepted is None or exchange is None:
                 self.rejects(f"sync reply ({reason})", f"from {link.key}")
                 return
@@ -1050,12 +1052,6 @@ class AgentRuntime:
                 return
             decoded, stamp = read
             self.count("pose_received")
-            if parsed is not None:
-                with self._lock:
-                    fresh = in_order(self._pose_order, parsed[0], sample.source(), decoded.t)
-                if not fresh:
-                    self.count("pose_out_of_order")
-                    return
             if (
                 parsed is not None
                 and parsed[0] == self.follow
@@ -1064,9 +1060,16 @@ class AgentRuntime:
                 self.count("pose_stale_dropped")  # never reaches the controller
                 return
             if parsed is not None:
-                self._place(parsed[0], decoded.t, stamp)
-                self.latest_poses[parsed[0]] = decoded
-                self.pose_received_at[parsed[0]] = t_recv
+                agent = parsed[0]
+                with self._pose_lock:  # judged and stored at once: no older one over it
+                    fresh = in_order(self._pose_order, agent, sample.source(), decoded.t)
+                    if fresh:
+                        self.latest_poses[agent] = decoded
+                        self.pose_received_at[agent] = t_recv
+                if not fresh:
+                    self.count("pose_out_of_order")
+                    return
+                self._place(agent, decoded.t, stamp)
             if not self.recording(Channel.POSE_RECEIVED):
                 return
             message = {
@@ -1120,6 +1123,12 @@ class AgentRuntime:
         with feed.lock:
             if feed.subscription is None:
                 feed.subscription = fanout.subscribe(key, functools.partial(_on_feed_pose, feed))
+            # The session its agents heard for the followed agent before this one joined:
+            # news of a new one reaches only the agents on the feed when it changes.
+            speaker = feed.contest.speaker(str(follow))
+        if speaker is not None and follow == self.reference:
+            with self._lock:
+                self._reference_zid = self._reference_zid or speaker
         self.feed = feed
         return True
 
@@ -1141,12 +1150,6 @@ class AgentRuntime:
             if read is None:
                 return
             decoded, stamp = read
-            with feed.lock:
-                fresh = in_order(feed.order, agent, sample.source(), decoded.t)
-            if not fresh:
-                _count_all(users, "pose_received")
-                _count_all(users, "pose_out_of_order")  # never overwrites a newer one
-                return
             # Dated by the estimate of the link they share: read through the first of
             # them that has seen the agent (liveliness may reach one before another).
             judge = (
@@ -1156,6 +1159,16 @@ class AgentRuntime:
                 _count_all(users, "pose_received")
                 _count_all(users, "pose_stale_dropped")  # never reaches a controller
                 return
+            with feed.lock:  # judged and stored at once: no older one over it
+                fresh = in_order(feed.order, agent, sample.source(), decoded.t)
+                if fresh:
+                    for user in users:
+                        user.latest_poses[agent] = decoded
+                        user.pose_received_at[agent] = t_recv
+            if not fresh:
+                _count_all(users, "pose_received")
+                _count_all(users, "pose_out_of_order")  # never overwrites a newer one
+                return
         except Exception:
             log.exception("pose sample on %s failed", sample.key)
             return
@@ -1164,8 +1177,6 @@ class AgentRuntime:
             try:
                 user.count("pose_received")
                 user._place(agent, decoded.t, stamp)
-                user.latest_poses[agent] = decoded
-                user.pose_received_at[agent] = t_recv
                 if user.recording(Channel.POSE_RECEIVED):
                     if message is None:  # built and encoded once, queued by each recorder
                         message = Shared({
@@ -1256,7 +1267,8 @@ class AgentRuntime:
             if peer is not None and peer.alive != alive:
                 with self._contest_lock:  # a restarted agent has a new session id
                     self.contest.forget(str(agent))
-                self._pose_order.pop(agent, None)  # and may count time afresh
+                with self._pose_lock:
+                    self._pose_order.pop(agent, None)  # and may count time afresh
                 feed = self.feed
                 if feed is not None and feed.agent == agent:
                     with feed.lock:
@@ -1423,21 +1435,43 @@ class AgentRuntime:
     def _reference_session(self, source: str | None, host: float) -> None:
         """The session speaking for the reference is ``source`` (first heard, or new). A
         new one during a run started by ctl is the reference restarted: its new process
-        waits, flies no maneuver and may count time afresh, so the run is over here:
-        aborted, held, and said why (``reference_restarted``). A link cut longer than the
+        waits, flies no maneuver and may count time afresh, so the run is over here
+        (:meth:`_end_run_here`, ``reference_restarted``). A link cut longer than the
         lease is not: the same session comes back."""
-        t_exec = self.clock.at(host)
-        state = self.run_state
         with self._lock:  # Zenoh's threads for poses and for sync replies both call it
             before, self._reference_zid = self._reference_zid, source
-            if before is None or before == source or state.run_id is None:
-                return
-            if state.mode not in ("armed", "running", "frozen"):
+        if before is not None and before != source:
+            detail = f"{self.reference} restarted (session {before[:8]} now {source!s:.8})"
+            self._end_run_here("reference_restarted", detail, host)
+
+    def _clock_stepped_at(self, agent: AgentId, jump: float, host: float) -> None:
+        """``agent``'s clock stepped by ``jump`` s (or this agent's own did): its poses
+        count time afresh, so their order is forgotten (a step back had its every pose
+        dropped as out of order until its clock passed the old one); the reference's
+        ends a ctl run here (run time would jump by it)."""
+        with self._pose_lock:
+            self._pose_order.pop(agent, None)
+        feed = self.feed
+        if feed is not None and feed.agent == agent:
+            with feed.lock:
+                feed.order.pop(agent, None)
+        if agent == self.reference:
+            detail = f"{agent}'s clock stepped {jump:+.3f} s against this agent's"
+            self._end_run_here("reference_clock_steps", detail, host)
+
+    def _end_run_here(self, counter: str, detail: str, host: float) -> None:
+        """Abort a run started by ctl (armed, running or frozen) on this agent alone: the
+        reference it counts time on is no longer the one the run began with (restarted,
+        or its clock stepped). Every valve closed, ``counter`` counted, ``detail`` in the
+        log and the recording; nothing outside a ctl run."""
+        t_exec = self.clock.at(host)
+        state = self.run_state
+        with self._lock:
+            if state.run_id is None or state.mode not in ("armed", "running", "frozen"):
                 return
             events = state.command(_LOCAL_ABORT, self.sim_time(t_exec))
         self.platform.hold()  # before anything else is said or recorded: every valve closed
-        self.count("reference_restarted")
-        detail = f"{self.reference} restarted (session {before[:8]} now {source!s:.8})"
+        self.count(counter)
         log.error("run %s: %s: aborted here", state.run_id, detail)
         self._apply([dataclasses.replace(e, detail=detail) for e in events], t_exec, host)
         self._status_now = True

@@ -140,6 +140,10 @@ def test_a_member_joining_or_leaving_moves_the_track_gradually() -> None:
     assert max(steps[:600]) <= 0.7 * 0.5 / CONFIG.join_ramp * dt * 1.01  # ramp-in
     assert max(xs) == pytest.approx(0.7 * 0.5)  # fully taken in
     assert xs[-1] == pytest.approx(0.0)  # let go by the time it is stale
+    # A new run takes every member in afresh.
+    g.new_run()
+    ref = g.reference(20.0, 0.0, {"b/y": (20.0, off)})
+    assert ref.track is not None and ref.track.x == pytest.approx(0.0)
     # The fade-out is as gradual: over the last half of stale_after, not at once.
     assert max(steps) <= 0.7 * 0.5 / (CONFIG.stale_after / 2) * dt * 1.01
     assert sum(s > 0 for s in steps[600:]) >= 45  # over about 50 steps, not one

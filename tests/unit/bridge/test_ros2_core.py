@@ -153,3 +153,31 @@ def test_an_agents_topics_are_under_its_name() -> None:
     rover = AgentId("ros2lab", "rover")
     assert conv.agent_topic(rover, "hold") == "/fedlab/ros2lab/rover/hold"
     assert conv.odometry_topic(rover) == "/fedlab/ros2lab/rover/odom"
+
+
+class _Writer:
+    def __init__(self) -> None:
+        self.written: list[object] = []
+
+    def write(self, sample: object) -> None:
+        self.written.append(sample)
+
+
+def test_after_close_the_hold_is_the_last_word_to_ros() -> None:
+    """A step of the agent's loop still under way as the bridge stops wrote hold = false
+    after the closing hold = true."""
+    import threading
+    from collections import Counter
+
+    from federation.bridge.ros2 import RunStateToRos
+    from federation.bridge.ros2_types import Bool
+
+    state = object.__new__(RunStateToRos)  # its DDS writers replaced by lists
+    state.clock = lambda: 0.0
+    state._hold, state._run = _Writer(), _Writer()  # type: ignore[assignment]
+    state._hold_news, state._run_news = conv.Repeated(), conv.Repeated()
+    state.counters, state._lock, state._closed = Counter(), threading.Lock(), False
+    state.publish("running", None)
+    state.close()
+    state.publish("running", None)  # the loop's last step, after close
+    assert state._hold.written == [Bool(False), Bool(True)]  # type: ignore[attr-defined]

@@ -206,6 +206,55 @@ def test_an_agent_on_its_own_drops_a_reordered_pose(session: zenoh.Session) -> N
         assert f1.latest_poses[LEAD].t == now + 0.05
 
 
+def test_an_agent_that_joins_the_feed_late_still_sees_the_reference_restart(
+    session: zenoh.Session,
+) -> None:
+    """f2 joins the feed after f1 heard the leader's session: news of a new session
+    reaches the agents on the feed only when it changes, so f2 had taken the new one
+    for the first heard and flown on."""
+    with _feed_of_two(session) as (f1, f2, feed):
+        f1.close()
+        f2.close()
+    fanout, links, clock = Fanout(session), SyncLinks(), ExecClock()
+    f1 = AgentRuntime(follower_config("f1"), session, clock, fanout=fanout, links=links)
+    f2 = AgentRuntime(follower_config("f2"), session, clock, fanout=fanout, links=links)
+    try:
+        f1.start()
+        f1.peer_seen(LEAD, True)
+        feed = f1.feed
+        assert feed is not None
+        agent_module._on_feed_pose(feed, _Sample(clock.now(), "aaaa"))  # type: ignore[arg-type]
+        f2.start()  # joins the feed now
+        f2.peer_seen(LEAD, True)
+        assert f2.feed is feed and f2._reference_zid == "aaaa"
+        for follower in (f1, f2):  # a ctl run on both
+            with follower._lock:
+                follower.run_state.mode, follower.run_state.run_id = "running", "r1"
+            follower.peer_seen(LEAD, False)
+            follower.peer_seen(LEAD, True)
+        agent_module._on_feed_pose(feed, _Sample(clock.now(), "bbbb"))  # type: ignore[arg-type]
+        for follower in (f1, f2):
+            assert follower.run_state.mode == "aborted", follower.me
+            assert follower.counters["reference_restarted"] == 1
+    finally:
+        f1.close()
+        f2.close()
+
+
+def test_a_clock_step_of_the_followed_agent_forgets_its_pose_order(
+    session: zenoh.Session,
+) -> None:
+    """Its clock stepped back 30 s within the lease: every later pose had been dropped
+    as out of order until its clock passed the old one, 30 s."""
+    with _feed_of_two(session) as (f1, f2, feed):
+        now = f1.clock.now()
+        agent_module._on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
+        f1._clock_stepped_at(LEAD, -30.0, time.monotonic())
+        agent_module._on_feed_pose(feed, _Sample(now - 30.0, "aaaa"))  # type: ignore[arg-type]
+        assert f1.counters["pose_out_of_order"] == 0
+        assert f2.latest_poses[LEAD].t == now - 30.0
+
+
 def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
     session: zenoh.Session,
 ) -> None:

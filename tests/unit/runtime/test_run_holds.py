@@ -24,6 +24,9 @@ class _Payload:
     def to_bytes(self) -> bytes:
         return self.data
 
+    def __len__(self) -> int:
+        return len(self.data)
+
 
 class _Sample:
     """What ``_on_control`` reads of a zenoh.Sample."""
@@ -331,3 +334,31 @@ def test_a_new_reference_session_outside_a_ctl_run_aborts_nothing(when: str) -> 
     assert _heard(f, "bbbb")
     assert f.agent.run_state.mode != "aborted"
     assert f.agent.counters["reference_restarted"] == 0
+
+
+def test_the_reference_clock_stepping_mid_run_aborts_the_run_here() -> None:
+    """Run time would jump by the step (the run ends early, or never)."""
+    f = Follower()
+    f.synced()
+    f.command("start", run_id="r1", duration=60.0)
+    f.pose()
+    f.step()
+    for _ in range(5):  # the leader's clock jumps 2 s ahead: three exchanges confirm it
+        link = f.agent.peers[LEAD].link
+        assert link is not None
+        t1 = wire.decode_request(link.client.request(f.clock.now()))
+        f.now += 0.01
+        reply = wire.encode_reply(t1, t1 + 2.010, wire.Pose())
+        f.agent._on_sync_reply(link, _Reply(reply))  # type: ignore[arg-type]
+        f.now += 0.09
+    assert f.agent.counters["clock_steps"] == 1
+    assert f.agent.run_state.mode == "aborted" and f.agent.platform.held
+    assert f.agent.counters["reference_clock_steps"] == 1
+
+
+class _Reply:
+    """What ``_on_sync_reply`` reads of a zenoh.Reply (no replier id)."""
+
+    def __init__(self, payload: bytes):
+        self.ok = type("Ok", (), {"payload": _Payload(payload), "attachment": None})
+        self.replier_id = None
