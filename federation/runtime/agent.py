@@ -81,6 +81,8 @@ __all__ = ["AgentRuntime", "NameTaken", "Schedule", "peer_status", "run_together
 
 log = logging.getLogger("fedlab.agent")
 
+_ACTIVE = frozenset({"armed", "running", "frozen"})
+"""Run modes in which a run is under way."""
 _LOCAL_ABORT = Command(command="abort", seq=-1, issuer="fedlab (this agent)")
 """The abort an agent gives itself (its reference restarted mid-run)."""
 MAX_SMALL_PAYLOAD = 1024
@@ -347,7 +349,9 @@ class AgentRuntime:
             )
         )
         if self.config.runs_dir is not None:
-            self.recording_server = RecordingServer(s, fed, self.me, self.config.runs_dir)
+            self.recording_server = RecordingServer(
+                s, fed, self.me, self.config.runs_dir, busy=self._busy_recording
+            )
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
         started = time.monotonic()
         self._name_checks = [started + after for after in NAME_CHECKS_AFTER]
@@ -380,6 +384,14 @@ class AgentRuntime:
 
         key = self.key(self.me, "sync")
         look_again(self._name_checks, host, self.session, key, self.clock.now, clash)
+
+    def _busy_recording(self) -> str | None:
+        """Why recordings are not served now: a run started by ctl armed, running or
+        frozen (its poses and sync replies go first on this agent's links)."""
+        state = self.run_state
+        if state.run_id is None or state.mode not in _ACTIVE:
+            return None  # an agent on its own runs from reference time 0 for good
+        return f"run {state.run_id} {state.mode}"
 
     def _hold_for_name(self, t_exec: float, host: float) -> None:
         """Safe hold for good: another process runs under this agent's name."""
@@ -1467,7 +1479,7 @@ class AgentRuntime:
         t_exec = self.clock.at(host)
         state = self.run_state
         with self._lock:
-            if state.run_id is None or state.mode not in ("armed", "running", "frozen"):
+            if state.run_id is None or state.mode not in _ACTIVE:
                 return
             events = state.command(_LOCAL_ABORT, self.sim_time(t_exec))
         self.platform.hold()  # before anything else is said or recorded: every valve closed

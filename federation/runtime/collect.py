@@ -22,12 +22,13 @@ import logging
 import os
 import queue
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import zenoh
 from pydantic import ValidationError
@@ -49,6 +50,7 @@ __all__ = [
     "CollectError",
     "CollectResult",
     "Fetch",
+    "Fetched",
     "RecordingServer",
     "collect",
     "describe",
@@ -103,18 +105,27 @@ class RecordingServer:
     """Serves one agent's finished recordings under ``runs_dir`` to ``fedlab collect``."""
 
     def __init__(
-        self, session: zenoh.Session, federation: str, agent: keys.AgentId, runs_dir: Path
+        self,
+        session: zenoh.Session,
+        federation: str,
+        agent: keys.AgentId,
+        runs_dir: Path,
+        busy: Callable[[], str | None] = lambda: None,
     ):
         self.runs_dir = Path(runs_dir)
         self.agent = agent
         self.stem = f"{agent.lab}-{agent.name}"
+        # Replies go on the agent's own key, never on the query's (a wildcard): the lab
+        # router's access control lets an agent reply only under its own address.
+        self.key = keys.agent_key(federation, agent, TOPIC)
+        self.busy = busy  # why chunks are not served now (a run in progress), or None
         self.served = 0
         self.refused = 0
         self._queue: queue.Queue[zenoh.Query | None] = queue.Queue(QUEUE_SIZE)
         self._thread = threading.Thread(target=self._run, name="recordings", daemon=True)
         self._thread.start()
         self._queryable = session.declare_queryable(
-            keys.agent_key(federation, agent, TOPIC),
+            self.key,
             zenoh.handlers.Callback(self._on_query, indirect=False),
         )
 
@@ -150,8 +161,13 @@ class RecordingServer:
             query.reply_err(f"{self.agent}: no finished run {request.run}".encode())
             return
         if request.file is None:
-            query.reply(query.key_expr, manifest_path.read_bytes())
+            query.reply(self.key, manifest_path.read_bytes())
             self.served += 1
+            return
+        busy = self.busy()
+        if busy is not None:  # its uplink carries the run's poses and sync first
+            self.refused += 1
+            query.reply_err(f"busy: {busy}".encode())
             return
         manifest = Manifest.model_validate_json(manifest_path.read_bytes())
         if request.file not in {f.name for f in manifest.files}:
@@ -160,7 +176,7 @@ class RecordingServer:
         with (run_dir / request.file).open("rb") as f:
             f.seek(request.offset)
             data = f.read(request.length)
-        query.reply(query.key_expr, data, attachment=chunk_attachment(request.offset, data))
+        query.reply(self.key, data, attachment=chunk_attachment(request.offset, data))
         self.served += 1
 
     def close(self) -> None:
@@ -169,33 +185,46 @@ class RecordingServer:
         self._thread.join(5)
 
 
-Fetch = Callable[[str, str, float], list[tuple[bytes, bytes | None, str | None]]]
-"""``fetch(key, parameters, timeout)``: every reply to one query as (payload,
-attachment, error text); the collector's one network call (a test may wrap it)."""
+class Fetched(NamedTuple):
+    """One reply to a collector's query."""
+
+    payload: bytes
+    attachment: bytes | None
+    error: str | None  # the error reply's text (payload empty), None for a good one
+    key: str | None = None  # the key it was sent on (None: not known)
+
+
+Fetch = Callable[[str, str, float], list[Fetched]]
+"""``fetch(key, parameters, timeout)``: every reply to one query; the collector's one
+network call (a test may wrap it)."""
+BUSY_BACKOFF = 1.0
+"""s a collector waits before asking again an agent that said it is busy."""
 
 
 def zenoh_fetch(session: zenoh.Session) -> Fetch:
     """:data:`Fetch` over a Zenoh session."""
 
-    def fetch(
-        key: str, parameters: str, timeout: float
-    ) -> list[tuple[bytes, bytes | None, str | None]]:
-        out: list[tuple[bytes, bytes | None, str | None]] = []
+    def fetch(key: str, parameters: str, timeout: float) -> list[Fetched]:
+        out: list[Fetched] = []
+        # Background priority: the replies (which take the query's) yield to every
+        # agent's pose and sync on the links they share.
         replies = session.get(
-            f"{key}?{parameters}", timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE
-        )
+            f"{key}?{parameters}", timeout=timeout, consolidation=zenoh.ConsolidationMode.NONE,
+            priority=zenoh.Priority.BACKGROUND,
+        )  # fmt: skip
         for reply in replies:
             if reply.ok is not None:
                 attachment = reply.ok.attachment
                 out.append(
-                    (
+                    Fetched(
                         reply.ok.payload.to_bytes(),
                         None if attachment is None else attachment.to_bytes(),
                         None,
+                        str(reply.ok.key_expr),
                     )
                 )
             elif reply.err is not None:
-                out.append((b"", None, reply.err.payload.to_string()))
+                out.append(Fetched(b"", None, reply.err.payload.to_string()))
         return out
 
     return fetch
@@ -251,17 +280,17 @@ def collect(
     out.mkdir(parents=True, exist_ok=True)
     result = CollectResult(run_id, out)
     manifests: dict[str, Manifest] = {}
-    for payload, _attachment, error in fetch(
+    for reply in fetch(
         keys.all_of(federation, TOPIC), format_request(ChunkRequest(run_id)), timeout
     ):
-        if error is not None:
-            log.debug("manifest query: %s", error)
+        if reply.error is not None:
+            log.debug("manifest query: %s", reply.error)
             continue
-        try:
-            manifest = Manifest.model_validate_json(payload)
-        except ValidationError as problem:
-            result.errors.append(f"a malformed manifest: {problem.errors()[0]['msg']}")
+        problem = _manifest_problem(reply, federation, run_id, manifests)
+        if problem is not None:
+            result.errors.append(problem)
             continue
+        manifest = Manifest.model_validate_json(reply.payload)
         if manifest.run_id == run_id:
             manifests[manifest.agent] = manifest
     result.missing = sorted((expected or set()) - set(manifests))
@@ -286,6 +315,32 @@ def collect(
             manifest.model_dump_json(indent=1) + "\n", encoding="utf-8"
         )
     return result
+
+
+def _manifest_problem(
+    reply: Fetched, federation: str, run_id: str, seen: dict[str, Manifest]
+) -> str | None:
+    """Why a manifest reply is not taken, or None: it must validate, name an agent, come
+    from that agent's key (one lab's agent cannot speak for another's run), list only
+    that agent's files (``<lab>-<name>.*``: they share one folder) and be the only one
+    for that agent."""
+    try:
+        manifest = Manifest.model_validate_json(reply.payload)
+        agent = keys.AgentId.parse(manifest.agent)
+    except (ValidationError, ValueError) as problem:
+        text = problem.errors()[0]["msg"] if isinstance(problem, ValidationError) else problem
+        return f"a malformed manifest: {text}"
+    if reply.key is not None:
+        parsed = keys.parse_agent_key(federation, reply.key)
+        if parsed is None or parsed[0] != agent:
+            return f"a manifest for {agent} sent on {reply.key}: not taken"
+    stem = f"{agent.lab}-{agent.name}."
+    foreign = [f.name for f in manifest.files if not f.name.startswith(stem)]
+    if foreign:
+        return f"{agent}'s manifest lists files not its own ({', '.join(foreign)}): not taken"
+    if manifest.run_id == run_id and str(agent) in seen:
+        return f"two manifests for {agent}: neither is more genuine; the first was kept"
+    return None
 
 
 def _fetch_file(
@@ -383,11 +438,13 @@ def _fetch_chunk(
     problem = "no reply"
     for _ in range(retries + 1):
         replies = fetch(key, parameters, timeout)
-        good = [(p, a) for p, a, e in replies if e is None]
-        errors = [e for _, _, e in replies if e is not None]
+        good = [(r.payload, r.attachment) for r in replies if r.error is None]
+        errors = [r.error for r in replies if r.error is not None]
         if not good:
             problem = errors[0] if errors else f"no reply within {timeout:g} s"
             result.count("error reply" if errors else "no reply")
+            if any(e.startswith("busy") for e in errors):
+                time.sleep(BUSY_BACKOFF)  # not at once again: it said why
             continue
         data, attachment = good[0]
         problem_or_none = check_chunk(data, attachment, offset, length)

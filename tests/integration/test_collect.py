@@ -123,12 +123,12 @@ def test_a_corrupted_or_truncated_chunk_is_fetched_again_and_a_download_resumes(
             for offset, fault in list(faults.items()):
                 if f"offset={offset};" in parameters:
                     del faults[offset]
-                    data, attachment, error = replies[0]
+                    data = replies[0].payload
                     if fault == "corrupt":
                         data = data[:100] + bytes([data[100] ^ 0xFF]) + data[101:]
                     else:
                         data = data[: len(data) // 2]
-                    replies[0] = (data, attachment, error)
+                    replies[0] = replies[0]._replace(payload=data)
             return replies
 
         out = tmp_path / "out"

@@ -477,3 +477,38 @@ def test_agents_sync_over_the_tls_lab_link(labs: Labs, pki: Pki, tmp_path: Path)
     )
     assert follower.stop() == 0
     assert leader.stop() == 0
+
+
+def test_a_run_is_collected_through_routers_that_enforce_access_control(
+    labs: Labs, pki: Pki, sessions: list[Any], tmp_path: Path
+) -> None:
+    """An agent replied to the collector's manifest query on the query's key, a wildcard
+    (``fedlab/<fed>/*/*/recordings``), outside its own address: its router dropped the
+    reply, and every collect through deployed routers found no agent with the run."""
+    from federation.core.keys import AgentId
+    from federation.runtime.collect import RecordingServer, collect, finalize, sha256_file
+
+    pair = start_lab_pair(labs, pki)
+    knatte = open_session(client_config(pki, pair.kiruna, cert="kiruna/knatte"))
+    operator = open_session(client_config(pki, pair.rome, user="rome/ctl"))
+    sessions += [knatte, operator]
+    runs = tmp_path / "runs"
+    folder = runs / "acl-run"
+    folder.mkdir(parents=True)
+    recording = folder / "kiruna-knatte.mcap"
+    recording.write_bytes(bytes(range(256)) * 400)
+    finalize(folder, "kiruna/knatte", "acl-run", [recording])
+    server = RecordingServer(knatte, "default", AgentId("kiruna", "knatte"), runs)
+    try:
+        out = tmp_path / "out"
+
+        def collected() -> bool:
+            try:
+                return collect(operator, "default", "acl-run", out, timeout=1.0).ok
+            except Exception:  # ConnectError until the routes are up
+                return False
+
+        assert wait_for(collected, timeout=15, interval=0.5)
+        assert sha256_file(out / recording.name) == sha256_file(recording)
+    finally:
+        server.close()
