@@ -65,8 +65,10 @@ def add(sub: Subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
+    from rich.text import Text
 
     from federation.runtime.collect import collect, describe
+    from federation.runtime.monitor import printable
     from schemas.experiment import load_experiment
 
     console = Console(stderr=args.json)
@@ -79,20 +81,23 @@ def run(args: argparse.Namespace) -> int:
     with session:
         result = collect(
             session, federation, args.run_id, args.out, expected=expected,
-            timeout=args.timeout, retries=args.retries, progress=console.print,
+            timeout=args.timeout, retries=args.retries,
+            progress=lambda line: console.print(Text(printable(line))),
         )  # fmt: skip
     if args.json:
         print(json.dumps(describe(result), indent=1))
     else:
+        # What agents sent (error texts, file names) is printed as text, never as markup,
+        # and without control characters.
         for why, n in sorted(result.refetched.items()):
-            console.print(f"fetched again: {n} chunk(s), {why}")
+            console.print(Text(printable(f"fetched again: {n} chunk(s), {why}")))
         if result.resumed:
             console.print(f"resumed: {', '.join(result.resumed)}")
         if result.skipped:
             console.print(f"already complete: {', '.join(result.skipped)}")
         for agent in result.missing:
-            console.print(f"[red]{agent}: no finished run {args.run_id}[/red]")
+            console.print(Text(f"{agent}: no finished run {args.run_id}", style="red"))
         for error in result.errors:
-            console.print(f"[red]{error}[/red]")
+            console.print(Text(printable(error), style="red"))
         console.print(f"{result.bytes_fetched} bytes fetched into {args.out}")
     return 0 if result.ok else 1

@@ -34,7 +34,10 @@ __all__ = [
     "safe_name",
 ]
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}$")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,199}")
+MAX_OFFSET = 2**53
+"""The largest offset a request may give (bytes): exact as a JSON number, far beyond
+any recording; a larger one had raised in seek() (a traceback logged per query)."""
 MAX_LENGTH = 48 << 10
 """The largest chunk a request may ask for (bytes): a reply must fit one Zenoh batch
 (64 KiB) with its key and attachment, since the low-latency transport cannot fragment."""
@@ -47,7 +50,7 @@ class RequestError(ValueError):
 def safe_name(value: str, what: str) -> str:
     """``value`` if it is a plain file or run name (letters, digits, ``.``, ``_``,
     ``-``; not starting with a dot), else :class:`RequestError`."""
-    if not _NAME.match(value) or ".." in value:
+    if not _NAME.fullmatch(value) or ".." in value:
         raise RequestError(f"{what} {value!r} is not a plain name")
     return value
 
@@ -87,7 +90,7 @@ def parse_request(parameters: str) -> ChunkRequest:
         offset, length = int(fields.get("offset", "0")), int(fields.get("length", "0"))
     except ValueError:
         raise RequestError("offset and length must be integers") from None
-    if offset < 0 or not 0 < length <= MAX_LENGTH:
+    if not 0 <= offset <= MAX_OFFSET or not 0 < length <= MAX_LENGTH:
         raise RequestError(f"offset {offset} / length {length} out of range (<= {MAX_LENGTH})")
     return ChunkRequest(run, name, offset, length)
 

@@ -44,6 +44,7 @@ import functools
 import logging
 import math
 import os
+import re
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -78,7 +79,6 @@ from agents.workspace import Area, Frame
 from federation.core import keys, wire
 from federation.core.keys import AgentId
 from federation.runtime.session import undeclare_all
-from schemas.config import ConfigError
 from schemas.messages import Status, Workspace
 from schemas.platform import load_platform
 
@@ -172,20 +172,39 @@ def run_row(status: Status, alive: bool = True) -> dict[str, Any]:
     }
 
 
+MAX_SYNC_CHANNELS = 1024
+"""Sync plot channels at most (one per agent and peer): statuses listing thousands of
+made-up peers had made a channel each, 15 MiB a status."""
+
+
+def _is_agent(name: str) -> bool:
+    try:
+        keys.AgentId.parse(name)
+    except ValueError:
+        return False
+    return True
+
+
 def sync_topic(agent: str, peer: str) -> str:
     """The plot topic of ``agent``'s view of ``peer``: ``/fedlab/sync/LAB/NAME/PLAB/PNAME``."""
     return f"/fedlab/sync/{agent}/{peer}"
 
 
+_PRESET = re.compile(r"[a-z0-9_-]{1,63}")
+
+
 @functools.lru_cache(maxsize=64)
 def footprint(platform: str) -> float:
     """Side of the square drawn for a platform (m): twice its preset's moment arm, or
-    :data:`DEFAULT_FOOTPRINT` for a pose source with no preset."""
-    if platform == "kinematic" or ":" in platform:
+    :data:`DEFAULT_FOOTPRINT` for a pose source with no preset. Only a preset's name is
+    looked up (deploy/platforms/NAME.toml), never a path: the name comes from any
+    agent's status, and a path there had this host open what it names (a FIFO hung
+    the view, /dev/zero filled its memory)."""
+    if platform == "kinematic" or not _PRESET.fullmatch(platform):
         return DEFAULT_FOOTPRINT
     try:
         return 2.0 * load_platform(platform).moment_arm
-    except ConfigError:
+    except Exception:  # a preset that does not load: drawn at the default size
         return DEFAULT_FOOTPRINT
 
 
@@ -473,6 +492,10 @@ class LiveView:
                 topic = sync_topic(row["agent"], row["peer"])
                 channel = self._sync.get(topic)
                 if channel is None:
+                    if not _is_agent(row["peer"]) or len(self._sync) >= MAX_SYNC_CHANNELS:
+                        with self._lock:  # a forged status's peers, or too many of them
+                            self.malformed += 1
+                        continue
                     with self._lock:
                         channel = self._sync[topic] = foxglove.Channel(
                             topic, schema=SYNC_SCHEMA, context=self.context
@@ -521,8 +544,11 @@ class LiveView:
         with self._lock:
             present = [(str(a), s) for a, s in sorted(self._status.items()) if self._alive.get(a)]
             gone, self._gone = self._gone, []
-        update, self._areas_drawn = scene(present, gone, self._areas_drawn, ns)
-        self.scene.log(update, log_time=ns)
+        try:
+            update, self._areas_drawn = scene(present, gone, self._areas_drawn, ns)
+            self.scene.log(update, log_time=ns)
+        except Exception:  # one agent's odd status must not stop the view
+            log.exception("scene not drawn")
 
 
 def serve(

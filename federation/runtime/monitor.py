@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -431,10 +432,27 @@ def render(
         table.add_column(header, justify="right" if right else "left", min_width=width)
     for row in rows:
         table.add_row(
-            *(_COLUMNS[c][2](row) for c in shown),
+            *(_safe(_COLUMNS[c][2](row)) for c in shown),
             style="dim" if row.state in ("stale", "left") else None,
         )
     return table
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def printable(text: str) -> str:
+    """``text`` without control characters: what any agent's status says is shown, never
+    run by the terminal (an escape sequence had repainted other agents' rows)."""
+    return _CONTROL.sub("\N{REPLACEMENT CHARACTER}", text)
+
+
+def _safe(cell: str | Text) -> Text:
+    """A cell as plain text: a string is never read as rich markup (a status whose mode
+    was ``[/]`` had stopped the monitor), and neither carries control characters."""
+    if isinstance(cell, Text):
+        return Text(printable(cell.plain), style=cell.style)
+    return Text(printable(cell))
 
 
 def fit(console: Console, rows: Sequence[Row], **kwargs: Any) -> Table:
@@ -467,7 +485,7 @@ def _footer(rows: Sequence[Row], malformed: int, last_error: str | None) -> Text
     if malformed:
         text.stylize("red", text.plain.rindex("malformed"))
         if last_error:
-            text.append(f" (last: {last_error[:200]})", style="red")
+            text.append(f" (last: {printable(last_error[:200])})", style="red")
     return text
 
 

@@ -36,6 +36,8 @@ def test_requests_round_trip() -> None:
         "run=r;file=f;offset=0;length=999999999",
         "run=r;file=f;offset=x;length=1",
         "run",
+        "run=r;file=f;offset=4611686018427387904;length=1",  # seek() raised on it
+        "run=abc\n",  # a trailing newline had passed as a plain name
     ],
 )
 def test_bad_requests_are_refused(parameters: str) -> None:

@@ -63,6 +63,20 @@ def test_footprints_come_from_the_presets() -> None:
     assert view.footprint("no-such-preset") == view.DEFAULT_FOOTPRINT
 
 
+def test_a_status_naming_a_file_opens_nothing(tmp_path: Path) -> None:
+    """The platform name comes from any agent's status: a path there had the viewer's
+    host open it (a FIFO hung the view, /dev/zero filled its memory, a deep JSON file
+    raised RecursionError)."""
+    import os
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)  # opening it for reading would block for good
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    for name in (str(fifo), "/dev/zero", str(deep), "../deploy/platforms/knatte", "x.toml"):
+        assert view.footprint(name) == view.DEFAULT_FOOTPRINT, name
+
+
 def test_the_schemas_type_every_field() -> None:
     row = view.PEERS_SCHEMA["properties"]["rows"]["items"]["properties"]
     assert set(row) == {"agent", "peer", "offset_ms", "delay_ms", "error_bound_ms", "samples",
@@ -174,3 +188,27 @@ def test_the_layout_file_is_what_its_script_writes() -> None:
     assert written == json.loads(module.layout().to_json())
     panels = json.dumps(written)
     assert '"fixedFrame": "fedlab_common"' in panels and "/fedlab/peers.rows" in panels
+
+
+class _StatusSample:
+    def __init__(self, payload: bytes, agent: str):
+        self.payload = type(
+            "P", (), {"to_bytes": lambda _: payload, "__len__": lambda _: len(payload)}
+        )()
+        self.key_expr = f"fedlab/default/{agent}/status"
+
+
+def test_made_up_peers_make_no_channels_and_their_number_is_bounded(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A status listing 12 000 made-up peers had made a plot channel each (15 MiB)."""
+    import foxglove
+
+    monkeypatch.setattr(view, "MAX_SYNC_CHANNELS", 5)
+    live = view.LiveView(None, foxglove.Context())  # type: ignore[arg-type]
+    peer = PeerStatus(offset=0.0, delay=0.001, error_bound=None, samples=1, rejected=0)
+    peers = {f"lab/p{i}": peer for i in range(10)}
+    peers["not an agent"] = peer
+    line = status(**{}).model_copy(update={"peers": peers}).model_dump_json().encode()
+    live._on_status(_StatusSample(line, "rome/pinocchio"))  # type: ignore[arg-type]
+    assert len(live._sync) == 5 and live.malformed == 6

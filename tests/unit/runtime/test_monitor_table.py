@@ -398,3 +398,19 @@ def test_a_peer_alive_but_silent_is_a_red_column_never_left_out() -> None:
     wide.print(render([follower]))
     styled = wide.export_text(styles=True)
     assert f"\x1b[1;31m{LEADER} 2.3 s" in styled  # bold red: an alarm
+
+
+def test_a_status_never_reaches_the_terminal_as_markup_or_escapes() -> None:
+    """An insider's status with mode ``[/]`` had stopped the monitor (MarkupError), and
+    escape sequences in it reached the terminal (repainting other agents' rows)."""
+    model = MonitorModel()
+    model.on_liveliness(key(FOLLOWER), alive=True, now=0.0)
+    forged = follower_status(
+        mode="[/]", run_id="[/bold]", platform="x[/x]\x1b[2J", hold="\x1b]0;owned\x07stale"
+    )
+    model.on_status(key(FOLLOWER, "status"), forged, now=1.0)
+    console = Console(record=True, width=200, color_system=None)
+    console.print(render(model.rows(1.0)))
+    text = console.export_text()
+    assert "[/]" in text and "[/bold]" in text  # shown as they are
+    assert "\x1b" not in text and "\x07" not in text
