@@ -55,7 +55,7 @@ from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient, read_send_time, serve
 from federation.core.timebase import TimeBase
 from federation.runtime.clock import ExecClock
-from federation.runtime.collect import RecordingServer
+from federation.runtime.collect import RecordingServer, manifest_name
 from federation.runtime.fanout import Fanout, Received
 from federation.runtime.links import PoseFeed, SyncLink, SyncLinks
 from federation.runtime.loop import Schedule, run_together
@@ -67,7 +67,7 @@ from federation.runtime.names import (
     name_alive,
 )
 from federation.runtime.recorder import Message, Recorder, Shared
-from federation.runtime.runs import RunRecording
+from federation.runtime.runs import RunRecording, software_versions
 from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
@@ -349,6 +349,7 @@ class AgentRuntime:
             )
         )
         if self.config.runs_dir is not None:
+            software_versions()  # now, not on Zenoh's thread when a run arms (git: up to 2 s)
             self.recording_server = RecordingServer(
                 s, fed, self.me, self.config.runs_dir, busy=self._busy_recording
             )
@@ -615,10 +616,18 @@ class AgentRuntime:
             self.count("pose_withheld_no_fix")
             return
         t_exec, host = self.clock.read()
+        try:
+            payload = wire.encode_pose(t_exec, self.pose)
+        except ValueError:
+            # Not a pose (NaN or infinity): never sent, and the platform that made it
+            # held (the GNC chain's own guard holds first; this covers any platform).
+            self.count("pose_not_finite")
+            if not self.platform.held:
+                self.platform.hold()
+                log.error("own pose not finite (%s): not sent, platform held", self.pose)
+            return
         self._pose_pub.put(
-            wire.encode_pose(t_exec, self.pose),
-            source_info=self._source_info(),
-            attachment=self.reference_stamp(t_exec),
+            payload, source_info=self._source_info(), attachment=self.reference_stamp(t_exec)
         )
         # Only the messages of recorded channels are built (issue 17: a lean agent).
         recorded = self._recorded
@@ -929,8 +938,12 @@ class AgentRuntime:
         line = status.model_dump_json()
         self._status_pub.put(line, encoding=zenoh.Encoding.APPLICATION_JSON)
         if self._status_file is not None:
-            self._status_file.write(line + "\n")
-            self._status_file.flush()
+            try:
+                self._status_file.write(line + "\n")
+                self._status_file.flush()
+            except (OSError, ValueError) as error:  # a full disk: the agent flies on
+                self.count("status_write_errors")
+                self.rejects("status line", f"{self.config.status_json}: {error}")
         run = self.run_recording
         if run is not None:
             run.status_line(line)
@@ -1227,8 +1240,12 @@ class AgentRuntime:
                         command.command, command.issuer, verdict.outcome, verdict.detail,
                     )  # fmt: skip
                 return
+            recorded = self._recorded_before(command)
             with self._lock:
-                events = self.run_state.command(command, self.sim_time(t_exec))
+                if recorded is not None:  # refused before the run state sees it
+                    events = [Event("ignored", self.sim_time(t_exec), recorded)]
+                else:
+                    events = self.run_state.command(command, self.sim_time(t_exec))
                 if command.maneuver is not None and any(e.kind == "armed" for e in events):
                     self.maneuver = _maneuver(command.maneuver)
             ignored = [e.detail for e in events if e.kind == "ignored"]
@@ -1252,6 +1269,21 @@ class AgentRuntime:
             self._status_now = True  # ctl waits for it: at the next step, not in a second
         except Exception:
             log.exception("control sample on %s failed", sample.key_expr)
+
+    def _recorded_before(self, command: Command) -> str | None:
+        """Why a start must be refused: its run is recorded on this host already (a run
+        id used again had truncated the finished recording its manifest still listed)."""
+        runs_dir, run_id = self.config.runs_dir, command.run_id
+        if command.command != "start" or runs_dir is None or run_id is None:
+            return None
+        current = self.run_recording
+        if current is not None and current.run_id == run_id:
+            return None  # this run, armed again
+        folder = Path(runs_dir) / run_id
+        stem = f"{self.me.lab}-{self.me.name}"
+        if (folder / f"{stem}.mcap").exists() or (folder / manifest_name(stem)).exists():
+            return f"run {run_id} is recorded here already ({folder}): start another run id"
+        return None
 
     def _command_outcome(self, command: Command, outcome: str, detail: str) -> None:
         """Remember what became of a command: status reports the last few, so ctl can

@@ -121,6 +121,7 @@ class Recorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.dropped = 0
         self.written = 0
+        self.unwritable = 0  # messages that could not be encoded, left out
         self.capacity = capacity
         self._pending: deque[tuple[str, int, Message]] = deque()
         self._write_lock = threading.Lock()  # the writer thread or close(), not both
@@ -182,12 +183,16 @@ class Recorder:
         pending, channels, add = self._pending, self._channels, self._writer.add_message
         while pending:
             topic, stamp, message = pending.popleft()
-            if isinstance(message, bytes):
-                data = message
-            elif isinstance(message, Shared):
-                data = message.data()
-            else:
-                data = json.dumps(message).encode()
+            try:
+                if isinstance(message, bytes):
+                    data = message
+                elif isinstance(message, Shared):
+                    data = message.data()
+                else:
+                    data = json.dumps(message).encode()
+            except (TypeError, ValueError):  # not JSON (an object, a circular dict): left out
+                self.unwritable += 1
+                continue
             add(channels[topic], stamp, data, stamp)
             self.written += 1
             if isinstance(message, dict) and topic == Channel.POSE_SENT and self._foxglove:
@@ -200,6 +205,8 @@ class Recorder:
             x, y, heading = float(message["x"]), float(message["y"]), float(message["heading"])
         except (KeyError, TypeError, ValueError):
             return  # not a pose: nothing to show
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(heading)):
+            return
         when = Timestamp(stamp // 1_000_000_000, stamp % 1_000_000_000)
         where = Vector3(x=x, y=y, z=0.0)
         turn = Quaternion(x=0.0, y=0.0, z=math.sin(heading / 2), w=math.cos(heading / 2))
@@ -223,12 +230,16 @@ class Recorder:
                 return
             self._closed = True
             try:
-                self._write_pending()
-                self._writer.finish()  # type: ignore[no-untyped-call]
+                try:
+                    self._write_pending()
+                finally:  # whatever the last messages were, the file is finished
+                    self._writer.finish()  # type: ignore[no-untyped-call]
             finally:
                 self._file.close()
         if self.dropped:
             log.warning("recorder dropped %d messages (queue full)", self.dropped)
+        if self.unwritable:
+            log.warning("recorder left out %d messages that were not JSON", self.unwritable)
 
 
 class _WriterThread:

@@ -88,6 +88,8 @@ class RunRecording:
         self.status = self.dir / f"{stem}.jsonl"
         self.recorder = Recorder(self.mcap, agent, channels)
         self._status_file: IO[str] | None = self.status.open("a", encoding="utf-8")
+        self._status_lock = threading.Lock()
+        self.status_write_errors = 0
         experiment_text = ""
         if experiment is not None:
             try:
@@ -113,16 +115,29 @@ class RunRecording:
         self.recorder.record(topic, message)
 
     def status_line(self, line: str) -> None:
-        if self._status_file is not None:
-            self._status_file.write(line + "\n")
-            self._status_file.flush()
+        """Append a status line; a full disk is counted (``status_write_errors``), never
+        raised into the agent's loop (co-hosted agents had all stopped on ENOSPC)."""
+        with self._status_lock:  # finish() closes the file on another thread
+            status_file = self._status_file
+            if status_file is None:
+                return
+            try:
+                status_file.write(line + "\n")
+                status_file.flush()
+            except (OSError, ValueError) as error:
+                self.status_write_errors += 1
+                if self.status_write_errors == 1:
+                    log.error(
+                        "run %s: status not written to %s: %s", self.run_id, self.status, error
+                    )
 
     def finish(self, wait: bool = False) -> threading.Thread | None:
         """Close the files and write the manifest (on a thread; ``wait``: join it)."""
         if self._finished:
             return None
         self._finished = True
-        status_file, self._status_file = self._status_file, None
+        with self._status_lock:
+            status_file, self._status_file = self._status_file, None
 
         def work() -> None:
             try:

@@ -267,3 +267,18 @@ def test_the_writer_thread_carries_its_name_for_the_os(tmp_path: Path) -> None:
         assert wait_for(lambda: WRITER_THREAD in names(), 5.0, 0.05), names()
     finally:
         recorder.close()
+
+
+def test_one_message_that_cannot_be_written_loses_only_itself(tmp_path: Path) -> None:
+    """A pose sent with an infinite heading (and a message that is not JSON) had left a
+    31-byte file that could not be read, and no manifest: close skipped finish()."""
+    path = tmp_path / "kiruna-knatte.mcap"
+    rec = Recorder(path, "kiruna/knatte")
+    pose = {"x": 0.0, "y": 0.0, "heading": math.inf, "vx": 0.0, "vy": 0.0, "omega": 0.0}
+    rec.record("/pose/sent", {"t_exec": 1.0, "host_monotonic": 1.0} | pose)
+    rec.record("/sync/exchange", {"peer": object()})  # not JSON
+    rec.record("/sync/exchange", {"peer": "rome/pinocchio", "offset": 0.001})
+    rec.close()
+    messages = read_messages(path)  # a finished file: summary and index readable
+    assert len(messages["/pose/sent"]) == 1 and len(messages["/sync/exchange"]) == 1
+    assert rec.unwritable == 1

@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import json
+import math
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -362,3 +364,41 @@ class _Reply:
     def __init__(self, payload: bytes):
         self.ok = type("Ok", (), {"payload": _Payload(payload), "attachment": None})
         self.replier_id = None
+
+
+def test_a_start_for_a_run_recorded_here_already_is_refused(tmp_path: Path) -> None:
+    """A run id used again had truncated the finished recording its manifest listed."""
+    f = Follower()
+    f.agent.config = f.agent.config.model_copy(update={"runs_dir": tmp_path})
+    folder = tmp_path / "r1"
+    folder.mkdir()
+    old = folder / "kiruna-f.mcap"
+    old.write_bytes(b"the first run's recording")
+    f.synced()
+    f.command("start", run_id="r1", duration=10.0)
+    assert f.agent.run_state.run_id is None and f.agent.run_recording is None
+    outcome = f.agent.command_log[-1]
+    assert outcome.outcome == "ignored" and "recorded here already" in outcome.detail
+    assert old.read_bytes() == b"the first run's recording"
+    f.command("start", run_id="r2", duration=10.0)
+    assert f.agent.run_state.run_id == "r2" and f.agent.run_recording is not None
+    f.agent._end_run_recording(wait=True)
+
+
+def test_an_own_pose_that_is_not_finite_is_not_sent_and_holds() -> None:
+    """encode_pose raised in the loop: every agent of the process stopped."""
+    f = Follower()
+    f.agent.pose = wire.Pose(heading=math.nan)
+    f.agent.publish_pose()  # no publisher needed: nothing is sent
+    assert f.agent.counters["pose_not_finite"] == 1 and f.agent.platform.held
+
+
+def test_a_full_disk_never_stops_the_loop(tmp_path: Path) -> None:
+    from federation.runtime.runs import RunRecording
+
+    run = RunRecording(tmp_path, "r1", "kiruna/f", None, "{}", None)
+    run._status_file = open("/dev/full", "w", encoding="utf-8")  # noqa: SIM115
+    run.status_line("{}")  # ENOSPC on flush: counted, not raised
+    assert run.status_write_errors == 1
+    run.finish(wait=True)
+    run.status_line("{}")  # after finish, on another thread's close: nothing
