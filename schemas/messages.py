@@ -145,7 +145,7 @@ class Status(BaseModel):
         None,
         description="why every valve is held closed: stale (link lost), contested, aborted, "
         "done, reset, workspace, name_taken (another process runs under this name: held "
-        "for good)",
+        "for good), nonfinite (its own pose was not finite: held for good)",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"

@@ -28,11 +28,11 @@ The legacy agent's request (8 bytes, its ``t1``)
     request come back: ``--peer`` is the bridge itself) is dropped (``udp_self``).
 The legacy agent's reply (64 bytes) to the bridge's request
     is one exchange of the legacy link (Eq. 3, 4), and its pose sample, stamped with the
-    reply's ``t2`` (the legacy agent's clock), to publish once the exchange agrees with
-    the estimate (not during the warm-up, not a wild one) and is newer than the last
-    published. A clock step of the legacy agent (it restarted) withdraws its liveliness
-    token for one sync period (``legacy_restarted``): the federation sees it leave and
-    come back, and forgets what it had of its old clock.
+    reply's ``t2`` (the legacy agent's clock), to publish once the exchange has reached
+    the estimate (not held back by the warm-up, not a wild one) and is newer than the
+    last published. A clock step of the legacy agent (it restarted) is counted
+    (``legacy_restarted``); the agents' own sync with it sees the step too, forgets
+    the order of its poses and, where it is their reference, ends a ctl run.
 A federation agent's sync request
     is answered on the legacy agent's behalf: :math:`t_2 = t_{now} + \theta_L` and the
     legacy agent's pose; no reply while :math:`\theta_L` is unknown.
@@ -84,9 +84,6 @@ from schemas.messages import Command, CommandOutcome, PeerStatus, Status, is_abo
 
 __all__ = ["BridgeCore", "Maintenance", "Outcome"]
 
-_AGREE_MARGIN = 0.002
-"""s: how far a legacy reply's offset may lie from the estimate beyond both error bounds
-for its pose to be published (the sync client's step margin)."""
 _MAX_LEADERS = 256
 """Agents remembered as saying they lead (a flood of statuses cannot grow the bridge)."""
 
@@ -105,7 +102,6 @@ class Maintenance(NamedTuple):
     """What :meth:`BridgeCore.maintain` found; the caller acts on it."""
 
     legacy_alive: bool  # hold the legacy agent's liveliness token while true
-    # (false for one sync period after the legacy agent restarted: it leaves and comes back)
     rejoined: AgentId | None = None  # the reference came back: its old clock is forgotten
     follow: AgentId | None = None  # the new reference: query its sync key, take its pose
     leaders: tuple[AgentId, ...] = ()  # several leaders, said once: ``follow`` is the first
@@ -145,7 +141,6 @@ class BridgeCore:
         self.contest = ContestWatch()  # who speaks for the followed agent
         self._order: dict[AgentId, tuple[str | None, float]] = {}
         self.followed_at: float | None = None  # bridge clock when the followed pose came
-        self._legacy_restarted = False  # withdraw the token for one period
         self._legacy_steps = 0  # the legacy link's clock steps seen
 
     def hold_for_name(self, detail: str) -> bool:
@@ -250,7 +245,10 @@ class BridgeCore:
             return "no_pose", f"no pose of {target} yet"
         since = now - self.followed_at
         # On its clock (a follower's reference is synced): a pose old on arrival counts.
-        age = now + offset - pose.t if self.config.role == "follower" else since
+        # The paper's estimators (mean, median) stop at the end of their window while
+        # clocks drift apart, so with them the age since arrival alone is judged.
+        on_its_clock = self.config.role == "follower" and self.config.estimator == "clockfilter"
+        age = now + offset - pose.t if on_its_clock else since
         if max(age, since) > limit:
             return "stale", f"{target}'s pose is {max(age, since):.3f} s old"
         return None
@@ -270,18 +268,11 @@ class BridgeCore:
         link.last_seen = now
         if link.client.steps > self._legacy_steps:  # its clock jumped: it restarted
             self._legacy_steps = link.client.steps
-            self._legacy_restarted = True
             self.legacy_pose = None
             self.counters["legacy_restarted"] += 1
-        estimate = link.client.offset_at(now)  # fit now, so a query's t2 costs no regression
-        exchange = link.client.last
-        bound = link.client.estimator.bound or 0.0
-        if (
-            estimate is None
-            or exchange is None
-            or abs(exchange.offset - estimate) > exchange.error_bound + bound + _AGREE_MARGIN
-        ):
-            # Held back by the warm-up, or not the estimate's: its t2 is not trusted.
+        link.client.offset_at(now)  # fit now, so a query's t2 costs no regression
+        if not link.client.last_fed:
+            # Held back by the warm-up until three agree: its t2 is not trusted yet.
             self.counters["pose_unconfirmed"] += 1
             return Outcome(rejected="not yet confirmed by the estimate", kind="sync reply")
         if self.legacy_pose is not None and not reply.t2 > self.legacy_pose.t:
@@ -449,6 +440,9 @@ class BridgeCore:
         agent = parsed[0]
         if agent == self.reference_id:
             self.reference.alive = alive
+        if agent == self.followed_id and (agent in self._alive) != alive:
+            self.contest.forget(str(agent))  # a restarted agent has a new session
+            self._order.pop(agent, None)  # and may count time afresh
         if alive:
             if agent == self.reference_id and agent not in self._alive:
                 self._rejoined = agent in self._seen_gone
@@ -462,8 +456,6 @@ class BridgeCore:
         """Every sync period: is the legacy agent still answering, has the reference
         rejoined, and (a follower without ``follow``) which leader to follow."""
         legacy_alive = self.check_legacy(now) and self.name_clash is None
-        if self._legacy_restarted:  # away for one period: the federation forgets its clock
-            self._legacy_restarted, legacy_alive = False, False
         if self.config.role != "follower":
             return Maintenance(legacy_alive)
         rejoined, self._rejoined = self._rejoined, False

@@ -42,7 +42,8 @@ Status (JSON, ``schemas.messages.Status`` plus the bridge's fields)
     ``"bridge"``); ``peers`` holds the reference agent, its offset relative to that
     clock as for every agent; ``legacy`` holds the UDP link (offset: legacy agent's
     clock minus the bridge's, delay, samples, ...); ``mode`` is ``"unmanaged"``: a
-    legacy agent runs its own timeline and does not take execution control.
+    legacy agent runs its own timeline, and of execution control the bridge takes only
+    ``abort`` (no replies to it, ``mode`` and ``hold`` ``"aborted"``) and ``reset``.
 
 This module moves bytes and reads the clock; what they mean and what to answer is
 decided in :mod:`federation.bridge.core`, which takes ``now`` and bytes.

@@ -271,6 +271,9 @@ class SyncClient:
         self.last: Exchange | None = None
         self.last_rejection: str | None = None
         self.steps = 0  # clock steps detected
+        # Whether the last accepted exchange reached the estimate (False: held back by
+        # the warm-up until three agree).
+        self.last_fed = False
         self.last_step: float | None = None  # size of the last one (s)
         self.step_margin = step_margin
         self._suspects: list[Exchange] = []
@@ -359,6 +362,7 @@ class SyncClient:
             verdict = "feed" if self._consistent(exchange) else "reject"
         if verdict == "reject":
             return None
+        self.last_fed = verdict == "feed"
         self.accepted += 1
         self.last = exchange
         self._delays.add(exchange.delay)

@@ -561,6 +561,7 @@ class AgentRuntime:
             "reset",
             "name_taken",
             "workspace",
+            "nonfinite",
         ):
             return  # held by the run, the name or the area, not the link: it releases nothing
         if self._contest_hold(t_exec, host):
@@ -622,8 +623,10 @@ class AgentRuntime:
             # Not a pose (NaN or infinity): never sent, and the platform that made it
             # held (the GNC chain's own guard holds first; this covers any platform).
             self.count("pose_not_finite")
-            if not self.platform.held:
+            if self.hold_reason != "nonfinite":
                 self.platform.hold()
+                if self.hold_reason not in ("name_taken", "workspace"):
+                    self.hold_reason = "nonfinite"  # for good: nothing here releases it
                 log.error("own pose not finite (%s): not sent, platform held", self.pose)
             return
         self._pose_pub.put(
@@ -669,7 +672,7 @@ class AgentRuntime:
             if event.kind in ("aborted", "done", "reset"):
                 # Held for good (the name, the area left): no run's end relabels it, so
                 # no start releases it, and status and preflight keep saying why.
-                if self.hold_reason not in ("name_taken", "workspace"):
+                if self.hold_reason not in ("name_taken", "workspace", "nonfinite"):
                     self.hold_reason = event.kind
                 self.platform.hold()
             elif event.kind == "armed":
@@ -865,7 +868,9 @@ class AgentRuntime:
     def readiness(self, t_exec: float) -> Readiness:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         detail = ""
-        if self.hold_reason in ("stale", "aborted", "name_taken", "workspace", "contested"):
+        if self.hold_reason in (
+            "stale", "aborted", "name_taken", "workspace", "contested", "nonfinite"
+        ):  # fmt: skip
             detail = f"held ({self.hold_reason})"
         elif self.link_watch.holding:  # stale before the run ended: still stale
             detail = "held (stale)"
@@ -945,8 +950,8 @@ class AgentRuntime:
                 self.count("status_write_errors")
                 self.rejects("status line", f"{self.config.status_json}: {error}")
         run = self.run_recording
-        if run is not None:
-            run.status_line(line)
+        if run is not None and not run.status_line(line):
+            self.count("status_write_errors")
         if self.recording(Channel.STATUS):
             self.record(Channel.STATUS, line.encode())  # the line published: encoded once
 

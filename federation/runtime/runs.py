@@ -114,13 +114,13 @@ class RunRecording:
     def record(self, topic: str, message: Message) -> None:
         self.recorder.record(topic, message)
 
-    def status_line(self, line: str) -> None:
-        """Append a status line; a full disk is counted (``status_write_errors``), never
-        raised into the agent's loop (co-hosted agents had all stopped on ENOSPC)."""
+    def status_line(self, line: str) -> bool:
+        """Append a status line; False if it could not be written (a full disk: counted,
+        never raised into the agent's loop, where co-hosted agents had all stopped)."""
         with self._status_lock:  # finish() closes the file on another thread
             status_file = self._status_file
             if status_file is None:
-                return
+                return True
             try:
                 status_file.write(line + "\n")
                 status_file.flush()
@@ -130,6 +130,8 @@ class RunRecording:
                     log.error(
                         "run %s: status not written to %s: %s", self.run_id, self.status, error
                     )
+                return False
+        return True
 
     def finish(self, wait: bool = False) -> threading.Thread | None:
         """Close the files and write the manifest (on a thread; ``wait``: join it)."""

@@ -140,9 +140,12 @@ def test_a_member_joining_or_leaving_moves_the_track_gradually() -> None:
     assert max(steps[:600]) <= 0.7 * 0.5 / CONFIG.join_ramp * dt * 1.01  # ramp-in
     assert max(xs) == pytest.approx(0.7 * 0.5)  # fully taken in
     assert xs[-1] == pytest.approx(0.0)  # let go by the time it is stale
-    # A new run takes every member in afresh.
+    # A new run takes every member in afresh: b, fully taken in, counts from nothing again.
+    for t in (30.0, 32.5):
+        g.reference(t, 0.0, {"b/y": (t, off)})
+    assert g.reference(32.6, 0.0, {"b/y": (32.6, off)}).track.x == pytest.approx(0.35)  # type: ignore[union-attr]
     g.new_run()
-    ref = g.reference(20.0, 0.0, {"b/y": (20.0, off)})
+    ref = g.reference(32.7, 0.0, {"b/y": (32.7, off)})
     assert ref.track is not None and ref.track.x == pytest.approx(0.0)
     # The fade-out is as gradual: over the last half of stale_after, not at once.
     assert max(steps) <= 0.7 * 0.5 / (CONFIG.stale_after / 2) * dt * 1.01

@@ -341,9 +341,13 @@ def test_a_contested_reference_is_not_relayed_and_its_link_restarts() -> None:
     core2, now2 = _serving()
     ref_request = core2.reference_request(now2)
     assert ref_request is not None
-    reply = exchange(ref_request, -3.0, now2, 0.002)
-    assert not core2.on_reference_reply(reply, now2 + 0.002, replier="cccc")
-    assert not core2.on_reference_reply(reply, now2 + 0.002, replier="dddd")
+    assert core2.on_reference_reply(
+        exchange(ref_request, -3.0, now2, 0.002), now2 + 0.002, replier="cccc"
+    )
+    ref_request = core2.reference_request(now2 + 0.1)
+    assert ref_request is not None
+    reply = exchange(ref_request, -3.0, now2 + 0.1, 0.002)
+    assert not core2.on_reference_reply(reply, now2 + 0.102, replier="dddd")
     assert core2.counters["contested"] == 1
 
 
@@ -404,19 +408,46 @@ def test_a_wild_first_reply_is_not_published() -> None:
     assert published == sorted(published)
 
 
-def test_a_legacy_agent_that_restarts_leaves_and_comes_back() -> None:
-    # Its clock jumped back within legacy_timeout: the federation kept its old clock
-    # and dropped every new pose as out of order.
+def test_a_legacy_agent_that_restarts_is_counted_and_its_new_poses_published() -> None:
+    # Its clock jumped back within legacy_timeout: the step is the agents' to see too
+    # (their own sync with it; a reference's ends a ctl run), the bridge publishes on.
     core = BridgeCore(config())
     now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
-    assert core.maintain(now).legacy_alive
-    for _ in range(4):  # its clock restarts near 0
+    published, restart = [], now
+    for _ in range(6):  # its clock restarts near 0
         request = wire.decode_request(core.legacy_request(now))
-        core.on_datagram(wire.encode_reply(request, 1.0, wire.Pose()), now + 0.001)
+        t2 = 1.0 + (now - restart) + 0.0005
+        outcome = core.on_datagram(wire.encode_reply(request, t2, wire.Pose()), now + 0.001)
+        if outcome.pose is not None:
+            published.append(wire.decode_pose(outcome.pose).t)
         now += 0.1
     assert core.counters["legacy_restarted"] == 1
-    assert not core.maintain(now).legacy_alive  # away for one period: it left
-    assert core.maintain(now + 0.1).legacy_alive  # and is back, with its new clock
+    assert published and all(t < 2.0 for t in published)  # on its new clock
+    assert core.maintain(now).legacy_alive  # its token stays: one session, as before
+
+
+def test_with_the_papers_estimator_the_legacy_pose_is_published_as_clocks_drift() -> None:
+    # The gate compared each reply with the frozen mean: at 30 ppm it stopped publishing
+    # after about a minute, and the agents following the legacy leader held.
+    core = BridgeCore(config(estimator="mean"))
+    now, drift, silent = 100.0, 30e-6, 0
+    for _ in range(3000):  # 300 s
+        request = wire.decode_request(core.legacy_request(now))
+        legacy_clock = now + CLOCK_OFFSET + drift * (now - 100.0)
+        data = wire.encode_reply(request, legacy_clock + 0.0005, wire.Pose(*LEGACY_POSE))
+        silent = 0 if core.on_datagram(data, now + 0.001).pose is not None else silent + 1
+        now += 0.1
+    assert silent == 0
+
+
+def test_a_followed_agent_that_restarts_is_not_a_contest_for_a_leader_bridge() -> None:
+    core = BridgeCore(config(role="leader"))
+    core.on_liveliness(liveliness(LEADER), alive=True)
+    core.on_followed_pose(wire.encode_pose(1.0, wire.Pose()), 10.0, source="aaaa")
+    core.on_liveliness(liveliness(LEADER), alive=False)
+    core.on_liveliness(liveliness(LEADER), alive=True)
+    core.on_followed_pose(wire.encode_pose(0.5, wire.Pose()), 10.5, source="bbbb")
+    assert core.counters["contested"] == 0 and core.followed_pose is not None
 
 
 def test_a_status_naming_another_agent_is_not_taken() -> None:

@@ -391,6 +391,9 @@ def test_an_own_pose_that_is_not_finite_is_not_sent_and_holds() -> None:
     f.agent.pose = wire.Pose(heading=math.nan)
     f.agent.publish_pose()  # no publisher needed: nothing is sent
     assert f.agent.counters["pose_not_finite"] == 1 and f.agent.platform.held
+    assert f.agent.hold_reason == "nonfinite"  # said, and nothing releases it
+    ready = f.agent.readiness(f.clock.now())
+    assert not ready.platform and ready.platform_detail == "held (nonfinite)"
 
 
 def test_a_full_disk_never_stops_the_loop(tmp_path: Path) -> None:
