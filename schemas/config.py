@@ -214,6 +214,12 @@ class AgentConfig(_Model):
             raise ValueError("a follower needs 'follow' (LAB/NAME of the agent to track)")
         if self.follow == me:
             raise ValueError(f"agent {me} cannot follow itself")
+        if self.platform.startswith("serial:") and not self.wait_start:
+            raise ValueError(
+                f"platform {self.platform}: a real platform flies only runs an operator "
+                "starts (fedlab ctl start): set wait_start = true (--wait-start, or run it "
+                "with --experiment)"
+            )
         if self.platform_preset is not None and not self.platform.startswith("serial:"):
             raise ValueError(
                 "platform_preset applies to a serial:PORT platform only; a simulated "

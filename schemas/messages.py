@@ -143,9 +143,10 @@ class Status(BaseModel):
     follow: str | None = Field(None, description="LAB/NAME of the agent followed")
     hold: str | None = Field(
         None,
-        description="why every valve is held closed: stale (link lost), contested, aborted, "
-        "done, reset, workspace, name_taken (another process runs under this name: held "
-        "for good), nonfinite (its own pose was not finite: held for good)",
+        description="why every valve is held closed: waiting (no run under way yet), stale "
+        "(link lost), contested, aborted, done, reset, workspace, name_taken (another "
+        "process runs under this name: held for good), nonfinite (its own pose was not "
+        "finite: held for good), ended (its duration passed)",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"

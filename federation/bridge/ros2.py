@@ -463,8 +463,11 @@ class Ros2Agent(AgentRuntime):
                 "no odometry on %s for %.1f s: hold", self.odom_topic, self.platform.timeout
             )
         elif not stale and self.hold_reason == "stale":
-            self.hold_reason = None
-            log.info("odometry on %s flows again: released", self.odom_topic)
+            released = self._let_go()  # held still if its run has not begun
+            log.info(
+                "odometry on %s flows again: %s",
+                self.odom_topic, "released" if released else f"held ({self.hold_reason})",
+            )  # fmt: skip
         if self.state is not None:
             # Whatever holds it, said or not yet: a step's own reason, the platform held
             # (an abort on Zenoh's thread), odometry gone stale since the check above.

@@ -303,6 +303,9 @@ def run(args: argparse.Namespace) -> int:
             runtime.close()
             print(f"fedlab agent: error: {error}", file=sys.stderr)
             return 2
+        except BaseException:  # a port, a file, a signal: closed (valves held) first
+            runtime.close()
+            raise
         freeze_startup_heap()
         try:
             runtime.run(stop)

@@ -54,7 +54,9 @@ else:  # not subscriptable at run time
     Subparsers = argparse._SubParsersAction
 """What ``add_subparsers()`` returns: each command module's ``add(sub)`` adds to it."""
 
-_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# SIGHUP too: an agent started from a terminal or an SSH session that drops had died
+# without closing its platform's valves (the device's failsafe was all that closed them).
+_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -111,7 +113,7 @@ def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
 
 
 def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM: both stop cleanly with exit code 0."""
+    """An event set by SIGINT, SIGTERM, SIGHUP or SIGQUIT: each stops cleanly, exit code 0."""
     stop = threading.Event()
 
     def handler(signum: int, frame: FrameType | None) -> None:
@@ -269,9 +271,11 @@ def check_agent_identity(args: argparse.Namespace, agent: object) -> None:
     any session. The lab router lets an identity write only under its own keys: under
     another name, what the agent sends would be dropped, silently."""
     from federation.deploy.identity import check_identity
+    from federation.runtime.router import refuse_reachable_agent
 
     conf, source = client_conf(args)
     check_identity(conf, str(agent), source)
+    refuse_reachable_agent(conf, source)
 
 
 def add_cpus_flag(parser: argparse.ArgumentParser, help: str) -> None:

@@ -128,9 +128,11 @@ def _check_identity(args: argparse.Namespace, hosted: list[tuple[str, AgentConfi
     every hosted agent: the lab router drops what it sends for any other (an
     IdentityError: exit 2)."""
     from federation.deploy.identity import check_hosted_identity
+    from federation.runtime.router import refuse_reachable_agent
 
     conf, source = client_conf(args)
     check_hosted_identity(conf, [config.agent for _, config in hosted], source)
+    refuse_reachable_agent(conf, source)
 
 
 def run(args: argparse.Namespace) -> int:

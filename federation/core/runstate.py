@@ -43,14 +43,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-__all__ = ["HOLD_MODES", "Event", "Mode", "RunCommand", "RunState"]
+__all__ = ["HOLD_MODES", "MOVING_MODES", "Event", "Mode", "RunCommand", "RunState"]
 
 Mode = Literal["waiting", "armed", "running", "frozen", "done", "aborted"]
 
-HOLD_MODES: frozenset[str] = frozenset({"done", "aborted"})
+HOLD_MODES: frozenset[str] = frozenset({"waiting", "armed", "done", "aborted"})
+"""Modes in which every valve stays closed: a platform moves only in a run under way
+(running, or frozen: holding its point). Before its start it waits, held: a real
+platform had fired its valves from the moment its agent started, steering to heading
+0 or after its leader, before any operator's start."""
+MOVING_MODES: frozenset[str] = frozenset({"running", "frozen"})
+"""Modes in which a platform that nothing else holds is released."""
 LATE_START = 1.0
 """s: a start received later than this after its instant is refused (``ignored``)."""
-"""Modes in which every valve stays closed."""
 
 
 class RunCommand(Protocol):

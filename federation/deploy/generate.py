@@ -284,7 +284,9 @@ def agent_settings(fed: FederationFile, lab: str, name: str) -> dict[str, Any]:
     """Agent ``lab/name``'s settings file (AgentConfig fields)."""
     agent = fed.labs[lab].agents[name]
     data: dict[str, Any] = {"federation": fed.federation, "lab": lab, "name": name}
-    data |= {"role": agent.role, "platform": agent.platform}
+    # A deployed agent takes part in the federation's runs: it waits for ctl start
+    # (held) instead of flying from the moment its service starts.
+    data |= {"role": agent.role, "platform": agent.platform, "wait_start": True}
     if agent.follow is not None:
         data["follow"] = agent.follow
     return data | agent.settings

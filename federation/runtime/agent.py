@@ -50,7 +50,7 @@ from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch, SilenceWatch
 from federation.core.ring import FloatRing
-from federation.core.runstate import HOLD_MODES, Event, RunState
+from federation.core.runstate import HOLD_MODES, MOVING_MODES, Event, RunState
 from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient, read_send_time, serve
 from federation.core.timebase import TimeBase
@@ -312,7 +312,11 @@ class AgentRuntime:
 
     # -- lifecycle -------------------------------------------------------------------
     def start(self) -> None:
-        """Declare everything; refuse (NameTaken) if the name is already in the federation."""
+        """Declare everything; refuse (NameTaken) if the name is already in the federation.
+        The platform starts held until its run starts (``waiting``)."""
+        if self.run_state.mode in HOLD_MODES and self.hold_reason is None:
+            self.platform.hold()
+            self.hold_reason = "waiting"
         s = self.session
         callback = zenoh.handlers.Callback
         fed = self.config.federation
@@ -518,10 +522,11 @@ class AgentRuntime:
         mode = self.run_state.mode
         if mode in HOLD_MODES and not self.platform.held:
             # An abort handled on Zenoh's thread while this step released a link hold it
-            # had judged before: the run's end wins, whatever else let go.
+            # had judged before: the run's end (or its not having begun) wins, whatever
+            # else let go.
             self.platform.hold()
             if self.hold_reason is None:
-                self.hold_reason = mode
+                self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
             self.count("holds_restored")
             log.warning("run %s: the platform was released; held again", mode)
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
@@ -583,9 +588,11 @@ class AgentRuntime:
             )
             self._event("stale_hold", t_exec, host, f"last pose {t_exec - received:.3f} s ago")
         elif action == "link_resumed":
-            self.hold_reason = None
-            self.platform.release()
-            log.info("pose from %s flows again and sync resumed: released", self.follow)
+            released = self._let_go()
+            log.info(
+                "pose from %s flows again and sync resumed: %s",
+                self.follow, "released" if released else f"held ({self.hold_reason})",
+            )  # fmt: skip
             self._event("link_resumed", t_exec, host, "")
 
     def _rehearse_clock_step(self) -> None:
@@ -683,15 +690,13 @@ class AgentRuntime:
                     self._scenario_run = run
                     self._scenario_new_run = True
                 if self.hold_reason in ("done", "reset"):
-                    if self.link_watch.holding:
-                        # Held for a stale pose before the run ended: a new run does not
-                        # make the pose fresh. The link watch releases it once the pose
-                        # flows again and a sync exchange has completed since.
-                        self.hold_reason = "stale"
-                    else:
-                        self.hold_reason = None
-                        self.platform.release()
+                    # Held for a stale pose before the run ended: a new run does not make
+                    # the pose fresh (the link watch lets go once the pose flows again and
+                    # a sync exchange has completed since); else held until it starts.
+                    self.hold_reason = "stale" if self.link_watch.holding else "waiting"
                 self._begin_run_recording()
+            elif event.kind == "started" and self.hold_reason == "waiting":
+                self._let_go()  # the run under way: released, unless held for a cause
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(
                 level, "run %s %s at reference time %s %s",
@@ -935,6 +940,17 @@ class AgentRuntime:
             elif view.silent is None and name in self._silent_warned:
                 self._silent_warned.discard(name)
                 log.info("%s answers again", name)
+
+    def end(self) -> None:
+        """Its duration has passed: every valve closed first (co-hosted agents may fly on
+        for longer), then the last status (a put or a file write that waits no longer
+        delays the hold)."""
+        try:
+            self.platform.hold()
+            if self.hold_reason is None:
+                self.hold_reason = "ended"
+        finally:
+            self.publish_status()
 
     def publish_status(self) -> None:
         status = self.status()
@@ -1554,10 +1570,25 @@ class AgentRuntime:
         cleared = self._contest_cleared
         if received is None or received <= cleared or last is None or last.t3 <= cleared:
             return True
-        self.hold_reason = None
-        self.platform.release()
-        log.warning("contest of %s cleared, pose and sync since: released", self.follow)
+        released = self._let_go()
+        log.warning(
+            "contest of %s cleared, pose and sync since: %s",
+            self.follow, "released" if released else f"held ({self.hold_reason})",
+        )  # fmt: skip
         self._event("contest_cleared", t_exec, host, "")
+        return False
+
+    def _let_go(self) -> bool:
+        """A hold's cause is gone: release the platform if its run is under way (running
+        or frozen); else it stays held, for the run's not having begun (``waiting``) or
+        its end (``done``, ``aborted``). True if released."""
+        mode = self.run_state.mode
+        if mode in MOVING_MODES:
+            self.hold_reason = None
+            self.platform.release()
+            return True
+        self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
+        self.platform.hold()
         return False
 
     def contested(self) -> dict[str, str]:

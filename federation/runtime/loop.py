@@ -64,6 +64,10 @@ class Looped(Protocol):
 
     def publish_status(self) -> None: ...
 
+    def end(self) -> None:
+        """Its duration has passed: hold the platform (every valve closed), then publish
+        a last status."""
+
 
 class Schedule:
     """One agent's periodic tasks: :meth:`tick` runs the ones due."""
@@ -96,7 +100,7 @@ class Schedule:
         agent = self.agent
         due = self.timetable.due(now, agent.start_due())
         if due.finished:
-            agent.publish_status()
+            agent.end()  # valves closed before anything that could wait (a status put)
             return None
         if due.lateness is not None:
             agent.lateness.append(due.lateness)
@@ -155,5 +159,5 @@ def run_together(
             heapq.heappop(wakes)
         else:
             heapq.heapreplace(wakes, (following, i, schedule))
-    for _, _, schedule in wakes:  # stopped early: the rest report once more
-        schedule.agent.publish_status()
+    for _, _, schedule in wakes:  # stopped early: the rest report once more (the caller
+        schedule.agent.publish_status()  # closes them next, which holds first)

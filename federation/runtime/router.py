@@ -22,7 +22,7 @@ from federation.runtime.session import ZenohConfigError, build_config, config_va
 from schemas.config import ConfigError, RouterConfig, ZenohOptions, validate
 from schemas.federation import endpoint_host
 
-__all__ = ["load_router_config", "run_router"]
+__all__ = ["load_router_config", "refuse_reachable_agent", "run_router"]
 
 log = logging.getLogger("fedlab.router")
 
@@ -87,6 +87,30 @@ def _refuse_open_listeners(conf: zenoh.Config, listen: list[str], source: str) -
                 "configs of fedlab deploy generate (TLS, access control), listen on a "
                 "loopback address, or pass --open on a network you trust (a testbed)"
             )
+
+
+def refuse_reachable_agent(conf: zenoh.Config, source: str) -> None:
+    """Refuse (ConfigError) an agent's session that others could reach without its lab
+    router: a peer or router session listening beyond this host (a peer with no listen
+    endpoint listens on every interface). Whoever reached it could publish control or
+    the followed agent's pose straight into the agent; the router's access control is
+    what keeps them out, so an agent joins as its client."""
+    mode = config_value(conf, "mode")
+    if mode in (None, "client"):
+        return
+    listen = config_value(conf, "listen/endpoints")
+    if isinstance(listen, dict):
+        listen = listen.get(mode, [])
+    endpoints = list(listen or [])
+    reachable = [e for e in endpoints if not _local_only(e)]
+    if not endpoints:
+        reachable = ["every interface (its default)"]
+    if reachable:
+        raise ConfigError(
+            f"{source}: field 'mode': an agent in {mode} mode listens on "
+            f"{', '.join(reachable)}, reachable without its lab router's access control: "
+            "run it as a client of the router (mode client), or listen on loopback only"
+        )
 
 
 def _local_only(endpoint: str) -> bool:

@@ -125,7 +125,9 @@ def build_config(
     for key, value in settings.items():
         _insert(conf, key, json.dumps(value), "fedlab defaults")
     _check_queues(conf, "fedlab's settings")  # its defaults and the caller's (``extra``)
-    if options.mode or options.config is None:
+    if options.mode or options.config is None or config_value(conf, "mode") is None:
+        # A file that leaves the mode unset gets the command's (Zenoh's own default is
+        # peer: an agent then listened on every interface, a router ran as a peer).
         _insert(conf, "mode", json.dumps(mode), "--mode")
     if options.connect:
         _insert(conf, "connect/endpoints", json.dumps(options.connect), "--connect")

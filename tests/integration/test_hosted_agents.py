@@ -136,7 +136,8 @@ def test_a_fault_in_one_hosted_agent_holds_and_closes_every_one(
 
     monkeypatch.setattr(AgentRuntime, "control_step", failing_step)
     monkeypatch.setattr(AgentRuntime, "close", recorded_close)
-    argv = ["host", *files, "-m", "peer", "--cfg", "scouting/multicast/enabled:false"]
+    argv = ["host", *files, "-m", "peer", "-l", "tcp/127.0.0.1:0",
+            "--cfg", "scouting/multicast/enabled:false"]  # fmt: skip
     code = cli.main([*argv, "--duration", "20"])  # bounded: the fault comes after 1 s
     assert code == 1
     assert "avionics stopped answering (injected); every agent's valves closed" in (

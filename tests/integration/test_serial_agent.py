@@ -3,13 +3,16 @@
 The serial platform flies the simulated platform's GNC chain (agents/gnc.py), and the
 emulated device is the simulated platform's plant (agents/simulated.py) behind the
 serial protocol: with one preset on both sides, a real-platform follower tracks a
-leader as well as a simulated follower of the same preset does.
+leader as well as a simulated follower of the same preset does. A real platform waits
+for an operator's start (``wait_start``), held: its device sees no valve open before.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +40,17 @@ def _device_valves(events: Path) -> list[dict[str, Any]]:
     return [r for r in records if r["event"] == "valves"]
 
 
+def _ctl_start(endpoint: str, duration: float) -> None:
+    """``fedlab ctl start`` of a run led by kiruna/knatte, 2 s ahead (no recording here:
+    preflight's recording check overridden)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "federation", "ctl", "start", "--reference", "kiruna/knatte",
+         "--in", "2", "--duration", str(duration), "--force", "-e", endpoint],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
 def test_agent_flies_the_maneuver_through_a_serial_device(
     labs: Labs, fleet: Fleet, tmp_path: Path
 ) -> None:
@@ -47,10 +61,13 @@ def test_agent_flies_the_maneuver_through_a_serial_device(
     config = tmp_path / "agent.toml"
     config.write_text(
         'lab = "kiruna"\nname = "knatte"\nrole = "leader"\n'
-        f'platform = "serial:{tty}"\n'
+        f'platform = "serial:{tty}"\nwait_start = true\n'
         "[maneuver]\nstill = 1.0\nduration = 8.0\namplitude_deg = 20.0\n"
     )
     agent = labs.leader(router, "--agent-config", str(config))
+    agent.until(lambda line: line["hold"] == "waiting", 20, "waiting for its start, held")
+    assert not any(r["mask"] for r in _device_valves(events)), "a valve opened before the start"
+    _ctl_start(router.endpoint, 30.0)
     agent.until(lambda line: math.degrees(line["pose"][2]) > 10.0, 20, "a 10 degree turn")
     line = agent.latest()
     assert line["platform"] == f"serial:{tty}"
@@ -97,14 +114,17 @@ def test_a_serial_follower_tracks_as_well_as_a_simulated_one(
         "serial": ["--platform", f"serial:{tty}", "--platform-preset", "pinocchio"],
     }
     followers = {
-        name: labs.follower(router, *platform, who=f"rome/{name}", record=True)
+        name: labs.follower(router, *platform, "--wait-start", who=f"rome/{name}", record=True)
         for name, platform in platforms.items()
     }
-    for follower in followers.values():
-        follower.wait_status(timeout=20)
-    # The leader last: its maneuver starts STILL seconds after it does, followers tracking.
     leader = labs.leader(router, "--agent-config", str(_maneuver_file(tmp_path)))
+    for follower in followers.values():
+        follower.until(
+            lambda line: bool((line.get("ready") or {}).get("reference_locked")),
+            40, "locked on the leader's clock",
+        )  # fmt: skip
     end = STILL + DURATION + 2.0
+    _ctl_start(router.endpoint, end + 5.0)  # the maneuver starts STILL s into the run
     leader.until(
         lambda line: (line.get("run_time") or 0.0) > end + 0.5, end + 40, "the maneuver's end"
     )
@@ -135,7 +155,7 @@ def _maneuver_file(tmp_path: Path) -> Path:
     """The leader's settings: kiruna/knatte flying the shortened maneuver."""
     path = tmp_path / "leader.toml"
     path.write_text(
-        'lab = "kiruna"\nname = "knatte"\nrole = "leader"\n'
+        'lab = "kiruna"\nname = "knatte"\nrole = "leader"\nwait_start = true\n'
         f"[maneuver]\nstill = {STILL}\nduration = {DURATION}\namplitude_deg = {AMPLITUDE}\n"
     )
     return path

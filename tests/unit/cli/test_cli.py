@@ -241,7 +241,8 @@ def test_router_from_shipped_file_runs_and_stops_on_sigterm() -> None:
     assert "router kiruna up" in out and listen in out
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+# SIGHUP: a terminal or SSH session that drops (the agent had died without closing).
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
     nowhere = f"tcp/127.0.0.1:{free_port()}"
     args = ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", nowhere]

@@ -4,6 +4,7 @@ every refusal comes before it."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -18,7 +19,7 @@ ENDPOINT = "tcp/127.0.0.1:9"  # never dialled: each case fails before the sessio
 def agent_file(folder: Path, stem: str, **fields: object) -> Path:
     lines = [f'lab = "rome"\nname = "{stem}"\n']
     for key, value in {"role": "member", **fields}.items():
-        lines.append(f'{key} = "{value}"\n' if isinstance(value, str) else f"{key} = {value}\n")
+        lines.append(f"{key} = {json.dumps(value)}\n")
     path = folder / f"{stem}.toml"
     path.write_text("".join(lines))
     return path
@@ -39,7 +40,7 @@ def test_a_real_platform_is_refused_naming_file_and_field(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     virtual = agent_file(tmp_path, "a1")
-    real = agent_file(tmp_path, "a2", platform="serial:/dev/ttyUSB0")
+    real = agent_file(tmp_path, "a2", platform="serial:/dev/ttyUSB0", wait_start=True)
     assert cli.main(["host", str(virtual), str(real), "-e", ENDPOINT]) == 2
     err = capsys.readouterr().err
     assert f"{real}: platform: serial:/dev/ttyUSB0 is a real platform" in err
@@ -213,3 +214,34 @@ def test_every_participant_keeps_the_leaders_clock_a_follower_of_a_follower_too(
         assert config.reference == "rome/l", (lab, name)
     b = build_agent_config(None, experiment, {"lab": "paris", "name": "b"})
     assert b.follow == "kiruna/a"
+
+
+@pytest.mark.parametrize(
+    ("flags", "said"),
+    [
+        (["-m", "peer"], "tcp/[::]:0"),  # a peer's default: every interface
+        (["-m", "router", "-l", "tcp/0.0.0.0:7447"], "tcp/0.0.0.0:7447"),
+    ],
+)
+def test_an_agent_others_could_reach_without_its_router_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], flags: list[str], said: str
+) -> None:
+    """A peer or router session listening beyond this host: anyone reaching the port
+    could publish control or the followed pose into the agent, past the router's ACL."""
+    agent = agent_file(tmp_path, "a1")
+    assert cli.main(["host", str(agent), "-e", ENDPOINT, *flags]) == 2
+    assert said in capsys.readouterr().err
+    agent_flags = ["agent", "--role", "leader", "--lab", "rome", "--name", "a", "-e", ENDPOINT]
+    assert cli.main([*agent_flags, *flags]) == 2
+    assert said in capsys.readouterr().err
+
+
+def test_a_config_file_without_a_mode_is_a_client(tmp_path: Path) -> None:
+    """Zenoh's own default is peer: such a file had made the agent listen everywhere."""
+    from federation.runtime.session import build_config, config_value
+    from schemas.config import ZenohOptions
+
+    path = tmp_path / "agent.json5"
+    path.write_text('{connect: {endpoints: ["tcp/127.0.0.1:7447"]}}\n')
+    conf = build_config(ZenohOptions(config=path), default_mode="client")
+    assert config_value(conf, "mode") == "client"

@@ -138,11 +138,11 @@ def test_each_follower_holds_by_the_threshold_the_feed_measured(
             follower.pose_received_at[LEAD] = t_exec - 0.3  # the last pose 0.3 s ago
         feed.watch.threshold = 0.5  # as measured on a jittery link
         f1._watch_link(t_exec, host)
-        assert f1.hold_reason is None  # 0.3 s is within it (its own floor is 0.15 s)
+        assert f1.hold_reason == "waiting"  # not stale: 0.3 s is within it (floor 0.15 s)
         feed.watch.threshold = 0.25
         f1._watch_link(t_exec, host)
         assert f1.hold_reason == "stale" and f1.platform.held  # type: ignore[attr-defined]
-        assert f2.hold_reason is None  # each hold its own: f2 has not looked yet
+        assert f2.hold_reason == "waiting"  # each hold its own: f2 has not looked yet
         f2._watch_link(t_exec, host)
         assert f2.hold_reason == "stale"
 

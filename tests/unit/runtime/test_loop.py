@@ -55,6 +55,9 @@ class Stub:
     def publish_status(self) -> None:
         self.calls.append("status")
 
+    def end(self) -> None:
+        self.calls += ["hold", "status"]
+
 
 def stub(**settings: Any) -> Stub:
     return Stub(AgentConfig(lab="lab0", name="a0", role="leader", **settings))
@@ -87,11 +90,11 @@ def test_an_armed_start_wakes_the_loop_and_runs_a_control_step() -> None:
     assert agent.calls == ["control"] and len(agent.lateness) == 1
 
 
-def test_the_duration_ends_with_a_last_status() -> None:
+def test_the_duration_ends_with_the_platform_held_then_a_last_status() -> None:
     agent = stub(duration=1.0)
     schedule = Schedule(agent, t0=0.0)
     assert schedule.tick(1.0) is None
-    assert agent.calls == ["status"]
+    assert agent.calls == ["hold", "status"]
 
 
 def test_run_together_runs_every_agent_for_its_duration() -> None:

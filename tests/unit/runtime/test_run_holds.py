@@ -253,7 +253,7 @@ def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
     f.step()
     assert f.agent.run_state.mode == "aborted"
     assert f.agent.platform.held
-    assert f.agent.hold_reason == "aborted" and f.agent.counters["holds_restored"] == 1
+    assert f.agent.hold_reason == "aborted"  # the release saw the abort: held, said why
 
 
 def test_a_follower_held_for_a_contested_leader_is_not_ready() -> None:
@@ -405,3 +405,47 @@ def test_a_full_disk_never_stops_the_loop(tmp_path: Path) -> None:
     assert run.status_write_errors == 1
     run.finish(wait=True)
     run.status_line("{}")  # after finish, on another thread's close: nothing
+
+
+def test_at_its_end_the_platform_is_held_before_the_last_status() -> None:
+    """A status put or file write that waited had delayed the hold at a stop."""
+    f = Follower()
+    order: list[str] = []
+    hold = f.agent.platform.hold
+    f.agent.platform.hold = lambda: (order.append("hold"), hold())[1]  # type: ignore[method-assign]
+    f.agent._status_pub = type("Sink", (), {"put": lambda *a, **k: order.append("status")})()
+    f.agent.end()
+    assert order == ["hold", "status"] and f.agent.platform.held
+    assert f.agent.hold_reason == "ended"
+
+
+def test_a_platform_waits_for_its_run_held() -> None:
+    """A simulated KNATTE leader waiting for ctl start: its valves had fired from the
+    agent's start, steering to heading 0 (422 valve-steps open in 10 s)."""
+    now = [1000.0]
+    clock = ExecClock(source=lambda: now[0])
+    config = AgentConfig(
+        lab="kiruna", name="knatte", role="leader", platform="knatte", wait_start=True
+    )
+    agent = AgentRuntime(config, session=None, clock=clock)  # type: ignore[arg-type]
+    agent._status_pub = _Sink([])
+    opened = 0
+    for _ in range(1000):  # 10 s waiting, its first fix included
+        now[0] += 0.01
+        agent.control_step()
+        opened += sum(agent.platform.valves)  # type: ignore[attr-defined]
+    assert agent.platform.held and agent.hold_reason == "waiting" and opened == 0
+    ready = agent.readiness(clock.now())
+    assert ready.platform  # waiting is not a fault: preflight passes
+    command = {"command": "start", "seq": 1, "issuer": "op", "at": clock.now() + 0.5,
+               "run_id": "r1", "duration": 30.0}  # fmt: skip
+    agent._on_control(_Sample(command))  # type: ignore[arg-type]
+    for _ in range(40):  # armed: still held
+        now[0] += 0.01
+        agent.control_step()
+    assert agent.run_state.mode == "armed" and agent.platform.held
+    for _ in range(20):  # its start: released, flying its maneuver
+        now[0] += 0.01
+        agent.control_step()
+    assert agent.run_state.mode == "running" and not agent.platform.held
+    assert agent.hold_reason is None

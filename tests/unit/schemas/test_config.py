@@ -385,3 +385,14 @@ def test_a_router_open_beyond_its_host_without_access_control_is_refused(
         load_router_config(guarded, "kiruna")
     else:
         load_router_config(options, "kiruna")
+
+
+def test_a_real_platform_waits_for_an_operators_start() -> None:
+    """A deployed serial leader had started its maneuver when its service started, and
+    again 2 s after every crash (Restart=on-failure)."""
+    from schemas.config import AgentConfig, ConfigError, validate
+
+    settings = {"lab": "kiruna", "name": "knatte", "role": "leader"}
+    with pytest.raises(ConfigError, match="wait_start"):
+        validate(AgentConfig, settings | {"platform": "serial:/dev/ttyUSB0"}, "knatte.toml")
+    validate(AgentConfig, settings | {"platform": "serial:/dev/x", "wait_start": True}, "k")
