@@ -448,7 +448,7 @@ def test_a_joined_ros2_platform_is_told_to_hold_unless_its_run_runs(
         "--runs-dir", str(runs), "-e", pair.rome.endpoint, who=ROVER,
     )  # fmt: skip
     try:
-        ready = lambda s: (s.get("ready") or {}).get("reference_locked") and s["hold"] is None  # noqa: E731
+        ready = lambda s: (s.get("ready") or {}).get("reference_locked") and s["hold"] == "waiting"  # noqa: E731
         rover.until(ready, timeout=30, what="the rover locked on the leader's clock")
         leader.wait_status(timeout=15)
         state = StateReader(dds, ROVER)

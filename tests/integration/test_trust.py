@@ -37,6 +37,9 @@ from schemas.federation import load_federation
 
 pytestmark = pytest.mark.integration
 
+# Held for no fault: deployed agents wait for ctl start with every valve closed.
+NO_FAULT = (None, "waiting")
+
 KNATTE_POSE = "fedlab/default/kiruna/knatte/pose"
 KNATTE_SYNC = "fedlab/default/kiruna/knatte/sync"
 KNATTE_TOKEN = "fedlab/default/kiruna/knatte"
@@ -248,7 +251,7 @@ def test_an_insider_cannot_speak_for_another_agent(
     assert base and attacked and base_ref and attacked_ref
     assert abs(shift) < 0.001 and worst < 0.001
     assert ref_change < 0.01
-    assert last["hold"] is None and last["contested"] == {}
+    assert last["hold"] in NO_FAULT and last["contested"] == {}
     assert last["counters"].get("contested", 0) == 0  # dropped by the router: never seen here
     assert leader.stop() == 0
 
@@ -289,7 +292,7 @@ def test_a_killed_leaders_name_is_taken_back_at_once(
             lambda line: line["host_monotonic"] > killed, timeout=10, what="restarted"
         )
         back = line["host_monotonic"] - killed
-        follower.until(lambda line: line.get("hold") is None, 20, "released")
+        follower.until(lambda line: line.get("hold") in NO_FAULT, 20, "released")
         released = time.monotonic() - killed
     finally:
         stop.set()
@@ -331,7 +334,7 @@ def test_a_contested_leader_holds_the_follower(
     assert why is not None and "pose samples from 2 sources" in why, held["contested"]
     assert counters.get("contested", 0) >= 1 and counters.get("contested_dropped", 0) > 0
     # Quiet again: released once a pose and a sync exchange arrived after the contest cleared.
-    follower.until(lambda line: line.get("hold") is None, 20, "released")
+    follower.until(lambda line: line.get("hold") in NO_FAULT, 20, "released")
     released = time.monotonic() - started
 
     # A second replier on the leader's sync key: contested again, by its replies.
@@ -400,7 +403,7 @@ def test_three_labs_generated_from_one_file_sync_and_follow(
     for follower in followers:
         line = follower.until(lambda line: line["counters"].get("pose_received", 0) > 20, 10)
         error = line["peers"][LEADER]["offset"] - true_offset(leader.latest(), line)
-        assert abs(error) < 0.002 and line["hold"] is None
+        assert abs(error) < 0.002 and line["hold"] in NO_FAULT
         facts.append(f"{follower.who}: offset error {error * 1e6:+.0f} us")
     # Rome and Lund see each other through Kiruna: the star carries every lab's traffic.
     assert wait_for(lambda: followers[0].peer("lund/ghost") is not None, 15)
@@ -479,7 +482,7 @@ def test_a_junk_flood_is_dropped_and_counted_in_flat_memory(
     )
     assert sent >= 400
     assert poses >= 0.5 * sent and queries >= 0.5 * sent
-    assert line["hold"] is None and math.isfinite(line["peers"][LEADER]["offset"])
+    assert line["hold"] in NO_FAULT and math.isfinite(line["peers"][LEADER]["offset"])
     assert follower.latest()["peers"][LEADER]["samples"] > line["peers"][LEADER]["samples"]
     for name, mb in growth.items():
         assert mb < 10, f"{name} grew {mb:.1f} MB"
