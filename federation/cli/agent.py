@@ -211,14 +211,52 @@ def build_agent_config(
         sources.append(str(file))
     if experiment is not None:
         lab, name = flags.get("lab", data.get("lab")), flags.get("name", data.get("name"))
-        data |= _experiment_part(experiment, lab, name, record="record" in flags)
+        record = "record" in flags or "record" in data
+        part, platform_given = _experiment_part(experiment, lab, name, record=record)
+        data = _overlay(data, part, platform_given, file, experiment)
         sources.append(str(experiment))
     return validate(AgentConfig, data | flags, " + ".join([*sources, source]))
 
 
-def _experiment_part(path: Path, lab: str | None, name: str | None, record: bool) -> dict[str, Any]:
+def _overlay(
+    own: dict[str, Any],
+    part: dict[str, Any],
+    platform_given: bool,
+    file: Path | None,
+    experiment: Path,
+) -> dict[str, Any]:
+    """An agent file's settings with its part in an experiment over them: the experiment
+    gives what its participants share (role, follow, maneuver, ...), the file what is
+    its host's, and the experiment no longer overrides it: where its runs are recorded
+    (``runs_dir``, ``record``), and its real platform (``serial:PORT``, which flies the
+    experiment's platform as its preset; they had been replaced, the real table left
+    idle while a simulated one flew). A preset that is not the experiment's is refused
+    (ConfigError naming both files)."""
+    part = dict(part)
+    if "runs_dir" in own:
+        part.pop("runs_dir", None)
+    mine = own.get("platform")
+    if isinstance(mine, str) and mine.startswith("serial:"):
+        preset = own.get("platform_preset")
+        theirs = part.pop("platform")
+        if platform_given and theirs != "kinematic":
+            if preset is not None and preset != theirs:
+                raise ConfigError(
+                    f"{file}: field 'platform_preset': {preset!r}, but {experiment} flies "
+                    f"this agent as {theirs!r}"
+                )
+            part["platform_preset"] = theirs
+    elif not platform_given:
+        part.pop("platform")  # the experiment names none: the file's, or the default
+    return own | part
+
+
+def _experiment_part(
+    path: Path, lab: str | None, name: str | None, record: bool
+) -> tuple[dict[str, Any], bool]:
     """This agent's settings from an experiment file: role, platform, maneuver, ...
-    (every run recorded under ``runs`` unless ``record`` names one file for all)."""
+    (every run recorded under ``runs`` unless ``record`` names one file for all), and
+    whether the experiment names its platform."""
     from federation.core.keys import AgentId
     from schemas.experiment import load_experiment
 
@@ -247,7 +285,7 @@ def _experiment_part(path: Path, lab: str | None, name: str | None, record: bool
         # Every run recorded on this host, unless a recording names one file for all.
         **({} if record else {"runs_dir": "runs"}),
         **_scenario_part(experiment, me),
-    }
+    }, "platform" in part.model_fields_set
 
 
 def _scenario_part(experiment: Any, me: Any) -> dict[str, Any]:

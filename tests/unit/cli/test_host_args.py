@@ -245,3 +245,27 @@ def test_a_config_file_without_a_mode_is_a_client(tmp_path: Path) -> None:
     path.write_text('{connect: {endpoints: ["tcp/127.0.0.1:7447"]}}\n')
     conf = build_config(ZenohOptions(config=path), default_mode="client")
     assert config_value(conf, "mode") == "client"
+
+
+def test_an_experiment_leaves_a_hosts_real_platform_and_runs_dir_alone(tmp_path: Path) -> None:
+    """The experiment had replaced the file's serial port by its simulated platform (the
+    real table idle while a simulated one flew the run) and its runs_dir by ``runs``."""
+    from federation.cli.agent import build_agent_config
+    from schemas.config import ConfigError
+
+    experiment = (
+        Path(__file__).resolve().parents[3] / "deploy" / "experiments" / "attitude-tracking.toml"
+    )
+    real = tmp_path / "knatte.toml"
+    real.write_text(
+        'lab = "kiruna"\nname = "knatte"\nrole = "leader"\nplatform = "serial:/dev/ttyUSB0"\n'
+        'runs_dir = "/data/fedlab-runs"\nwait_start = true\n'
+    )
+    config = build_agent_config(real, experiment, {})
+    assert config.platform == "serial:/dev/ttyUSB0" and config.platform_preset == "knatte"
+    assert str(config.runs_dir) == "/data/fedlab-runs"
+    assert config.role == "leader" and config.wait_start  # the experiment's part
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(real.read_text() + 'platform_preset = "pinocchio"\n')
+    with pytest.raises(ConfigError, match=r"platform_preset.*'pinocchio'.*'knatte'"):
+        build_agent_config(wrong, experiment, {})
