@@ -146,7 +146,8 @@ class Status(BaseModel):
         description="why every valve is held closed: waiting (no run under way yet), stale "
         "(link lost), contested, aborted, done, reset, workspace, name_taken (another "
         "process runs under this name: held for good), nonfinite (its own pose was not "
-        "finite: held for good), ended (its duration passed)",
+        "finite: held for good), ended (its duration passed), no_router (its session "
+        "lost its router)",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"

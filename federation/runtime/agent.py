@@ -81,6 +81,10 @@ __all__ = ["AgentRuntime", "NameTaken", "Schedule", "peer_status", "run_together
 
 log = logging.getLogger("fedlab.agent")
 
+NO_ROUTER_HOLD = 1.0
+"""s without a router (after having one) before an agent holds (``no_router``)."""
+ROUTER_CHECK_PERIOD = 0.25
+"""s between looks at the session's router."""
 _ACTIVE = frozenset({"armed", "running", "frozen"})
 """Run modes in which a run is under way."""
 _LOCAL_ABORT = Command(command="abort", seq=-1, issuer="fedlab (this agent)")
@@ -248,6 +252,10 @@ class AgentRuntime:
         self._contest_lock = threading.Lock()
         self._contest_cleared: float | None = None  # own time a followed contest cleared
         self._reference_zid: str | None = None  # the session last heard for the reference
+        # The session's router: had one, lost since (host monotonic), next look.
+        self._had_router = False
+        self._router_lost: float | None = None
+        self._router_check = 0.0
         self._pose_sn = 0  # sequence number in the pose samples' source info
         self.silence = SilenceWatch()  # peers alive that answer no sync request
         self._silent_warned: set[str] = set()  # peers' names
@@ -510,6 +518,9 @@ class AgentRuntime:
             self._rehearse_clock_step()
         t_exec, host = self.clock.read()
         self._check_name_again(host)
+        if host >= self._router_check:
+            self._router_check = host + ROUTER_CHECK_PERIOD
+            self._watch_router(host)
         t_sim = self.sim_time(t_exec)
         with self._lock:
             events = self.run_state.update(t_sim)
@@ -594,6 +605,35 @@ class AgentRuntime:
                 self.follow, "released" if released else f"held ({self.hold_reason})",
             )  # fmt: skip
             self._event("link_resumed", t_exec, host, "")
+
+    def _watch_router(self, host: float) -> None:
+        """Hold (``no_router``) once the session has had no router for ``NO_ROUTER_HOLD``
+        seconds after having one, and end a ctl run here: a leader or member flew on
+        with no follower's stale watch to stop it, and no abort could reach it. Its
+        router back, the hold is let go. A session that never had one (a peer) is left
+        alone."""
+        session = self.session
+        if session is None:
+            return
+        if any(True for _ in session.info.routers_zid()):
+            self._had_router, self._router_lost = True, None
+            if self.hold_reason == "no_router":
+                released = self._let_go()
+                log.warning("router back: %s", "released" if released else self.hold_reason)
+            return
+        if not self._had_router:
+            return
+        if self._router_lost is None:
+            self._router_lost = host
+        if host - self._router_lost < NO_ROUTER_HOLD or self.hold_reason == "no_router":
+            return
+        detail = f"no router for {host - self._router_lost:.1f} s"
+        self._end_run_here("router_lost", detail, host)
+        if self.hold_reason in (None, "waiting", "stale"):
+            self.platform.hold()
+            self.hold_reason = "no_router"
+            self.count("no_router_holds")
+            log.error("%s: safe hold until it is back", detail)
 
     def _rehearse_clock_step(self) -> None:
         step = self.config.clock_step
@@ -1583,11 +1623,14 @@ class AgentRuntime:
         or frozen); else it stays held, for the run's not having begun (``waiting``) or
         its end (``done``, ``aborted``). True if released."""
         mode = self.run_state.mode
-        if mode in MOVING_MODES:
+        if self.follow is not None and self.link_watch.holding:
+            self.hold_reason = "stale"  # its link is still judged stale: the watch lets go
+        elif mode in MOVING_MODES:
             self.hold_reason = None
             self.platform.release()
             return True
-        self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
+        else:
+            self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
         self.platform.hold()
         return False
 

@@ -162,3 +162,21 @@ def test_garbage_on_every_key_an_agent_reads(labs: Labs) -> None:
           f"{line['peers'][LEADER]['rejected_by_reason']}")  # fmt: skip
     assert follower.alive()
     assert line["pose"] == [0.0] * 6  # nothing malformed reached guidance
+
+
+def test_a_leader_that_loses_its_router_holds_and_is_let_go_when_it_returns(
+    labs: Labs,
+) -> None:
+    """No follower's stale watch stops a leader: it flew on without its router, where no
+    abort could reach it."""
+    router = labs.router("kiruna")
+    leader = agent(labs, LEADER, router)
+    leader.until(lambda line: line["mode"] == "running", 20, "running on its own")
+    router.kill()
+    lost = time.monotonic()
+    line = leader.until(lambda line: line["hold"] == "no_router", 10, "held without its router")
+    print(f"\nleader held {line['host_monotonic'] - lost:.2f} s after its router died")
+    assert line["host_monotonic"] - lost < 3.0
+    assert line["counters"]["no_router_holds"] == 1
+    router.start()
+    leader.until(lambda line: line["hold"] is None, 20, "let go, its router back")
