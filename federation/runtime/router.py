@@ -65,6 +65,7 @@ def load_router_config(
         )
     if not open_:
         _refuse_open_listeners(conf, settings.listen, source)
+        _refuse_plain_dial(conf, settings.connect, source)
     # Keep the lab name in the config so it shows in Zenoh's admin space.
     conf.insert_json5("metadata", f'{{"lab": "{settings.lab}"}}')
     return settings, conf
@@ -87,6 +88,25 @@ def _refuse_open_listeners(conf: zenoh.Config, listen: list[str], source: str) -
                 "configs of fedlab deploy generate (TLS, access control), listen on a "
                 "loopback address, or pass --open on a network you trust (a testbed)"
             )
+
+
+def _refuse_plain_dial(conf: zenoh.Config, connect: list[str], source: str) -> None:
+    """Refuse a plain (not TLS, not QUIC) link to another host's router without access
+    control: nothing proves who answers, and what it sends (control, any agent's pose)
+    would be carried into this lab. Loopback, a testbed (``--open``), or TLS."""
+    acl = config_value(conf, "access_control") or {}
+    if isinstance(acl, dict) and acl.get("enabled") is True:
+        return
+    for endpoint in connect:
+        proto = endpoint.partition("/")[0]
+        if proto in ("tls", "quic") or _local_only(endpoint):
+            continue
+        raise ConfigError(
+            f"{source}: field 'connect': {endpoint} is a plain link to another host and no "
+            "access control is on: whoever answers there could send control or any agent's "
+            "pose into this lab. Use the configs of fedlab deploy generate (TLS, access "
+            "control), or pass --open on a network you trust (a testbed)"
+        )
 
 
 def refuse_reachable_agent(conf: zenoh.Config, source: str) -> None:

@@ -472,3 +472,10 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     assert commands[:3] == ["start"] * 3 and "abort" in commands[3:]
     assert result.pending == ["lab/b"]
     assert "aborted before its start" in result.reasons["lab/b"]
+
+
+def test_a_plain_link_to_another_hosts_router_needs_open() -> None:
+    """Nothing proves who answers a plain link: what it sends would enter this lab."""
+    result = fedlab("router", "--lab", "rome", "-l", "tcp/127.0.0.1:0", "-e", "tcp/192.0.2.7:7447")
+    assert result.returncode == 2
+    assert "tcp/192.0.2.7:7447 is a plain link to another host" in result.stderr
