@@ -214,6 +214,11 @@ class AgentConfig(_Model):
             raise ValueError("a follower needs 'follow' (LAB/NAME of the agent to track)")
         if self.follow == me:
             raise ValueError(f"agent {me} cannot follow itself")
+        if self.sync_with and self.sync_all:
+            raise ValueError(
+                "sync_with and sync_all together: sync_with names the agents queried, "
+                "sync_all every agent alive; give one (sync_all had been dropped silently)"
+            )
         if self.platform.startswith("serial:") and not self.wait_start:
             raise ValueError(
                 f"platform {self.platform}: a real platform flies only runs an operator "

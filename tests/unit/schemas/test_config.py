@@ -396,3 +396,11 @@ def test_a_real_platform_waits_for_an_operators_start() -> None:
     with pytest.raises(ConfigError, match="wait_start"):
         validate(AgentConfig, settings | {"platform": "serial:/dev/ttyUSB0"}, "knatte.toml")
     validate(AgentConfig, settings | {"platform": "serial:/dev/x", "wait_start": True}, "k")
+
+
+def test_sync_with_and_sync_all_together_are_refused() -> None:
+    from schemas.config import AgentConfig, ConfigError, validate
+
+    settings = {"lab": "rome", "name": "p", "role": "follower", "follow": "kiruna/knatte"}
+    with pytest.raises(ConfigError, match="sync_with and sync_all together"):
+        validate(AgentConfig, settings | {"sync_with": ["lab/x"], "sync_all": True}, "p.toml")
