@@ -458,7 +458,8 @@ def issue(
     ConnectError
         No agent seen in the federation, or the reference does not answer.
     ConfigError
-        No single leader to take as the reference.
+        No single leader to take as the reference, or a ``run_id`` that an agent seen
+        reports as its last run.
     """
     if action not in EXPECTED_MODE:
         raise ValueError(f"unknown action {action!r}: expected one of {', '.join(ACTIONS)}")
@@ -505,6 +506,7 @@ def issue(
         if not expected:
             raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
         ref = choose_reference(reference, experiment, seen)
+        run_id = _fresh_run_id(run_id, experiment, seen)
         # Each participant must count time on the clock the start's instant is on.
         participants = [p.agent for p in experiment.participants] if experiment else list(seen)
         rows = preflight(participants, seen, fed.ages(), max_bound, reference=str(ref))
@@ -520,7 +522,6 @@ def issue(
         if start_in is None:
             start_in = experiment.start_delay if experiment else DEFAULT_START_IN
         at = ref_now + start_in
-        run_id = run_id or make_run_id(experiment.name if experiment else None)
         progress(f"run {run_id}: start at reference time {at:.3f} s ({ref}'s clock)")
         command = Command(
             command="start",
@@ -558,6 +559,34 @@ def issue(
         return result
     finally:
         fed.close()
+
+
+def _fresh_run_id(
+    run_id: str | None, experiment: ExperimentConfig | None, seen: dict[str, Any]
+) -> str:
+    """``run_id``, or a new one, that no agent seen reports as its last run.
+
+    An agent refuses to record a run id over a run recorded on its host, and its
+    refusal then aborts the start for everyone; a reused id seen in a status is refused
+    here, before anything is sent. A default id (the time to the second) taken already
+    gets a suffix."""
+
+    def reported(candidate: str) -> list[str]:
+        return sorted(a for a, s in seen.items() if s.get("run_id") == candidate)
+
+    if run_id is not None:
+        if taken := reported(run_id):
+            raise ConfigError(
+                f"--run-id {run_id}: {', '.join(taken)} reported it as their last run; "
+                "a run id names one run: give another"
+            )
+        return run_id
+    base = make_run_id(experiment.name if experiment else None)
+    candidate, n = base, 1
+    while reported(candidate):
+        n += 1
+        candidate = f"{base}-{n}"
+    return candidate
 
 
 def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> frozenset[str]:

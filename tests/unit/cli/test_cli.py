@@ -413,12 +413,18 @@ class _Recorder:
         return type("S", (), {"undeclare": lambda self: None})()
 
 
-def _fake_federation(statuses: dict[str, dict[str, Any]]) -> type:
+def _fake_federation(
+    statuses: dict[str, dict[str, Any]], before: dict[str, dict[str, Any]] | None = None
+) -> type:
+    """A federation whose agents report ``statuses`` (``before`` until ctl has put)."""
+
     class Fed:
         def __init__(self, session: Any, federation: str) -> None:
-            pass
+            self.session = session
 
         def snapshot(self) -> dict[str, dict[str, Any]]:
+            if before is not None and not getattr(self.session, "puts", None):
+                return before
             return statuses
 
         def ages(self) -> dict[str, float]:
@@ -457,7 +463,8 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
         "lab/a": {"mode": "armed", "run_id": "r1"},
         "lab/b": {"mode": "waiting"},  # never got it
     }
-    monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
+    before = {"lab/a": {"mode": "waiting"}, "lab/b": {"mode": "waiting"}}
+    monkeypatch.setattr(control, "Federation", _fake_federation(statuses, before))
     monkeypatch.setattr(control, "status", lambda *a, **k: [])
     monkeypatch.setattr(control, "preflight", lambda *a, **k: [])  # passed, for this test
     monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
@@ -479,3 +486,31 @@ def test_a_plain_link_to_another_hosts_router_needs_open() -> None:
     result = fedlab("router", "--lab", "rome", "-l", "tcp/127.0.0.1:0", "-e", "tcp/192.0.2.7:7447")
     assert result.returncode == 2
     assert "tcp/192.0.2.7:7447 is a plain link to another host" in result.stderr
+
+
+def test_ctl_refuses_a_run_id_an_agent_reports_before_sending_anything(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Each agent refuses to record over a run id it recorded, and that refusal aborts
+    the start for all: ctl refuses a reported id first, naming who reported it."""
+    statuses = {"lab/a": {"mode": "done", "run_id": "r1"}, "lab/b": {"mode": "waiting"}}
+    monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
+    monkeypatch.setattr(control, "status", lambda *a, **k: [])
+    monkeypatch.setattr(control, "preflight", lambda *a, **k: [])
+    monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
+    session = _Recorder()
+    with pytest.raises(ConfigError, match=r"--run-id r1: lab/a reported it"):
+        control.issue(
+            session, "start", reference=AgentId.parse("lab/a"), start_in=1.0, wait=0.1,
+            discover=0.0, run_id="r1", duration=10.0,
+        )  # fmt: skip
+    assert session.puts == []  # nothing sent
+    # A default id (to the second) that an agent reported gets a suffix.
+    monkeypatch.setattr(control, "make_run_id", lambda experiment: "run-20261124T220000Z")
+    statuses["lab/b"] = {"mode": "done", "run_id": "run-20261124T220000Z"}
+    monkeypatch.setattr(control, "confirm", lambda *a, **k: {})
+    control.issue(
+        session, "start", reference=AgentId.parse("lab/a"), start_in=1.0, wait=0.1,
+        discover=0.0, duration=10.0, force=True,
+    )  # fmt: skip
+    assert session.puts[0][1]["run_id"] == "run-20261124T220000Z-2"
