@@ -15,9 +15,10 @@ What is not shared is each agent's own: its platform, its hold, its counters, it
 status and its recording. :func:`check_hosted` refuses what must not be hosted: two
 agents with one name, two federations on one session, and real platforms
 (``serial:``), which run in a process of their own so that their steps never wait
-behind other agents' work. A failure in any agent's loop closes every agent
-(:meth:`~federation.runtime.agent.AgentRuntime.close` holds each platform's valves
-closed): one agent's fault stops the host, it does not leave the others flying
+behind other agents' work. An agent whose duration has passed is closed (it leaves
+the federation) while the others fly on. A failure in any agent's loop closes every
+agent (:meth:`~federation.runtime.agent.AgentRuntime.close` holds each platform's
+valves closed): one agent's fault stops the host, it does not leave the others flying
 without a loop.
 """
 
@@ -162,6 +163,15 @@ def host(
     refuse_taken_names(session, configs)
     fanout, links = Fanout(session), SyncLinks()
     runtimes: list[AgentRuntime] = []
+    ended: list[AgentRuntime] = []
+
+    def retire(runtime: AgentRuntime) -> None:
+        # An agent whose duration has passed leaves the federation as a process of its
+        # own would: its token, queryables and subscriptions go (its followers see it
+        # gone and hold) while the other agents of the host fly on.
+        ended.append(runtime)
+        close_all([runtime])
+
     try:
         for config, clock in zip(configs, shared_clocks(configs), strict=True):
             runtime = AgentRuntime(config, session, clock, fanout=fanout, links=links)
@@ -169,9 +179,9 @@ def host(
             runtime.start()
         if on_started is not None:
             on_started()
-        run_together(runtimes, stop, spread=spread, group=group)
+        run_together(runtimes, stop, spread=spread, group=group, on_end=retire)
     finally:
-        close_all(runtimes)
+        close_all([runtime for runtime in runtimes if runtime not in ended])
 
 
 def close_all(runtimes: Sequence[AgentRuntime]) -> None:

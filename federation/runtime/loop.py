@@ -12,8 +12,8 @@ import math
 import threading
 import time
 import zlib
-from collections.abc import Sequence
-from typing import Protocol
+from collections.abc import Callable, Sequence
+from typing import Protocol, TypeVar
 
 from federation.core.keys import AgentId
 from federation.core.schedule import Timetable
@@ -117,11 +117,19 @@ class Schedule:
         return self.timetable.next_wake(agent.start_due())
 
 
+L = TypeVar("L", bound=Looped)
+
+
 def run_together(
-    agents: Sequence[Looped], stop: threading.Event, spread: float = 0.0, group: int = 1
+    agents: Sequence[L],
+    stop: threading.Event,
+    spread: float = 0.0,
+    group: int = 1,
+    on_end: Callable[[L], None] | None = None,
 ) -> None:
     """Run several agents' loops on this one thread until ``stop`` is set or every
-    agent's duration has passed; each publishes a last status when it ends.
+    agent's duration has passed; each publishes a last status when it ends, and is then
+    handed to ``on_end`` (to close it while the others fly on).
 
     Virtual agents hosted in one process (a lab's gateway, ``fedlab bench
     scale``) share a thread rather than one each: with 16 agents per process,
@@ -157,6 +165,8 @@ def run_together(
         following = schedule.tick(time.monotonic())
         if following is None:
             heapq.heappop(wakes)
+            if on_end is not None:
+                on_end(agents[i])
         else:
             heapq.heapreplace(wakes, (following, i, schedule))
     for _, _, schedule in wakes:  # stopped early: the rest report once more (the caller

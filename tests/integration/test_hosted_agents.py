@@ -51,6 +51,35 @@ def test_hosted_followers_follow_on_one_shared_exchange(labs: Labs) -> None:
     assert "host stopped: rome/f1, rome/f2, rome/f3" in host.log()
 
 
+def _alive(endpoint: str, who: str) -> bool:
+    """Whether ``who``'s liveliness token is in the federation, as a client sees it."""
+    with zenoh.open(client_config(endpoint)) as session:
+        replies = session.liveliness().get(f"fedlab/default/{who}", timeout=1.0)
+        return any(reply.ok is not None for reply in replies)
+
+
+def test_a_hosted_agent_whose_duration_ends_leaves_while_the_others_fly_on(
+    labs: Labs,
+) -> None:
+    """Its platform held, it leaves the federation as a process of its own would: the
+    token goes (what follows it sees it gone), the other hosted agents stay."""
+    router = labs.router("rome")
+    labs.leader(router)
+    short, long = "rome/f1", "rome/f2"
+    follower = {"role": "follower", "follow": LEADER}
+    host = labs.host(router, {short: {**follower, "duration": 4.0}, long: follower})
+    host.agents[long].until(_following, timeout=20, what="following the leader")
+    assert _alive(router.endpoint, short)
+    last = host.agents[short].until(
+        lambda line: line["hold"] == "ended", timeout=15, what="its duration's end"
+    )
+    assert last["hold"] == "ended"
+    assert wait_for(lambda: not _alive(router.endpoint, short), timeout=5), "f1 still declared"
+    assert _alive(router.endpoint, long) and host.alive()
+    host.agents[long].until(_following, timeout=5, what="flying on")
+    assert host.stop() == 0
+
+
 def test_hosted_followers_each_hold_when_the_leader_is_lost(labs: Labs) -> None:
     router = labs.router("rome")
     leader = labs.leader(router)

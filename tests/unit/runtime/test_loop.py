@@ -160,3 +160,14 @@ def test_a_groups_agents_send_their_sync_queries_on_ticks_of_their_own(
 def test_a_group_has_at_least_one_agent() -> None:
     with pytest.raises(ValueError, match="group must be at least 1"):
         run_together([stub()], threading.Event(), group=0)
+
+
+def test_an_agent_that_ends_is_handed_over_while_the_others_run_on() -> None:
+    short, long = stub(duration=0.1), stub(duration=0.3)
+    ended: list[tuple[Stub, int]] = []
+    run_together(
+        [short, long], threading.Event(), on_end=lambda a: ended.append((a, len(long.calls)))
+    )
+    assert [a for a, _ in ended] == [short, long]
+    assert ended[0][1] < len(long.calls)  # the long one ran on after the short one ended
+    assert short.calls[-2:] == ["hold", "status"]  # held and reported before it is handed over
