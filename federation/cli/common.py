@@ -93,10 +93,22 @@ def add_zenoh_flags(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_timeout_flag(parser: argparse.ArgumentParser) -> None:
-    """``--timeout S``: give up on an unreachable router after S seconds."""
+def add_timeout_flag(parser: argparse.ArgumentParser, service: bool = False) -> None:
+    """``--timeout S``: give up on an unreachable router after S seconds. A ``service``
+    (a long-running command: agent, host, bridge, view) keeps waiting for its router
+    unless given one, so that a lab's services may start before its router does."""
     from federation.runtime.session import DEFAULT_TIMEOUT
 
+    if service:
+        parser.add_argument(
+            "--timeout",
+            type=positive,
+            default=None,
+            metavar="S",
+            help="give up on an unreachable router after S seconds, naming the endpoint "
+            "and why (default: keep waiting for it, saying so every 10 s)",
+        )
+        return
     parser.add_argument(
         "--timeout",
         type=positive,

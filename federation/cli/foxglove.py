@@ -11,6 +11,7 @@ from federation.cli.common import (
     Formatter,
     Subparsers,
     add_federation_flag,
+    add_timeout_flag,
     add_zenoh_flags,
     integer_in,
     open_session,
@@ -57,6 +58,7 @@ def add(sub: Subparsers) -> None:
         help="write a Foxglove layout of the agents seen to FILE (rewritten as they appear)",
     )
     add_zenoh_flags(p)
+    add_timeout_flag(p, service=True)
     p.set_defaults(func=run)
 
 

@@ -17,6 +17,7 @@ from federation.cli.common import (
     Formatter,
     Subparsers,
     add_cpus_flag,
+    add_timeout_flag,
     add_zenoh_flags,
     client_conf,
     open_session,
@@ -77,6 +78,7 @@ def add(sub: Subparsers) -> None:
     )
     add_cpus_flag(p, AGENT_CPUS_HELP)
     add_zenoh_flags(p)
+    add_timeout_flag(p, service=True)
     p.set_defaults(func=run)
 
 

@@ -253,6 +253,30 @@ def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
     assert "waiting for the router" in out
 
 
+@pytest.mark.parametrize("command", ["agent", "host", "foxglove"])
+def test_a_service_given_a_timeout_gives_up_on_its_router_naming_it(
+    command: str, tmp_path: Path
+) -> None:
+    """Long-running commands wait for their router by default; with ``--timeout`` they
+    exit 1 within it, naming the endpoint, as the short-lived ones do."""
+    nowhere = f"tcp/127.0.0.1:{free_port()}"
+    agent = ["--role", "leader", "--lab", "kiruna", "--name", "knatte"]
+    if command == "host":
+        file = tmp_path / "a.toml"
+        file.write_text('lab = "kiruna"\nname = "knatte"\nrole = "leader"\n')
+        agent = [str(file)]
+    elif command == "foxglove":
+        agent = ["--port", "0"]
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-m", "federation", command, *agent, "-e", nowhere, "--timeout", "1"],
+        capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=30, check=False,
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert time.monotonic() - started < 15
+    assert nowhere.removeprefix("tcp/") in done.stderr, done.stderr
+
+
 # -- errors --------------------------------------------------------------------------
 def test_network_failure_is_not_a_config_error() -> None:
     assert not issubclass(ConnectError, ConfigError)
