@@ -1288,8 +1288,15 @@ class AgentRuntime:
                 command = Command(command="abort", seq=-1, issuer="malformed")
             self.count("control_received")
             if command.command == "abort":
-                self.platform.hold()  # first, before anything else: every valve closed
-            verdict = self.gate.admit(command.command, command.issuer, command.seq)
+                with self._lock:
+                    # First, before anything else: every valve closed, and the run aborted
+                    # under the same lock _let_go decides under, so that no release judged
+                    # on the loop's thread before the abort can follow its hold.
+                    self.platform.hold()
+                    verdict = self.gate.admit(command.command, command.issuer, command.seq)
+                    events = self.run_state.command(command, self.sim_time(t_exec))
+            else:
+                verdict = self.gate.admit(command.command, command.issuer, command.seq)
             if not verdict.admitted:
                 if verdict.outcome == "repeat":
                     self.count("commands_repeated")  # ctl publishes each command 3 times
@@ -1301,14 +1308,15 @@ class AgentRuntime:
                         command.command, command.issuer, verdict.outcome, verdict.detail,
                     )  # fmt: skip
                 return
-            recorded = self._recorded_before(command)
-            with self._lock:
-                if recorded is not None:  # refused before the run state sees it
-                    events = [Event("ignored", self.sim_time(t_exec), recorded)]
-                else:
-                    events = self.run_state.command(command, self.sim_time(t_exec))
-                if command.maneuver is not None and any(e.kind == "armed" for e in events):
-                    self.maneuver = _maneuver(command.maneuver)
+            if command.command != "abort":
+                recorded = self._recorded_before(command)
+                with self._lock:
+                    if recorded is not None:  # refused before the run state sees it
+                        events = [Event("ignored", self.sim_time(t_exec), recorded)]
+                    else:
+                        events = self.run_state.command(command, self.sim_time(t_exec))
+                    if command.maneuver is not None and any(e.kind == "armed" for e in events):
+                        self.maneuver = _maneuver(command.maneuver)
             ignored = [e.detail for e in events if e.kind == "ignored"]
             if ignored:
                 self.count("commands_ignored")
@@ -1621,18 +1629,23 @@ class AgentRuntime:
     def _let_go(self) -> bool:
         """A hold's cause is gone: release the platform if its run is under way (running
         or frozen); else it stays held, for the run's not having begun (``waiting``) or
-        its end (``done``, ``aborted``). True if released."""
-        mode = self.run_state.mode
-        if self.follow is not None and self.link_watch.holding:
-            self.hold_reason = "stale"  # its link is still judged stale: the watch lets go
-        elif mode in MOVING_MODES:
-            self.hold_reason = None
-            self.platform.release()
-            return True
-        else:
-            self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
-        self.platform.hold()
-        return False
+        its end (``done``, ``aborted``). True if released.
+
+        Decided and done under the lock an abort holds and aborts under
+        (:meth:`_on_control`): a release judged on a run still under way cannot follow
+        an abort's hold."""
+        with self._lock:
+            mode = self.run_state.mode
+            if self.follow is not None and self.link_watch.holding:
+                self.hold_reason = "stale"  # its link is still judged stale: the watch lets go
+            elif mode in MOVING_MODES:
+                self.hold_reason = None
+                self.platform.release()
+                return True
+            else:
+                self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
+            self.platform.hold()
+            return False
 
     def contested(self) -> dict[str, str]:
         """Every contested peer and why (status)."""

@@ -256,6 +256,52 @@ def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
     assert f.agent.hold_reason == "aborted"  # the release saw the abort: held, said why
 
 
+def test_no_release_judged_before_an_abort_follows_its_hold() -> None:
+    # The abort held on Zenoh's thread and changed the run's mode only later; in between
+    # the loop's step judged the link resumed, released (the run still "running") and
+    # stepped with valves free after the abort's hold.
+    import threading
+
+    f = Follower()
+    f.synced()
+    f.command("start", run_id="r1")
+    f.pose()
+    f.step()
+    f.step(1.0)  # stale hold
+    assert f.agent.hold_reason == "stale"
+    f.pose()
+    f.sync()
+    f.pose()  # the next step judges the link resumed
+    platform = f.agent.platform
+    real_hold, real_step = platform.hold, platform.step
+    aborted_hold = threading.Event()
+    held_at_step: list[bool] = []
+
+    def hold() -> None:
+        real_hold()
+        if threading.current_thread() is not threading.main_thread():
+            aborted_hold.set()
+            threading.Event().wait(0.3)  # the abort's thread descheduled after its hold
+
+    def step(*args: Any, **kwargs: Any) -> Any:
+        held_at_step.append(platform.held)
+        return real_step(*args, **kwargs)
+
+    platform.hold = hold  # type: ignore[method-assign]
+    platform.step = step  # type: ignore[method-assign]
+    abort = threading.Thread(target=f.command, args=("abort",))
+    abort.start()
+    try:
+        assert aborted_hold.wait(5.0)
+        f.step()  # the loop's step, meanwhile
+    finally:
+        abort.join(5.0)
+    assert held_at_step == [True], held_at_step  # no step after the abort's hold ran free
+    f.step()
+    assert f.agent.run_state.mode == "aborted" and platform.held
+    assert f.agent.hold_reason == "aborted"
+
+
 def test_a_follower_held_for_a_contested_leader_is_not_ready() -> None:
     f = Follower()
     f.agent.hold_reason = "contested"
