@@ -1,5 +1,6 @@
 """Settings of ``fedlab bridge udp``: the legacy agent's name in the federation, the two
-UDP addresses, and the periods of the bridge's two sync links.
+UDP addresses, the periods of the bridge's two sync links, and what it answers of the
+legacy agent's requests (the port they may come from, how many a second).
 
 Units are in each field's description. A bad value fails naming the field::
 
@@ -18,7 +19,13 @@ from federation.core.keys import DEFAULT_FEDERATION, AgentId, validate_name
 from federation.core.sync import DEFAULT_WINDOW
 from schemas.config import AgentRef, ConfigError
 
-__all__ = ["UdpBridgeConfig", "format_address", "parse_address"]
+__all__ = [
+    "DEFAULT_REQUEST_BURST",
+    "DEFAULT_REQUEST_RATE_LIMIT",
+    "UdpBridgeConfig",
+    "format_address",
+    "parse_address",
+]
 
 
 def parse_address(text: str, what: str = "address") -> tuple[str, int]:
@@ -54,6 +61,12 @@ def _estimator(name: str) -> str:
         raise ValueError(f"unknown estimator {name!r}: choose one of {', '.join(ESTIMATORS)}")
     return name
 
+
+# The paper's agents request every 100 ms (docs/paper.md, section 3.2). Five times that
+# leaves a margin for jitter; the burst lets one two seconds late catch up. A forged
+# request still draws its 64-byte reply, but at most this many a second (3.2 kB/s).
+DEFAULT_REQUEST_RATE_LIMIT = 50.0  # requests per second
+DEFAULT_REQUEST_BURST = 20  # requests
 
 Address = Annotated[str, AfterValidator(_address)]
 Seconds = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -102,6 +115,26 @@ class UdpBridgeConfig(BaseModel):
         0.25,
         description="seconds after which the followed pose is too old to send the legacy "
         "agent (no reply then, as the agents hold)",
+    )
+    request_port: int | None = Field(
+        None,
+        ge=1,
+        le=65535,
+        description="the only UDP port of --peer's host the legacy agent's requests are "
+        "taken from; none: any port of that host (the paper's second channel), which "
+        "anyone able to forge that host's address can also use",
+    )
+    request_rate_limit: float = Field(
+        DEFAULT_REQUEST_RATE_LIMIT,
+        gt=0,
+        description="requests per second of the legacy agent answered at most, on average "
+        "(the paper's agents request at 10 Hz); more are dropped without a reply",
+    )
+    request_burst: int = Field(
+        DEFAULT_REQUEST_BURST,
+        gt=0,
+        description="requests of the legacy agent answered at once before "
+        "request_rate_limit applies (a late one catching up)",
     )
     status_period: Seconds = Field(1.0, description="seconds between status messages")
     status_json: Path | None = Field(None, description="file to append status lines (JSON) to")

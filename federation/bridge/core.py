@@ -8,6 +8,16 @@ replay any timeline exactly.
 
 Rules this module keeps
 -----------------------
+Who is heard on UDP
+    Only ``--peer``'s host (``udp_foreign`` otherwise). Its replies only from ``--peer``
+    itself, address and port: the bridge's requests go there, a legacy agent answers
+    from the socket they reach (the paper's channel: one pair of ports), and a stateful
+    firewall in front of the bridge lets in that one flow only
+    (``udp_replies_foreign_port``). Its requests from any
+    port of that host (the paper's second channel), or, with ``request_port``, from that
+    port only (``udp_requests_foreign_port``). UDP carries no proof of its source: the
+    pin narrows who can forge a request to whoever can forge that host's address and
+    port, and keeps others' requests from spending the rate limit below.
 Clocks
     ``now`` is always the bridge's own clock. Two sync links estimate offsets from it:
     :math:`\theta_L`, the legacy agent's clock minus the bridge's (the bridge's UDP
@@ -26,6 +36,12 @@ The legacy agent's request (8 bytes, its ``t1``)
     clock, and since it arrived), a reference gone or contested, or a ``fedlab ctl
     abort`` until ``reset``. A request carrying one of the bridge's own ``t1`` (its own
     request come back: ``--peer`` is the bridge itself) is dropped (``udp_self``).
+    At most ``request_burst`` requests are answered at once and ``request_rate_limit``
+    a second on average (a token bucket, :class:`TokenBucket`); those over it are
+    dropped (``udp_rate_limited``). A forged request (its source is not checked by UDP)
+    draws a 64-byte reply for 8 bytes and the followed pose: the limit bounds that
+    amplifier. The legacy agent's replies need no limit: each is matched to one of the
+    bridge's own requests (one every ``sync_period``), at most once, and draws nothing.
 The legacy agent's reply (64 bytes) to the bridge's request
     is one exchange of the legacy link (Eq. 3, 4), and its pose sample, stamped with the
     reply's ``t2`` (the legacy agent's clock), to publish once the exchange has reached
@@ -79,10 +95,10 @@ from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.status import peer_status
-from schemas.bridge import UdpBridgeConfig
+from schemas.bridge import UdpBridgeConfig, format_address
 from schemas.messages import Command, CommandOutcome, PeerStatus, Status, is_abort
 
-__all__ = ["BridgeCore", "Maintenance", "Outcome"]
+__all__ = ["BridgeCore", "Maintenance", "Outcome", "TokenBucket"]
 
 _MAX_LEADERS = 256
 """Agents remembered as saying they lead (a flood of statuses cannot grow the bridge)."""
@@ -94,7 +110,8 @@ class Outcome(NamedTuple):
     reply: bytes | None = None  # send back to the datagram's source
     pose: bytes | None = None  # publish as the legacy agent's pose sample
     rejected: str | None = None  # why it was dropped, for the log
-    # What was dropped: "malformed", "unsynced", "sync reply", "held", "self".
+    # What was dropped: "foreign", "malformed", "unsynced", "sync reply", "held", "self",
+    # "rate limited".
     kind: str | None = None
 
 
@@ -105,6 +122,33 @@ class Maintenance(NamedTuple):
     rejoined: AgentId | None = None  # the reference came back: its old clock is forgotten
     follow: AgentId | None = None  # the new reference: query its sync key, take its pose
     leaders: tuple[AgentId, ...] = ()  # several leaders, said once: ``follow`` is the first
+
+
+class TokenBucket:
+    """At most ``burst`` events at once and ``rate`` a second on average.
+
+    Holds up to ``burst`` tokens, starts full and gains ``rate`` a second; an event takes
+    one, or is refused when none is left. Time is passed in; a clock that goes back
+    mints none.
+    """
+
+    _SLACK = 1e-9  # tokens: an event exactly one period after the last is not refused
+
+    def __init__(self, rate: float, burst: int):
+        self.rate, self.burst = rate, burst
+        self.tokens = float(burst)
+        self._last: float | None = None
+
+    def take(self, now: float) -> bool:
+        """Whether an event at ``now`` is allowed (a token taken if so)."""
+        if self._last is None or now > self._last:
+            if self._last is not None:
+                self.tokens = min(float(self.burst), self.tokens + (now - self._last) * self.rate)
+            self._last = now
+        if self.tokens < 1.0 - self._SLACK:
+            return False
+        self.tokens = max(0.0, self.tokens - 1.0)
+        return True
 
 
 @dataclass
@@ -120,8 +164,12 @@ class BridgeCore:
     Not thread-safe: the caller serializes calls. Every method is quick.
     """
 
-    def __init__(self, config: UdpBridgeConfig):
+    def __init__(self, config: UdpBridgeConfig, peer: tuple[str, int] | None = None):
+        """``peer``: ``--peer`` resolved, as datagrams from it give their source (None:
+        ``config.peer_address`` as written, a numeric address)."""
         self.config = config
+        self.peer = peer if peer is not None else config.peer_address
+        self.requests = TokenBucket(config.request_rate_limit, config.request_burst)
         self.me = config.me
         self.legacy = _Link(self._client())
         self.reference_id: AgentId | None = self.me if config.role == "leader" else config.followed
@@ -163,6 +211,12 @@ class BridgeCore:
         bridge, ``follow`` of a leader bridge (None: none)."""
         return self.reference_id if self.config.role == "follower" else self.config.followed
 
+    @property
+    def _peer_text(self) -> str:
+        """``--peer`` as written, and as resolved where that differs."""
+        written, resolved = self.config.peer_text, format_address(self.peer)
+        return written if resolved == written else f"{written} ({resolved})"
+
     def _client(self) -> SyncClient:
         cfg = self.config
         return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), cfg.sync_timeout)
@@ -190,15 +244,33 @@ class BridgeCore:
         self.counters["udp_requests_sent"] += 1
         return self.legacy.client.request(now)
 
-    def on_datagram(self, data: bytes, now: float) -> Outcome:
-        """A datagram from the legacy agent, read at ``now``: its request (8 bytes) or its
-        reply to ours (64 bytes)."""
+    def on_datagram(self, data: bytes, source: tuple[str, int], now: float) -> Outcome:
+        """A datagram from ``source`` (host, port), read at ``now``: the legacy agent's
+        request (8 bytes) or its reply to ours (64 bytes)."""
+        host, port = source
+        if host != self.peer[0]:
+            self.counters["udp_foreign"] += 1
+            return Outcome(
+                rejected=f"not the legacy agent's host (--peer {self._peer_text})", kind="foreign"
+            )
         if self.name_clash is not None:
             self.counters["udp_held_for_name"] += 1
             return Outcome(rejected=f"not speaking for {self.me}: {self.name_clash}", kind="held")
         if len(data) == wire.REQUEST_SIZE:
+            pinned = self.config.request_port
+            if pinned is not None and port != pinned:
+                self.counters["udp_requests_foreign_port"] += 1
+                said = f"a request from port {port}: taken from --request-port {pinned} only"
+                return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_request(data, now)
         if len(data) == wire.REPLY_SIZE:
+            if port != self.peer[1]:
+                self.counters["udp_replies_foreign_port"] += 1
+                said = (
+                    f"a reply from port {port}: taken from --peer {self._peer_text} only, "
+                    "where the bridge's requests go"
+                )
+                return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_reply(data, now)
         self.counters["udp_malformed"] += 1
         sizes = f"{wire.REQUEST_SIZE} or {wire.REPLY_SIZE}"
@@ -224,6 +296,15 @@ class BridgeCore:
         if why is not None:
             self.counters[f"udp_requests_{why[0]}"] += 1
             return Outcome(rejected=why[1], kind="held")
+        # Last: only a request that would be answered spends a token.
+        if not self.requests.take(now):
+            self.counters["udp_rate_limited"] += 1
+            cfg = self.config
+            said = (
+                f"over --request-rate-limit {cfg.request_rate_limit:g}/s "
+                f"(--request-burst {cfg.request_burst}): no reply"
+            )
+            return Outcome(rejected=said, kind="rate limited")
         pose = self.followed_pose.pose if self.followed_pose else wire.Pose()
         self.counters["udp_requests_served"] += 1
         # t2 on the reference clock: the legacy agent's Eq. 4 then gives leader minus itself.

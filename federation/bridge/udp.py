@@ -31,10 +31,33 @@ the bridge opens the flow for the legacy agent's packets; the requests every
 ``--sync-period`` are the keepalive that holds it open. One socket carries both
 directions: 8-byte datagrams are the legacy agent's requests, 64-byte ones its replies.
 Requests are answered to their source, so a legacy agent may use one port or two (the
-paper's two channels).
+paper's two channels). Replies are taken from ``--peer`` only, address and port: where
+the bridge's requests go, and the one flow that firewall lets in.
 
-A datagram of another size, holding NaN or infinity, or (for requests) from a host
-other than ``--peer``'s, is dropped, logged (rate-limited) and counted in status.
+Who is answered, and how often (decided in the core)
+    UDP does not prove a datagram's source. Whoever can send from the legacy agent's
+    host, or forge its address, gets for an 8-byte request a 64-byte reply with the
+    followed agent's pose: a leak, and an amplifier aimed at that host. So:
+
+    - datagrams from a host other than ``--peer``'s are dropped (``udp_foreign``);
+    - with ``--request-port PORT``, requests are taken from that port of ``--peer``'s
+      host only (``udp_requests_foreign_port``). Set it whenever the legacy agent sends
+      from a fixed port (``--peer``'s own, if it uses one socket). Unset, as the paper's
+      two channels allow, any port of that host is answered: every process there, and
+      whoever forges its address, is answered as the legacy agent;
+    - at most ``--request-burst`` requests (20) are answered at once and
+      ``--request-rate-limit`` (50) a second on average, five times the paper's 10 Hz;
+      the rest get no reply (``udp_rate_limited``), which bounds the amplifier (at
+      3.2 kB/s by default). The limit is shared: forged requests that pass the checks
+      above spend it, and the legacy agent then gets no reply either, which its design
+      takes as a lost link (it holds);
+    - replies from another port of ``--peer``'s host are dropped
+      (``udp_replies_foreign_port``). Replies need no limit: each is matched to one of
+      the bridge's own requests (one every ``--sync-period``), at most once, and draws
+      nothing back.
+
+A datagram of another size or holding NaN or infinity is dropped too. Every dropped
+datagram is logged (rate-limited) and counted in status.
 
 Status (JSON, ``schemas.messages.Status`` plus the bridge's fields)
     ``t_exec`` is the legacy agent's clock as the bridge estimates it (``clock``:
@@ -108,10 +131,11 @@ class UdpBridge:
         self.config = config
         self.session = session
         self.clock = clock or ExecClock()
-        self.core = BridgeCore(config)
         self.rejects = RateLimitedLog(log)
         self.sock = sock if sock is not None else bind_udp(config.listen_address)
         self.peer_addr = _resolve(config.peer_address, self.sock.family)
+        # The core compares sources with --peer as datagrams from it will give theirs.
+        self.core = BridgeCore(config, (str(self.peer_addr[0]), int(self.peer_addr[1])))
         self.me = config.me
         self._lock = threading.Lock()  # one call into the core at a time
         self._declared: list[Any] = []
@@ -388,12 +412,8 @@ class UdpBridge:
 
     def _on_datagram(self, data: bytes, addr: Any, now: float) -> None:
         source = format_address((addr[0], addr[1]))
-        if addr[0] != self.peer_addr[0]:
-            self._count("udp_foreign")
-            self.rejects("udp datagram", f"from {source}: not the legacy agent's host")
-            return
-        with self._lock:
-            outcome = self.core.on_datagram(data, now)
+        with self._lock:  # the core decides whose datagrams are heard, and how many answered
+            outcome = self.core.on_datagram(data, (addr[0], addr[1]), now)
         if outcome.reply is not None:
             try:
                 self.sock.sendto(outcome.reply, addr)

@@ -34,7 +34,7 @@ __all__ = ["add", "run"]
 _EXAMPLE = (
     "Example:\n"
     "  fedlab bridge udp --as rome/pinocchio --listen 0.0.0.0:9000 --peer 192.0.2.7:9001 \\\n"
-    "      --follow kiruna/knatte -e tcp/127.0.0.1:7448"
+    "      --request-port 9001 --follow kiruna/knatte -e tcp/127.0.0.1:7448"
 )
 
 # UdpBridgeConfig field -> the flag's destination, where they differ.
@@ -72,7 +72,9 @@ def add(sub: Subparsers) -> None:
             "with t2 on the reference (leader's) clock and the followed agent's pose. The\n"
             "bridge's own requests to --peer (every --sync-period) give the legacy agent's\n"
             "clock and pose, served to the federation as LAB/NAME's sync, pose and status.\n"
-            "The first request opens the firewall flow; the requests keep it open.\n\n"
+            "The first request opens the firewall flow; the requests keep it open.\n"
+            "Only requests from --peer's host are answered (--request-port: from that\n"
+            "port only), at most --request-rate-limit a second; replies only from --peer.\n\n"
             "Zenoh's own listen endpoint is -l here; --listen is the UDP address."
         ),
         epilog=_EXAMPLE,
@@ -114,6 +116,20 @@ def add(sub: Subparsers) -> None:
     _seconds(
         p, "--stale-after",
         "seconds after which the followed pose is too old to send (no reply: it holds)",
+    )  # fmt: skip
+    p.add_argument(
+        "--request-port", type=int, metavar="PORT",
+        help="take the legacy agent's requests only from this port of --peer's host "
+        "(none: from any port of it, so from any process there too)",
+    )  # fmt: skip
+    p.add_argument(
+        "--request-rate-limit", type=float, default=_default("request_rate_limit"),
+        metavar="HZ", help="legacy agent's requests answered a second at most, on average "
+        "(the paper's agents send 10); more get no reply",
+    )  # fmt: skip
+    p.add_argument(
+        "--request-burst", type=int, default=_default("request_burst"), metavar="N",
+        help="legacy agent's requests answered at once before --request-rate-limit applies",
     )  # fmt: skip
     _seconds(p, "--status-period", "seconds between status")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")

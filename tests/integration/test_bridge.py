@@ -132,20 +132,20 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
         )
         assert status["legacy"]["samples"] > 0 and status["legacy"]["alive"]
 
-        # Malformed datagrams are dropped and counted; nothing stops the bridge.
-        bad = [
-            b"\x00" * 7,
-            struct.pack("<d", math.nan),
-            struct.pack("<8d", 1.0, math.nan, 0, 0, 0, 0, 0, 0),
-            b"\x01" * 65,
-        ]
+        # Malformed datagrams are dropped and counted; nothing stops the bridge. A reply
+        # from a port other than --peer's is not read at all.
+        bad = [b"\x00" * 7, struct.pack("<d", math.nan), b"\x01" * 65]
+        reply = struct.pack("<8d", 1.0, math.nan, 0, 0, 0, 0, 0, 0)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            for payload in bad:
+            for payload in [*bad, reply]:
                 s.sendto(payload, ("127.0.0.1", bridge_port))
         bridge.until(
-            lambda line: line["counters"].get("udp_malformed", 0) == len(bad),
+            lambda line: (
+                line["counters"].get("udp_malformed", 0) == len(bad)
+                and line["counters"].get("udp_replies_foreign_port", 0) == 1
+            ),
             timeout=5,
-            what=f"{len(bad)} malformed datagrams counted",
+            what=f"{len(bad)} malformed datagrams and a reply from another port counted",
         )
         before = legacy_samples(fleet)
         assert wait_for(lambda: legacy_samples(fleet) >= before + 10, timeout=5)
@@ -264,7 +264,9 @@ def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
 ) -> None:
     """What fails closed for a legacy agent is no reply (its own design holds on a lost
     link): after ctl abort until ctl reset, and once the leader it follows is gone. The
-    bridge had answered both with the last pose it held, for ever."""
+    bridge had answered both with the last pose it held, for ever. With --request-port,
+    none either to a request from another port of its host: any process there had got
+    the leader's pose, 64 bytes for 8."""
     import subprocess
 
     router = labs.router("kiruna")
@@ -273,10 +275,22 @@ def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
     start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
     bridge = start_bridge(
         labs, "--listen", f"127.0.0.1:{bridge_port}", "--peer", f"127.0.0.1:{legacy_port}",
+        "--request-port", str(legacy_port),  # its one socket: requests and replies
         "--follow", LEADER, "-e", router.endpoint, "--status-period", "0.5",
     )  # fmt: skip
     leader.wait_status(timeout=10)
     assert wait_for(lambda: legacy_samples(fleet) >= 20, timeout=20), legacy_lines(fleet)[-3:]
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as forger:
+        forger.bind(("127.0.0.1", 0))
+        forger.settimeout(1.0)
+        for t1 in (1.0, 2.0, 3.0):
+            forger.sendto(wire.encode_request(t1), ("127.0.0.1", bridge_port))
+        with pytest.raises(TimeoutError):
+            forger.recvfrom(2048)
+    bridge.until(
+        lambda s: s["counters"].get("udp_requests_foreign_port", 0) == 3, 5, "3 forged requests"
+    )
 
     def ctl(command: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(

@@ -68,6 +68,12 @@ def test_bridge_config_refuses_bad_values() -> None:
         ("listen", "9000", "HOST:PORT"),
         ("peer", "host:x", "HOST:PORT"),
         ("role", "member", "'leader' or 'follower'"),
+        ("request_rate_limit", 0.0, "greater than 0"),
+        ("request_rate_limit", float("inf"), "finite"),
+        ("request_burst", 0, "greater than 0"),
+        ("request_burst", 2.5, "valid integer"),
+        ("request_port", 0, "greater than or equal to 1"),
+        ("request_port", 65536, "less than or equal to 65535"),
         ("colour", "red", "unknown field"),
     ],
 )
@@ -85,6 +91,8 @@ def test_defaults_and_parsed_names() -> None:
     assert cfg.me == AgentId("rome", "legacy") and cfg.followed is None
     assert cfg.listen_address == ("127.0.0.1", 9000) and cfg.peer_address == ("::1", 9001)
     assert cfg.peer_text == "[::1]:9001"
+    # Five times the paper's 10 Hz requests; a burst of two seconds' worth; any port.
+    assert (cfg.request_rate_limit, cfg.request_burst, cfg.request_port) == (50.0, 20, None)
 
 
 def test_flags_become_the_config() -> None:
@@ -99,6 +107,19 @@ def test_flags_become_the_config() -> None:
 def test_a_bad_flag_fails_naming_the_field() -> None:
     with pytest.raises(ConfigError, match="field 'sync_period'"):
         bridge_cli.bridge_config(parse(*REQUIRED, "--sync-period", "0"))
+
+
+def test_the_request_flags_become_the_config() -> None:
+    flags = ["--request-port", "9001", "--request-rate-limit", "12.5", "--request-burst", "4"]
+    cfg = bridge_cli.bridge_config(parse(*REQUIRED, *flags))
+    assert (cfg.request_port, cfg.request_rate_limit, cfg.request_burst) == (9001, 12.5, 4)
+    for flag, value, field in [
+        ("--request-rate-limit", "0", "request_rate_limit"),
+        ("--request-burst", "-1", "request_burst"),
+        ("--request-port", "70000", "request_port"),
+    ]:
+        with pytest.raises(ConfigError, match=f"command line: field '{field}'"):
+            bridge_cli.bridge_config(parse(*REQUIRED, flag, value))
 
 
 @pytest.mark.parametrize(

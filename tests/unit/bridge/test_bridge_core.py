@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from federation.bridge import core as bridge_core
-from federation.bridge.core import BridgeCore
+from federation.bridge.core import BridgeCore, TokenBucket
 from federation.core import keys, wire
 from federation.core.keys import AgentId
 from federation.core.paper import CLOCK_OFFSET
@@ -27,6 +27,7 @@ from schemas.config import validate
 LEADER = "kiruna/knatte"
 LEGACY = "rome/legacy"
 LEGACY_POSE = (1.25, -0.5, 0.3, 0.0, 0.0, 0.0)
+PEER = ("127.0.0.1", 9001)  # --peer: the legacy agent's requests and replies come from it
 
 
 def config(**overrides: Any) -> UdpBridgeConfig:
@@ -53,7 +54,7 @@ def sync_core(core: BridgeCore, legacy: float, reference: float, n: int = 20) ->
         reply = wire.decode_request(request)
         data = wire.encode_reply(reply, now + 0.0005 + legacy, wire.Pose(*LEGACY_POSE))
         # Published once the warm-up has fed the estimate (the third exchange on).
-        assert (core.on_datagram(data, now + 0.001).pose is not None) == (i >= 2)
+        assert (core.on_datagram(data, PEER, now + 0.001).pose is not None) == (i >= 2)
         ref_request = core.reference_request(now)
         assert ref_request is not None
         assert core.on_reference_reply(exchange(ref_request, reference, now, 0.002), now + 0.002)
@@ -71,7 +72,7 @@ def status_line(agent: str, role: str) -> bytes:
 
 def test_legacy_request_before_reference_time_gets_no_reply() -> None:
     core = BridgeCore(config())
-    outcome = core.on_datagram(wire.encode_request(5.0), 10.0)
+    outcome = core.on_datagram(wire.encode_request(5.0), PEER, 10.0)
     assert outcome.reply is None and outcome.rejected == "no reference time yet"
     assert outcome.kind == "unsynced"
     assert core.counters["udp_requests_unsynced"] == 1
@@ -83,7 +84,7 @@ def test_replies_carry_reference_time_and_queries_legacy_time() -> None:
     core.on_liveliness(liveliness(LEADER), alive=True)
     core.on_followed_pose(wire.encode_pose(now - 3.01, wire.Pose(0.5, 0.25, 0.7)), now)
     # The legacy agent's request: t2 on the leader's clock, the leader's pose.
-    outcome = core.on_datagram(wire.encode_request(1234.5), now)
+    outcome = core.on_datagram(wire.encode_request(1234.5), PEER, now)
     assert outcome.reply is not None
     reply = wire.decode_reply(outcome.reply)
     assert reply.t1 == 1234.5
@@ -124,9 +125,9 @@ def test_leader_bridge_serves_the_legacy_clock_as_reference_time() -> None:
     now = 100.0
     for _ in range(5):
         t1 = wire.decode_request(core.legacy_request(now))
-        core.on_datagram(wire.encode_reply(t1, now + 0.0005 + 7.0, wire.Pose()), now + 0.001)
+        core.on_datagram(wire.encode_reply(t1, now + 0.0005 + 7.0, wire.Pose()), PEER, now + 0.001)
         now += 0.1
-    outcome = core.on_datagram(wire.encode_request(1.0), now)
+    outcome = core.on_datagram(wire.encode_request(1.0), PEER, now)
     assert outcome.reply is not None
     assert wire.decode_reply(outcome.reply).t2 == pytest.approx(now + 7.0, abs=1e-9)
     assert core.status(now, 0.0).reference == LEGACY
@@ -146,7 +147,7 @@ def test_leader_bridge_serves_the_legacy_clock_as_reference_time() -> None:
 def test_malformed_datagrams_are_dropped_and_counted(data: bytes, reason: str) -> None:
     core = BridgeCore(config())
     sync_core(core, CLOCK_OFFSET, -3.0, n=3)
-    outcome = core.on_datagram(data, 200.0)
+    outcome = core.on_datagram(data, PEER, 200.0)
     assert outcome.reply is None and outcome.pose is None
     assert outcome.rejected is not None and reason in outcome.rejected
     assert outcome.kind == "malformed"
@@ -185,9 +186,9 @@ def test_sync_client_accepts_the_bridges_legacy_replies_only_once() -> None:
     core = BridgeCore(config())
     t1 = wire.decode_request(core.legacy_request(10.0))
     data = wire.encode_reply(t1, 10.0 + CLOCK_OFFSET, wire.Pose())
-    first = core.on_datagram(data, 10.001)
+    first = core.on_datagram(data, PEER, 10.001)
     assert first.pose is None and first.rejected == "not yet confirmed by the estimate"
-    again = core.on_datagram(data, 10.002)
+    again = core.on_datagram(data, PEER, 10.002)
     assert again.pose is None and again.rejected == "sync reply (duplicate)"
     assert isinstance(core.legacy.client, SyncClient)
 
@@ -274,12 +275,12 @@ def test_a_name_taken_elsewhere_stops_the_bridge_speaking_for_it_for_good() -> N
     assert not core.hold_for_name("again")  # said and counted once
     assert core.counters["name_taken_holds"] == 1
     # The legacy agent's request: no reply, so no reference time and no pose to steer by.
-    held = core.on_datagram(wire.encode_request(1.0), now)
+    held = core.on_datagram(wire.encode_request(1.0), PEER, now)
     assert held.reply is None and held.pose is None and held.kind == "held"
     assert "2 processes answer" in (held.rejected or "")
     # Its reply to the bridge: not published.
     reply = wire.encode_reply(wire.decode_request(core.legacy_request(now)), now, wire.Pose())
-    assert core.on_datagram(reply, now + 0.001).pose is None
+    assert core.on_datagram(reply, PEER, now + 0.001).pose is None
     # The federation's sync queries on its behalf: unanswered; its token stays away.
     assert core.on_sync_query(wire.encode_request(5.0), now) is None
     assert not core.maintain(now + 0.1).legacy_alive
@@ -296,7 +297,8 @@ def _serving(**overrides: Any) -> tuple[BridgeCore, float]:
     now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
     core.on_liveliness(liveliness(LEADER), alive=True)
     core.on_followed_pose(wire.encode_pose(now - 3.01, wire.Pose(0.5)), now, source="aaaa")
-    assert core.on_datagram(wire.encode_request(1.0), now).reply is not None
+    source = (PEER[0], core.config.request_port or PEER[1])
+    assert core.on_datagram(wire.encode_request(1.0), source, now).reply is not None
     return core, now
 
 
@@ -305,7 +307,7 @@ def test_no_reply_without_a_pose_of_the_followed_agent() -> None:
     core = BridgeCore(config())
     now = sync_core(core, legacy=CLOCK_OFFSET, reference=-3.0)
     core.on_liveliness(liveliness(LEADER), alive=True)
-    outcome = core.on_datagram(wire.encode_request(1.0), now)
+    outcome = core.on_datagram(wire.encode_request(1.0), PEER, now)
     assert outcome.reply is None and outcome.kind == "held"
     assert core.counters["udp_requests_no_pose"] == 1
 
@@ -314,18 +316,18 @@ def test_no_reply_without_a_pose_of_the_followed_agent() -> None:
 def test_no_reply_once_the_followed_pose_is_stale(later: float) -> None:
     # The leader's poses stopped: its last pose (and its rates) had been sent for ever.
     core, now = _serving()
-    outcome = core.on_datagram(wire.encode_request(1.0), now + later)
+    outcome = core.on_datagram(wire.encode_request(1.0), PEER, now + later)
     assert outcome.reply is None and "old" in (outcome.rejected or "")
     assert core.counters["udp_requests_stale"] == 1
     # A pose old on arrival (stamped 1 s back on the leader's clock) is stale too.
     core.on_followed_pose(wire.encode_pose(now - 4.0 + later, wire.Pose()), now + later)
-    assert core.on_datagram(wire.encode_request(1.0), now + later).reply is None
+    assert core.on_datagram(wire.encode_request(1.0), PEER, now + later).reply is None
 
 
 def test_no_reply_once_the_reference_left() -> None:
     core, now = _serving()
     core.on_liveliness(liveliness(LEADER), alive=False)
-    outcome = core.on_datagram(wire.encode_request(1.0), now + 0.01)
+    outcome = core.on_datagram(wire.encode_request(1.0), PEER, now + 0.01)
     assert outcome.reply is None and core.counters["udp_requests_reference_gone"] == 1
 
 
@@ -336,7 +338,7 @@ def test_a_contested_reference_is_not_relayed_and_its_link_restarts() -> None:
     core.on_followed_pose(forged, now + 0.01, source="bbbb")
     assert core.counters["contested"] == 1 and core.followed_pose is None
     assert core.reference_offset(now + 0.01) is None  # its estimate starts again
-    assert core.on_datagram(wire.encode_request(1.0), now + 0.02).reply is None
+    assert core.on_datagram(wire.encode_request(1.0), PEER, now + 0.02).reply is None
     # Replies from another session contest it on the sync channel too.
     core2, now2 = _serving()
     ref_request = core2.reference_request(now2)
@@ -364,7 +366,7 @@ def test_an_older_or_foreign_pose_never_replaces_the_followed_one() -> None:
 def test_an_abort_holds_the_legacy_agent_until_a_reset() -> None:
     core, now = _serving()
     assert core.on_control(b'{"command": "abort", "seq": 1, "issuer": "ctl@x"}') is not None
-    outcome = core.on_datagram(wire.encode_request(1.0), now + 0.01)
+    outcome = core.on_datagram(wire.encode_request(1.0), PEER, now + 0.01)
     assert outcome.reply is None and core.counters["udp_requests_held"] == 1
     status = core.status(now, 0.0)
     assert status.mode == "aborted" and status.hold == "aborted"
@@ -374,8 +376,8 @@ def test_an_abort_holds_the_legacy_agent_until_a_reset() -> None:
     assert core.status(now, 0.0).commands[-1].outcome == "ignored"
     core.on_control(b'{"command": "reset", "seq": 3, "issuer": "ctl@x"}')
     assert core.status(now, 0.0).mode == "unmanaged"
-    core.on_followed_pose(wire.encode_pose(now - 2.99, wire.Pose(0.5)), now + 0.02, "aaaa")
-    assert core.on_datagram(wire.encode_request(1.0), now + 0.02).reply is not None
+    core.on_followed_pose(wire.encode_pose(now - 2.99, wire.Pose(0.5)), now + 0.02, source="aaaa")
+    assert core.on_datagram(wire.encode_request(1.0), PEER, now + 0.02).reply is not None
     core.on_control(b'{"command": "abort", "seq": "not a number"}')
     assert core.aborted and core.counters["control_malformed"] == 1
 
@@ -385,7 +387,7 @@ def test_the_bridges_own_request_coming_back_is_dropped() -> None:
     # and a legacy agent that does not exist was published.
     core, now = _serving()
     request = core.legacy_request(now)
-    outcome = core.on_datagram(request, now + 0.0001)
+    outcome = core.on_datagram(request, PEER, now + 0.0001)
     assert outcome.reply is None and outcome.kind == "self"
     assert core.counters["udp_self"] == 1
 
@@ -400,7 +402,7 @@ def test_a_wild_first_reply_is_not_published() -> None:
         request = wire.decode_request(core.legacy_request(now))
         offset = CLOCK_OFFSET + (1000.0 if i == 0 else 0.0)
         data = wire.encode_reply(request, now + 0.0005 + offset, wire.Pose(*LEGACY_POSE))
-        outcome = core.on_datagram(data, now + 0.001)
+        outcome = core.on_datagram(data, PEER, now + 0.001)
         if outcome.pose is not None:
             published.append(wire.decode_pose(outcome.pose).t)
         now += 0.1
@@ -417,7 +419,7 @@ def test_a_legacy_agent_that_restarts_is_counted_and_its_new_poses_published() -
     for _ in range(6):  # its clock restarts near 0
         request = wire.decode_request(core.legacy_request(now))
         t2 = 1.0 + (now - restart) + 0.0005
-        outcome = core.on_datagram(wire.encode_reply(request, t2, wire.Pose()), now + 0.001)
+        outcome = core.on_datagram(wire.encode_reply(request, t2, wire.Pose()), PEER, now + 0.001)
         if outcome.pose is not None:
             published.append(wire.decode_pose(outcome.pose).t)
         now += 0.1
@@ -435,7 +437,7 @@ def test_with_the_papers_estimator_the_legacy_pose_is_published_as_clocks_drift(
         request = wire.decode_request(core.legacy_request(now))
         legacy_clock = now + CLOCK_OFFSET + drift * (now - 100.0)
         data = wire.encode_reply(request, legacy_clock + 0.0005, wire.Pose(*LEGACY_POSE))
-        silent = 0 if core.on_datagram(data, now + 0.001).pose is not None else silent + 1
+        silent = 0 if core.on_datagram(data, PEER, now + 0.001).pose is not None else silent + 1
         now += 0.1
     assert silent == 0
 
@@ -461,3 +463,115 @@ def test_a_status_naming_another_agent_is_not_taken() -> None:
     assert core.counters["status_not_its_own"] == 1
     core.on_status(b"[" * 100_000 + b"]" * 100_000, agent=AgentId.parse(LEADER))
     assert core.counters["status_malformed"] == 1
+
+
+# -- who is heard, and how many requests are answered ------------------------------------
+def test_the_token_bucket_allows_a_burst_then_its_rate() -> None:
+    bucket = TokenBucket(rate=10.0, burst=3)
+    assert [bucket.take(5.0) for _ in range(4)] == [True, True, True, False]
+    assert not bucket.take(5.05)  # half a token
+    assert bucket.take(5.1) and not bucket.take(5.1)  # one period: one more
+    assert [bucket.take(105.0) for _ in range(4)] == [True, True, True, False]  # full, no more
+    assert not bucket.take(100.0) and not bucket.take(105.0)  # a clock gone back mints none
+    assert bucket.take(105.1)
+    steady = TokenBucket(rate=10.0, burst=1)  # exactly at its rate: every one allowed
+    assert all(steady.take(200.0 + i * 0.1) for i in range(100))
+
+
+def test_requests_over_the_rate_limit_get_no_reply_and_are_counted() -> None:
+    # A forged 8-byte request drew a 64-byte reply (and the followed pose) every time:
+    # an amplifier aimed at the legacy agent's host, as fast as the forger sent.
+    core, now = _serving(request_rate_limit=10.0, request_burst=3)  # one token taken
+    outcomes = [core.on_datagram(wire.encode_request(1.0), PEER, now + 0.01) for _ in range(5)]
+    assert [o.reply is not None for o in outcomes] == [True, True, False, False, False]
+    dropped = outcomes[-1]
+    assert dropped.kind == "rate limited" and dropped.pose is None
+    assert "--request-rate-limit 10/s (--request-burst 3)" in (dropped.rejected or "")
+    assert core.counters["udp_rate_limited"] == 3
+    # A tenth of a second later, one more is answered.
+    later = [core.on_datagram(wire.encode_request(1.0), PEER, now + 0.12) for _ in range(2)]
+    assert [o.reply is not None for o in later] == [True, False]
+    status = core.status(now + 0.12, 0.0)
+    assert status.counters["udp_rate_limited"] == 4
+    assert status.counters["udp_requests_served"] == 4
+
+
+def test_the_legacy_agents_own_rate_and_catch_up_are_answered_by_default() -> None:
+    # The paper's agents request every 100 ms; one two seconds late sends 20 at once.
+    cfg = config()
+    assert (cfg.request_rate_limit, cfg.request_burst) == (50.0, 20)
+    core, now = _serving()
+    for i in range(600):  # a minute at 10 Hz
+        t = now + 0.1 * i
+        core.on_followed_pose(wire.encode_pose(t - 3.0, wire.Pose(0.5)), t, source="aaaa")
+        assert core.on_datagram(wire.encode_request(t), PEER, t).reply is not None
+    t = now + 62.0
+    core.on_followed_pose(wire.encode_pose(t - 3.0, wire.Pose(0.5)), t, source="aaaa")
+    answered = [core.on_datagram(wire.encode_request(t), PEER, t).reply for _ in range(21)]
+    assert all(answered[:20]) and answered[20] is None
+    assert core.counters["udp_rate_limited"] == 1
+
+
+def test_requests_that_get_no_reply_anyway_spend_no_token() -> None:
+    core, now = _serving(request_burst=2)  # one token taken
+    core.on_control(b'{"command": "abort", "seq": 1, "issuer": "ctl@x"}')
+    for _ in range(10):
+        assert core.on_datagram(wire.encode_request(1.0), PEER, now).kind == "held"
+    core.on_control(b'{"command": "reset", "seq": 2, "issuer": "ctl@x"}')
+    assert core.on_datagram(wire.encode_request(1.0), PEER, now).reply is not None
+    assert core.counters["udp_rate_limited"] == 0 and core.counters["udp_requests_held"] == 10
+
+
+def test_with_request_port_requests_from_another_port_are_dropped() -> None:
+    # Any process on the legacy agent's host, from any port, was answered as the agent.
+    core, now = _serving(request_port=9005, request_burst=2)  # one token taken
+    other = core.on_datagram(wire.encode_request(1.0), ("127.0.0.1", 40000), now)
+    assert other.reply is None and other.kind == "foreign"
+    assert "port 40000" in (other.rejected or "") and "--request-port 9005" in (
+        other.rejected or ""
+    )
+    assert core.counters["udp_requests_foreign_port"] == 1
+    # Dropped before the rate limit: the legacy agent's own request still has its token.
+    assert core.on_datagram(wire.encode_request(1.0), ("127.0.0.1", 9005), now).reply is not None
+    assert core.counters["udp_rate_limited"] == 0
+
+
+def test_without_request_port_requests_from_any_port_of_the_peer_host_are_answered() -> None:
+    # The paper's two channels: the legacy agent may request from a port other than --peer.
+    core, now = _serving()
+    outcome = core.on_datagram(wire.encode_request(1.0), ("127.0.0.1", 40000), now)
+    assert outcome.reply is not None
+
+
+def test_replies_only_from_peer_address_and_port() -> None:
+    # A reply from another port of the legacy agent's host fed the sync estimate and was
+    # published as the legacy agent's pose; the bridge's requests only go to --peer.
+    core = BridgeCore(config())
+    t1 = wire.decode_request(core.legacy_request(10.0))
+    data = wire.encode_reply(t1, 10.0 + CLOCK_OFFSET, wire.Pose())
+    other = core.on_datagram(data, ("127.0.0.1", 9002), 10.001)
+    assert other.kind == "foreign" and other.pose is None
+    assert "port 9002" in (other.rejected or "") and "--peer 127.0.0.1:9001" in (
+        other.rejected or ""
+    )
+    assert core.counters["udp_replies_foreign_port"] == 1
+    # Not matched to the request: the genuine reply from --peer still is (not a duplicate).
+    genuine = core.on_datagram(data, PEER, 10.002)
+    assert genuine.rejected == "not yet confirmed by the estimate"
+    assert core.legacy.client.accepted == 1
+
+
+@pytest.mark.parametrize("size", [wire.REQUEST_SIZE, wire.REPLY_SIZE, 7])
+def test_datagrams_from_another_host_are_dropped(size: int) -> None:
+    core, now = _serving()
+    outcome = core.on_datagram(b"\x00" * size, ("127.0.0.2", PEER[1]), now)
+    assert outcome.reply is None and outcome.kind == "foreign"
+    assert "not the legacy agent's host (--peer 127.0.0.1:9001)" in (outcome.rejected or "")
+    assert core.counters["udp_foreign"] == 1 and core.counters["udp_malformed"] == 0
+
+
+def test_a_peer_given_by_name_is_compared_as_resolved() -> None:
+    core = BridgeCore(config(peer="legacy.example:9001"), peer=PEER)
+    outcome = core.on_datagram(b"\x00" * 3, ("10.0.0.9", 9001), 1.0)
+    assert "--peer legacy.example:9001 (127.0.0.1:9001)" in (outcome.rejected or "")
+    assert core.on_datagram(b"\x00" * 3, PEER, 1.0).kind == "malformed"  # heard
