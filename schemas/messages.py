@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -204,6 +204,12 @@ class Command(BaseModel):
     )
     duration: float | None = Field(
         None, gt=0, allow_inf_nan=False, description="s of run time after which the run is done"
+    )
+    participants: list[Annotated[str, Field(max_length=200)]] | None = Field(
+        None,
+        max_length=4096,
+        description="LAB/NAME of every agent a start, freeze, resume or reset is for: an "
+        "agent not named ignores it (an abort is for every agent); none: every agent",
     )
 
 

@@ -479,6 +479,11 @@ class BridgeCore:
             if verdict.outcome != "repeat":
                 self._outcome(command, verdict.outcome, verdict.detail)
             return None
+        if command.command != "abort" and (
+            command.participants is not None and str(self.me) not in command.participants
+        ):
+            self._outcome(command, "ignored", f"not a participant of {command.experiment}")
+            return None
         if command.command == "abort":
             done = "aborted: no replies to the legacy agent until fedlab ctl reset"
             self.aborted = True

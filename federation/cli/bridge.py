@@ -14,6 +14,7 @@ from typing import Any
 from federation.cli.common import (
     Formatter,
     Subparsers,
+    add_timeout_flag,
     add_zenoh_flags,
     agent_id,
     check_agent_identity,
@@ -81,6 +82,7 @@ def add(sub: Subparsers) -> None:
         conflict_handler="resolve",  # --listen is the UDP address; Zenoh keeps -l
     )
     add_zenoh_flags(p)
+    add_timeout_flag(p, service=True)
     p.add_argument(
         "--as", dest="as_agent", required=True, metavar="LAB/NAME",
         help="the legacy agent's name in the federation",
@@ -169,6 +171,7 @@ def _add_ros2(kinds: Any) -> None:
         epilog="Examples:\n" + _ROS2_EXAMPLE,
     )
     add_zenoh_flags(p)
+    add_timeout_flag(p, service=True)
     p.add_argument(
         "--federation", type=federation_name, default="default", metavar="NAME",
         help="federation name",
@@ -288,15 +291,17 @@ def run(args: argparse.Namespace) -> int:
 
     from federation.bridge.udp import bind_udp, run_bridge
     from federation.runtime.names import NameTaken
-    from federation.runtime.session import build_config
+    from federation.runtime.session import build_config, fail_fast
 
     config = bridge_config(args)
     check_agent_identity(args, config.agent)  # the legacy agent's name is its identity
     conf = build_config(zenoh_options(args), default_mode="client")
+    if args.timeout is not None:
+        fail_fast(conf, args.timeout)
     sock = bind_udp(config.listen_address)  # a port in use fails now, not after the router
     stop = stop_on_signals()
     try:
-        session = open_interruptible(zenoh.open, conf, stop)
+        session = open_interruptible(zenoh.open, conf, stop, args.timeout)
     except BaseException:
         sock.close()
         raise

@@ -23,8 +23,12 @@ it at all is decided first by :class:`federation.core.commands.CommandGate`):
    done or armed (re-arm) and starts at once if that time has come; while running
    or frozen it is ``ignored``; without ``at`` and unsynchronized it is ``ignored``.
    It names the run (``run_id``) and may give its ``duration`` (s of run time).
+   A start without a ``duration``, for a run state without a default one, is
+   ``ignored``: a run must end.
 5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` (not
-   later than the present) or the present; anything else is ``ignored``.
+   later than the present, not earlier than the run's start or the freeze) or the
+   present; an ``at`` more than ``LATE_START`` past is ``ignored``, as a start's is;
+   anything else is ``ignored``.
 
 :meth:`RunState.update` makes the transitions no command makes: armed to running
 once the reference time reaches the start, running to done once the run time
@@ -134,15 +138,24 @@ class RunState:
                 # Begun part-way, the run would not be the one the others fly: ctl aborts
                 # a start not every participant confirmed before it; ask again.
                 return [Event("ignored", t_sim, f"start instant passed {t_sim - cmd.at:.1f} s ago")]
+            duration = getattr(cmd, "duration", None)
+            if duration is None and self.default_duration is None:
+                # A run that never ends flies until someone aborts it (ctl gives one).
+                return [Event("ignored", t_sim, "start without a duration: a run must end")]
             self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
             self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
             self.run_id = getattr(cmd, "run_id", None)
-            duration = getattr(cmd, "duration", None)
             self.duration = self.default_duration if duration is None else duration
             return [Event("armed", self.start_at), *self.update(t_sim)]
+        if cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START:
+            # Acted on at a past instant, a freeze had rewound the run's clock (the leader
+            # slewed back to an old heading) and a resume jumped it: as late as a start.
+            return [Event("ignored", t_sim, f"{kind} instant passed {t_sim - cmd.at:.1f} s ago")]
         at = t_sim if cmd.at is None or t_sim is None else min(cmd.at, t_sim)
         if kind == "freeze" and at is not None and self.start_at is not None:
             at = max(at, self.start_at)  # an instant before the run is not one of its own
+        if kind == "resume" and at is not None and self.frozen_at is not None:
+            at = max(at, self.frozen_at)  # no run time is made up before the freeze
         if kind == "freeze" and self.mode == "running" and at is not None:
             self.mode, self.frozen_at = "frozen", at
             return [Event("frozen", at)]

@@ -1309,7 +1309,7 @@ class AgentRuntime:
                     )  # fmt: skip
                 return
             if command.command != "abort":
-                recorded = self._recorded_before(command)
+                recorded = self._not_mine(command) or self._recorded_before(command)
                 with self._lock:
                     if recorded is not None:  # refused before the run state sees it
                         events = [Event("ignored", self.sim_time(t_exec), recorded)]
@@ -1338,6 +1338,14 @@ class AgentRuntime:
             self._status_now = True  # ctl waits for it: at the next step, not in a second
         except Exception:
             log.exception("control sample on %s failed", sample.key_expr)
+
+    def _not_mine(self, command: Command) -> str | None:
+        """Why a command is not for this agent: it names the participants and not this
+        one (a start for one experiment had armed, and later released, every agent
+        waiting in the federation, none of them preflighted or awaited by ctl)."""
+        if command.participants is None or str(self.me) in command.participants:
+            return None
+        return f"not a participant of {command.experiment or 'this run'}"
 
     def _recorded_before(self, command: Command) -> str | None:
         """Why a start must be refused: its run is recorded on this host already (a run

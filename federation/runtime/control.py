@@ -474,6 +474,10 @@ def issue(
             command = Command(
                 command=action, seq=issuer.next_seq(), issuer=issuer.name,
                 experiment=experiment.name if experiment else None,
+                # An abort is for every agent; the rest for the experiment's only.
+                participants=sorted(_expected(experiment, {}))
+                if experiment is not None and action != "abort"
+                else None,
             )  # fmt: skip
             sent = publish(session, federation, command)
             time.sleep(max(0.0, discover - (time.monotonic() - sent)))
@@ -532,6 +536,8 @@ def issue(
             experiment=experiment.name if experiment else None,
             maneuver=experiment.maneuver if experiment else None,
             run_id=run_id,
+            # Only the agents preflighted and awaited: any other one ignores the start.
+            participants=sorted(expected),
             duration=duration
             if duration is not None
             else experiment.duration

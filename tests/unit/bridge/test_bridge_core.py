@@ -374,7 +374,11 @@ def test_an_abort_holds_the_legacy_agent_until_a_reset() -> None:
     # Other commands are not its business; a malformed abort is still an abort.
     core.on_control(b'{"command": "start", "seq": 2, "issuer": "ctl@x", "at": 1.0}')
     assert core.status(now, 0.0).commands[-1].outcome == "ignored"
-    core.on_control(b'{"command": "reset", "seq": 3, "issuer": "ctl@x"}')
+    # A reset for another experiment's participants leaves it held.
+    core.on_control(b'{"command": "reset", "seq": 3, "issuer": "ctl@x", "experiment": "dock",'
+                    b' "participants": ["lab3/a"]}')  # fmt: skip
+    assert core.aborted and "not a participant of dock" in core.status(now, 0.0).commands[-1].detail
+    core.on_control(b'{"command": "reset", "seq": 4, "issuer": "ctl@x"}')
     assert core.status(now, 0.0).mode == "unmanaged"
     core.on_followed_pose(wire.encode_pose(now - 2.99, wire.Pose(0.5)), now + 0.02, source="aaaa")
     assert core.on_datagram(wire.encode_request(1.0), PEER, now + 0.02).reply is not None

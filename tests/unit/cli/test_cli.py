@@ -253,7 +253,7 @@ def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
     assert "waiting for the router" in out
 
 
-@pytest.mark.parametrize("command", ["agent", "host", "foxglove"])
+@pytest.mark.parametrize("command", ["agent", "host", "foxglove", "bridge"])
 def test_a_service_given_a_timeout_gives_up_on_its_router_naming_it(
     command: str, tmp_path: Path
 ) -> None:
@@ -267,9 +267,13 @@ def test_a_service_given_a_timeout_gives_up_on_its_router_naming_it(
         agent = [str(file)]
     elif command == "foxglove":
         agent = ["--port", "0"]
+    elif command == "bridge":
+        listen, peer = (f"127.0.0.1:{free_port()}" for _ in range(2))
+        agent = ["udp", "--as", "kiruna/legacy", "--listen", listen, "--peer", peer]
     started = time.monotonic()
     done = subprocess.run(
-        [sys.executable, "-m", "federation", command, *agent, "-e", nowhere, "--timeout", "1"],
+        [sys.executable, "-m", "federation", *command.split(), *agent, "-e", nowhere,
+         "--timeout", "1"],
         capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=30, check=False,
     )  # fmt: skip
     assert done.returncode == 1, done.stderr
@@ -470,6 +474,7 @@ def test_ctl_sends_an_abort_urgently_and_again_until_confirmed(
     result = control.issue(session, "abort", wait=1.3, discover=0.05)
     aborts = [p for p in session.puts if p[1]["command"] == "abort"]
     assert not result.ok and len(aborts) >= 3 + 2  # three at once, then every 0.5 s
+    assert all(p[1]["participants"] is None for p in aborts)  # an abort is for everyone
     for _, _, options in aborts:
         assert options["priority"] == zenoh.Priority.REAL_TIME
         assert options["congestion_control"] == zenoh.CongestionControl.BLOCK
@@ -538,3 +543,5 @@ def test_ctl_refuses_a_run_id_an_agent_reports_before_sending_anything(
         discover=0.0, duration=10.0, force=True,
     )  # fmt: skip
     assert session.puts[0][1]["run_id"] == "run-20261124T220000Z-2"
+    # The start is for the agents preflighted and awaited only.
+    assert session.puts[0][1]["participants"] == ["lab/a", "lab/b"]

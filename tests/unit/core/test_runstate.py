@@ -22,7 +22,7 @@ class Cmd:
     seq: int = 0
     at: float | None = None
     run_id: str | None = "run"
-    duration: float | None = None
+    duration: float | None = 1000.0  # a run must end (rule 4)
 
 
 def in_mode(mode: Mode) -> RunState:
@@ -93,8 +93,33 @@ def test_a_freeze_without_at_freezes_now() -> None:
 
 def test_a_resume_before_the_freeze_adds_no_frozen_time() -> None:
     state = in_mode("frozen")  # frozen at 8
-    assert state.command(Cmd("resume", 2, at=7.0), t_sim=8.0) == [Event("resumed", 7.0)]
+    # No run time is made up before the freeze: resumed at the freeze's instant.
+    assert state.command(Cmd("resume", 2, at=7.0), t_sim=8.0) == [Event("resumed", 8.0)]
     assert state.frozen_total == 0.0
+
+
+@pytest.mark.parametrize(
+    ("kind", "at"), [("freeze", 0.0), ("resume", -1e9), ("freeze", 48.9), ("resume", 0.0)]
+)
+def test_a_freeze_or_resume_whose_instant_passed_is_ignored(kind: str, at: float) -> None:
+    # A freeze at 0 had rewound the run's clock by 45 s (the leader slewed back to the
+    # maneuver's first heading) and a resume at -1e9 jumped it by the whole freeze.
+    state = in_mode("running" if kind == "freeze" else "frozen")
+    before = (state.mode, state.frozen_at, state.frozen_total)
+    (event,) = state.command(Cmd(kind, 3, at=at), t_sim=50.0)
+    assert event.kind == "ignored" and "instant passed" in event.detail
+    assert (state.mode, state.frozen_at, state.frozen_total) == before
+
+
+def test_a_start_without_a_duration_is_ignored_unless_the_agent_has_one() -> None:
+    # A hand-made start with no duration, to an agent with none, flew until an abort.
+    state = RunState()
+    (event,) = state.command(Cmd("start", at=5.0, duration=None), t_sim=1.0)
+    assert event.kind == "ignored" and "a run must end" in event.detail
+    assert state.mode == "waiting"
+    assert RunState(duration=3.0).command(Cmd("start", at=5.0, duration=None), t_sim=1.0) == [
+        Event("armed", 5.0)
+    ]
 
 
 # ------------------------------------------------------------------ ignored commands
@@ -153,7 +178,7 @@ def test_run_time_is_none_before_the_start_or_without_time() -> None:
 
 
 def test_the_schema_command_is_a_run_command() -> None:
-    command: RunCommand = Command(command="start", seq=0, at=5.0)
+    command: RunCommand = Command(command="start", seq=0, at=5.0, duration=10.0)
     state = RunState()
     assert state.command(command, t_sim=1.0) == [Event("armed", 5.0)]
 
@@ -246,7 +271,7 @@ def test_frozen_time_does_not_count_towards_the_duration() -> None:
 
 def test_the_agents_duration_applies_when_the_start_gives_none() -> None:
     state = RunState(duration=3.0)
-    state.command(Cmd("start", at=0.0), t_sim=0.0)
+    state.command(Cmd("start", at=0.0, duration=None), t_sim=0.0)
     assert state.update(3.0) == [Event("done", 3.0)]
     state.command(Cmd("start", at=10.0, duration=1.0), t_sim=5.0)
     assert state.duration == 1.0
@@ -254,7 +279,7 @@ def test_the_agents_duration_applies_when_the_start_gives_none() -> None:
 
 def test_done_waits_for_the_next_start_which_names_a_new_run() -> None:
     state = RunState(duration=3.0)
-    state.command(Cmd("start", at=0.0, run_id="one"), t_sim=0.0)
+    state.command(Cmd("start", at=0.0, run_id="one", duration=None), t_sim=0.0)
     state.update(3.0)
     assert state.mode == "done"
     events = state.command(Cmd("start", at=10.0, run_id="two"), t_sim=5.0)
@@ -318,5 +343,5 @@ def test_a_start_whose_instant_has_passed_is_refused() -> None:
 def test_a_freeze_before_the_runs_start_freezes_at_its_start() -> None:
     # A freeze "at 0" rewound the run time to 0, and moved the run's end later.
     state = in_mode("running")  # started at 5 s
-    assert state.command(Cmd("freeze", 1, at=0.0), t_sim=8.0) == [Event("frozen", 5.0)]
+    assert state.command(Cmd("freeze", 1, at=4.5), t_sim=5.4) == [Event("frozen", 5.0)]
     assert state.run_time(20.0) == 0.0

@@ -49,10 +49,10 @@ class _Sink:
 
 
 class Follower:
-    def __init__(self) -> None:
+    def __init__(self, **settings: Any) -> None:
         self.now = 1000.0
         self.clock = ExecClock(source=lambda: self.now)
-        config = AgentConfig(lab="kiruna", name="f", role="follower", follow=str(LEAD))
+        config = AgentConfig(lab="kiruna", name="f", role="follower", follow=str(LEAD), **settings)
         self.agent = AgentRuntime(config, session=None, clock=self.clock)  # type: ignore[arg-type]
         self.statuses: list[str] = []
         self.agent._status_pub = _Sink(self.statuses)
@@ -80,6 +80,8 @@ class Follower:
 
     def command(self, name: str, **fields: Any) -> None:
         self.seq += 1
+        if name == "start":
+            fields = {"duration": 100.0} | fields  # a run must end
         command = {"command": name, "seq": self.seq, "issuer": "op"} | fields
         self.agent._on_control(_Sample(command))  # type: ignore[arg-type]
 
@@ -300,6 +302,26 @@ def test_no_release_judged_before_an_abort_follows_its_hold() -> None:
     f.step()
     assert f.agent.run_state.mode == "aborted" and platform.held
     assert f.agent.hold_reason == "aborted"
+
+
+def test_a_command_for_other_participants_is_ignored() -> None:
+    # A start for another lab's experiment had armed every waiting agent of the
+    # federation, none preflighted or awaited, and released each at the start instant.
+    f = Follower(wait_start=True)
+    f.synced()
+    f.pose()
+    others = ["lab3/a", "lab3/b"]
+    f.command("start", run_id="r1", experiment="docking", participants=others)
+    f.step()
+    assert f.agent.run_state.mode == "waiting" and f.agent.platform.held
+    (outcome,) = [c for c in f.agent.command_log if c.command == "start"]
+    assert outcome.outcome == "ignored" and "not a participant of docking" in outcome.detail
+    f.command("start", run_id="r2", participants=[*others, "kiruna/f"])  # named: armed
+    f.step()
+    assert f.agent.run_state.mode in ("armed", "running")
+    f.command("abort", participants=others)  # an abort is for everyone, named or not
+    f.step()
+    assert f.agent.run_state.mode == "aborted" and f.agent.platform.held
 
 
 def test_a_follower_held_for_a_contested_leader_is_not_ready() -> None:
