@@ -531,15 +531,23 @@ class AgentRuntime:
             self._hold_for_name(t_exec, host)
         self._watch_link(t_exec, host)
         mode = self.run_state.mode
-        if mode in HOLD_MODES and not self.platform.held:
-            # An abort handled on Zenoh's thread while this step released a link hold it
-            # had judged before: the run's end (or its not having begun) wins, whatever
-            # else let go.
+        if not self.platform.held and (
+            mode in HOLD_MODES
+            or self.hold_reason is not None
+            or (self.follow is not None and self.link_watch.holding)
+        ):
+            # Whatever let go (a release on another thread), a step never runs free while
+            # the run has not begun or has ended, a cause is named, or the link is stale.
             self.platform.hold()
             if self.hold_reason is None:
-                self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
+                if self.follow is not None and self.link_watch.holding:
+                    self.hold_reason = "stale"
+                else:
+                    self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
             self.count("holds_restored")
-            log.warning("run %s: the platform was released; held again", mode)
+            log.warning(
+                "run %s: the platform was released; held again (%s)", mode, self.hold_reason
+            )
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
             if self._scenario_new_run:
@@ -587,12 +595,15 @@ class AgentRuntime:
         last = None if client is None else client.last
         # On a shared feed the link is measured once for all its agents; the hold is each one's.
         threshold = None if self.feed is None else self.feed.watch.threshold
-        action = self.link_watch.update(
-            t_exec, received, None if last is None else last.t3, threshold
-        )
+        with self._lock:  # judged and held at once: a _let_go on Zenoh's thread (a start
+            # applied there) decides under this lock, so it sees the hold or comes first
+            action = self.link_watch.update(
+                t_exec, received, None if last is None else last.t3, threshold
+            )
+            if action == "stale_hold" and received is not None:
+                self.hold_reason = "stale"
+                self.platform.hold()
         if action == "stale_hold" and received is not None:
-            self.hold_reason = "stale"
-            self.platform.hold()
             self.count("stale_holds")
             log.warning(
                 "no pose from %s for %.0f ms: safe hold", self.follow, (t_exec - received) * 1e3
