@@ -60,7 +60,11 @@ class ExperimentConfig(_Model):
     federation: Annotated[str, _name("federation name")] = DEFAULT_FEDERATION
     duration: float = Field(gt=0, description="seconds of run time after the start")
     start_delay: float = Field(
-        3.0, gt=0, le=60, description="seconds between the start command and the start"
+        3.0,
+        ge=1.0,
+        le=60,
+        description="seconds between the start command and the start (at least 1: ctl hears "
+        "every participant confirm, or aborts, before it)",
     )
     maneuver: ManeuverConfig = Field(default_factory=ManeuverConfig)
     kind: ScenarioKind = Field("attitude-tracking", description="what the experiment rehearses")

@@ -74,7 +74,7 @@ def add(sub: Subparsers) -> None:
         dest="start_in",
         type=nonnegative,
         metavar="S",
-        help="start this many seconds ahead "
+        help=f"start this many seconds ahead, at least {control.START_IN_MIN:g} "
         f"(default: the experiment's start_delay, else {control.DEFAULT_START_IN:g})",
     )
     p.add_argument("--run-id", type=run_id, metavar="ID", help="name of the run (start)")

@@ -293,6 +293,9 @@ START_CONFIRM_MARGIN = 0.5
 """s before a start by which every participant must have confirmed it (else ctl aborts)."""
 START_CONFIRM_MIN = 0.5
 """s: the least ctl waits for a start's confirmations."""
+START_IN_MIN = START_CONFIRM_MIN + START_CONFIRM_MARGIN
+"""s: the least time between announcing a start and the start: with less, the agents
+present began (their platforms moving) before ctl could find one missing and abort."""
 
 
 def send(
@@ -501,6 +504,15 @@ def issue(
                 "a run must end: give --duration SECONDS or --experiment FILE (whose "
                 "duration it takes)"
             )
+        if start_in is None:
+            start_in = experiment.start_delay if experiment else DEFAULT_START_IN
+        if start_in < START_IN_MIN:
+            raise ConfigError(
+                f"a start {start_in:g} s ahead (--in, or the experiment's start_delay): it is "
+                f"announced at least {START_IN_MIN:g} s ahead, so that ctl hears every "
+                f"participant confirm it and can abort it {START_CONFIRM_MARGIN:g} s before it "
+                "begins if one has not"
+            )
         rows = status(
             session, federation=federation, experiment=experiment, discover=discover,
             max_bound=max_bound, fed=fed,
@@ -523,8 +535,6 @@ def issue(
         clock = ExecClock()
         ref_now = reference_now(session, federation, ref, clock)
         ref_offset = ref_now - clock.now()
-        if start_in is None:
-            start_in = experiment.start_delay if experiment else DEFAULT_START_IN
         at = ref_now + start_in
         progress(f"run {run_id}: start at reference time {at:.3f} s ({ref}'s clock)")
         command = Command(
@@ -558,9 +568,23 @@ def issue(
             publish(session, federation, abort)
             missing = ", ".join(result.pending)
             progress(f"run {run_id} aborted: {missing} had not confirmed the start before it")
+
+            def again() -> None:
+                publish(session, federation, abort, copies=1)
+
+            # The abort is sent again until every agent that took the start confirms it
+            # (as `ctl abort` does), and the result says who did not.
+            armed = expected - set(result.pending)
+            aborted = confirm(abort, armed, fed, wait, progress, resend=again)
+            unconfirmed = sorted(a for a in armed if aborted.get(a) != "aborted")
             reasons = {
                 a: f"{r}; the run was aborted before its start" for a, r in result.reasons.items()
             }
+            for agent in unconfirmed:
+                reasons[agent] = (
+                    f"took the start, and had not confirmed the abort sent after it "
+                    f"within {wait:g} s (mode {aborted.get(agent, 'absent')})"
+                )
             return dataclasses.replace(result, reasons=reasons)
         return result
     finally:

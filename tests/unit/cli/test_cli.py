@@ -497,7 +497,16 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     monkeypatch.setattr(control, "status", lambda *a, **k: [])
     monkeypatch.setattr(control, "preflight", lambda *a, **k: [])  # passed, for this test
     monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
-    session = _Recorder()
+    heard: list[str] = ["lab/a"]  # who takes the abort when it comes
+
+    class Session(_Recorder):
+        def put(self, key: str, payload: str, **options: Any) -> None:
+            super().put(key, payload, **options)
+            if self.puts[-1][1]["command"] == "abort":
+                for agent in heard:
+                    statuses[agent] = {"mode": "aborted"}
+
+    session = Session()
     t0 = time.monotonic()
     result = control.issue(
         session, "start", reference=AgentId.parse("lab/a"), start_in=1.0, wait=5.0,
@@ -508,6 +517,30 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     assert commands[:3] == ["start"] * 3 and "abort" in commands[3:]
     assert result.pending == ["lab/b"]
     assert "aborted before its start" in result.reasons["lab/b"]
+    assert "lab/a" not in result.reasons  # it confirmed the abort
+    # An agent that took the start and does not confirm the abort: sent again, said.
+    heard.clear()
+    statuses.update({"lab/a": {"mode": "armed", "run_id": "r2"}, "lab/b": {"mode": "waiting"}})
+    session.puts.clear()
+    result = control.issue(
+        session, "start", reference=AgentId.parse("lab/a"), start_in=1.0, wait=1.2,
+        discover=0.0, run_id="r2", duration=10.0,
+    )  # fmt: skip
+    aborts = [p for p in session.puts if p[1]["command"] == "abort"]
+    assert len(aborts) >= 3 + 1  # three at once, then again while unconfirmed
+    assert "had not confirmed the abort" in result.reasons["lab/a"]
+
+
+@pytest.mark.parametrize("start_in", [0.0, 0.9])
+def test_ctl_refuses_a_start_too_soon_to_abort_before_it(
+    monkeypatch: pytest.MonkeyPatch, start_in: float
+) -> None:
+    # With --in 0 the agents present began on receipt, before ctl could find one missing.
+    monkeypatch.setattr(control, "Federation", _fake_federation({"lab/a": {"mode": "waiting"}}))
+    session = _Recorder()
+    with pytest.raises(ConfigError, match="at least 1 s ahead"):
+        control.issue(session, "start", start_in=start_in, discover=0.0, duration=10.0)
+    assert session.puts == []
 
 
 def test_a_plain_link_to_another_hosts_router_needs_open() -> None:
