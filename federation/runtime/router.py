@@ -71,13 +71,17 @@ def load_router_config(
     return settings, conf
 
 
-def _refuse_open_listeners(conf: zenoh.Config, listen: list[str], source: str) -> None:
+def _guarded(conf: zenoh.Config) -> bool:
+    """Whether access control is on and denies what no rule allows."""
     acl = config_value(conf, "access_control") or {}
-    guarded = (
+    return (
         isinstance(acl, dict) and acl.get("enabled") is True
         and acl.get("default_permission") == "deny"
     )  # fmt: skip
-    if guarded:
+
+
+def _refuse_open_listeners(conf: zenoh.Config, listen: list[str], source: str) -> None:
+    if _guarded(conf):
         return
     for endpoint in listen:
         if not _local_only(endpoint):
@@ -94,8 +98,7 @@ def _refuse_plain_dial(conf: zenoh.Config, connect: list[str], source: str) -> N
     """Refuse a plain (not TLS, not QUIC) link to another host's router without access
     control: nothing proves who answers, and what it sends (control, any agent's pose)
     would be carried into this lab. Loopback, a testbed (``--open``), or TLS."""
-    acl = config_value(conf, "access_control") or {}
-    if isinstance(acl, dict) and acl.get("enabled") is True:
+    if _guarded(conf):  # on, and denying what no rule allows (an allow-all is no guard)
         return
     for endpoint in connect:
         proto = endpoint.partition("/")[0]
@@ -103,7 +106,7 @@ def _refuse_plain_dial(conf: zenoh.Config, connect: list[str], source: str) -> N
             continue
         raise ConfigError(
             f"{source}: field 'connect': {endpoint} is a plain link to another host and no "
-            "access control is on: whoever answers there could send control or any agent's "
+            "access control is on (access_control.enabled, default_permission deny): whoever answers there could send control or any agent's "
             "pose into this lab. Use the configs of fedlab deploy generate (TLS, access "
             "control), or pass --open on a network you trust (a testbed)"
         )

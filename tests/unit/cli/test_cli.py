@@ -550,6 +550,18 @@ def test_a_plain_link_to_another_hosts_router_needs_open() -> None:
     assert "tcp/192.0.2.7:7447 is a plain link to another host" in result.stderr
 
 
+def test_access_control_that_allows_all_is_no_guard_for_a_plain_link(tmp_path: Path) -> None:
+    # Enabled with default allow and no rule: the link carried anything, as with none.
+    path = tmp_path / "r.json5"
+    path.write_text(
+        '{mode: "router", metadata: {lab: "rome"}, listen: {endpoints: ["tcp/127.0.0.1:0"]},'
+        ' connect: {endpoints: ["tcp/192.0.2.7:7447"]},'
+        ' access_control: {enabled: true, default_permission: "allow"}}'
+    )
+    with pytest.raises(ConfigError, match="tcp/192.0.2.7:7447 is a plain link to another host"):
+        load_router_config(ZenohOptions(config=path), None)
+
+
 def test_ctl_refuses_a_run_id_an_agent_reports_before_sending_anything(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
