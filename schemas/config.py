@@ -81,7 +81,10 @@ class ManeuverConfig(_Model):
         paper.MANEUVER_STILL, ge=0, description="seconds held still after the start"
     )
     duration: float = Field(
-        paper.MANEUVER_DURATION, gt=0, description="seconds to rotate out and back"
+        paper.MANEUVER_DURATION,
+        ge=1.0,
+        description="seconds to rotate out and back (at least 1: a start naming 1e-12 "
+        "asked a rate of 1e300)",
     )
     amplitude_deg: float = Field(
         paper.MANEUVER_AMPLITUDE_DEG, ge=-180, le=180, description="rotation, degrees"

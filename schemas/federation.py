@@ -32,6 +32,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, Field, ValidationError, model_validator
 
+from federation.core import keys
 from federation.core.keys import DEFAULT_FEDERATION
 from schemas import base
 from schemas.base import ConfigError, load_model
@@ -214,6 +215,12 @@ class FederationFile(base.Model):
         if "ca" in self.labs:
             raise _field_error(
                 "labs.ca", "'ca' is the CA's folder (DIR/ca): name the lab otherwise"
+            )
+        for reserved in keys.RESERVED_LABS & set(self.labs):
+            raise _field_error(
+                f"labs.{reserved}",
+                f"{reserved!r} is reserved: a lab of that name would be let publish the "
+                f"federation's control key ({keys.control_key(self.federation)})",
             )
         for lab, entry in self.labs.items():
             for i, other in enumerate(entry.dial):

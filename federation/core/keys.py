@@ -35,12 +35,20 @@ DEFAULT_FEDERATION = "default"
 _NAME = re.compile(r"^[a-z0-9_-]{1,63}$")
 
 
+RESERVED_LABS = frozenset({"control"})
+"""Names no lab may take: a lab's keys, ``fedlab/<federation>/<lab>/**``, would take in
+the federation's control key ``fedlab/<federation>/control`` (``**`` matches nothing),
+so the routers' rules for a lab named ``control`` would let it publish control."""
+
+
 def validate_name(value: str, what: str = "name") -> str:
     """Return ``value`` if it is a valid federation, lab or agent name, else raise ValueError."""
     if not isinstance(value, str) or not _NAME.fullmatch(value):
         raise ValueError(
             f"invalid {what} {value!r}: use 1-63 lowercase letters, digits, '-' or '_'"
         )
+    if what == "lab name" and value in RESERVED_LABS:
+        raise ValueError(f"invalid {what} {value!r}: reserved for the federation's control key")
     return value
 
 

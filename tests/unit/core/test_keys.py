@@ -6,6 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from federation.core import keys
 from federation.core.keys import (
     DEFAULT_FEDERATION,
     ROOT,
@@ -247,3 +248,12 @@ def test_parse_agent_key_foreign_keys(key: str) -> None:
 
 def test_parse_agent_key_rejects_empty_topic() -> None:
     assert parse_agent_key("default", "fedlab/default/kiruna/knatte/") is None
+
+
+def test_control_is_not_a_lab_name() -> None:
+    # A lab's keys, fedlab/<fed>/<lab>/**, would take in fedlab/<fed>/control.
+    with pytest.raises(ValueError, match="reserved"):
+        keys.validate_name("control", "lab name")
+    with pytest.raises(ValueError, match="reserved"):
+        keys.AgentId.parse("control/x")
+    assert keys.validate_name("control", "agent name") == "control"

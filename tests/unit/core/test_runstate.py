@@ -345,3 +345,13 @@ def test_a_freeze_before_the_runs_start_freezes_at_its_start() -> None:
     state = in_mode("running")  # started at 5 s
     assert state.command(Cmd("freeze", 1, at=4.5), t_sim=5.4) == [Event("frozen", 5.0)]
     assert state.run_time(20.0) == 0.0
+
+
+def test_a_command_whose_maneuver_is_too_short_to_fly_is_malformed() -> None:
+    # A rotation out and back in 1e-12 s asked a rate of 1e300.
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="duration"):
+        Command.model_validate_json(
+            '{"command": "start", "seq": 1, "maneuver": {"duration": 1e-12}}'
+        )

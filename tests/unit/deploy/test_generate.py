@@ -173,6 +173,9 @@ def test_local_points_every_path_into_the_labs_folder(tmp_path: Path) -> None:
          "rome/nobody is not an agent here"),
         ('[labs.lund]\nlisten = ["tls/127.0.0.1:1"]\ndail = ["kiruna"]\n', "labs.lund.dail",
          "unknown field"),
+        # Its rules, fedlab/<fed>/control/**, would take in the control key.
+        ('[labs.control]\nlisten = ["tls/127.0.0.1:1"]\ndial = ["kiruna"]\n', "labs.control",
+         "'control' is reserved"),
         # Kiruna's router's name on Lund's certificate: either could stand in for the other.
         ('[labs.lund]\nlisten = ["tls/127.0.0.1:1"]\ndial = ["kiruna"]\n'
          'hosts = ["kiruna.example.org"]\n', "labs.lund",
