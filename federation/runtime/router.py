@@ -106,9 +106,10 @@ def _refuse_plain_dial(conf: zenoh.Config, connect: list[str], source: str) -> N
             continue
         raise ConfigError(
             f"{source}: field 'connect': {endpoint} is a plain link to another host and no "
-            "access control is on (access_control.enabled, default_permission deny): whoever answers there could send control or any agent's "
-            "pose into this lab. Use the configs of fedlab deploy generate (TLS, access "
-            "control), or pass --open on a network you trust (a testbed)"
+            "access control is on (access_control.enabled, default_permission deny): "
+            "whoever answers there could send control or any agent's pose into this lab. "
+            "Use the configs of fedlab deploy generate (TLS, access control), or pass "
+            "--open on a network you trust (a testbed)"
         )
 
 
