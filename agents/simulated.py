@@ -232,6 +232,11 @@ class SimulatedPlatform:
         """The eight current valve states."""
         return self.chain.valves
 
+    @property
+    def counters(self) -> dict[str, int]:
+        """The chain's: steps closed and why, IMU samples and fixes rejected."""
+        return dict(self.chain.counters)
+
     # ------------------------------------------------------------------ one step
 
     def _tick_at(

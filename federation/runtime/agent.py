@@ -30,7 +30,7 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -966,6 +966,12 @@ class AgentRuntime:
             counters = dict(self.counters)
         if self.scenario is not None:  # workspace clamps and holds, relative sensing
             counters |= self.scenario.counters
+        # The platform's own (a serial link's bad checksums, write timeouts, the device's
+        # failsafe reports and restarts, the chain's closed steps): a real table's faults
+        # had reached neither status nor the recording.
+        platform = getattr(self.platform, "counters", None)
+        if isinstance(platform, Mapping):
+            counters |= platform
         return counters
 
     def check_delay_margin(self, status: Status) -> None:

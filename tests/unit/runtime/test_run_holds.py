@@ -574,3 +574,13 @@ def test_a_platform_waits_for_its_run_held() -> None:
         agent.control_step()
     assert agent.run_state.mode == "running" and not agent.platform.held
     assert agent.hold_reason is None
+
+
+def test_the_platforms_counters_reach_status() -> None:
+    # A real table's bad checksums, write timeouts and failsafe reports, or a simulated
+    # one's closed steps, had reached neither status nor the recording.
+    f = Follower(platform="pinocchio")
+    f.step()  # held until its run is under way: the chain's valves closed, counted
+    counters = f.agent.status().counters
+    assert counters.get("closed_held", 0) >= 1, counters
+    assert "imu_rejected" in counters and "closed_no_fix" in counters
