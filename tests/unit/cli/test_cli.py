@@ -558,7 +558,7 @@ def test_access_control_that_allows_all_is_no_guard_for_a_plain_link(tmp_path: P
         ' connect: {endpoints: ["tcp/192.0.2.7:7447"]},'
         ' access_control: {enabled: true, default_permission: "allow"}}'
     )
-    with pytest.raises(ConfigError, match="tcp/192.0.2.7:7447 is a plain link to another host"):
+    with pytest.raises(ConfigError, match=r"tcp/192\.0\.2\.7:7447 is a plain link to another"):
         load_router_config(ZenohOptions(config=path), None)
 
 
