@@ -227,6 +227,28 @@ def is_abort(payload: bytes) -> bool:
     return isinstance(data, dict) and data.get("command") == "abort"
 
 
+def malformed_outcome(payload: bytes, why: str) -> CommandOutcome | None:
+    """What to report of a control payload that did not validate, if it names its
+    issuer and seq (a newer ctl's field, a value out of range): ctl then says why the
+    agent refused it rather than "command not seen". None if it names neither."""
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    issuer, seq, command = data.get("issuer"), data.get("seq"), data.get("command")
+    if not isinstance(issuer, str) or not isinstance(seq, int) or isinstance(seq, bool):
+        return None
+    return CommandOutcome(
+        command=command[:20] if isinstance(command, str) else "?",
+        issuer=issuer[:200],
+        seq=seq,
+        outcome="malformed",
+        detail=why[:200],
+    )
+
+
 CHUNK_SIZE = 32 << 10
 """Bytes per chunk an agent serves of a recording (``fedlab collect``): a reply fits one
 Zenoh batch (64 KiB), which the low-latency transport fedlab uses cannot fragment; a

@@ -96,7 +96,14 @@ from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.status import peer_status
 from schemas.bridge import UdpBridgeConfig, format_address
-from schemas.messages import Command, CommandOutcome, PeerStatus, Status, is_abort
+from schemas.messages import (
+    Command,
+    CommandOutcome,
+    PeerStatus,
+    Status,
+    is_abort,
+    malformed_outcome,
+)
 
 __all__ = ["BridgeCore", "Maintenance", "Outcome", "TokenBucket"]
 
@@ -468,9 +475,16 @@ class BridgeCore:
         repeat or nothing)."""
         try:
             command = Command.model_validate_json(payload)
-        except (ValidationError, ValueError):
+        except (ValidationError, ValueError) as error:
             self.counters["control_malformed"] += 1
             if not is_abort(payload):
+                why = str(error)
+                if isinstance(error, ValidationError):
+                    first = error.errors()[0]
+                    why = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
+                reported = malformed_outcome(payload, why)
+                if reported is not None:  # ctl says why, not "command not seen"
+                    self.commands.append(reported)
                 return None
             command = Command(command="abort", seq=-1, issuer="malformed")
         self.counters["control_received"] += 1

@@ -71,7 +71,14 @@ from federation.runtime.runs import RunRecording, software_versions
 from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
-from schemas.messages import Command, CommandOutcome, Readiness, Status, is_abort
+from schemas.messages import (
+    Command,
+    CommandOutcome,
+    Readiness,
+    Status,
+    is_abort,
+    malformed_outcome,
+)
 from schemas.platform import PlatformConfig
 
 if TYPE_CHECKING:
@@ -1298,8 +1305,13 @@ class AgentRuntime:
                 command = Command.model_validate_json(payload)
             except ValidationError as error:
                 self.count("control_malformed")
-                self.rejects("control command", f"{sample.key_expr}: {error.errors()[0]['msg']}")
+                first = error.errors()[0]
+                why = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
+                self.rejects("control command", f"{sample.key_expr}: {why}")
                 if not is_abort(payload):
+                    reported = malformed_outcome(payload, why)
+                    if reported is not None:  # ctl says why, not "command not seen"
+                        self.command_log.append(reported)
                     return
                 # An abort is honoured even when the rest of it does not validate.
                 command = Command(command="abort", seq=-1, issuer="malformed")

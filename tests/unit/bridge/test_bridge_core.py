@@ -384,6 +384,10 @@ def test_an_abort_holds_the_legacy_agent_until_a_reset() -> None:
     assert core.on_datagram(wire.encode_request(1.0), PEER, now + 0.02).reply is not None
     core.on_control(b'{"command": "abort", "seq": "not a number"}')
     assert core.aborted and core.counters["control_malformed"] == 1
+    # A malformed command naming its issuer and seq is reported, so ctl can say why.
+    core.on_control(b'{"command": "reset", "seq": 9, "issuer": "ctl@x", "colour": "red"}')
+    last = core.status(now, 0.0).commands[-1]
+    assert (last.seq, last.outcome) == (9, "malformed") and "colour" in last.detail
 
 
 def test_the_bridges_own_request_coming_back_is_dropped() -> None:

@@ -584,3 +584,17 @@ def test_the_platforms_counters_reach_status() -> None:
     counters = f.agent.status().counters
     assert counters.get("closed_held", 0) >= 1, counters
     assert "imu_rejected" in counters and "closed_no_fix" in counters
+
+
+def test_a_malformed_command_naming_its_issuer_is_reported_as_such() -> None:
+    # A newer ctl's field (or a value out of range) was dropped without a trace in
+    # status: ctl said "command not seen", not why.
+    f = Follower()
+    command = {"command": "start", "seq": 7, "issuer": "op", "run_id": "r1", "colour": "red"}
+    f.agent._on_control(_Sample(command))  # type: ignore[arg-type]
+    (outcome,) = [c for c in f.agent.command_log if c.seq == 7]
+    assert (outcome.command, outcome.issuer, outcome.outcome) == ("start", "op", "malformed")
+    assert "colour" in outcome.detail
+    f.agent._on_control(_Sample({"nonsense": True}))  # type: ignore[arg-type]
+    assert len(f.agent.command_log) == 1  # nothing to report it under
+    assert f.agent.counters["control_malformed"] == 2
