@@ -502,6 +502,35 @@ def _retire_old_identities(
                 out.removed.append(part)
 
 
+def _refuse_trusted_again(fed: FederationFile, ca: Path, before: dict[str, str]) -> None:
+    """Refuse (ConfigError, naming the lab) to list, in a certificate lab, a name whose
+    old certificate still chains to this CA: one removed before (its pair in
+    ``ca/retired/``), or one listed now as another kind than before. Routers know an
+    identity by its certificate's name alone and Zenoh has no revocation list, so a new
+    pair would not shut the old one out: a leaked key, removed, came back with the name,
+    and an agent's old certificate recast as an operator's could publish control."""
+    retired_dir = ca / "retired"
+    retired = (
+        {_common_name(p) for p in retired_dir.glob("*.pem")} if retired_dir.is_dir() else set()
+    )
+    for lab, entry in fed.labs.items():
+        if entry.auth != "certificate":
+            continue  # a password lab's recast or returning name gets a new password
+        for who in _identities(lab, entry):
+            was = before.get(who.name)
+            recast = was is not None and was != who.kind and (ca / f"{who.stem}.pem").exists()
+            if who.name not in retired and not recast:
+                continue
+            history = f"was a {was} until now" if recast else "was removed before"
+            raise ConfigError(
+                f"field 'labs.{lab}': {who.name} {history}, and its old certificate still "
+                f"chains to this CA: routers know an identity by its certificate's name "
+                f"alone (no revocation list), so listing it as a {who.kind} would trust that "
+                f"certificate (its key perhaps the leaked one) again. Give it a new name, or "
+                f"issue a new CA (delete {ca} and generate: every lab installs again)"
+            )
+
+
 def _read_roles(ca: Path) -> dict[str, str]:
     path = ca / ROLES_FILE
     try:
@@ -519,6 +548,7 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
         out.issued.append(certs.ca_common_name(fed.federation))
     before = _read_roles(ca)
     now = {who.name: who.kind for lab, e in fed.labs.items() for who in _identities(lab, e)}
+    _refuse_trusted_again(fed, ca, before)  # before anything is moved
     _retire_old_identities(fed, ca, before, now, out)
     for lab, entry in fed.labs.items():
         hosts = entry.cert_hosts() or list(certs.DEFAULT_HOSTS)

@@ -5,6 +5,7 @@ configs run with real routers in tests/integration/test_trust.py."""
 from __future__ import annotations
 
 import json
+import shutil
 import stat
 import tomllib
 from pathlib import Path
@@ -313,16 +314,31 @@ def test_a_removed_or_recast_identity_never_gets_its_old_key_or_password_back(
     first = _serial(pem)
     gen.generate(load_federation(files["x"]), out)
     assert _serial(pem) == first  # kept while listed as the same kind
-    # Removed (its key leaked, say), then listed again as an operator: a new pair.
+    before = password("rome/y")
+    assert before is not None
+    # Recast in one run, agent to operator: refused in the certificate lab (the router
+    # knows kiruna/x by its certificate's name alone: its old one would publish control),
+    # and nothing moved.
+    with pytest.raises(ConfigError, match=r"labs\.kiruna'.*kiruna/x was a agent until now"):
+        gen.generate(load_federation(files["op"]), out)
+    assert _serial(pem) == first
+    # A password lab's name recast gets a new password (the old one no longer logs in).
+    y_op = with_x.replace(y, "").replace(
+        'operators = ["ctl"]\nagents.pinocchio', 'operators = ["ctl", "y"]\nagents.pinocchio'
+    )
+    files["y_op"] = tmp_path / "y_op.toml"
+    files["y_op"].write_text(y_op)
+    recast = gen.generate(load_federation(files["y_op"]), out)
+    assert password("rome/y") not in (None, before)
+    assert recast.role_changed == ["rome/y"] and _serial(pem) == first
+    # Removed (its key leaked, say): retired. Listed again, as an agent or an operator,
+    # it is refused: a new pair would not shut the old certificate out.
     gen.generate(load_federation(files["none"]), out)
     assert not pem.exists() and (out / "ca" / "retired" / f"kiruna.x.{first:x}.pem").exists()
+    for again in ("x", "op"):
+        with pytest.raises(ConfigError, match="kiruna/x was removed before"):
+            gen.generate(load_federation(files[again]), out)
+    # A new CA trusts no old certificate: the name may come back.
+    shutil.rmtree(out / "ca")
     gen.generate(load_federation(files["op"]), out)
     assert _serial(pem) != first
-    # Recast in one run, agent to operator: a new pair, a new password.
-    gen.generate(load_federation(files["x"]), out)
-    again, before = _serial(pem), password("rome/y")
-    assert before is not None
-    recast = gen.generate(load_federation(files["op"]), out)
-    assert _serial(pem) != again
-    assert password("rome/y") not in (None, before)
-    assert set(recast.role_changed) == {"kiruna/x", "rome/y"}
