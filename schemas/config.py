@@ -177,6 +177,22 @@ class AgentConfig(_Model):
         "and serve the finished ones to fedlab collect; set to runs by --experiment unless "
         "record is given",
     )
+    record_max_mb: int = Field(
+        2048,
+        ge=1,
+        le=1 << 20,
+        description="MiB a run's recording under runs_dir may take, and at most half the "
+        "space free when the run is armed: past it, messages are dropped and counted and the "
+        "recording is finished marked truncated (a peer publishing far too fast fills no disk)",
+    )
+    record_min_free_mb: int = Field(
+        1024,
+        ge=0,
+        le=1 << 20,
+        description="MiB that must be free on runs_dir's filesystem: with less, preflight "
+        "fails (ready.recording false, so ctl start refuses unless --force) and a run armed "
+        "all the same is recorded with an error logged; 0: not checked",
+    )
     experiment: Path | None = Field(
         None, description="the experiment file this agent takes part in (recorded with each run)"
     )

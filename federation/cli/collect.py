@@ -35,7 +35,10 @@ def add(sub: Subparsers) -> None:
             "a bad one fetched again; the whole file checked against the agent's manifest)\n"
             "into DIR, ready for fedlab report DIR. Run it again to resume: complete files\n"
             "are kept, partial ones (.part) continue where they stopped. Exit code 1 if a\n"
-            "participant (with --experiment) has no such run or a file failed."
+            "participant (with --experiment) has no such run or a file failed. A recording\n"
+            "that is not whole (its agent was killed mid-run and recovered it when started\n"
+            "again, or it reached record_max_mb) comes with <lab>-<name>.incomplete.json,\n"
+            "and what it misses is printed."
         ),
         epilog=(
             "Examples:\n"
@@ -99,5 +102,7 @@ def run(args: argparse.Namespace) -> int:
             console.print(Text(f"{agent}: no finished run {args.run_id}", style="red"))
         for error in result.errors:
             console.print(Text(printable(error), style="red"))
+        for agent, what in sorted(result.incomplete.items()):  # collected, but not whole
+            console.print(Text(printable(f"{agent}: {what}"), style="yellow"))
         console.print(f"{result.bytes_fetched} bytes fetched into {args.out}")
     return 0 if result.ok else 1

@@ -67,7 +67,7 @@ from federation.runtime.names import (
     name_alive,
 )
 from federation.runtime.recorder import Message, Recorder, Shared
-from federation.runtime.runs import RunRecording, software_versions
+from federation.runtime.runs import RunRecording, low_space, software_versions
 from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
@@ -793,6 +793,7 @@ class AgentRuntime:
                 {"role": self.config.role, "follow": self.config.follow,
                  "latency_compensation": self.config.latency_compensation,
                  "reference": str(self.reference), "duration": self.run_state.duration},
+                self.config.record_max_mb, self.config.record_min_free_mb,
             )  # fmt: skip
             self._update_recorded()
         except OSError as error:
@@ -955,11 +956,12 @@ class AgentRuntime:
                 locked = estimator is not None and estimator.locked
                 bound = None if estimator is None else estimator.bound
         target = self.config.record if self.recorder is not None else self.config.runs_dir
+        low = low_space(self.config) if self.recorder is None else None
         return Readiness(
             platform=not detail,
             platform_detail=detail,
-            recording=target is not None,
-            recording_to=None if target is None else str(target),
+            recording=target is not None and low is None,
+            recording_to=low or (None if target is None else str(target)),
             reference_locked=locked,
             reference_bound=bound,
         )

@@ -13,11 +13,23 @@ checked and a bad one fetched again (``retries`` times); the whole file's SHA-25
 is checked before the ``.part`` is renamed. An interrupted collection resumes
 where its ``.part`` files end; files already complete are not fetched again.
 Memory holds one chunk at a time, whatever the file's size.
+
+A run its agent never finalized (the agent killed, its host's power lost: an MCAP
+with no summary, no manifest) is recovered when the agent starts again
+(:func:`recover_runs`, on a thread of the :class:`RecordingServer`): the original
+is renamed ``<lab>-<name>.mcap.partial`` and kept, every complete record it holds
+is written into a finished ``<lab>-<name>.mcap``, and the manifest is written, so
+the crashed run is collected like any other. A recording that is not whole
+(recovered, or truncated at its size limit) has ``<lab>-<name>.incomplete.json``
+beside it, listed in its manifest: what is missing and why; :func:`collect`
+reports it.
 """
 
 from __future__ import annotations
 
+import datetime
 import hashlib
+import json
 import logging
 import os
 import queue
@@ -43,6 +55,7 @@ from federation.core.chunking import (
     parse_request,
     resume_offset,
 )
+from federation.runtime.recorder import Salvage, hold, salvage
 from federation.runtime.session import ConnectError
 from schemas.messages import CHUNK_SIZE, FileEntry, Manifest
 
@@ -52,11 +65,18 @@ __all__ = [
     "Fetch",
     "Fetched",
     "RecordingServer",
+    "Recovery",
     "collect",
     "describe",
+    "describe_incomplete",
     "finalize",
+    "incomplete_name",
     "manifest_name",
+    "recover_run",
+    "recover_runs",
     "sha256_file",
+    "unfinished_runs",
+    "write_incomplete",
     "zenoh_fetch",
 ]
 
@@ -74,6 +94,44 @@ class CollectError(ConnectionError):
 def manifest_name(stem: str) -> str:
     """``kiruna-knatte`` -> ``kiruna-knatte.manifest.json``."""
     return f"{stem}.manifest.json"
+
+
+def incomplete_name(stem: str) -> str:
+    """``kiruna-knatte`` -> ``kiruna-knatte.incomplete.json``."""
+    return f"{stem}.incomplete.json"
+
+
+def write_incomplete(run_dir: Path, agent: str, run_id: str, what: dict[str, Any]) -> Path:
+    """Write ``<lab>-<name>.incomplete.json`` (what a recording misses and why) into
+    ``run_dir``; returns its path, for the manifest."""
+    path = run_dir / incomplete_name(agent.replace("/", "-"))
+    data = {"agent": agent, "run_id": run_id, **what}
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def describe_incomplete(data: object) -> str:
+    """One line on what an ``incomplete.json`` says (sent by an agent: any JSON)."""
+    if not isinstance(data, dict):
+        return "its recording is incomplete (no details)"
+    parts = []
+    if data.get("recovered"):
+        parts.append(
+            f"recovered after its agent stopped mid-run: {data.get('messages', '?')} messages"
+            + (", its end missing" if data.get("end_missing") else "")
+        )
+        if data.get("chunks_lost"):
+            parts.append(f"{data['chunks_lost']} unreadable chunk(s) left out")
+    if data.get("truncated"):
+        parts.append(
+            f"truncated at its limit of {data.get('max_bytes', '?')} bytes: "
+            f"{data.get('dropped_over_budget', '?')} messages dropped"
+        )
+    if data.get("dropped_queue_full"):
+        parts.append(f"{data['dropped_queue_full']} messages dropped (buffer full)")
+    return ("; ".join(parts) or "its recording is incomplete")[:500]  # an agent's text
 
 
 def sha256_file(path: Path, block: int = CHUNK_SIZE) -> str:
@@ -101,8 +159,102 @@ def finalize(run_dir: Path, agent: str, run_id: str, files: list[Path]) -> Path:
     return path
 
 
+@dataclass
+class Recovery:
+    """What :func:`recover_runs` did with an agent's unfinished runs, by run id."""
+
+    recovered: dict[str, Salvage] = field(default_factory=dict)
+    in_use: list[str] = field(default_factory=list)  # a running process writes it: left alone
+    failed: dict[str, str] = field(default_factory=dict)  # why it could not be (logged)
+
+
+def unfinished_runs(runs_dir: Path, agent: str) -> list[Path]:
+    """``agent``'s run folders under ``runs_dir`` that hold its recording (or the original
+    a recovery kept aside) but no manifest: runs it never finalized, by name."""
+    stem = agent.replace("/", "-")
+    try:
+        folders = sorted(p for p in Path(runs_dir).iterdir() if p.is_dir())
+    except OSError:  # no runs yet (or unreadable: a recording there would fail too)
+        return []
+    return [
+        folder
+        for folder in folders
+        if not (folder / manifest_name(stem)).exists()
+        and ((folder / f"{stem}.mcap").exists() or (folder / f"{stem}.mcap.partial").exists())
+    ]
+
+
+def recover_run(run_dir: Path, agent: str, stop: threading.Event | None = None) -> Salvage | None:
+    """Finalize ``agent``'s unfinished recording in ``run_dir``: the original renamed
+    ``.mcap.partial`` (kept, never deleted), every complete record of it written into a
+    finished ``.mcap`` (:func:`~federation.runtime.recorder.salvage`), what is missing
+    in ``.incomplete.json``, then the manifest. None if a process is still writing it
+    (its lock is held). Each step can be cut short and done again: a ``.partial``
+    is the original, the ``.mcap`` beside it only what a recovery wrote."""
+    stem = agent.replace("/", "-")
+    mcap = run_dir / f"{stem}.mcap"
+    partial = run_dir / f"{stem}.mcap.partial"
+    original = partial if partial.exists() else mcap
+    with original.open("rb") as held:
+        if not hold(held):
+            return None
+        if original == mcap:
+            os.replace(mcap, partial)
+        recovering = run_dir / f"{stem}.mcap.recovering"
+        when = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+        note = {"original": partial.name, "recovered_utc": when}
+        salvaged = salvage(partial, recovering, note, stop)
+        if mcap.exists():  # a recovery's, cut short; or a recorder's, begun since: not ours
+            with mcap.open("rb") as other:
+                if not hold(other):
+                    return None
+        os.replace(recovering, mcap)
+    sidecar = write_incomplete(run_dir, agent, run_dir.name, salvaged.report() | note)
+    finalize(run_dir, agent, run_dir.name, [mcap, run_dir / f"{stem}.jsonl", sidecar])
+    return salvaged
+
+
+def recover_runs(
+    runs_dir: Path,
+    agent: str,
+    stop: threading.Event | None = None,
+    folders: list[Path] | None = None,
+) -> Recovery:
+    """Recover every run of ``agent`` under ``runs_dir`` that it never finalized
+    (``folders``, default :func:`unfinished_runs`; :func:`recover_run`). Never raises: a
+    run that cannot be recovered (a file unreadable, a disk full) is logged, counted and
+    left as it was found, and the next one is tried."""
+    done = Recovery()
+    for run_dir in unfinished_runs(runs_dir, agent) if folders is None else folders:
+        if stop is not None and stop.is_set():
+            break
+        run = run_dir.name
+        try:
+            salvaged = recover_run(run_dir, agent, stop)
+        except InterruptedError:
+            break
+        except Exception as error:
+            done.failed[run] = f"{type(error).__name__}: {error}"
+            log.exception("run %s in %s: not recovered", run, run_dir)
+            continue
+        if salvaged is None:
+            done.in_use.append(run)
+            log.info("run %s in %s: a running process records it; left alone", run, run_dir)
+            continue
+        done.recovered[run] = salvaged
+        log.warning(
+            "run %s in %s was never finalized (its agent stopped mid-run): recovered %d "
+            "messages (%s; %d unreadable chunks left out); the original is kept as %s.mcap.partial",
+            run, run_dir, salvaged.messages, salvaged.problem or "the file was whole",
+            salvaged.chunks_lost, agent.replace("/", "-"),
+        )  # fmt: skip
+    return done
+
+
 class RecordingServer:
-    """Serves one agent's finished recordings under ``runs_dir`` to ``fedlab collect``."""
+    """Serves one agent's finished recordings under ``runs_dir`` to ``fedlab collect``;
+    first (``recover``), on a thread of its own, recovers the runs the agent never
+    finalized (:func:`recover_runs`): ``recovery`` says what became of them."""
 
     def __init__(
         self,
@@ -111,6 +263,7 @@ class RecordingServer:
         agent: keys.AgentId,
         runs_dir: Path,
         busy: Callable[[], str | None] = lambda: None,
+        recover: bool = True,
     ):
         self.runs_dir = Path(runs_dir)
         self.agent = agent
@@ -121,13 +274,27 @@ class RecordingServer:
         self.busy = busy  # why chunks are not served now (a run in progress), or None
         self.served = 0
         self.refused = 0
+        self._stop = threading.Event()
         self._queue: queue.Queue[zenoh.Query | None] = queue.Queue(QUEUE_SIZE)
         self._thread = threading.Thread(target=self._run, name="recordings", daemon=True)
         self._thread.start()
+        # Looked for now (a folder listing); recovered off the agent's loop and Zenoh's
+        # threads, the finished runs served meanwhile. No thread when there is none (a
+        # process of 256 agents).
+        unfinished = unfinished_runs(self.runs_dir, str(agent)) if recover else []
+        self.recovery: Recovery | None = None if unfinished else Recovery()  # once done
+        self._recovering = threading.Thread(
+            target=self._recover, args=(unfinished,), name="run-recovery", daemon=True
+        )
+        if unfinished:
+            self._recovering.start()
         self._queryable = session.declare_queryable(
             self.key,
             zenoh.handlers.Callback(self._on_query, indirect=False),
         )
+
+    def _recover(self, folders: list[Path]) -> None:
+        self.recovery = recover_runs(self.runs_dir, str(self.agent), self._stop, folders)
 
     def _on_query(self, query: zenoh.Query) -> None:
         try:
@@ -180,9 +347,12 @@ class RecordingServer:
         self.served += 1
 
     def close(self) -> None:
+        self._stop.set()  # a recovery stops between records; done again at the next start
         self._queryable.undeclare()  # type: ignore[no-untyped-call]
         self._queue.put(None)
         self._thread.join(5)
+        if self._recovering.is_alive():
+            self._recovering.join(5)
 
 
 class Fetched(NamedTuple):
@@ -242,6 +412,8 @@ class CollectResult:
     skipped: list[str] = field(default_factory=list)  # already complete
     missing: list[str] = field(default_factory=list)  # expected agents with no manifest
     errors: list[str] = field(default_factory=list)
+    # agent -> what its recording misses (recovered after a crash, truncated at its limit)
+    incomplete: dict[str, str] = field(default_factory=dict)
     bytes_fetched: int = 0
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -311,10 +483,21 @@ def collect(
                 progress(f"{agent}: {entry.name} ({entry.size} bytes)")
             except CollectError as error:
                 result.errors.append(str(error))
-        (out / manifest_name(agent.replace("/", "-"))).write_text(
+        stem = agent.replace("/", "-")
+        if incomplete_name(stem) in result.files[agent]:
+            result.incomplete[agent] = _incomplete(out / incomplete_name(stem))
+        (out / manifest_name(stem)).write_text(
             manifest.model_dump_json(indent=1) + "\n", encoding="utf-8"
         )
     return result
+
+
+def _incomplete(path: Path) -> str:
+    """What an agent's ``incomplete.json`` says, as one line."""
+    try:
+        return describe_incomplete(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError) as error:
+        return f"its recording is incomplete ({path.name} unreadable: {error})"
 
 
 def _manifest_problem(
@@ -469,6 +652,7 @@ def describe(result: CollectResult) -> dict[str, Any]:
         "skipped": result.skipped,
         "missing": result.missing,
         "errors": result.errors,
+        "incomplete": result.incomplete,
         "bytes_fetched": result.bytes_fetched,
         "ok": result.ok,
     }

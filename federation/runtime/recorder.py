@@ -16,19 +16,37 @@ one writer thread per process encodes and writes what has gathered in every open
 recorder every ``FLUSH_PERIOD`` seconds. Waking a writer per message cost each
 callback an interpreter-lock handover (most of the pose latency's tail), and a
 writer per recorder meant 16 more threads waking in a process of 16 agents.
+
+A recorder given ``max_bytes`` stops there: a peer publishing far too fast (a bug, an
+insider) fills no disk. Messages past it are dropped and counted, one warning is
+logged and one ``recording_truncated`` event written on ``/control``; the file is
+still finished, and its ``fedlab.recording`` metadata record (written at close, in
+every file) says how many messages it holds and what was left out.
+
+An open recorder holds an advisory lock on its file (``flock``; gone with its process):
+:func:`salvage`'s caller leaves a file that is still being written alone. :func:`salvage`
+copies every complete record of an unfinished file (its agent killed, its host's
+power lost: no summary, a chunk cut short, zeros or garbage after the last record)
+into a finished one.
 """
 
 from __future__ import annotations
 
 import ctypes
+import fcntl
+import io
 import json
 import logging
 import math
+import os
+import struct
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from foxglove.messages import (
     FrameTransform,
@@ -39,7 +57,13 @@ from foxglove.messages import (
     Vector3,
 )
 from foxglove.messages import Pose as FoxglovePose
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.records import Attachment, Chunk, McapRecord, Metadata, Schema
+from mcap.records import Channel as McapChannel
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
 from federation.core.channels import (
@@ -51,13 +75,19 @@ from federation.core.channels import (
 )
 
 __all__ = [
+    "RECORDING_METADATA",
+    "RECOVERY_METADATA",
     "WRITER_THREAD",
     "Message",
     "Recorder",
+    "Salvage",
     "Shared",
+    "as_metadata",
+    "hold",
     "name_os_thread",
     "read_messages",
     "read_metadata",
+    "salvage",
 ]
 
 log = logging.getLogger("fedlab.recorder")
@@ -74,6 +104,17 @@ part of the 60 to 80 MiB a 256-agent federation's workers grew by: issue 17)."""
 # interpreter for well under a millisecond (issue 17).
 FLUSH_PERIOD = 0.1
 _TF, _POSE = FOXGLOVE_CHANNELS  # "/tf", "/pose": Foxglove's types, from /pose/sent
+RECORDING_METADATA = "fedlab.recording"
+"""Name of the metadata record a recorder writes at close: messages written, whether it
+was truncated, what was dropped."""
+RECOVERY_METADATA = "fedlab.recovery"
+"""Name of the metadata record :func:`salvage` adds: what it read of the damaged file."""
+# Bytes a message adds to the file beside its data: its record's header (31) and its
+# entry in the chunk's message index (16).
+_MESSAGE_OVERHEAD = 47
+# Bytes the chunk being gathered may still add to the file (it is not there yet): at
+# most CHUNK_SIZE of records before compression, their index entries, its header.
+_CHUNK_BOUND = 2 * CHUNK_SIZE
 
 
 class Shared:
@@ -103,7 +144,7 @@ Message = dict[str, Any] | bytes | Shared
 
 class Recorder:
     """One agent's MCAP file; ``channels``: the ones recorded (default: all), at most
-    ``capacity`` messages buffered."""
+    ``capacity`` messages buffered, at most ``max_bytes`` written (None: no limit)."""
 
     def __init__(
         self,
@@ -111,6 +152,7 @@ class Recorder:
         agent: str,
         channels: list[Channel] | list[str] | None = None,
         capacity: int = 200_000,
+        max_bytes: int | None = None,
     ):
         unknown = set(channels or ()) - set(Channel)
         if unknown:
@@ -119,14 +161,19 @@ class Recorder:
         self.channels: set[str] = {str(c) for c in channels or Channel}
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.dropped = 0
+        self.dropped = 0  # the buffer was full
         self.written = 0
         self.unwritable = 0  # messages that could not be encoded, left out
         self.capacity = capacity
+        self.max_bytes = max_bytes
+        self.truncated = False  # max_bytes reached: every later message dropped
+        self.over_budget = 0  # messages dropped because of it
         self._pending: deque[tuple[str, int, Message]] = deque()
         self._write_lock = threading.Lock()  # the writer thread or close(), not both
         self._closed = False
         self._file = self.path.open("wb")
+        if not hold(self._file):
+            log.warning("%s is locked by another process: two recorders write it", self.path)
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE)
         self._writer.start(profile="", library="fedlab")
         self._channels: dict[str, int] = {}
@@ -153,6 +200,9 @@ class Recorder:
                     topic=topic, message_encoding=schema.encoding, schema_id=schema_id,
                     metadata={"agent": agent},
                 )  # fmt: skip
+        # An upper bound of the file's size once what was added is written: refreshed
+        # from the file's position only when it reaches max_bytes (see _refit).
+        self._bound = self._file.tell() + _CHUNK_BOUND
         _WRITER.add(self)
 
     def record(self, topic: str, message: Message) -> None:
@@ -160,8 +210,11 @@ class Recorder:
         never blocks (a full buffer drops and counts it)."""
         if topic not in self.channels:
             return
-        if len(self._pending) >= self.capacity:
-            self.dropped += 1
+        if len(self._pending) >= self.capacity:  # 0 once truncated: dropped here, cheaply
+            if self.truncated:
+                self.over_budget += 1
+            else:
+                self.dropped += 1
             return
         self._pending.append((topic, time.time_ns(), message))  # atomic: no lock, no wakeup
 
@@ -170,6 +223,8 @@ class Recorder:
         with self._write_lock:
             if not self._closed:
                 self._writer.add_metadata(name, data)
+                self._file.flush()  # on disk now: a recording killed early still says whose
+                self._bound = self._file.tell() + _CHUNK_BOUND
 
     def flush(self) -> None:
         """Encode and write the buffered messages (the writer thread calls it)."""
@@ -181,8 +236,12 @@ class Recorder:
 
     def _write_pending(self) -> None:
         pending, channels, add = self._pending, self._channels, self._writer.add_message
+        limit = self.max_bytes
         while pending:
             topic, stamp, message = pending.popleft()
+            if self.truncated:  # queued before the budget was reached: dropped all the same
+                self.over_budget += 1
+                continue
             try:
                 if isinstance(message, bytes):
                     data = message
@@ -193,20 +252,77 @@ class Recorder:
             except (TypeError, ValueError):  # not JSON (an object, a circular dict): left out
                 self.unwritable += 1
                 continue
+            shown = None
+            if isinstance(message, dict) and topic == Channel.POSE_SENT and self._foxglove:
+                shown = self._foxglove_pair(stamp, message)
+            if limit is not None:
+                size = len(data) + _MESSAGE_OVERHEAD
+                if shown is not None:
+                    size += len(shown[0]) + len(shown[1]) + 2 * _MESSAGE_OVERHEAD
+                self._bound += size
+                if self._bound > limit and not self._refit(size, limit):
+                    self._truncate(stamp)
+                    self.over_budget += 1
+                    continue
             add(channels[topic], stamp, data, stamp)
             self.written += 1
-            if isinstance(message, dict) and topic == Channel.POSE_SENT and self._foxglove:
-                self._write_foxglove(stamp, message)
+            if shown is not None:
+                add(channels[_TF], stamp, shown[0], stamp)
+                add(channels[_POSE], stamp, shown[1], stamp)
         self._file.flush()  # the chunks written reach the file: a kill loses only the last
 
-    def _write_foxglove(self, stamp: int, message: dict[str, Any]) -> None:
-        """The pose sent as Foxglove's transform and pose in frame, stamped as logged."""
+    def _refit(self, size: int, limit: int) -> bool:
+        """Whether a message of ``size`` bytes keeps the file within ``limit`` after all,
+        its upper bound (``_bound``: each message's bytes before compression added to it)
+        having reached the limit: the bound taken again from the file's position (a system
+        call, not made for every message), plus what the chunk being gathered may add."""
+        self._bound = self._file.tell() + _CHUNK_BOUND + size
+        return self._bound <= limit
+
+    def _truncate(self, stamp: int) -> None:
+        """The budget is reached: drop every later message (``record`` at once), say so
+        once in the log and once in the file (a ``/control`` event, past the budget)."""
+        self.truncated = True
+        self.capacity = 0
+        detail = (
+            f"recording reached its limit of {self.max_bytes} bytes: later messages dropped "
+            "(record_max_mb)"
+        )
+        log.warning("%s: %s", self.path, detail)
+        event = {
+            "event": "recording_truncated", "command": None, "at": None, "t_sim": None,
+            "host_monotonic": time.monotonic(), "detail": detail,
+        }  # fmt: skip
+        self._writer.add_message(
+            self._channels[Channel.CONTROL], stamp, json.dumps(event).encode(), stamp
+        )
+
+    def report(self) -> dict[str, Any]:
+        """What the file holds and what it left out, as JSON-ready data."""
+        return {
+            "messages": self.written,
+            "complete": self.complete,
+            "truncated": self.truncated,
+            "max_bytes": self.max_bytes,
+            "dropped_over_budget": self.over_budget,
+            "dropped_queue_full": self.dropped,
+            "unwritable": self.unwritable,
+        }
+
+    @property
+    def complete(self) -> bool:
+        """Every message given was written: none dropped, none left out."""
+        return not (self.truncated or self.over_budget or self.dropped or self.unwritable)
+
+    def _foxglove_pair(self, stamp: int, message: dict[str, Any]) -> tuple[bytes, bytes] | None:
+        """The pose sent as Foxglove's transform and pose in frame (encoded), stamped as
+        logged; None for what is not a finite pose."""
         try:
             x, y, heading = float(message["x"]), float(message["y"]), float(message["heading"])
         except (KeyError, TypeError, ValueError):
-            return  # not a pose: nothing to show
+            return None  # not a pose: nothing to show
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(heading)):
-            return
+            return None
         when = Timestamp(stamp // 1_000_000_000, stamp % 1_000_000_000)
         where = Vector3(x=x, y=y, z=0.0)
         turn = Quaternion(x=0.0, y=0.0, z=math.sin(heading / 2), w=math.cos(heading / 2))
@@ -218,9 +334,7 @@ class Recorder:
             timestamp=when, frame_id=COMMON_FRAME,
             pose=FoxglovePose(position=where, orientation=turn),
         )  # fmt: skip
-        add, channels = self._writer.add_message, self._channels
-        add(channels[_TF], stamp, FrameTransforms(transforms=[tf]).encode(), stamp)
-        add(channels[_POSE], stamp, pose.encode(), stamp)
+        return FrameTransforms(transforms=[tf]).encode(), pose.encode()
 
     def close(self) -> None:
         """Write what is buffered, then finish the file (summary and index)."""
@@ -233,6 +347,7 @@ class Recorder:
                 try:
                     self._write_pending()
                 finally:  # whatever the last messages were, the file is finished
+                    self._writer.add_metadata(RECORDING_METADATA, as_metadata(self.report()))
                     self._writer.finish()  # type: ignore[no-untyped-call]
             finally:
                 self._file.close()
@@ -240,6 +355,11 @@ class Recorder:
             log.warning("recorder dropped %d messages (queue full)", self.dropped)
         if self.unwritable:
             log.warning("recorder left out %d messages that were not JSON", self.unwritable)
+        if self.over_budget:
+            log.warning(
+                "%s: %d messages dropped past its limit of %s bytes",
+                self.path, self.over_budget, self.max_bytes,
+            )  # fmt: skip
 
 
 class _WriterThread:
@@ -314,3 +434,212 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """A recording's metadata records by name (empty for a file without them)."""
     with Path(path).open("rb") as f:
         return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+
+
+def hold(file: IO[bytes]) -> bool:
+    """Take the advisory lock of an open file (``flock``, exclusive, without waiting); False
+    if another open file holds it (a process writing it, this one included). Released
+    when the file is closed or its process dies, killed or not. True where the
+    filesystem keeps no locks: nobody can hold one there."""
+    try:
+        fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError:  # ENOLCK, EINVAL: no locks on this filesystem
+        return True
+    return True
+
+
+_MAGIC = b"\x89MCAP0\r\n"
+_OPCODES = frozenset(int(o) for o in Opcode)
+_RECORD_LIMIT = 256 << 20
+"""Bytes: no record of a recording is longer (a chunk holds about CHUNK_SIZE); a longer
+length is damage, not a record to load into memory."""
+_COPIED: dict[int, Any] = {
+    Opcode.SCHEMA: Schema.read,
+    Opcode.CHANNEL: McapChannel.read,
+    Opcode.METADATA: Metadata.read,
+    Opcode.ATTACHMENT: Attachment.read,
+}
+"""The records besides chunks and messages that a salvaged file keeps; the others
+(header, indexes, statistics, summary) are written anew."""
+
+
+@dataclass
+class Salvage:
+    """What :func:`salvage` read of a damaged recording."""
+
+    size: int = 0  # bytes of the damaged file
+    readable: int = 0  # bytes up to the end of its last complete record
+    messages: int = 0  # messages copied
+    chunks_lost: int = 0  # complete chunks that could not be read (CRC, compression)
+    records_lost: int = 0  # other unreadable records, and messages of a channel lost
+    whole: bool = False  # its data section ended properly: nothing was cut off
+    problem: str = ""  # where and why reading stopped ("" when whole)
+
+    def report(self) -> dict[str, Any]:
+        """As JSON-ready data."""
+        return {
+            "recovered": True,
+            "end_missing": not self.whole,
+            "messages": self.messages,
+            "chunks_lost": self.chunks_lost,
+            "records_lost": self.records_lost,
+            "original_bytes": self.size,
+            "readable_bytes": self.readable,
+            "problem": self.problem,
+        }
+
+    def metadata(self) -> dict[str, str]:
+        """As MCAP metadata (:func:`as_metadata`)."""
+        return as_metadata(self.report())
+
+
+def as_metadata(data: dict[str, Any]) -> dict[str, str]:
+    """JSON-ready data as an MCAP metadata record's: every value a string (``12``,
+    ``true``, ``""`` for None)."""
+    return {k: _text(v) for k, v in data.items()}
+
+
+def _text(value: object) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def salvage(
+    damaged: Path,
+    out: Path,
+    note: dict[str, str] | None = None,
+    stop: threading.Event | None = None,
+) -> Salvage:
+    """Write every complete record of an unfinished recording ``damaged`` into a finished
+    one, ``out``: schemas, channels, messages, metadata and attachments in their order,
+    with a new index and summary, and a ``fedlab.recovery`` metadata record (``note``
+    and what was read: :meth:`Salvage.metadata`).
+
+    Reading stops at the first record cut short or that is not an MCAP record (zeros or
+    garbage a lost power left); a chunk whose CRC, compression or records are bad is
+    left out and counted, and reading goes on after it. A file that is empty or not an
+    MCAP at all gives a finished file with no message. Raises only ``OSError`` (reading
+    or writing failed; ``InterruptedError`` when ``stop`` is set), never on the content.
+    Memory holds one chunk at a time; the interpreter is yielded after each record, so
+    that an agent's loop on another thread keeps its pace.
+    """
+    result = Salvage(size=damaged.stat().st_size)
+    with damaged.open("rb") as source, out.open("wb") as sink:
+        writer = Writer(sink, chunk_size=CHUNK_SIZE)
+        writer.start(profile="", library="fedlab")
+        copy = _Copier(writer, result)
+        for opcode, body in _records(source, result):
+            if stop is not None and stop.is_set():
+                raise InterruptedError(f"salvaging {damaged}: stopped")
+            if opcode == Opcode.DATA_END:
+                result.whole = True
+                break
+            try:
+                records = _parse(opcode, body)
+            except Exception:  # mcap raises many kinds on damage (CRC, zstd, struct, EOF)
+                if opcode == Opcode.CHUNK:
+                    result.chunks_lost += 1
+                else:
+                    result.records_lost += 1
+                continue
+            for record in records:
+                copy(record)
+            time.sleep(0)  # let a waiting thread (the agent's loop) take the interpreter
+        writer.add_metadata(RECOVERY_METADATA, (note or {}) | result.metadata())
+        writer.finish()  # type: ignore[no-untyped-call]
+        sink.flush()
+        os.fsync(sink.fileno())  # on disk before it is renamed into place
+    return result
+
+
+def _records(source: IO[bytes], result: Salvage) -> Iterator[tuple[int, bytes]]:
+    """(opcode, body) of every complete record after the magic, up to the first that is
+    cut short or cannot be a record (``result.problem`` says where)."""
+    if result.size == 0:
+        result.problem = "the file is empty: nothing of it reached the disk"
+        return
+    if source.read(len(_MAGIC)) != _MAGIC:
+        result.problem = "not an MCAP file (no MCAP magic at its start)"
+        return
+    offset = result.readable = len(_MAGIC)
+    while True:
+        head = source.read(9)
+        if not head:
+            result.problem = f"the file ends after its last complete record, at byte {offset}"
+            return
+        if len(head) < 9:
+            result.problem = f"cut inside a record's header at byte {offset}"
+            return
+        opcode, length = struct.unpack("<BQ", head)
+        if opcode not in _OPCODES:
+            result.problem = f"no MCAP record at byte {offset} (zeros or garbage from there)"
+            return
+        name = Opcode(opcode).name.lower()
+        if length > _RECORD_LIMIT:
+            result.problem = f"a {name} record of {length} bytes at byte {offset}: damaged"
+            return
+        body = source.read(length)
+        if len(body) < length:
+            result.problem = f"cut inside a {name} record at byte {offset}"
+            return
+        offset = result.readable = offset + 9 + length
+        yield opcode, body
+
+
+def _parse(opcode: int, body: bytes) -> list[McapRecord]:
+    """The records to copy from one record: a chunk's (its CRC checked), or itself."""
+    stream = ReadDataStream(io.BytesIO(body))
+    if opcode == Opcode.CHUNK:
+        chunk = Chunk.read(stream)
+        if chunk.uncompressed_size > _RECORD_LIMIT:
+            raise ValueError(f"a chunk of {chunk.uncompressed_size} bytes: damaged")
+        return breakup_chunk(chunk, validate_crc=True)
+    if opcode == Opcode.MESSAGE:
+        return [McapMessage.read(stream, len(body))]
+    read = _COPIED.get(opcode)
+    return [] if read is None else [read(stream)]
+
+
+class _Copier:
+    """Writes the records read into the salvaged file, each schema and channel once,
+    under the ids the new file gives them."""
+
+    def __init__(self, writer: Writer, result: Salvage):
+        self.writer = writer
+        self.result = result
+        self.schemas: dict[int, int] = {0: 0}  # the damaged file's ids -> the new file's
+        self.channels: dict[int, int] = {}
+
+    def __call__(self, record: McapRecord) -> None:
+        writer = self.writer
+        if isinstance(record, McapMessage):
+            channel = self.channels.get(record.channel_id)
+            if channel is None:  # its channel was in a chunk that is lost
+                self.result.records_lost += 1
+                return
+            writer.add_message(
+                channel, record.log_time, record.data, record.publish_time, record.sequence
+            )
+            self.result.messages += 1
+        elif isinstance(record, Schema):
+            if record.id not in self.schemas:
+                self.schemas[record.id] = writer.register_schema(
+                    record.name, record.encoding, record.data
+                )
+        elif isinstance(record, McapChannel):
+            if record.id not in self.channels:
+                self.channels[record.id] = writer.register_channel(
+                    record.topic, record.message_encoding,
+                    self.schemas.get(record.schema_id, 0), record.metadata,
+                )  # fmt: skip
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, record.metadata)
+        elif isinstance(record, Attachment):
+            writer.add_attachment(
+                record.create_time, record.log_time, record.name, record.media_type, record.data
+            )

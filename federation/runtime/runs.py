@@ -7,6 +7,15 @@ command line) and its status lines (``.jsonl``). When the run is done or
 aborted (or the agent stops) :meth:`RunRecording.finish` closes both and writes
 the manifest :mod:`federation.runtime.collect` serves, on a thread of its own so
 the agent's loop never waits for the disk.
+
+Nothing a peer sends can fill the disk: a run's MCAP stops at ``record_max_mb``, or
+at half the space its filesystem had free when the run was armed, whichever is
+less (then it is finished as usual, marked truncated: ``<lab>-<name>.incomplete.json``
+beside it). A filesystem with less than ``record_min_free_mb`` free fails preflight
+(:func:`low_space`: ``ready.recording`` false, so ``fedlab ctl start`` starts nothing
+unless ``--force``); a run armed all the same is recorded, with an error logged and
+``low_space`` in its metadata: a run flown unrecorded would be worse, and the start
+was given for every lab, not only this one.
 """
 
 from __future__ import annotations
@@ -15,25 +24,71 @@ import datetime
 import json
 import logging
 import platform as host_platform
+import shutil
 import socket
 import subprocess
 import sys
 import threading
+import time
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import IO, Any
 
 from federation.core.channels import Channel
-from federation.runtime.collect import finalize
+from federation.runtime.collect import finalize, write_incomplete
 from federation.runtime.recorder import Message, Recorder
+from schemas.config import AgentConfig
 
-__all__ = ["RunRecording", "software_versions"]
+__all__ = ["RunRecording", "free_bytes", "low_space", "software_versions", "space_problem"]
 
 log = logging.getLogger("fedlab.runs")
 
 METADATA = "fedlab.run"
 """Name of the MCAP metadata record holding a run's description."""
+MIB = 1 << 20
+SPACE_CHECK_PERIOD = 5.0
+"""s a free-space look is reused for: status asks every period, the disk need not answer."""
+_space_checks: dict[tuple[Path, int], tuple[float, str | None]] = {}
+
+
+def free_bytes(path: Path) -> int | None:
+    """Bytes free for this user on the filesystem of ``path`` (or of its nearest existing
+    parent: a runs folder is made at the first run); None if it cannot be told."""
+    where = Path(path).absolute()
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    try:
+        return shutil.disk_usage(where).free
+    except OSError:
+        return None
+
+
+def space_problem(where: Path, free: int | None, min_free_mb: int) -> str | None:
+    """Why ``where`` is too full to record a run (``free`` bytes, under the
+    ``min_free_mb`` MiB floor), or None."""
+    if free is None or free >= min_free_mb * MIB:
+        return None
+    return (
+        f"{where}: {free / MIB:.0f} MiB free, under record_min_free_mb ({min_free_mb} MiB): "
+        "free some space or lower the floor"
+    )
+
+
+def low_space(config: AgentConfig, now: float | None = None) -> str | None:
+    """Why the agent's runs_dir is too full to record its next run, or None (no runs_dir,
+    or room enough); looked at once per ``SPACE_CHECK_PERIOD`` at most (host monotonic
+    ``now``, default: the clock)."""
+    if config.runs_dir is None or config.record_min_free_mb == 0:
+        return None
+    now = time.monotonic() if now is None else now
+    key = (Path(config.runs_dir), config.record_min_free_mb)
+    seen = _space_checks.get(key)
+    if seen is not None and now - seen[0] < SPACE_CHECK_PERIOD:
+        return seen[1]
+    problem = space_problem(key[0], free_bytes(key[0]), key[1])
+    _space_checks[key] = (now, problem)
+    return problem
 
 
 def _version(package: str) -> str:
@@ -67,7 +122,9 @@ def software_versions() -> dict[str, str]:
 
 
 class RunRecording:
-    """An agent's recording of one run; ``record`` and ``status_line`` until ``finish``."""
+    """An agent's recording of one run; ``record`` and ``status_line`` until ``finish``.
+    Its MCAP takes at most ``max_mb`` MiB (None: no limit of its own) and at most half
+    the space free when it starts; under ``min_free_mb`` MiB free, an error is logged."""
 
     def __init__(
         self,
@@ -78,6 +135,8 @@ class RunRecording:
         config_json: str,
         experiment: Path | None,
         extra: dict[str, Any] | None = None,
+        max_mb: int | None = None,
+        min_free_mb: int = 0,
     ):
         self.run_id = run_id
         self.agent = agent
@@ -86,7 +145,17 @@ class RunRecording:
         stem = agent.replace("/", "-")
         self.mcap = self.dir / f"{stem}.mcap"
         self.status = self.dir / f"{stem}.jsonl"
-        self.recorder = Recorder(self.mcap, agent, channels)
+        free = free_bytes(self.dir)
+        self.low_space = space_problem(self.dir, free, min_free_mb)
+        self.max_bytes = None if max_mb is None else max_mb * MIB
+        if free is not None:  # the rest for the host (its logs, the other agents' runs)
+            self.max_bytes = free // 2 if self.max_bytes is None else min(self.max_bytes, free // 2)
+        if self.low_space is not None:
+            log.error(
+                "run %s: %s; recorded all the same, in at most %d MiB (half of what is free)",
+                run_id, self.low_space, (self.max_bytes or 0) // MIB,
+            )  # fmt: skip
+        self.recorder = Recorder(self.mcap, agent, channels, max_bytes=self.max_bytes)
         self._status_file: IO[str] | None = self.status.open("a", encoding="utf-8")
         self._status_lock = threading.Lock()
         self.status_write_errors = 0
@@ -105,6 +174,9 @@ class RunRecording:
             "experiment": experiment_text,
             "agent_config": config_json,
             "command_line": " ".join(["fedlab", *sys.argv[1:]]) if sys.argv else "",
+            "record_max_bytes": "" if self.max_bytes is None else str(self.max_bytes),
+            "free_bytes": "" if free is None else str(free),
+            "low_space": self.low_space or "",
             **software_versions(),
             **{k: json.dumps(v) if not isinstance(v, str) else v for k, v in (extra or {}).items()},
         }
@@ -143,10 +215,15 @@ class RunRecording:
 
         def work() -> None:
             try:
-                self.recorder.close()
+                recorder = self.recorder
+                recorder.close()
                 if status_file is not None:
                     status_file.close()
-                finalize(self.dir, self.agent, self.run_id, [self.mcap, self.status])
+                files = [self.mcap, self.status]
+                if not recorder.complete:  # said beside it: collect tells whoever fetches it
+                    what = recorder.report()
+                    files.append(write_incomplete(self.dir, self.agent, self.run_id, what))
+                finalize(self.dir, self.agent, self.run_id, files)
                 log.info("run %s finalized in %s", self.run_id, self.dir)
             except Exception:
                 log.exception("finalizing run %s in %s failed", self.run_id, self.dir)

@@ -1,7 +1,8 @@
 """``fedlab collect`` with real processes: a two-lab run's recordings gathered over two
 routers (and through the link emulator with 40 ms delay) give the same report as the
 original files; a corrupted or truncated chunk is fetched again; a partial download
-resumes; a 60 MB file is collected with bounded memory."""
+resumes; a 60 MB file is collected with bounded memory; the run of an agent killed
+mid-run is recovered when it starts again and collected, marked incomplete."""
 
 from __future__ import annotations
 
@@ -19,7 +20,9 @@ from lifecycle import fedlab, participants, runs_dir, write_experiment
 from loopback import LEADER, Labs, client_config
 
 from federation.core.chunking import resume_offset
+from federation.fleet.launch import wait_for
 from federation.runtime.collect import collect, finalize, sha256_file, zenoh_fetch
+from federation.runtime.recorder import read_messages, read_metadata
 from schemas.messages import CHUNK_SIZE
 
 pytestmark = pytest.mark.integration
@@ -193,3 +196,64 @@ def test_a_recording_over_50_mb_is_collected_with_bounded_memory(
         big / "kiruna-knatte.mcap"
     )
     assert large - small < 20 * MB  # one chunk at a time, not the file (60 MB)
+
+
+def test_a_killed_agents_run_is_recovered_when_it_starts_again_and_collected(
+    labs: Labs, tmp_path: Path
+) -> None:
+    """SIGKILL mid-run: no summary, no manifest; the crashed run had been the one run a
+    lab could not collect. Started again, the agent recovers it (and a run whose file is
+    empty, which does not stop it starting), and collect fetches it, saying what it
+    misses."""
+    experiment = tmp_path / "alone.toml"
+    experiment.write_text(
+        'name = "alone"\nduration = 60\nstart_delay = 1.0\n'
+        f'[[participants]]\nagent = "{LEADER}"\nrole = "leader"\nplatform = "knatte"\n',
+        encoding="utf-8",
+    )
+    runs = runs_dir(labs, LEADER)
+    stem = LEADER.replace("/", "-")
+    (runs / "junk").mkdir(parents=True)
+    (runs / "junk" / f"{stem}.mcap").write_bytes(b"")  # killed before a byte reached the disk
+    router = labs.router("kiruna")
+    leader = labs.agent(
+        LEADER, router, "--experiment", str(experiment), "--runs-dir", str(runs)
+    )  # fmt: skip
+    leader.until(lambda s: s["mode"] == "waiting", timeout=20, what="waiting")
+    assert wait_for((runs / "junk" / f"{stem}.manifest.json").exists, timeout=10)
+    started, _ = fedlab(
+        "ctl", "start", "--experiment", str(experiment), "--run-id", "crash",
+        "-e", router.endpoint,
+    )  # fmt: skip
+    assert started.returncode == 0, started.stdout + started.stderr
+    leader.until(lambda s: s["mode"] == "running", timeout=15, what="running")
+    mcap = runs / "crash" / f"{stem}.mcap"
+    assert wait_for(lambda: mcap.exists() and mcap.stat().st_size > 4 * CHUNK_SIZE, timeout=30)
+    leader.kill()
+    assert not leader.alive()
+    killed_at = mcap.stat().st_size
+    manifest = runs / "crash" / f"{stem}.manifest.json"
+    assert not manifest.exists()
+
+    leader.start()  # the same command line, as systemd would
+    leader.until(lambda s: s["mode"] == "waiting", timeout=20, what="up again")
+    assert wait_for(manifest.exists, timeout=20), leader.log()[-3000:]
+    assert (runs / "crash" / f"{stem}.mcap.partial").stat().st_size == killed_at  # kept
+
+    out = tmp_path / "collected"
+    done, _ = fedlab("collect", "crash", "--out", str(out), "--json", "-e", router.endpoint)
+    assert done.returncode == 0, done.stdout + done.stderr
+    result = json.loads(done.stdout)
+    assert sorted(result["files"][LEADER]) == sorted(
+        [f"{stem}.mcap", f"{stem}.jsonl", f"{stem}.incomplete.json"]
+    )
+    assert "recovered after its agent stopped mid-run" in result["incomplete"][LEADER]
+    note = json.loads((out / f"{stem}.incomplete.json").read_text())
+    assert note["recovered"] and note["end_missing"] and note["messages"] > 0
+    recovered = read_messages(out / f"{stem}.mcap")  # finished: summary and index read
+    assert recovered["/pose/sent"] and recovered["/reference"]
+    assert sum(len(v) for v in recovered.values()) <= note["messages"]  # + Foxglove's
+    meta = read_metadata(out / f"{stem}.mcap")
+    assert meta["fedlab.run"]["run_id"] == "crash"
+    assert meta["fedlab.recovery"]["messages"] == str(note["messages"])
+    assert any(e["event"] == "started" for e in recovered["/control"])

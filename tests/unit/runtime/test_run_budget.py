@@ -1,0 +1,197 @@
+"""Nothing a peer sends fills an agent's disk (federation/runtime/recorder.py,
+federation/runtime/runs.py): a run's recording stops at its size limit (record_max_mb,
+or half the space free when armed) and is still finished, marked truncated; a runs
+folder with less free space than record_min_free_mb fails preflight, and a run armed
+all the same is recorded, said loudly."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from test_run_holds import Follower
+
+from federation.core.preflight import preflight
+from federation.runtime import runs as runs_module
+from federation.runtime.collect import manifest_name
+from federation.runtime.recorder import CHUNK_SIZE, Recorder, read_messages, read_metadata
+from federation.runtime.runs import MIB, RunRecording, low_space, space_problem
+from schemas.config import AgentConfig, ConfigError, validate
+from schemas.messages import Manifest
+
+AGENT = "kiruna/knatte"
+STEM = "kiruna-knatte"
+
+
+def _flood(record: object, n: int, start: int = 0) -> None:
+    """``n`` received poses, as fast as a peer publishing far too fast sends them."""
+    for k in range(start, start + n):
+        pad = os.urandom(60).hex()  # compressible, but not to nothing
+        record("/pose/received", {"agent": "rome/p", "t": float(k), "pad": pad})  # type: ignore[operator]
+
+
+def test_a_recording_stops_at_its_limit_and_is_still_finished(tmp_path: Path) -> None:
+    limit = 1 * MIB
+    path = tmp_path / "a.mcap"
+    rec = Recorder(path, AGENT, max_bytes=limit)
+    for batch in range(40):  # the writer thread writes between the batches
+        _flood(rec.record, 500, batch * 500)
+        rec.flush()
+    assert rec.truncated
+    pending = len(rec._pending)
+    _flood(rec.record, 1000, 10**6)  # after it: dropped at once, never queued
+    assert len(rec._pending) == pending
+    rec.close()
+    size = path.stat().st_size
+    # Within the limit but for the summary (the index: well under 1 % of it), and not
+    # far under it either (the bound is refreshed from the file's size).
+    assert limit - 3 * CHUNK_SIZE < size <= limit * 1.01 + 8192, size
+    assert rec.written + rec.over_budget == 21_000 and rec.over_budget > 10_000
+    assert rec.dropped == 0
+    messages = read_messages(path)  # a finished file: summary and index read
+    ts = [m["t"] for m in messages["/pose/received"]]
+    assert ts == [float(k) for k in range(len(ts))] and len(ts) == rec.written
+    events = [m for m in messages["/control"] if m["event"] == "recording_truncated"]
+    assert len(events) == 1 and str(limit) in events[0]["detail"]
+    summary = read_metadata(path)["fedlab.recording"]
+    assert summary["truncated"] == "true" and summary["complete"] == "false"
+    assert summary["dropped_over_budget"] == str(rec.over_budget)
+    assert summary["messages"] == str(rec.written) and summary["max_bytes"] == str(limit)
+
+
+def test_a_recording_within_its_limit_says_it_is_complete(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    rec = Recorder(path, AGENT, max_bytes=MIB)
+    _flood(rec.record, 100)
+    rec.close()
+    assert not rec.truncated and rec.complete and rec.written == 100
+    summary = read_metadata(path)["fedlab.recording"]
+    assert summary["truncated"] == "false" and summary["complete"] == "true"
+    assert not [m for m in read_messages(path)["/control"]]
+
+
+def test_a_truncated_run_is_finalized_with_what_it_misses(tmp_path: Path) -> None:
+    run = RunRecording(tmp_path, "r1", AGENT, None, "{}", None, max_mb=1)
+    assert run.max_bytes == MIB  # far more free than that here
+    for batch in range(30):
+        _flood(run.record, 500, batch * 500)
+        run.recorder.flush()
+    run.status_line('{"agent": "kiruna/knatte"}')
+    run.finish(wait=True)
+    folder = tmp_path / "r1"
+    manifest = Manifest.model_validate_json((folder / manifest_name(STEM)).read_text())
+    names = {f.name for f in manifest.files}
+    assert names == {f"{STEM}.mcap", f"{STEM}.jsonl", f"{STEM}.incomplete.json"}
+    note = json.loads((folder / f"{STEM}.incomplete.json").read_text())
+    assert note["truncated"] is True and note["max_bytes"] == MIB
+    assert note["dropped_over_budget"] == run.recorder.over_budget > 0
+    assert read_metadata(run.mcap)["fedlab.run"]["record_max_bytes"] == str(MIB)
+
+
+def test_a_whole_run_lists_only_its_recording_and_status(tmp_path: Path) -> None:
+    run = RunRecording(tmp_path, "r1", AGENT, None, "{}", None, max_mb=1)
+    _flood(run.record, 50)
+    run.finish(wait=True)
+    manifest = Manifest.model_validate_json((tmp_path / "r1" / manifest_name(STEM)).read_text())
+    assert {f.name for f in manifest.files} == {f"{STEM}.mcap", f"{STEM}.jsonl"}
+
+
+def test_a_run_takes_at_most_half_the_space_free_and_a_low_disk_is_said(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    monkeypatch.setattr(runs_module, "free_bytes", lambda path: 600 * MIB)
+    roomy = RunRecording(tmp_path, "r1", AGENT, None, "{}", None, max_mb=2048, min_free_mb=512)
+    roomy.finish(wait=True)
+    assert roomy.max_bytes == 300 * MIB and roomy.low_space is None
+    caplog.set_level("ERROR", logger="fedlab.runs")
+    low = RunRecording(tmp_path, "r2", AGENT, None, "{}", None, max_mb=2048, min_free_mb=1024)
+    low.finish(wait=True)
+    assert low.max_bytes == 300 * MIB  # recorded all the same, within what is free
+    assert low.low_space is not None and "600 MiB free" in low.low_space
+    assert "record_min_free_mb (1024 MiB)" in low.low_space
+    assert "recorded all the same" in caplog.text
+    assert read_metadata(low.mcap)["fedlab.run"]["low_space"] == low.low_space
+
+
+def test_space_problem_names_the_place_the_space_and_the_setting() -> None:
+    assert space_problem(Path("runs"), 2048 * MIB, 1024) is None
+    assert space_problem(Path("runs"), None, 1024) is None  # not known: not refused
+    text = space_problem(Path("runs"), 100 * MIB, 1024)
+    assert text == (
+        "runs: 100 MiB free, under record_min_free_mb (1024 MiB): free some space or lower "
+        "the floor"
+    )
+
+
+def test_a_runs_folder_short_of_space_fails_preflight(tmp_path: Path) -> None:
+    f = Follower()
+    far_more = 1 << 20  # MiB: 1 TiB free is more than this disk has
+    f.agent.config = f.agent.config.model_copy(
+        update={"runs_dir": tmp_path / "runs", "record_min_free_mb": far_more}
+    )
+    ready = f.agent.readiness(f.clock.now())
+    assert not ready.recording and ready.recording_to is not None
+    assert "under record_min_free_mb (1048576 MiB)" in ready.recording_to
+    status = {"agent": "kiruna/f", "mode": "waiting", "ready": ready.model_dump()}
+    row = preflight(["kiruna/f"], {"kiruna/f": status}, {"kiruna/f": 0.5})[0]
+    assert not row.checks["recording"].ok
+    assert "record_min_free_mb" in row.checks["recording"].detail
+    # Room enough: ready, the folder named as before.
+    f.agent.config = f.agent.config.model_copy(update={"record_min_free_mb": 0})
+    ready = f.agent.readiness(f.clock.now())
+    assert ready.recording and ready.recording_to == str(tmp_path / "runs")
+
+
+def test_the_free_space_is_looked_at_once_per_period(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    looks: list[Path] = []
+
+    def free(path: Path) -> int:
+        looks.append(path)
+        return 10 * MIB
+
+    monkeypatch.setattr(runs_module, "free_bytes", free)
+    config = AgentConfig(lab="k", name="a", role="leader", runs_dir=tmp_path, record_min_free_mb=20)
+    assert low_space(config, now=100.0) is not None
+    assert low_space(config, now=104.0) is not None
+    assert len(looks) == 1  # status asks every period: the disk is asked every 5 s
+    low_space(config, now=105.5)
+    assert len(looks) == 2
+    assert low_space(config.model_copy(update={"runs_dir": None}), now=200.0) is None
+
+
+def test_an_armed_run_records_within_the_configured_limit(tmp_path: Path) -> None:
+    f = Follower()
+    f.agent.config = f.agent.config.model_copy(
+        update={"runs_dir": tmp_path, "record_max_mb": 3, "record_min_free_mb": 0}
+    )
+    f.synced()
+    f.command("start", run_id="r1", duration=10.0)
+    run = f.agent.run_recording
+    assert run is not None and run.max_bytes == 3 * MIB
+    assert run.recorder.max_bytes == 3 * MIB
+    f.agent._end_run_recording(wait=True)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "reason"),
+    [
+        ("record_max_mb", 0, "greater than or equal to 1"),
+        ("record_max_mb", "lots", "valid integer"),
+        ("record_min_free_mb", -1, "greater than or equal to 0"),
+    ],
+)
+def test_a_bad_limit_fails_at_load_naming_the_field(field: str, value: object, reason: str) -> None:
+    data = {"lab": "k", "name": "a", "role": "leader", field: value}
+    with pytest.raises(ConfigError) as error:
+        validate(AgentConfig, data, "agent.toml")
+    assert f"field '{field}'" in str(error.value) and reason in str(error.value)
+    assert "agent.toml" in str(error.value)
+
+
+def test_the_defaults_bound_a_run_to_a_few_gib() -> None:
+    config = AgentConfig(lab="k", name="a", role="leader")
+    assert config.record_max_mb == 2048 and config.record_min_free_mb == 1024
