@@ -981,6 +981,11 @@ class AgentRuntime:
         platform = getattr(self.platform, "counters", None)
         if isinstance(platform, Mapping):
             counters |= platform
+        run = self.run_recording
+        if run is not None:  # what this run's recording left out (its budget, a full queue)
+            report = run.recorder.report()
+            counters["recording_dropped_over_budget"] = report["dropped_over_budget"]
+            counters["recording_dropped_queue_full"] = report["dropped_queue_full"]
         return counters
 
     def check_delay_margin(self, status: Status) -> None:
@@ -1389,7 +1394,8 @@ class AgentRuntime:
             return None  # this run, armed again
         folder = Path(runs_dir) / run_id
         stem = f"{self.me.lab}-{self.me.name}"
-        if (folder / f"{stem}.mcap").exists() or (folder / manifest_name(stem)).exists():
+        recorded = (f"{stem}.mcap", f"{stem}.mcap.partial", manifest_name(stem))
+        if any((folder / name).exists() for name in recorded):  # .partial: being recovered
             return f"run {run_id} is recorded here already ({folder}): start another run id"
         return None
 

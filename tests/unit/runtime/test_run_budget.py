@@ -173,7 +173,27 @@ def test_an_armed_run_records_within_the_configured_limit(tmp_path: Path) -> Non
     run = f.agent.run_recording
     assert run is not None and run.max_bytes == 3 * MIB
     assert run.recorder.max_bytes == 3 * MIB
+    # What the budget leaves out shows in status as it happens, not only in the file.
+    for part in range(6):
+        _flood(run.record, 10_000, start=part * 10_000)
+        run.recorder.flush()  # as the writer thread does
+    counters = f.agent.status().counters
+    assert counters["recording_dropped_over_budget"] > 0, counters
     f.agent._end_run_recording(wait=True)
+
+
+def test_a_start_reusing_a_run_being_recovered_is_refused(tmp_path: Path) -> None:
+    # A run id whose cut recording is being recovered (.mcap.partial) is recorded here.
+    f = Follower()
+    f.agent.config = f.agent.config.model_copy(
+        update={"runs_dir": tmp_path, "record_min_free_mb": 0}
+    )
+    (tmp_path / "r1").mkdir()
+    (tmp_path / "r1" / "kiruna-f.mcap.partial").write_bytes(b"")
+    f.synced()
+    f.command("start", run_id="r1", duration=10.0)
+    (outcome,) = [c for c in f.agent.command_log if c.command == "start"]
+    assert outcome.outcome == "ignored" and "recorded here already" in outcome.detail
 
 
 @pytest.mark.parametrize(
