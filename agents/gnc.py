@@ -19,23 +19,47 @@ avionics: the same code, built from the same :class:`~schemas.platform.PlatformC
 
 Fails closed
 ------------
-Every valve stays closed, and :attr:`GncChain.reason` says why, while
+Every valve stays closed, and :attr:`GncChain.reason` says why (the first that holds,
+in this order), while
 
+- ``"held"``: :meth:`GncChain.hold` is in force (safe hold);
 - ``"no_fix"``: no metrology fix has come in yet (the estimate is a guess);
+- ``"device_restart"``: the platform's own reason (``closed_for``): a serial device
+  whose clock went back, not yet confirmed as restarted (:mod:`agents.serial.platform`);
+- ``"fix_rejected"``: the latest fix was rejected (below), until one is taken;
 - ``"stale_fix"``: the latest fix is older than ``control.fix_timeout`` (dead
   reckoning on the IMU alone drifts; out of the cameras' view, say);
 - ``"stale_imu"``: no IMU sample for ``control.imu_timeout`` (or none yet): the filter
   would predict on the last gyro reading for ever;
 - ``"nonfinite"``: a reference, the estimate or a demand is not a finite number (a
   comparison with NaN is false, so a clip would pass it and a latch open on it). The
-  filter is rebuilt and waits for the next fix;
-- ``"held"``: :meth:`GncChain.hold` is in force (safe hold).
+  filter is rebuilt and waits for the next fix.
 
 Sensor data the chain cannot trust is dropped and counted, never used: an IMU sample
 that is not finite or beyond the sensor's range (``imu.gyro_range``,
 ``imu.accel_range``; one such sample would carry the heading off for good), and a fix
-that is not finite. Time that runs backwards (the clock stepped back) makes every
-fix and IMU sample before it unusable: the filter is rebuilt from the next fix.
+(``fix_rejected``) that is
+
+- not finite;
+- outside where a fix can be (``fix_outside``): the table and the cameras' coverage
+  overlap, grown by ``vision.fix_margin`` (:attr:`~schemas.platform.PlatformConfig.fix_area`);
+  one POSE at x = 5 m off KNATTE's 3 m table, with a valid checksum, opened valves in
+  436 of the next 1000 steps; at 3e38 m, in every one;
+- an outlier (``fix_outlier``): more than ``navigation.fix_gate`` sigmas of the filter's
+  innovation covariance from the estimate (x, y and heading together; the first fix of
+  an estimate is not gated, there is nothing to gate it on).
+
+Outliers go to a second filter that runs beside the first, started from the first of
+them and fed with the same IMU: when ``navigation.outliers_to_restart`` outliers in a row
+agree with it (each within the gate of it), the platform is where they say (it was moved,
+or the metrology restarted with another origin) and the estimate restarts from them
+(``fix_restarts``): the second filter becomes the estimate, and position hold re-takes
+its point there. An outlier that disagrees with it too starts it afresh. Until then
+every valve stays closed (``fix_rejected``, then ``stale_fix``).
+
+Time that runs backwards (the clock stepped back) makes every fix and IMU sample
+before it unusable: the filter is rebuilt from the next fix. :meth:`GncChain.restart`
+does the same for a platform whose device restarted, and re-takes the point to hold.
 
 Each closed step is counted (:attr:`GncChain.counters`). When control resumes, the PID's
 integral and the PWM period start afresh (bumpless restart).
@@ -44,7 +68,7 @@ integral and the PWM period start afresh (bumpless restart).
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Literal, get_args
 
 from agents.control import HeadingPid, PositionHold, PulseWidthModulator, allocate
 from agents.dynamics import THRUSTERS
@@ -54,13 +78,18 @@ from agents.sensors import ImuSample
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
-__all__ = ["CLOSED", "GncChain", "Reason"]
+__all__ = ["CLOSED", "GncChain", "PlatformReason", "Reason"]
 
 CLOSED: tuple[bool, ...] = (False,) * len(THRUSTERS)
 """Every valve closed."""
 
-Reason = Literal["held", "no_fix", "stale_fix", "stale_imu", "nonfinite"]
-"""Why every valve is closed."""
+Reason = Literal[
+    "held", "no_fix", "device_restart", "fix_rejected", "stale_fix", "stale_imu", "nonfinite"
+]
+"""Why every valve is closed (the first that holds, in this order)."""
+
+PlatformReason = Literal["device_restart"]
+"""A reason the platform gives the chain to keep every valve closed (``closed_for``)."""
 
 
 class GncChain:
@@ -95,7 +124,15 @@ class GncChain:
             raise ValueError(f"fix_timeout must be positive seconds, not {self.fix_timeout!r}")
         self.imu_timeout = c.imu_timeout
         self._gyro_range, self._accel_range = i.gyro_range, i.accel_range
+        self.fix_area: tuple[float, float, float, float] = config.fix_area
+        """Where a fix may lie (x_min, x_max, y_min, y_max), m; beyond: rejected."""
+        self.fix_gate: float = config.navigation.fix_gate
+        self._outliers_to_restart = config.navigation.outliers_to_restart
         self.filter = self._new_filter()
+        # The second filter that outliers feed, and how many in a row have agreed with it.
+        self._shadow: NavigationFilter | None = None
+        self._agreeing = 0
+        self._rejecting = False  # the latest fix was rejected: closed until one is taken
         self.pid = HeadingPid(c.kp, c.ki, c.kd, config.pair_torque, c.integral_limit)
         # Channels: body x force, body y force, torque. The torque pairs share valves
         # with the x pairs, so x pulses sit at the end of the period, torque at the start.
@@ -132,16 +169,19 @@ class GncChain:
         self.reason: Reason | None = "no_fix"
         """Why every valve is closed now; None while the chain controls."""
         self.counters: dict[str, int] = {
-            "closed_held": 0,
-            "closed_no_fix": 0,
-            "closed_stale_fix": 0,
-            "closed_stale_imu": 0,
-            "closed_nonfinite": 0,
+            **{f"closed_{reason}": 0 for reason in get_args(Reason)},
             "imu_rejected": 0,
             "fix_rejected": 0,
+            "fix_outside": 0,
+            "fix_outlier": 0,
+            "fix_restarts": 0,
             "clock_steps_back": 0,
+            "restarts": 0,
         }
-        """Control steps closed, per reason; sensor data dropped; clock steps back."""
+        """Control steps closed, per reason; sensor data dropped (``fix_rejected``: every
+        fix dropped, of which ``fix_outside`` and ``fix_outlier``); estimates restarted:
+        from agreeing outliers (``fix_restarts``), after the clock stepped back
+        (``clock_steps_back``), by :meth:`restart` (``restarts``)."""
 
     def _new_filter(self) -> NavigationFilter:
         i, v, n = self.config.imu, self.config.vision, self.config.navigation
@@ -160,6 +200,19 @@ class GncChain:
         self.filter = self._new_filter()
         self._fix_at = self._imu_at = None
         self._imu = ImuSample(0.0, 0.0, 0.0)
+        self._shadow = None
+        self._agreeing = 0
+        self._rejecting = False
+
+    def restart(self) -> None:
+        """Start the estimate afresh: every valve closed (``no_fix``) until a new fix and
+        IMU sample, and position hold holds where that fix puts the platform (a target
+        given to the chain stays). For a platform whose sensors restarted (a serial
+        device's reset): nothing measured before it describes the platform now."""
+        self.counters["restarts"] += 1
+        self._restart_estimate()
+        if not self._explicit_target:
+            self._target_set = False
 
     # ------------------------------------------------------------------ one step
 
@@ -171,6 +224,7 @@ class GncChain:
         imu: ImuSample | None = None,
         fix: Pose | None = None,
         track: Track | None = None,
+        closed_for: PlatformReason | None = None,
     ) -> tuple[bool, ...]:
         """The eight valve states for the control step starting at ``now`` (s).
 
@@ -187,6 +241,9 @@ class GncChain:
         track : Track, optional
             A position reference with its rates (this chain's frame, the table's); None:
             hold the target if position hold is on, else no force.
+        closed_for : str, optional
+            The platform's reason to keep every valve closed this step (the estimate
+            goes on): ``"device_restart"``.
         """
         if self._last_now is not None and now < self._last_now:
             self.counters["clock_steps_back"] += 1
@@ -197,20 +254,12 @@ class GncChain:
                 self._imu, self._imu_at = imu, now
             else:
                 self.counters["imu_rejected"] += 1
-        if fix is not None and not (
-            math.isfinite(fix.x) and math.isfinite(fix.y) and math.isfinite(fix.heading)
-        ):
-            self.counters["fix_rejected"] += 1
-            fix = None
         self.filter.predict(now, self._imu)
+        if self._shadow is not None:
+            self._shadow.predict(now, self._imu)
         if fix is not None:
-            self.filter.correct(now, fix)
-            self._fix_at = now
-            if self.position_hold is not None and not self._target_set:
-                est = self.filter.estimate
-                self.position_hold.target = (est.x, est.y)
-                self._target_set = True
-        reason = self._closed_reason(now)
+            self._take_fix(now, fix)
+        reason = self._closed_reason(now, closed_for)
         if reason is not None:
             return self._close(reason)
         est = self.filter.estimate
@@ -241,6 +290,58 @@ class GncChain:
         self._valves = allocate(*signs)
         return self._valves
 
+    def _take_fix(self, now: float, fix: Pose) -> None:
+        """Correct the filter with ``fix``, or reject it (and maybe restart from outliers)."""
+        x, y, heading = fix.x, fix.y, fix.heading
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(heading)):
+            self._reject(None)
+            return
+        x0, x1, y0, y1 = self.fix_area
+        if not (x0 <= x <= x1 and y0 <= y <= y1):
+            self._reject("fix_outside")
+            return
+        if self.filter.fixes and not self.filter.innovation_distance(fix) <= self.fix_gate:
+            if not self._outlier(now, fix):
+                self._reject("fix_outlier")
+            return
+        self.filter.correct(now, fix)
+        self._fix_at = now
+        self._shadow, self._agreeing, self._rejecting = None, 0, False
+        if self.position_hold is not None and not self._target_set:
+            self._hold_at_estimate()
+
+    def _reject(self, kind: str | None) -> None:
+        self.counters["fix_rejected"] += 1
+        if kind is not None:
+            self.counters[kind] += 1
+        self._rejecting = True
+
+    def _outlier(self, now: float, fix: Pose) -> bool:
+        """Feed the second filter; restart the estimate from it once enough agree (True:
+        this outlier completed them, and the estimate restarted)."""
+        shadow = self._shadow
+        if shadow is None or not shadow.innovation_distance(fix) <= self.fix_gate:
+            shadow = self._shadow = self._new_filter()  # a first, or one that disagrees
+            shadow.predict(now, self._imu)
+            self._agreeing = 0
+        shadow.correct(now, fix)
+        self._agreeing += 1
+        if self._agreeing >= self._outliers_to_restart and all(map(math.isfinite, shadow.estimate)):
+            self.filter = shadow
+            self._fix_at = now
+            self._shadow, self._agreeing, self._rejecting = None, 0, False
+            self.counters["fix_restarts"] += 1
+            if self.position_hold is not None and not self._explicit_target:
+                self._hold_at_estimate()
+            return True
+        return False
+
+    def _hold_at_estimate(self) -> None:
+        assert self.position_hold is not None
+        est = self.filter.estimate
+        self.position_hold.target = (est.x, est.y)
+        self._target_set = True
+
     def _close(self, reason: Reason) -> tuple[bool, ...]:
         self.counters[f"closed_{reason}"] += 1
         self.reason = reason
@@ -257,11 +358,15 @@ class GncChain:
             and abs(ay) <= self._accel_range
         )
 
-    def _closed_reason(self, now: float) -> Reason | None:
+    def _closed_reason(self, now: float, closed_for: PlatformReason | None) -> Reason | None:
         if self._held:
             return "held"
         if self._fix_at is None:
             return "no_fix"
+        if closed_for is not None:
+            return closed_for
+        if self._rejecting:
+            return "fix_rejected"
         if now - self._fix_at > self.fix_timeout:
             return "stale_fix"
         if self._imu_at is None or now - self._imu_at > self.imu_timeout:

@@ -28,6 +28,16 @@ A vision fix :math:`z = [x, y, \\psi]` updates with
 :math:`H = [I_3\\ 0]`; its heading is unwrapped next to the estimate first, so the
 estimate's heading is continuous (not wrapped). The published rate is
 :math:`\\hat\\omega = \\tilde\\omega - b_g`.
+
+How far a fix is from what the filter expects (:meth:`NavigationFilter.innovation_distance`)
+is the Mahalanobis distance of its innovation, heading wrapped:
+
+.. math::
+
+    \\nu = z - H\\hat{x}, \\qquad S = H P H^T + R, \\qquad d = \\sqrt{\\nu^T S^{-1} \\nu}
+
+For a filter whose noise model holds, :math:`d^2` is chi-square with 3 degrees of
+freedom: :math:`P(d > 5) = 1.5 \\times 10^{-5}`, :math:`P(d > 6) = 7 \\times 10^{-8}`.
 """
 
 from __future__ import annotations
@@ -187,6 +197,27 @@ class NavigationFilter:
         self.fixes += 1
         if self._t is None:
             self._t = now
+
+    def innovation_distance(self, fix: Pose) -> float:
+        """Mahalanobis distance of a fix (x, y, heading) from the estimate: how many
+        sigmas of the innovation covariance :math:`S = H P H^T + R` apart they are
+        (heading wrapped). Call :meth:`predict` up to the fix's time first.
+
+        ``inf`` for a fix or a covariance that is not finite.
+        """
+        kf = self.kf
+        x = kf.x
+        psi = float(x[_PSI, 0])
+        dx, dy, dpsi = fix.x - float(x[_X, 0]), fix.y - float(x[_Y, 0]), fix.heading - psi
+        if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dpsi)):
+            return math.inf
+        nu = np.array([dx, dy, wrap_angle(dpsi)])
+        s = kf.H @ kf.P @ kf.H.T + kf.R
+        try:
+            d2 = float(nu @ np.linalg.solve(s, nu))
+        except np.linalg.LinAlgError:
+            return math.inf
+        return math.sqrt(d2) if d2 >= 0 else math.inf  # NaN and a negative: not a distance
 
     @property
     def estimate(self) -> Pose:

@@ -93,6 +93,13 @@ class VisionConfig(_Model):
     origin: tuple[float, float] = Field(
         (0.0, 0.0), description="centre of the coverage rectangle in the lab frame (x, y), m"
     )
+    fix_margin: float = Field(
+        0.2,
+        ge=0,
+        le=10,
+        description="how far outside the table and the coverage (where both overlap) a fix "
+        "may lie, m (noise and calibration): a fix beyond it is a fault, dropped and counted",
+    )
 
 
 class TableConfig(_Model):
@@ -125,6 +132,21 @@ class NavigationConfig(_Model):
     )
     accel_bias_walk: float = Field(
         1e-4, ge=0, description="accelerometer bias random walk, m/s^2 per sqrt(s)"
+    )
+    fix_gate: float = Field(
+        6.0,
+        ge=3,
+        le=1000,
+        description="largest distance of a fix from the estimate, in sigmas of the filter's "
+        "innovation covariance (x, y and heading together, Mahalanobis): a fix beyond it is "
+        "an outlier, dropped and counted",
+    )
+    outliers_to_restart: int = Field(
+        5,
+        ge=2,
+        le=1000,
+        description="consecutive outlier fixes, consistent with one another, after which the "
+        "estimate restarts from them (the platform is elsewhere, or the metrology restarted)",
     )
 
 
@@ -262,6 +284,18 @@ class PlatformConfig(_Model):
         """Where the platform's centre may go, table frame: (x_min, x_max, y_min, y_max), m:
         the table and the vision coverage overlap, less ``table.margin``."""
         return self._area()
+
+    @property
+    def fix_area(self) -> tuple[float, float, float, float]:
+        """Where a metrology fix may lie, table frame: (x_min, x_max, y_min, y_max), m: the
+        table and the vision coverage overlap, grown by ``vision.fix_margin``."""
+        t, v, m = self.table, self.vision, self.vision.fix_margin
+        return (
+            max(t.origin[0] - t.width / 2, v.origin[0] - v.width / 2) - m,
+            min(t.origin[0] + t.width / 2, v.origin[0] + v.width / 2) + m,
+            max(t.origin[1] - t.height / 2, v.origin[1] - v.height / 2) - m,
+            min(t.origin[1] + t.height / 2, v.origin[1] + v.height / 2) + m,
+        )
 
     @property
     def moment_arm(self) -> float:

@@ -4,9 +4,9 @@ flown by the same GNC chain as a simulated platform (:mod:`agents.gnc`).
 Each :meth:`SerialPlatform.step` (``control.rate``, 100 Hz) reads every byte waiting,
 decodes it (:class:`~agents.serial.protocol.FrameDecoder`), hands the device's latest
 IMU sample and POSE (a metrology fix) to the :class:`~agents.gnc.GncChain` built from
-the platform's preset, and sends a HEARTBEAT and the chain's VALVES. It returns the
-chain's navigation estimate, which the agent publishes. It never blocks on a read; a
-write waits at most ``write_timeout``.
+the platform's preset, and sends the chain's VALVES, then a HEARTBEAT with the same
+``seq``. It returns the chain's navigation estimate, which the agent publishes. It
+never blocks on a read; a write waits at most ``write_timeout``.
 
 Safety
 ------
@@ -20,6 +20,24 @@ Safety
   ``OSError``) marks every valve closed and raises :class:`PlatformError`
   naming the port; the device's own heartbeat failsafe then closes its valves.
 - A chain that raises gets an all-closed command sent before the error propagates.
+- The chain rejects a POSE outside the table or far from its estimate (``fix_rejected``;
+  :mod:`agents.gnc`).
+- Frames are judged on the device's clock (:class:`~agents.serial.timeline.DeviceTimeline`):
+  one not newer than the last of its kind is dropped (``device_frames_not_newer``), one
+  more than ``pose_timeout`` older than the device's newest is on no timeline and
+  dropped (``device_frames_off_timeline``): a replayed old POSE is never a fix. The
+  device restarted (its clock began again) only once ``restart_frames`` frames in a row,
+  or a STATUS saying it has had no heartbeat since power-up, are on the new timeline;
+  meanwhile every valve stays closed (``device_restart``). A confirmed restart
+  (``device_restarts``) restarts the chain's estimate: closed (``no_fix``) until a POSE
+  of the new timeline, and position hold re-takes its point there.
+- VALVES go before the HEARTBEAT that vouches for them: a write cut off never delivers a
+  heartbeat keeping the device's previous command alive. A write that times out or
+  stops short (``write_timeouts``, ``write_short``) discards the port's output queue
+  (frames queued there would go out later), sends filler that completes any frame cut
+  off on the line and an all-closed VALVES, and reports the valves closed, unconfirmed
+  (:attr:`SerialPlatform.valves_confirmed`). :meth:`~SerialPlatform.close` discards the
+  queue the same way before its all-closed frame.
 """
 
 from __future__ import annotations
@@ -31,13 +49,16 @@ from types import TracebackType
 
 import serial
 
-from agents.gnc import CLOSED, GncChain
+from agents.gnc import CLOSED, GncChain, PlatformReason
 from agents.guidance import Track
 from agents.interface import PlatformError
 from agents.sensors import ImuSample
 from agents.serial.protocol import (
     DEVICE_TO_HOST,
+    FLAG_HEARTBEAT_SEEN,
+    MAX_PAYLOAD,
     N_VALVES,
+    OVERHEAD,
     DevicePose,
     FrameDecoder,
     Imu,
@@ -45,6 +66,7 @@ from agents.serial.protocol import (
     encode_heartbeat,
     encode_valves,
 )
+from agents.serial.timeline import DeviceTimeline, Kind
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig, load_platform
 
@@ -55,6 +77,15 @@ log = logging.getLogger("fedlab.serial")
 _U32 = 1 << 32
 _READ_CHUNK = 4096
 _MAX_READS = 64  # per step: bounds the time spent on a device that never stops talking
+# Sent before the all-closed VALVES after a write cut off: completes any frame left
+# half-sent on the line (its CRC then fails), so the device decodes the VALVES at once.
+# No 0xA5 in it: never a false sync.
+_FILLER = bytes(MAX_PAYLOAD + OVERHEAD)
+
+
+def _rate_limited(count: int) -> bool:
+    """Log the 1st, 10th, 100th and every 1000th of a recurring event."""
+    return count in (1, 10, 100) or count % 1000 == 0
 
 
 class SerialPlatform:
@@ -79,6 +110,9 @@ class SerialPlatform:
         full output buffer until it expires, so keep it a fraction of a step;
         a timeout is counted (``write_timeouts``), not raised: the device's
         failsafe covers a device that stops reading.
+    restart_frames : int
+        Frames in a row on a new device timeline that confirm the device restarted
+        (without a STATUS saying so): 10 is 0.1 s of IMU at 100 Hz.
     chain : GncChain, optional
         The chain to fly (tests); None: one built from ``config``.
 
@@ -96,6 +130,7 @@ class SerialPlatform:
         *,
         pose_timeout: float | None = None,
         write_timeout: float = 0.005,
+        restart_frames: int = 10,
         chain: GncChain | None = None,
     ):
         self.port = port
@@ -113,11 +148,16 @@ class SerialPlatform:
         except (serial.SerialException, OSError, ValueError) as error:
             raise PlatformError(f"cannot open serial port {port}: {error}") from error
         self._decoder = FrameDecoder(DEVICE_TO_HOST)
+        self._timeline = DeviceTimeline(self.chain.fix_timeout, restart_frames)
         # One writer at a time: a hold from another thread (an abort arriving on Zenoh's)
         # between the chain's open valves and their frame would be overwritten by them.
         self._lock = threading.RLock()
         self._valves = CLOSED
+        self.valves_confirmed = True
+        """False after a write that timed out or stopped short, until one goes out whole:
+        :attr:`valves` is then what was commanded (all closed), not known to be applied."""
         self._seq = 0
+        self._cut_offs = 0  # writes cut off (each counted once, with its resend)
         self._failure: str | None = None
         self._new_imu: ImuSample | None = None  # the latest IMU of this step's read
         self._new_fix: Pose | None = None  # the latest POSE of this step's read
@@ -132,15 +172,17 @@ class SerialPlatform:
             "write_timeouts": 0,
             "device_failsafe_reports": 0,
             "device_frames_not_newer": 0,
+            "device_frames_off_timeline": 0,
             "device_pose_stale": 0,
             "device_restarts": 0,
+            "write_short": 0,
         }
 
     # -- Platform ----------------------------------------------------------------
     def step(
         self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
     ) -> Pose:
-        """Read, run the chain, send HEARTBEAT and VALVES; return the navigation estimate.
+        """Read, run the chain, send VALVES and HEARTBEAT; return the navigation estimate.
 
         ``track``: a 3-DOF position reference (table frame) for the chain, if any.
 
@@ -153,24 +195,30 @@ class SerialPlatform:
         with self._lock:
             self._check_open()
             try:
-                self._read()
+                self._read(t)
             except (serial.SerialException, OSError) as error:
                 self._vanished(error)
             imu, fix = self._new_imu, self._new_fix
             self._new_imu = self._new_fix = None
             chain = self.chain
+            closed_for: PlatformReason | None = "device_restart" if self._timeline.pending else None
             try:
                 valves = tuple(
                     bool(v)
-                    for v in chain.update(t, heading_ref, rate_ref, imu=imu, fix=fix, track=track)
-                )
+                    for v in chain.update(
+                        t, heading_ref, rate_ref, imu=imu, fix=fix, track=track,
+                        closed_for=closed_for,
+                    )
+                )  # fmt: skip
                 if len(valves) != N_VALVES:
                     raise ValueError(f"the chain gave {len(valves)} valve states, not {N_VALVES}")
             except BaseException:
                 self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
                 raise
+            # VALVES first: a write cut off after them sends no heartbeat to keep an older
+            # command alive in the device (its failsafe closes the valves instead).
             seq = self._next_seq()
-            self._send(encode_heartbeat(seq, t) + encode_valves(seq, valves), 2, valves)
+            self._send(encode_valves(seq, valves) + encode_heartbeat(seq, t), 2, valves)
             return chain.estimate
 
     def hold(self) -> None:
@@ -199,19 +247,24 @@ class SerialPlatform:
 
     @property
     def valves(self) -> tuple[bool, ...]:
-        """The eight valve states last commanded (all False after hold, close or a failure)."""
+        """The eight valve states last commanded (all False after hold, close, a failure,
+        or a write cut off: see :attr:`valves_confirmed`)."""
         return self._valves
 
     @property
     def counters(self) -> dict[str, int]:
         """Decoder counters (frames_ok, bad_checksum, garbage_bytes, ...), the host's own
-        and the chain's closed steps (closed_no_fix, closed_stale_fix, closed_held)."""
+        (device_frames_off_timeline, device_restarts, write_timeouts, write_short, ...)
+        and the chain's (closed steps per reason, fix_rejected, ...)."""
         return {**self._decoder.counters, **self._host, **self.chain.counters}
 
     def close(self) -> None:
-        """Send all-valves-closed (best effort) and close the port. Idempotent."""
+        """Send all-valves-closed (best effort) and close the port. Idempotent.
+
+        Frames still queued in the port's output go first (discarded): the all-closed
+        is the last word on the line, not followed by older commands."""
         with self._lock:
-            self._close_valves("close")
+            self._close_valves("close", flush=True)
             self._valves = CLOSED  # closed port: the device's heartbeat failsafe closes them
             if self._failure is None:
                 self._failure = f"serial port {self.port} is closed"
@@ -229,13 +282,20 @@ class SerialPlatform:
         self.close()
 
     # -- internals -----------------------------------------------------------------
-    def _close_valves(self, why: str) -> None:
-        """Hold the chain and send all-closed at once (best effort on a live port)."""
+    def _close_valves(self, why: str, flush: bool = False) -> None:
+        """Hold the chain and send all-closed at once (best effort on a live port).
+
+        ``flush``: discard the port's output queue first (and complete a frame it cut).
+        """
         self.chain.hold()
         if self._failure is None:
+            frame = encode_valves(self._next_seq(), 0)
             try:
-                self._send(encode_valves(self._next_seq(), 0), 1, CLOSED)
-            except PlatformError as error:
+                if flush:
+                    self._serial.reset_output_buffer()
+                    frame = _FILLER + frame
+                self._send(frame, 1, CLOSED)
+            except (PlatformError, serial.SerialException, OSError) as error:
                 log.warning("%s: %s", why, error)
 
     def _check_open(self) -> None:
@@ -247,8 +307,8 @@ class SerialPlatform:
         self._seq = (seq + 1) % _U32
         return seq
 
-    def _read(self) -> None:
-        self._read_frames()
+    def _read(self, now: float) -> None:
+        self._read_frames(now)
         # Judged once everything waiting is read: a backlog comes in the device's order,
         # its POSE before the IMU samples that followed it.
         if (
@@ -260,77 +320,110 @@ class SerialPlatform:
             self._host["device_pose_stale"] += 1  # older than the fix timeout: not a fix of now
             self._new_fix = None
 
-    def _read_frames(self) -> None:
+    def _read_frames(self, now: float) -> None:
         for _ in range(_MAX_READS):
             data = self._serial.read(_READ_CHUNK)
             if not data:
                 return
             for message in self._decoder.feed(data):
                 if isinstance(message, DevicePose):
-                    last = self.pose_time
-                    if (
-                        last is not None
-                        and message.t <= last
-                        and not self._device_restarted(last - message.t)
-                    ):
-                        self._host["device_frames_not_newer"] += 1  # replayed or reordered
+                    if not self._on_timeline("pose", message.t, now):
                         continue
                     self.device_pose = message.pose
                     self.pose_time = message.t
                     self._new_fix = message.pose
                 elif isinstance(message, Imu):
-                    imu = self.imu
-                    if (
-                        imu is not None
-                        and message.t <= imu.t
-                        and not self._device_restarted(imu.t - message.t)
-                    ):
-                        self._host["device_frames_not_newer"] += 1
+                    if not self._on_timeline("imu", message.t, now):
                         continue
                     self.imu = message
                     self._new_imu = ImuSample(message.gyro, message.ax, message.ay)
                 elif isinstance(message, Status):
+                    fresh = not message.flags & FLAG_HEARTBEAT_SEEN
+                    if not self._on_timeline("status", message.t, now, fresh=fresh):
+                        continue
                     self.status = message
                     if message.failsafe:
                         self._host["device_failsafe_reports"] += 1
             if len(data) < _READ_CHUNK:
                 return
 
-    def _device_restarted(self, back: float) -> bool:
-        """A frame ``back`` s older than the last of its kind: a device whose clock went
-        back by more than the fix timeout has restarted (a reset, a brownout), and its
-        frames from now on are new. Anything less is a replay or a reordering."""
-        if back <= self.chain.fix_timeout:
+    def _on_timeline(self, kind: Kind, t: float, now: float, fresh: bool = False) -> bool:
+        """Whether to take a frame of ``kind`` at device time ``t``; counts the others."""
+        verdict = self._timeline.judge(kind, t, now, fresh=fresh)
+        if verdict == "not_newer":
+            self._host["device_frames_not_newer"] += 1  # replayed or reordered
             return False
+        if verdict == "off_timeline":
+            self._host["device_frames_off_timeline"] += 1  # an old frame, or a restart
+            return False
+        if verdict == "restarted":
+            self._device_restarted(t)
+        return True
+
+    def _device_restarted(self, t: float) -> None:
+        """The device's clock began again (a reset, a brownout), confirmed: nothing it
+        measured before describes the platform now. The chain starts afresh (no fix until
+        a POSE of the new timeline; position hold re-takes its point)."""
         self._host["device_restarts"] += 1
-        log.warning("serial device on %s restarted (its clock went back %.3f s)", self.port, back)
-        self.pose_time = None
+        if _rate_limited(self._host["device_restarts"]):
+            log.warning(
+                "serial device on %s restarted (its clock is at %.3f s; %d restarts so far): "
+                "the estimate restarts, valves closed until its next POSE",
+                self.port, t, self._host["device_restarts"],
+            )  # fmt: skip
+        self.chain.restart()
+        self.device_pose = self.pose_time = None
         self.imu = None
         self._new_fix = None
         self._new_imu = None
-        return True
 
     def _send(self, frames: bytes, count: int, valves: tuple[bool, ...]) -> None:
-        try:
-            self._serial.write(frames)
-        except serial.SerialTimeoutException:
-            # The device is not draining the line: what it applies is unknown, so the
-            # valves last commanded stay as they were; a hold sends its 0 again at every
-            # step, and the device's heartbeat failsafe covers a line that stays stuck.
-            self._host["write_timeouts"] += 1
-            if (
-                self._host["write_timeouts"] in (1, 10, 100)
-                or self._host["write_timeouts"] % 1000 == 0
-            ):
-                log.warning(
-                    "serial port %s: write timed out (%d so far); valves %s not confirmed",
-                    self.port, self._host["write_timeouts"], _mask_text(valves),
-                )  # fmt: skip
+        """Write a step's (or a hold's) frames; after a write cut off, close the valves."""
+        if self._write(frames):
+            self._host["frames_sent"] += count
+            self._valves = valves
+            self.valves_confirmed = True
             return
+        # What reached the device is unknown (part of the frames; the rest may sit in the
+        # port's queue and go out later): discard the queue, complete any frame cut off on
+        # the line and command all-closed once. Without heartbeats the device's failsafe
+        # covers a line that stays stuck.
+        self._valves = CLOSED
+        self.valves_confirmed = False
+        try:
+            self._serial.reset_output_buffer()
         except (serial.SerialException, OSError) as error:
             self._vanished(error)
-        self._host["frames_sent"] += count
-        self._valves = valves
+        resent = self._write(_FILLER + encode_valves(self._next_seq(), 0))
+        if resent:
+            self._host["frames_sent"] += 1
+        else:
+            try:
+                self._serial.reset_output_buffer()
+            except (serial.SerialException, OSError) as error:
+                self._vanished(error)
+        self._cut_offs += 1
+        failed = self._cut_offs
+        if _rate_limited(failed):
+            log.warning(
+                "serial port %s: a write timed out or stopped short (%d so far); valves %s "
+                "not confirmed; output queue discarded, all-closed %s",
+                self.port, failed, _mask_text(valves), "sent" if resent else "not sent either",
+            )  # fmt: skip
+
+    def _write(self, data: bytes) -> bool:
+        """Write ``data`` whole within the write timeout; False (counted) if not."""
+        try:
+            written = self._serial.write(data)
+        except serial.SerialTimeoutException:  # raised after part, or even all, went out
+            self._host["write_timeouts"] += 1
+            return False
+        except (serial.SerialException, OSError) as error:
+            self._vanished(error)
+        if written is not None and written < len(data):  # an aborted write returns short
+            self._host["write_short"] += 1
+            return False
+        return True
 
     def _vanished(self, error: BaseException) -> None:
         self._valves = CLOSED

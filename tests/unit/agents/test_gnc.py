@@ -48,12 +48,18 @@ def test_no_valve_opens_before_the_first_fix() -> None:
     assert chain.counters == {
         "closed_held": 0,
         "closed_no_fix": 201,
+        "closed_device_restart": 0,
+        "closed_fix_rejected": 0,
         "closed_stale_fix": 0,
         "closed_stale_imu": 0,
         "closed_nonfinite": 0,
         "imu_rejected": 0,
         "fix_rejected": 0,
+        "fix_outside": 0,
+        "fix_outlier": 0,
+        "fix_restarts": 0,
         "clock_steps_back": 0,
+        "restarts": 0,
     }
     # The first fix: the chain controls from this very step.
     valves = chain.update(2.01, 1.0, 0.0, imu=STILL, fix=Pose())
@@ -273,3 +279,139 @@ def test_when_a_track_ends_the_platform_holds_where_it_is() -> None:
         plat.step(t, 0.0, 0.0, None)
         t += TICK
     assert plat.truth.x == pytest.approx(0.5, abs=0.05)
+
+
+# -- fixes the chain cannot trust: off the table, far from the estimate ------------------
+def _settled() -> tuple[GncChain, int]:
+    """KNATTE holding position at rest at the origin for 5 s (fixes at 20 Hz); the step."""
+    chain = GncChain(KNATTE)
+    assert chain.position_hold is not None
+    for k in range(500):
+        valves = chain.update(k * TICK, 0.0, 0.0, imu=STILL, fix=Pose() if k % 5 == 0 else None)
+        assert valves == CLOSED, k  # nothing to do
+    return chain, 500
+
+
+def _opened_after(chain: GncChain, k: int, bad: Pose, steps: int = 1000) -> int:
+    """Steps (of ``steps``) with a valve open after one ``bad`` fix among good ones."""
+    opened = 0
+    for j in range(steps):
+        fix = bad if j == 0 else (Pose() if (k + j) % 5 == 0 else None)
+        opened += chain.update((k + j) * TICK, 0.0, 0.0, imu=STILL, fix=fix) != CLOSED
+    return opened
+
+
+def test_a_fix_off_the_table_opens_no_valve_and_is_counted() -> None:
+    # One POSE at x = 5 m (KNATTE's table is 3.1 m wide), checksum valid, settled at the
+    # origin: valves opened in 436 of the next 1000 steps; at 1e6 m, in all of them, and
+    # the estimate was 53 m off 10 s later; at 3e38 m, in all of them.
+    for bad in (Pose(5.0, 0.0, 0.0), Pose(1e6, 0.0, 0.0), Pose(3e38, 0.0, 0.0), Pose(0, -1.2, 0)):
+        chain, k = _settled()
+        assert _opened_after(chain, k, bad) == 0, bad
+        assert chain.counters["fix_rejected"] == chain.counters["fix_outside"] == 1
+        assert abs(chain.estimate.x) < 1e-3 and abs(chain.estimate.y) < 1e-3
+    assert KNATTE.fix_area == pytest.approx((-1.7, 1.7, -1.05, 1.05))  # y = -1.2 is off it
+    # Never opens one either as the first fix of all, nor with no good fix after it.
+    for bad in (Pose(3e38, 0.0, 0.0), Pose(math.nan, 0.0, 0.0), Pose(0.0, 0.0, math.inf)):
+        fresh = GncChain(KNATTE)
+        assert set(run(fresh, 0.0, 1.0, ref=0.0)) == {CLOSED}
+        assert fresh.update(1.01, 1.0, 0.0, imu=STILL, fix=bad) == CLOSED
+        assert fresh.reason == "no_fix" and fresh.counters["fix_rejected"] == 1
+        settled, k = _settled()
+        for j in range(100):
+            fix = bad if j == 0 else None
+            assert settled.update((k + j) * TICK, 1.0, 0.0, imu=STILL, fix=fix) == CLOSED, bad
+        assert settled.reason in ("fix_rejected", "stale_fix")
+        assert all(map(math.isfinite, settled.estimate))
+
+
+def test_an_outlier_on_the_table_opens_no_valve_and_is_counted() -> None:
+    # 0.3 m or 1 rad from an estimate sure to 6 mm and 9 mrad: once taken as a fix
+    # (valves open in 64 and 72 of the next 1000 steps).
+    for bad in (Pose(0.3, 0.0, 0.0), Pose(0.0, 0.0, 1.0), Pose(0.03, 0.03, 0.03)):
+        chain, k = _settled()
+        assert _opened_after(chain, k, bad) == 0, bad
+        assert chain.counters["fix_rejected"] == chain.counters["fix_outlier"] == 1
+        assert chain.counters["closed_fix_rejected"] == 5  # until the next good fix
+        assert chain.counters["fix_restarts"] == 0
+        assert abs(chain.estimate.x) < 1e-3 and abs(chain.estimate.heading) < 1e-3
+        assert chain.filter.innovation_distance(bad) > KNATTE.navigation.fix_gate == 6.0
+
+
+def test_a_platform_that_really_moved_restarts_the_estimate_with_valves_closed() -> None:
+    # Moved by hand (or the metrology restarted with another origin): five fixes in a row
+    # that agree with one another are where the platform is. Before, each was taken,
+    # and position hold flew the platform back across the table to its old point.
+    chain, k = _settled()
+    moved = Pose(0.8, 0.2, 0.5)
+    reasons = []
+    for j in range(30):
+        fix = moved if (k + j) % 5 == 0 else None
+        valves = chain.update((k + j) * TICK, 0.5, 0.0, imu=STILL, fix=fix)
+        reasons.append(chain.reason)
+        if chain.counters.get("fix_restarts", 0) == 0:
+            assert valves == CLOSED, j
+    assert chain.counters["fix_outlier"] == 4 and chain.counters["fix_restarts"] == 1
+    assert chain.counters["fix_rejected"] == 4  # the fifth restarted the estimate
+    assert reasons[:20] == ["fix_rejected"] * 20  # four outliers, 50 ms apart
+    assert reasons[20:] == [None] * 10  # the fifth: restarted, flying again
+    est = chain.estimate
+    assert (est.x, est.y, est.heading) == pytest.approx((0.8, 0.2, 0.5), abs=0.01)
+    assert chain.position_hold is not None
+    assert chain.position_hold.target == pytest.approx((0.8, 0.2), abs=0.01)
+    # Then it holds there: nothing to do at rest on its point and heading.
+    for j in range(30, 230):
+        fix = moved if (k + j) % 5 == 0 else None
+        assert chain.update((k + j) * TICK, 0.5, 0.0, imu=STILL, fix=fix) == CLOSED
+    assert chain.counters["fix_rejected"] == 4
+
+
+def test_outliers_that_disagree_never_restart_the_estimate() -> None:
+    # A metrology gone wrong: far fixes, each somewhere else. No valve opens, ever.
+    chain, k = _settled()
+    spots = [Pose(0.8, 0.2, 0.0), Pose(-0.5, 0.4, 1.0), Pose(1.0, -0.6, -2.0)]
+    for j in range(300):
+        fix = spots[(j // 5) % 3] if (k + j) % 5 == 0 else None
+        assert chain.update((k + j) * TICK, 0.0, 0.0, imu=STILL, fix=fix) == CLOSED, j
+    assert chain.counters["fix_restarts"] == 0 and chain.counters["fix_outlier"] == 60
+    assert chain.reason == "fix_rejected"
+    assert abs(chain.estimate.x) < 1e-3
+
+
+def test_the_fix_gates_come_from_the_preset_and_are_checked_at_load() -> None:
+    from schemas.base import ConfigError, validate
+
+    assert KNATTE.vision.fix_margin == 0.2 and KNATTE.navigation.outliers_to_restart == 5
+    assert GncChain(KNATTE).fix_area == KNATTE.fix_area
+    data = KNATTE.model_dump()
+    for table, field, value in (
+        ("vision", "fix_margin", -0.1),
+        ("vision", "fix_margin", math.inf),
+        ("navigation", "fix_gate", 2.0),
+        ("navigation", "fix_gate", math.nan),
+        ("navigation", "outliers_to_restart", 1),
+    ):
+        bad = {**data, table: {**data[table], field: value}}
+        with pytest.raises(ConfigError, match=rf"field '{table}\.{field}'"):
+            validate(type(KNATTE), bad, "knatte.toml")
+    wide = {**data, "vision": {**data["vision"], "fix_margin": 1.0}}
+    assert validate(type(KNATTE), wide, "x").fix_area == pytest.approx((-2.5, 2.5, -1.85, 1.85))
+
+
+def test_restart_forgets_the_estimate_and_retakes_the_point_to_hold() -> None:
+    chain, k = _settled()
+    chain.restart()
+    assert chain.counters["restarts"] == 1
+    assert chain.update(k * TICK, 0.0, 0.0, imu=STILL) == CLOSED and chain.reason == "no_fix"
+    chain.update((k + 1) * TICK, 0.0, 0.0, imu=STILL, fix=Pose(-0.6, 0.3, 0.0))
+    assert chain.reason is None  # not an outlier: the first fix of a new estimate
+    assert chain.position_hold is not None
+    assert chain.position_hold.target == pytest.approx((-0.6, 0.3), abs=1e-3)
+    fixed = GncChain(KNATTE, target=(0.5, 0.5))  # a target given stays
+    fixed.update(0.0, 0.0, 0.0, imu=STILL, fix=Pose())
+    fixed.restart()
+    fixed.update(0.01, 0.0, 0.0, imu=STILL, fix=Pose(-0.6, 0.3, 0.0))
+    assert fixed.position_hold is not None and fixed.position_hold.target == (0.5, 0.5)
+    # The platform's own reason closes every valve, and the estimate goes on.
+    chain.update((k + 2) * TICK, 0.0, 0.0, imu=STILL, closed_for="device_restart")
+    assert chain.reason == "device_restart" and chain.counters["closed_device_restart"] == 1

@@ -146,3 +146,25 @@ def test_time_never_goes_back() -> None:
     nav.predict(1.5, ImuSample(0.1, 0.0, 0.0))  # stale: ignored for the state
     assert nav.estimate.heading == heading
     assert nav.time == 2.0
+
+
+def test_innovation_distance_is_in_sigmas_of_the_innovation_covariance() -> None:
+    """What the chain's outlier gate measures: sqrt(nu' S^-1 nu), S = H P H' + R."""
+    nav = make_filter()
+    nav.predict(0.0, ImuSample(0.0, 0.0, 0.0))
+    for k in range(1, 201):
+        nav.predict(k * 0.01, ImuSample(0.0, 0.0, 0.0))
+        if k % 5 == 0:
+            nav.correct(k * 0.01, Pose(0.0, 0.0, math.pi - 0.001))
+    kf = nav.kf
+    s = kf.H @ kf.P @ kf.H.T + kf.R
+    sx, spsi = math.sqrt(s[0, 0]), math.sqrt(s[2, 2])
+    assert nav.innovation_distance(Pose(0.0, 0.0, math.pi - 0.001)) == pytest.approx(0, abs=0.01)
+    assert nav.innovation_distance(Pose(5 * sx, 0.0, math.pi - 0.001)) == pytest.approx(5, rel=0.01)
+    # Heading wrapped: -pi + 0.001 is 0.002 rad from pi - 0.001, not 2 pi.
+    across = nav.innovation_distance(Pose(0.0, 0.0, -math.pi + 0.001))
+    assert across == pytest.approx(0.002 / spsi, rel=0.01) and across < 1
+    assert nav.innovation_distance(Pose(5.0, 0.0, 0.0)) > 500
+    for bad in (Pose(math.nan, 0, 0), Pose(0, math.inf, 0), Pose(0, 0, math.nan), Pose(3e38, 0, 0)):
+        assert nav.innovation_distance(bad) > 1e30 or nav.innovation_distance(bad) == math.inf
+    assert nav.innovation_distance(Pose(math.nan, 0, 0)) == math.inf

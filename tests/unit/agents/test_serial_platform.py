@@ -29,6 +29,7 @@ from agents.gnc import GncChain
 from agents.platform import Platform, make_platform
 from agents.serial.platform import CLOSED, PlatformError, SerialPlatform
 from agents.serial.protocol import (
+    FLAG_FAILSAFE,
     HOST_TO_DEVICE,
     DevicePose,
     FrameDecoder,
@@ -117,7 +118,7 @@ def test_no_valve_opens_before_the_first_pose(pty_dev: Pty) -> None:
     with SerialPlatform(pty_dev.path) as plat:
         assert plat.step(0.0, AHEAD, 0.0) == Pose()  # the filter's prior: nothing known
         sent = pty_dev.received()
-        assert sent == [Heartbeat(0, 0.0), Valves(0, 0)]
+        assert sent == [Valves(0, 0), Heartbeat(0, 0.0)]
         assert plat.valves == CLOSED and plat.counters["closed_no_fix"] == 1
         assert plat.chain.reason == "no_fix"
 
@@ -152,7 +153,7 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
         assert c["garbage_bytes"] == 2 * len(garbage) + len(bad)
         assert c["bytes_in"] == len(stream)
         assert plat.valves == POSITIVE_TORQUE
-        assert pty_dev.received() == [Heartbeat(0, 5.0), Valves(0, 0b0000_0110)]
+        assert pty_dev.received() == [Valves(0, 0b0000_0110), Heartbeat(0, 5.0)]
 
 
 def test_hold_sends_all_closed_at_once_and_until_release(pty_dev: Pty) -> None:
@@ -207,7 +208,8 @@ def test_close_sends_all_closed_then_refuses_to_step(pty_dev: Pty) -> None:
     pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
     plat.step(0.0, AHEAD, 0.0)
     plat.close()
-    assert _valves_of(pty_dev.received()) == [0b110, 0]
+    # The step's frame may still sit in the port's queue, which close() discards.
+    assert _valves_of(pty_dev.received()) in ([0b110, 0], [0])
     assert plat.valves == CLOSED
     with pytest.raises(PlatformError, match="is closed"):
         plat.step(0.01, AHEAD, 0.0)
@@ -466,14 +468,14 @@ def test_emulate_device_rejects_bad_flags(capsys: pytest.CaptureFixture[str]) ->
 
 
 def test_scripted_frames_sent_by_the_host_are_the_documented_ones(pty_dev: Pty) -> None:
-    # One step = HEARTBEAT then VALVES with the same seq: the device's failsafe
-    # clears before the command is read.
+    # One step = VALVES then HEARTBEAT with the same seq: a write cut off between them
+    # delivers no heartbeat that would keep the device's previous command alive.
     with SerialPlatform(pty_dev.path) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode(DevicePose(0.0, Pose())))
         plat.step(2.5, -AHEAD, 0.0)
         time.sleep(0.02)
         raw = os.read(pty_dev.master, 4096)
-    assert raw.startswith(encode_heartbeat(0, 2.5) + encode_valves(0, 0b1001))
+    assert raw.startswith(encode_valves(0, 0b1001) + encode_heartbeat(0, 2.5))
 
 
 # -- faults found in review ---------------------------------------------------------------
@@ -521,15 +523,16 @@ def test_device_frames_not_newer_and_a_stale_backlog_are_not_fixes(pty_dev: Pty)
         assert plat.counters["device_frames_not_newer"] == 2
         assert plat.device_pose == Pose()
     with SerialPlatform(pty_dev.path) as plat:
-        # After a stall, a POSE 0.7 s older than the IMU beside it (the device's clock):
-        # not a fix of now, though it arrives now.
+        # After a stall, a POSE 0.7 s older than the IMU before it (the device's clock):
+        # not a fix of now, though it arrives now (on no timeline: dropped).
         pty_dev.send(encode_imu(5.0, 0.0, 0.0, 0.0) + encode_pose(4.3, Pose()))
         plat.step(0.0, AHEAD, 0.0)
-        assert plat.counters["device_pose_stale"] == 1
+        assert plat.counters["device_frames_off_timeline"] == 1
         assert plat.valves == CLOSED and plat.chain.reason == "no_fix"
+        assert plat.counters["closed_no_fix"] == 1
 
 
-def test_a_hold_whose_frame_times_out_does_not_claim_closed_valves(
+def test_a_hold_whose_frame_times_out_is_not_confirmed(
     pty_dev: Pty, caplog: pytest.LogCaptureFixture
 ) -> None:
     import serial
@@ -546,13 +549,14 @@ def test_a_hold_whose_frame_times_out_does_not_claim_closed_valves(
         plat._serial.write = stuck  # type: ignore[method-assign, assignment]
         with caplog.at_level("WARNING", logger="fedlab.serial"):
             plat.hold()
-        assert plat.held and plat.valves == POSITIVE_TORQUE  # not known to be closed
-        assert plat.counters["write_timeouts"] == 1
+        # Closed is what was commanded; that the device applied it is not known.
+        assert plat.held and plat.valves == CLOSED and not plat.valves_confirmed
+        assert plat.counters["write_timeouts"] == 2  # the hold's, and its all-closed again
         assert "write timed out" in caplog.text and "not confirmed" in caplog.text
         plat._serial.write = real  # type: ignore[method-assign]
         pty_dev.send(encode_imu(0.01, 0.0, 0.0, 0.0))
         plat.step(0.01, AHEAD, 0.0)  # held: the 0 goes out again
-        assert plat.valves == CLOSED
+        assert plat.valves == CLOSED and plat.valves_confirmed
         assert _valves_of(pty_dev.received())[-1] == 0
 
 
@@ -568,15 +572,171 @@ def test_a_backlog_in_the_devices_order_is_not_a_fix(pty_dev: Pty) -> None:
         assert plat.valves == CLOSED and plat.chain.reason == "no_fix"
 
 
-def test_a_device_that_restarts_is_heard_again(pty_dev: Pty) -> None:
-    # Its clock starts again from 0: every frame "not newer" kept the valves closed for
-    # good while frames were arriving.
+def _stream(t0: float, steps: int, poses: bool = True) -> list[bytes]:
+    """A device at rest at the origin: per 10 ms step an IMU sample, and a POSE every
+    50 ms (none without ``poses``), device times from ``t0``."""
+    out = []
+    for k in range(steps):
+        t = round(t0 + 0.01 * k, 6)
+        frame = encode_imu(t, 0.0, 0.0, 0.0)
+        if poses and k % 5 == 0:
+            frame += encode_pose(t, Pose())
+        out.append(frame)
+    return out
+
+
+def test_an_old_pose_is_neither_a_restart_nor_a_fix(pty_dev: Pty) -> None:
+    # Frames at device time 10.00 to 10.99, IMU(11.0), then a POSE of 8.99 (a replay, a
+    # backlog): taken as a "device restart" and as a fix, it pulled the estimate to
+    # x = 0.158 and opened valves 2 and 3 (position hold, KNATTE).
+    with SerialPlatform(pty_dev.path) as plat:
+        assert plat.chain.position_hold is not None
+        host = 0.0
+        for frames in _stream(10.0, 100):
+            pty_dev.send(frames)
+            plat.step(host, 0.0, 0.0)
+            host += 0.01
+        fixes, fix_time = plat.chain.filter.fixes, plat.chain.fix_time
+        pty_dev.send(encode_imu(11.0, 0.0, 0.0, 0.0) + encode_pose(8.99, Pose(0.5, 0.0, 0.0)))
+        plat.step(host, 0.0, 0.0)
+        assert plat.chain.filter.fixes == fixes and plat.chain.fix_time == fix_time
+        assert plat.pose_time == pytest.approx(10.95) and plat.device_pose == Pose()
+        opened = []
+        for frames in _stream(11.01, 50):
+            host += 0.01
+            pty_dev.send(frames)
+            plat.step(host, 0.0, 0.0)
+            opened.append(plat.valves != CLOSED)
+        c = plat.counters
+        assert c["device_restarts"] == 0 and c["device_frames_off_timeline"] == 1
+        assert c["fix_rejected"] == 0  # never reached the chain
+        assert not any(opened)
+        assert abs(plat.pose.x) < 1e-3
+        assert plat.chain.reason is None  # flying again on the device's clock
+
+
+def test_a_device_that_restarts_is_heard_again_once_confirmed(pty_dev: Pty) -> None:
+    # Its clock starts again from 0. Once every frame "not newer" kept the valves closed
+    # for good; then the first old frame was a restart at once, and the chain kept its
+    # estimate and fix time: valves opened on them before any POSE of the new clock.
+    with SerialPlatform(pty_dev.path) as plat:
+        assert plat.chain.position_hold is not None
+        pty_dev.send(encode_imu(100.0, 0.0, 0.0, 0.0) + encode_pose(100.0, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert plat.valves == POSITIVE_TORQUE
+        assert plat.chain.position_hold.target == pytest.approx((0.0, 0.0), abs=1e-3)
+        # It resets; its cameras see it at x = 0.3 (moved by hand meanwhile) at 0.15 s.
+        reasons = []
+        for k, frames in enumerate(_stream(0.0, 16, poses=False)):
+            if k == 15:
+                frames += encode_pose(0.15, Pose(0.3, 0.0, 0.0))
+            pty_dev.send(frames)
+            plat.step(0.01 * (k + 1), AHEAD, 0.0)
+            reasons.append(plat.chain.reason)
+            if k < 15:
+                assert plat.valves == CLOSED, k
+        # Nine frames on the new clock: not yet a restart; the tenth confirms it.
+        assert reasons[:9] == ["device_restart"] * 9
+        assert reasons[9:15] == ["no_fix"] * 6
+        assert reasons[15] is None and plat.valves == POSITIVE_TORQUE
+        c = plat.counters
+        assert c["device_restarts"] == 1 and c["restarts"] == 1
+        assert c["device_frames_off_timeline"] == 9 and c["device_frames_not_newer"] == 0
+        assert plat.pose_time == 0.15
+        # Position hold holds where the device now sees it, not where it was.
+        assert plat.chain.position_hold.target == pytest.approx((0.3, 0.0), abs=1e-3)
+
+
+def test_a_status_from_a_device_just_powered_up_confirms_its_restart(pty_dev: Pty) -> None:
     with SerialPlatform(pty_dev.path) as plat:
         pty_dev.send(encode_imu(100.0, 0.0, 0.0, 0.0) + encode_pose(100.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
-        pty_dev.send(encode_imu(0.5, 0.0, 0.0, 0.0) + encode_pose(0.5, Pose()))
+        # No HEARTBEAT since power-up (flags: FAILSAFE only): only a restarted device says so.
+        powered_up = Status(0.0, 0, FLAG_FAILSAFE, 200, 0, 0, 0, 0, 0, 0)
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_status(powered_up))
         plat.step(0.01, AHEAD, 0.0)
-        assert plat.counters["device_restarts"] >= 1
-        assert plat.counters["device_frames_not_newer"] == 0
-        assert plat.valves == POSITIVE_TORQUE and plat.pose_time == 0.5
+        assert plat.counters["device_restarts"] == 1
+        assert plat.valves == CLOSED and plat.chain.reason == "no_fix"
+        assert plat.status == powered_up
+        pty_dev.send(encode_imu(0.01, 0.0, 0.0, 0.0))
+        plat.step(0.02, AHEAD, 0.0)
+        assert plat.valves == CLOSED and plat.chain.reason == "no_fix"  # no POSE yet
+        pty_dev.send(encode_imu(0.02, 0.0, 0.0, 0.0) + encode_pose(0.02, Pose()))
+        plat.step(0.03, AHEAD, 0.0)
+        assert plat.valves == POSITIVE_TORQUE
+
+
+class CutOff:
+    """A serial port whose next write sends the first ``keep`` bytes, then times out
+    (pyserial raises ``SerialTimeoutException`` after a partial ``os.write``), or with
+    ``short``, returns ``keep`` (a write aborted by ``cancel_write``)."""
+
+    def __init__(self, real: Any, keep: int, short: bool = False):
+        self.real, self.keep, self.short = real, keep, short
+        self.armed = False
+        self.calls: list[str] = []
+
+    def write(self, data: bytes) -> int:
+        import serial
+
+        self.calls.append(f"write {len(data)}")
+        if self.armed:
+            self.armed = False
+            self.real.write(data[: self.keep])
+            if self.short:
+                return self.keep
+            raise serial.SerialTimeoutException("Write timeout")
+        return int(self.real.write(data))
+
+    def reset_output_buffer(self) -> None:
+        self.calls.append("reset_output_buffer")
+        self.real.reset_output_buffer()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.real, name)
+
+
+@pytest.mark.parametrize("short", [False, True], ids=["timeout", "short"])
+def test_a_write_cut_off_sends_no_heartbeat_and_closes_the_valves(
+    pty_dev: Pty, short: bool
+) -> None:
+    # Cut 23 bytes into a step's frames: with HEARTBEAT (18 bytes) first, the device got
+    # a heartbeat without its VALVES, feeding its failsafe on the previous command, and
+    # the host reported that step's valves as applied.
+    with SerialPlatform(pty_dev.path) as plat:
+        port = CutOff(plat._serial, keep=23, short=short)
+        plat._serial = port  # type: ignore[assignment]
+        pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
+        plat.step(0.0, AHEAD, 0.0)
+        assert _valves_of(pty_dev.received()) == [0b110]
+        port.armed = True
+        pty_dev.send(encode_imu(0.01, 0.0, 0.0, 0.0))
+        plat.step(0.01, AHEAD, 0.0)
+        got = pty_dev.received()
+        assert not any(isinstance(m, Heartbeat) for m in got), got
+        # Its VALVES whole (unless the discarded queue still held it), then all closed.
+        assert got in ([Valves(1, 0b110), Valves(2, 0)], [Valves(2, 0)])
+        assert port.calls[-3:] == ["write 29", "reset_output_buffer", "write 81"]
+        assert plat.valves == CLOSED and not plat.valves_confirmed
+        c = plat.counters
+        assert (c["write_short"], c["write_timeouts"]) == ((1, 0) if short else (0, 1))
+        # The next step goes out whole: confirmed again.
+        pty_dev.send(encode_imu(0.02, 0.0, 0.0, 0.0))
+        plat.step(0.02, AHEAD, 0.0)
+        assert pty_dev.received() == [Valves(3, 0b110), Heartbeat(3, 0.02)]
+        assert plat.valves == POSITIVE_TORQUE and plat.valves_confirmed
+
+
+def test_close_discards_the_output_queue_before_its_all_closed(pty_dev: Pty) -> None:
+    # Frames queued in the port (a slow line) went out after close's all-closed frame
+    # was written behind them; now they are discarded first.
+    plat = SerialPlatform(pty_dev.path)
+    port = CutOff(plat._serial, keep=0)
+    plat._serial = port  # type: ignore[assignment]
+    pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
+    plat.step(0.0, AHEAD, 0.0)
+    plat.close()
+    assert port.calls == ["write 29", "reset_output_buffer", "write 81"]
+    assert _valves_of(pty_dev.received())[-1] == 0
+    assert plat.valves == CLOSED
