@@ -457,13 +457,13 @@ class Ros2Agent(AgentRuntime):
         super().control_step()
         stale = self.platform.stale
         if stale and self.hold_reason is None:
-            self.hold_reason = "stale"
+            self._hold("stale")  # held and said at once (the step's check would say "released")
             self.count("odom_stale_holds")
             log.warning(
                 "no odometry on %s for %.1f s: hold", self.odom_topic, self.platform.timeout
             )
         elif not stale and self.hold_reason == "stale":
-            released = self._let_go()  # held still if its run has not begun
+            released = self._let_go("stale")  # held still if its run has not begun
             log.info(
                 "odometry on %s flows again: %s",
                 self.odom_topic, "released" if released else f"held ({self.hold_reason})",

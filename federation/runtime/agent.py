@@ -287,6 +287,11 @@ class AgentRuntime:
         self._delay_warned = False
         self._count_lock = threading.Lock()
         self._lock = threading.Lock()
+        # Every hold and every release is decided under this one (taken before _lock when
+        # both are): a release decided for one cause cannot follow a hold for another, nor
+        # an abort's. Held only for the decision and the platform's hold or release, so
+        # an abort's hold never waits behind a status being built under _lock.
+        self._hold_lock = threading.Lock()
         self._declared: list[Any] = []
         self._status_file: IO[str] | None = None
         self._pose_pub: Any = None
@@ -415,8 +420,7 @@ class AgentRuntime:
 
     def _hold_for_name(self, t_exec: float, host: float) -> None:
         """Safe hold for good: another process runs under this agent's name."""
-        self.hold_reason = "name_taken"
-        self.platform.hold()
+        self._hold("name_taken")
         self.count("name_taken_holds")
         log.error("%s: safe hold for good; stop one of them and restart the other", self.name_clash)
         self._event("name_taken_hold", t_exec, host, self.name_clash or "")
@@ -565,9 +569,9 @@ class AgentRuntime:
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
             self._left_area = True
-            self.platform.hold()  # the area's frame holds it already; the agent says so too
-            if self.hold_reason != "name_taken":  # held for the name already: it says why
-                self.hold_reason = "workspace"
+            # The area's frame holds it already; the agent says so too (held for the name
+            # already, it says that).
+            self._hold("workspace", keep=("name_taken",))
             log.warning("safe hold: %s", self.scenario.hold_reason)
             self._event("workspace_hold", t_exec, host, self.scenario.hold_reason or "")
         if self._status_now:
@@ -602,7 +606,7 @@ class AgentRuntime:
         last = None if client is None else client.last
         # On a shared feed the link is measured once for all its agents; the hold is each one's.
         threshold = None if self.feed is None else self.feed.watch.threshold
-        with self._lock:  # judged and held at once: a _let_go on Zenoh's thread (a start
+        with self._hold_lock:  # judged and held at once: a _let_go on Zenoh's thread (a start
             # applied there) decides under this lock, so it sees the hold or comes first
             action = self.link_watch.update(
                 t_exec, received, None if last is None else last.t3, threshold
@@ -617,7 +621,7 @@ class AgentRuntime:
             )
             self._event("stale_hold", t_exec, host, f"last pose {t_exec - received:.3f} s ago")
         elif action == "link_resumed":
-            released = self._let_go()
+            released = self._let_go("stale")
             log.info(
                 "pose from %s flows again and sync resumed: %s",
                 self.follow, "released" if released else f"held ({self.hold_reason})",
@@ -636,7 +640,7 @@ class AgentRuntime:
         if any(True for _ in session.info.routers_zid()):
             self._had_router, self._router_lost = True, None
             if self.hold_reason == "no_router":
-                released = self._let_go()
+                released = self._let_go("no_router")
                 log.warning("router back: %s", "released" if released else self.hold_reason)
             return
         if not self._had_router:
@@ -648,8 +652,7 @@ class AgentRuntime:
         detail = f"no router for {host - self._router_lost:.1f} s"
         self._end_run_here("router_lost", detail, host)
         if self.hold_reason in (None, "waiting", "stale"):
-            self.platform.hold()
-            self.hold_reason = "no_router"
+            self._hold("no_router")
             self.count("no_router_holds")
             log.error("%s: safe hold until it is back", detail)
 
@@ -689,9 +692,8 @@ class AgentRuntime:
             # held (the GNC chain's own guard holds first; this covers any platform).
             self.count("pose_not_finite")
             if self.hold_reason != "nonfinite":
-                self.platform.hold()
-                if self.hold_reason not in ("name_taken", "workspace"):
-                    self.hold_reason = "nonfinite"  # for good: nothing here releases it
+                # For good: nothing here releases it.
+                self._hold("nonfinite", keep=("name_taken", "workspace"))
                 log.error("own pose not finite (%s): not sent, platform held", self.pose)
             return
         self._pose_pub.put(
@@ -737,9 +739,7 @@ class AgentRuntime:
             if event.kind in ("aborted", "done", "reset"):
                 # Held for good (the name, the area left): no run's end relabels it, so
                 # no start releases it, and status and preflight keep saying why.
-                if self.hold_reason not in ("name_taken", "workspace", "nonfinite"):
-                    self.hold_reason = event.kind
-                self.platform.hold()
+                self._hold(event.kind, keep=("name_taken", "workspace", "nonfinite"))
             elif event.kind == "armed":
                 run = (self.run_state.run_id, self.run_state.start_at)
                 if self.scenario is not None and run != self._scenario_run:
@@ -747,14 +747,16 @@ class AgentRuntime:
                     # thread at its next step, not under a reference it is computing.
                     self._scenario_run = run
                     self._scenario_new_run = True
-                if self.hold_reason in ("done", "reset"):
-                    # Held for a stale pose before the run ended: a new run does not make
-                    # the pose fresh (the link watch lets go once the pose flows again and
-                    # a sync exchange has completed since); else held until it starts.
-                    self.hold_reason = "stale" if self.link_watch.holding else "waiting"
+                with self._hold_lock:
+                    if self.hold_reason in ("done", "reset"):
+                        # Held for a stale pose before the run ended: a new run does not
+                        # make the pose fresh (the link watch lets go once the pose flows
+                        # again and a sync exchange has completed since); else held until
+                        # it starts.
+                        self.hold_reason = "stale" if self.link_watch.holding else "waiting"
                 self._begin_run_recording()
-            elif event.kind == "started" and self.hold_reason == "waiting":
-                self._let_go()  # the run under way: released, unless held for a cause
+            elif event.kind == "started":
+                self._let_go("waiting")  # the run under way: released, unless held for a cause
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(
                 level, "run %s %s at reference time %s %s",
@@ -946,6 +948,8 @@ class AgentRuntime:
                 "stale_fix": "metrology fix stale",
                 "stale_imu": "IMU silent",
                 "nonfinite": "estimate or reference not finite",
+                "fix_rejected": "metrology fixes rejected (off the table or outliers)",
+                "device_restart": "device restarted, not yet confirmed",
             }.get(reason or "", "")
         locked, bound = True, 0.0 if self.reference == self.me else None
         if self.reference != self.me:
@@ -1017,9 +1021,10 @@ class AgentRuntime:
         for longer), then the last status (a put or a file write that waits no longer
         delays the hold)."""
         try:
-            self.platform.hold()
-            if self.hold_reason is None:
-                self.hold_reason = "ended"
+            with self._hold_lock:
+                self.platform.hold()
+                if self.hold_reason is None:
+                    self.hold_reason = "ended"
         finally:
             self.publish_status()
 
@@ -1324,13 +1329,14 @@ class AgentRuntime:
                 command = Command(command="abort", seq=-1, issuer="malformed")
             self.count("control_received")
             if command.command == "abort":
-                with self._lock:
-                    # First, before anything else: every valve closed, and the run aborted
-                    # under the same lock _let_go decides under, so that no release judged
+                with self._hold_lock:
+                    # First, before anything else: every valve closed. The run is aborted
+                    # before any release can be decided (under this lock), so none judged
                     # on the loop's thread before the abort can follow its hold.
                     self.platform.hold()
-                    verdict = self.gate.admit(command.command, command.issuer, command.seq)
-                    events = self.run_state.command(command, self.sim_time(t_exec))
+                    with self._lock:
+                        verdict = self.gate.admit(command.command, command.issuer, command.seq)
+                        events = self.run_state.command(command, self.sim_time(t_exec))
             else:
                 verdict = self.gate.admit(command.command, command.issuer, command.seq)
             if not verdict.admitted:
@@ -1647,8 +1653,7 @@ class AgentRuntime:
         if reason is not None:
             self._contest_cleared = None
             if self.hold_reason != "contested":
-                self.hold_reason = "contested"
-                self.platform.hold()
+                self._hold("contested")
                 self.count("contested_holds")
                 log.error("followed agent %s contested (%s): safe hold", self.follow, reason)
                 self._event("contested_hold", t_exec, host, reason)
@@ -1663,7 +1668,7 @@ class AgentRuntime:
         cleared = self._contest_cleared
         if received is None or received <= cleared or last is None or last.t3 <= cleared:
             return True
-        released = self._let_go()
+        released = self._let_go("contested")
         log.warning(
             "contest of %s cleared, pose and sync since: %s",
             self.follow, "released" if released else f"held ({self.hold_reason})",
@@ -1671,15 +1676,27 @@ class AgentRuntime:
         self._event("contest_cleared", t_exec, host, "")
         return False
 
-    def _let_go(self) -> bool:
-        """A hold's cause is gone: release the platform if its run is under way (running
-        or frozen); else it stays held, for the run's not having begun (``waiting``) or
-        its end (``done``, ``aborted``). True if released.
+    def _hold(self, reason: str, keep: tuple[str, ...] = ()) -> None:
+        """Hold the platform (every valve closed) for ``reason``, said in status unless it
+        is held for one of ``keep`` already; under the lock :meth:`_let_go` decides under,
+        so that no release decided for another cause can follow it."""
+        with self._hold_lock:
+            self.platform.hold()
+            if self.hold_reason not in keep:
+                self.hold_reason = reason
+
+    def _let_go(self, cause: str) -> bool:
+        """The hold's ``cause`` is gone: release the platform if it is still held for that
+        cause and its run is under way (running or frozen); else it stays held, for
+        another cause met meanwhile, the run's not having begun (``waiting``) or its end
+        (``done``, ``aborted``). True if released.
 
         Decided and done under the lock an abort holds and aborts under
-        (:meth:`_on_control`): a release judged on a run still under way cannot follow
-        an abort's hold."""
-        with self._lock:
+        (:meth:`_on_control`), and every other hold is made under (:meth:`_hold`): a
+        release judged for one cause cannot follow a hold for another."""
+        with self._hold_lock:
+            if self.hold_reason != cause:
+                return False  # held for something else now (or let go already)
             mode = self.run_state.mode
             if self.follow is not None and self.link_watch.holding:
                 self.hold_reason = "stale"  # its link is still judged stale: the watch lets go

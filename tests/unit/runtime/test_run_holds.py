@@ -244,10 +244,10 @@ def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
     f.sync()
     real = f.agent._let_go
 
-    def abort_meanwhile() -> bool:
+    def abort_meanwhile(cause: str) -> bool:
         assert f.agent.link_watch.holding is False  # judged resumed
         f.command("abort")  # on "Zenoh's thread", between the judgement and the release
-        return real()
+        return real(cause)
 
     f.agent._let_go = abort_meanwhile  # type: ignore[method-assign]
     f.pose()
@@ -598,3 +598,59 @@ def test_a_malformed_command_naming_its_issuer_is_reported_as_such() -> None:
     f.agent._on_control(_Sample({"nonsense": True}))  # type: ignore[arg-type]
     assert len(f.agent.command_log) == 1  # nothing to report it under
     assert f.agent.counters["control_malformed"] == 2
+
+
+def test_a_release_for_one_cause_does_not_undo_a_hold_for_another() -> None:
+    # A start applied on Zenoh's thread let go of the waiting hold by the run's mode
+    # alone: a hold for another cause made meanwhile on the loop's thread (its own pose
+    # not finite: held for good) was released and its reason wiped.
+    import threading
+
+    f = Follower(wait_start=True)
+    f.synced()
+    f.pose()
+    f.step()
+    agent, real = f.agent, f.agent.link_watch
+    assert agent.hold_reason == "waiting"
+    deciding = threading.Event()
+
+    class Watch:
+        def __getattr__(self, name: str) -> Any:
+            return getattr(real, name)
+
+        @property
+        def holding(self) -> bool:
+            if threading.current_thread() is not threading.main_thread():
+                deciding.set()
+                threading.Event().wait(0.3)  # Zenoh's thread descheduled mid-decision
+            return real.holding
+
+    agent.link_watch = Watch()  # type: ignore[assignment]
+    t_sim = agent.sim_time(f.clock.now())
+    assert t_sim is not None
+    start = threading.Thread(
+        target=f.command, args=("start",), kwargs={"run_id": "r1", "at": t_sim - 0.5}
+    )
+    start.start()
+    try:
+        assert deciding.wait(5.0)
+        agent.pose = wire.Pose(x=float("nan"))  # the loop's thread, meanwhile
+        agent.publish_pose()
+    finally:
+        start.join(5.0)
+    agent.link_watch = real  # type: ignore[assignment]
+    assert agent.run_state.mode == "running"
+    assert agent.platform.held and agent.hold_reason == "nonfinite"
+
+
+@pytest.mark.parametrize(
+    ("reason", "said"),
+    [("fix_rejected", "fixes rejected"), ("device_restart", "not yet confirmed")],
+)
+def test_a_platform_closed_for_rejected_fixes_or_a_restart_is_not_ready(
+    reason: str, said: str
+) -> None:
+    f = Follower(platform="pinocchio")
+    f.agent.platform.chain.reason = reason  # type: ignore[attr-defined]
+    ready = f.agent.readiness(f.clock.now())
+    assert not ready.platform and said in ready.platform_detail
