@@ -279,6 +279,7 @@ class AgentRuntime:
             Recorder(config.record, str(self.me), config.record_channels) if config.record else None
         )
         self.run_recording: RunRecording | None = None  # this run's, under runs_dir
+        self.finishing: list[threading.Thread] = []  # recordings finishing after a close
         # The channels recorded now (the file's and the run's): read on every message.
         self._recorded: frozenset[str] = frozenset()
         self._update_recorded()
@@ -444,13 +445,22 @@ class AgentRuntime:
                 out[str(agent)] = (t_sim, sample.pose)
         return out
 
-    def close(self) -> None:
-        """Undeclare everything (tokens and subscribers first); the caller closes the session."""
+    def close(self, wait: bool = True) -> None:
+        """Undeclare everything (tokens and subscribers first); the caller closes the session.
+
+        With ``wait`` a run's recording is finished (its manifest written) first, while
+        the name is still this agent's: a process started under it at once would
+        otherwise find the run unfinished and recover it beside the finish. Without
+        (``fedlab host``, whose other agents fly on), it finishes on its own thread
+        (:attr:`finishing`), which the caller joins."""
         self.platform.hold()  # leave the platform with every valve closed
         try:
             self.platform.close()  # a serial platform sends all-closed and releases its port
         except Exception as error:
             log.warning("closing the platform failed: %s", error)
+        finishing = self._end_run_recording(wait=wait)
+        if finishing is not None:
+            self.finishing.append(finishing)
         undeclare_all(self._declared)
         for feed in self.links.leave_feeds(self):  # the last agent on it unsubscribes
             undeclare_all([feed.subscription] if feed.subscription is not None else [])
@@ -462,7 +472,6 @@ class AgentRuntime:
         if self.recording_server is not None:
             self.recording_server.close()
             self.recording_server = None
-        self._end_run_recording(wait=True)
         if self._status_file is not None:
             self._status_file.close()
             self._status_file = None
@@ -801,11 +810,11 @@ class AgentRuntime:
         except OSError as error:
             log.error("cannot record run %s under %s: %s", run_id, self.config.runs_dir, error)
 
-    def _end_run_recording(self, wait: bool = False) -> None:
+    def _end_run_recording(self, wait: bool = False) -> threading.Thread | None:
+        """Finish this run's recording (on a thread; ``wait``: joined); the thread."""
         run, self.run_recording = self.run_recording, None
         self._update_recorded()
-        if run is not None:
-            run.finish(wait=wait)
+        return None if run is None else run.finish(wait=wait)
 
     def due_for_sync(self, now: float) -> list[AgentId]:
         """The agents due for a sync request at host monotonic time ``now``, each

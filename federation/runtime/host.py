@@ -168,9 +168,11 @@ def host(
     def retire(runtime: AgentRuntime) -> None:
         # An agent whose duration has passed leaves the federation as a process of its
         # own would: its token, queryables and subscriptions go (its followers see it
-        # gone and hold) while the other agents of the host fly on.
+        # gone and hold) while the other agents of the host fly on. Its recording
+        # finishes on a thread of its own: the loop that steps the others waits for no
+        # disk (a manifest's checksum of a large file had stalled them for seconds).
         ended.append(runtime)
-        close_all([runtime])
+        close_all([runtime], wait=False)
 
     try:
         for config, clock in zip(configs, shared_clocks(configs), strict=True):
@@ -182,11 +184,19 @@ def host(
         run_together(runtimes, stop, spread=spread, group=group, on_end=retire)
     finally:
         close_all([runtime for runtime in runtimes if runtime not in ended])
+        for runtime in ended:  # their recordings finished before the session closes
+            for thread in runtime.finishing:
+                thread.join(FINISH_TIMEOUT)
 
 
-def close_all(runtimes: Sequence[AgentRuntime]) -> None:
-    """Hold every agent's platform (all valves closed) first, then close each: one that
-    fails to hold or close is logged and the others still are."""
+FINISH_TIMEOUT = 60.0
+"""s to wait, as a host stops, for an ended agent's recording to finish."""
+
+
+def close_all(runtimes: Sequence[AgentRuntime], wait: bool = True) -> None:
+    """Hold every agent's platform (all valves closed) first, then close each (``wait``:
+    see :meth:`AgentRuntime.close`): one that fails to hold or close is logged and the
+    others still are."""
     for runtime in runtimes:
         try:
             runtime.platform.hold()
@@ -194,6 +204,6 @@ def close_all(runtimes: Sequence[AgentRuntime]) -> None:
             log.exception("%s: holding the platform failed", runtime.me)
     for runtime in runtimes:
         try:
-            runtime.close()
+            runtime.close(wait=wait)
         except Exception:
             log.exception("%s: closing failed", runtime.me)

@@ -156,8 +156,8 @@ def test_a_fault_in_one_hosted_agent_holds_and_closes_every_one(
             raise PlatformError("rome/a2: avionics stopped answering (injected)")
         step(self)
 
-    def recorded_close(self: AgentRuntime) -> None:
-        close(self)
+    def recorded_close(self: AgentRuntime, wait: bool = True) -> None:
+        close(self, wait)
         valves = getattr(self.platform, "valves", ())
         ended[str(self.me)] = (bool(getattr(self.platform, "held", False)), sum(valves))
         if str(self.me) == "rome/a1":  # a failure while closing must not stop the rest

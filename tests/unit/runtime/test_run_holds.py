@@ -654,3 +654,59 @@ def test_a_platform_closed_for_rejected_fixes_or_a_restart_is_not_ready(
     f.agent.platform.chain.reason = reason  # type: ignore[attr-defined]
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and said in ready.platform_detail
+
+
+class _Run:
+    """A run recording whose finish takes ``seconds`` on its own thread."""
+
+    run_id = "r1"
+
+    def __init__(self, order: list[str], seconds: float):
+        self.order, self.seconds = order, seconds
+
+    def finish(self, wait: bool = False) -> Any:
+        import threading
+
+        def work() -> None:
+            threading.Event().wait(self.seconds)
+            self.order.append("finished")
+
+        thread = threading.Thread(target=work)
+        thread.start()
+        if wait:
+            thread.join()
+        return thread
+
+
+class _Entity:
+    def __init__(self, order: list[str]):
+        self.order = order
+
+    def undeclare(self) -> None:
+        self.order.append("undeclared")
+
+
+def test_a_closing_agent_finishes_its_run_while_its_name_is_its_own() -> None:
+    # Its token went first: a process started under the name at once found the run
+    # unfinished and recovered it beside the finish.
+    f, order = Follower(), []
+    f.agent.run_recording = _Run(order, 0.1)  # type: ignore[assignment]
+    f.agent._declared = [_Entity(order)]
+    f.agent.close()
+    assert order == ["finished", "undeclared"]
+
+
+def test_a_hosted_agent_closing_waits_for_no_disk() -> None:
+    # In fedlab host the loop that steps the other agents closed an ended one: a large
+    # recording's checksum had stalled them all.
+    import time
+
+    f, order = Follower(), []
+    f.agent.run_recording = _Run(order, 1.0)  # type: ignore[assignment]
+    f.agent._declared = [_Entity(order)]
+    t0 = time.monotonic()
+    f.agent.close(wait=False)
+    assert time.monotonic() - t0 < 0.5 and order == ["undeclared"]
+    (thread,) = f.agent.finishing
+    thread.join(5.0)
+    assert order == ["undeclared", "finished"]
