@@ -572,18 +572,18 @@ def issue(
             def again() -> None:
                 publish(session, federation, abort, copies=1)
 
-            # The abort is sent again until every agent that took the start confirms it
-            # (as `ctl abort` does), and the result says who did not.
-            armed = expected - set(result.pending)
-            aborted = confirm(abort, armed, fed, wait, progress, resend=again)
-            unconfirmed = sorted(a for a in armed if aborted.get(a) != "aborted")
+            # The abort is sent again until every participant confirms it (as `ctl abort`
+            # does): the ones that had not confirmed the start may have taken it late,
+            # on a slow link, and would fly it alone. The result says who did not.
+            aborted = confirm(abort, expected, fed, wait, progress, resend=again)
             reasons = {
                 a: f"{r}; the run was aborted before its start" for a, r in result.reasons.items()
             }
-            for agent in unconfirmed:
+            for agent in sorted(a for a in expected if aborted.get(a) != "aborted"):
+                said = reasons.get(agent, "took the start")
                 reasons[agent] = (
-                    f"took the start, and had not confirmed the abort sent after it "
-                    f"within {wait:g} s (mode {aborted.get(agent, 'absent')})"
+                    f"{said}; the abort sent after it not confirmed within {wait:g} s "
+                    f"(mode {aborted.get(agent, 'absent')})"
                 )
             return dataclasses.replace(result, reasons=reasons)
         return result

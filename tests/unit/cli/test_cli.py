@@ -497,7 +497,7 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     monkeypatch.setattr(control, "status", lambda *a, **k: [])
     monkeypatch.setattr(control, "preflight", lambda *a, **k: [])  # passed, for this test
     monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
-    heard: list[str] = ["lab/a"]  # who takes the abort when it comes
+    heard: list[str] = ["lab/a", "lab/b"]  # who takes the abort when it comes
 
     class Session(_Recorder):
         def put(self, key: str, payload: str, **options: Any) -> None:
@@ -518,6 +518,7 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     assert result.pending == ["lab/b"]
     assert "aborted before its start" in result.reasons["lab/b"]
     assert "lab/a" not in result.reasons  # it confirmed the abort
+    assert "not confirmed" not in result.reasons["lab/b"]  # so did the one that missed it
     # An agent that took the start and does not confirm the abort: sent again, said.
     heard.clear()
     statuses.update({"lab/a": {"mode": "armed", "run_id": "r2"}, "lab/b": {"mode": "waiting"}})
@@ -528,7 +529,10 @@ def test_ctl_aborts_a_start_a_participant_did_not_confirm_before_it(
     )  # fmt: skip
     aborts = [p for p in session.puts if p[1]["command"] == "abort"]
     assert len(aborts) >= 3 + 1  # three at once, then again while unconfirmed
-    assert "had not confirmed the abort" in result.reasons["lab/a"]
+    assert "abort sent after it not confirmed" in result.reasons["lab/a"]
+    # The participant that had not confirmed the start is waited for and named too: it
+    # may have taken the start late, on a slow link.
+    assert "abort sent after it not confirmed" in result.reasons["lab/b"]
 
 
 @pytest.mark.parametrize("start_in", [0.0, 0.9])
