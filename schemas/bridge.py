@@ -124,6 +124,14 @@ class UdpBridgeConfig(BaseModel):
         "taken from; none: any port of that host (the paper's second channel), which "
         "anyone able to forge that host's address can also use",
     )
+    reply_port: int | None = Field(
+        None,
+        ge=1,
+        le=65535,
+        description="the UDP port of --peer's host the legacy agent's replies come from; "
+        "none: --peer's own (where the bridge's requests go: an agent that answers from "
+        "the socket they reach)",
+    )
     request_rate_limit: float = Field(
         DEFAULT_REQUEST_RATE_LIMIT,
         gt=0,

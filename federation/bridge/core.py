@@ -13,7 +13,8 @@ Who is heard on UDP
     itself, address and port: the bridge's requests go there, a legacy agent answers
     from the socket they reach (the paper's channel: one pair of ports), and a stateful
     firewall in front of the bridge lets in that one flow only
-    (``udp_replies_foreign_port``). Its requests from any
+    (``udp_replies_foreign_port``), or, with ``reply_port``, from that port of its host
+    (an agent that answers from another socket). Its requests from any
     port of that host (the paper's second channel), or, with ``request_port``, from that
     port only (``udp_requests_foreign_port``). UDP carries no proof of its source: the
     pin narrows who can forge a request to whoever can forge that host's address and
@@ -271,11 +272,12 @@ class BridgeCore:
                 return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_request(data, now)
         if len(data) == wire.REPLY_SIZE:
-            if port != self.peer[1]:
+            if port != (self.config.reply_port or self.peer[1]):
                 self.counters["udp_replies_foreign_port"] += 1
-                said = (
-                    f"a reply from port {port}: taken from --peer {self._peer_text} only, "
-                    "where the bridge's requests go"
+                said = f"a reply from port {port}: taken from " + (
+                    f"--reply-port {self.config.reply_port} only"
+                    if self.config.reply_port
+                    else f"--peer {self._peer_text} only, where the bridge's requests go"
                 )
                 return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_reply(data, now)

@@ -125,6 +125,11 @@ def add(sub: Subparsers) -> None:
         "(none: from any port of it, so from any process there too)",
     )  # fmt: skip
     p.add_argument(
+        "--reply-port", type=int, metavar="PORT",
+        help="the port of --peer's host the legacy agent's replies come from (default: "
+        "--peer's own; replies from any other port are dropped)",
+    )  # fmt: skip
+    p.add_argument(
         "--request-rate-limit", type=float, default=_default("request_rate_limit"),
         metavar="HZ", help="legacy agent's requests answered a second at most, on average "
         "(the paper's agents send 10); more get no reply",

@@ -569,6 +569,18 @@ def test_replies_only_from_peer_address_and_port() -> None:
     assert core.legacy.client.accepted == 1
 
 
+def test_with_reply_port_replies_are_taken_from_that_port_only() -> None:
+    # A legacy agent answering from another socket than the one the requests reach was
+    # never heard: --reply-port names it.
+    core = BridgeCore(config(reply_port=9002))
+    t1 = wire.decode_request(core.legacy_request(10.0))
+    data = wire.encode_reply(t1, 10.0 + CLOCK_OFFSET, wire.Pose())
+    from_peer = core.on_datagram(data, PEER, 10.001)
+    assert from_peer.kind == "foreign" and "--reply-port 9002 only" in (from_peer.rejected or "")
+    core.on_datagram(data, ("127.0.0.1", 9002), 10.002)
+    assert core.legacy.client.accepted == 1
+
+
 @pytest.mark.parametrize("size", [wire.REQUEST_SIZE, wire.REPLY_SIZE, 7])
 def test_datagrams_from_another_host_are_dropped(size: int) -> None:
     core, now = _serving()
