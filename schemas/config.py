@@ -186,12 +186,14 @@ class AgentConfig(_Model):
         "recording is finished marked truncated (a peer publishing far too fast fills no disk)",
     )
     record_min_free_mb: int = Field(
-        1024,
+        256,
         ge=0,
         le=1 << 20,
-        description="MiB that must be free on runs_dir's filesystem: with less, preflight "
-        "fails (ready.recording false, so ctl start refuses unless --force) and a run armed "
-        "all the same is recorded with an error logged; 0: not checked",
+        description="MiB that must be free on runs_dir's filesystem (256: half a day of a "
+        "follower's run): with less, preflight fails (ready.recording false, so ctl start "
+        "refuses unless --force) and a run armed all the same is recorded with an error "
+        "logged; a killed agent's run is recovered only if its copy leaves this much free; "
+        "0: not checked",
     )
     experiment: Path | None = Field(
         None, description="the experiment file this agent takes part in (recorded with each run)"

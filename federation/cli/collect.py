@@ -37,8 +37,8 @@ def add(sub: Subparsers) -> None:
             "are kept, partial ones (.part) continue where they stopped. Exit code 1 if a\n"
             "participant (with --experiment) has no such run or a file failed. A recording\n"
             "that is not whole (its agent was killed mid-run and recovered it when started\n"
-            "again, or it reached record_max_mb) comes with <lab>-<name>.incomplete.json,\n"
-            "and what it misses is printed."
+            "again, it reached record_max_mb, or a write failed) comes with\n"
+            "<lab>-<name>.incomplete.json, and what it misses is printed."
         ),
         epilog=(
             "Examples:\n"

@@ -376,8 +376,9 @@ class AgentRuntime:
         if self.config.runs_dir is not None:
             software_versions()  # now, not on Zenoh's thread when a run arms (git: up to 2 s)
             self.recording_server = RecordingServer(
-                s, fed, self.me, self.config.runs_dir, busy=self._busy_recording
-            )
+                s, fed, self.me, self.config.runs_dir, busy=self._busy_recording,
+                min_free_mb=self.config.record_min_free_mb,
+            )  # fmt: skip
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
         started = time.monotonic()
         self._name_checks = [started + after for after in NAME_CHECKS_AFTER]
@@ -999,6 +1000,7 @@ class AgentRuntime:
             report = run.recorder.report()
             counters["recording_dropped_over_budget"] = report["dropped_over_budget"]
             counters["recording_dropped_queue_full"] = report["dropped_queue_full"]
+            counters["recording_write_errors"] = report["write_errors"]
         return counters
 
     def check_delay_margin(self, status: Status) -> None:

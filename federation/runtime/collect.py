@@ -19,20 +19,25 @@ with no summary, no manifest) is recovered when the agent starts again
 (:func:`recover_runs`, on a thread of the :class:`RecordingServer`): the original
 is renamed ``<lab>-<name>.mcap.partial`` and kept, every complete record it holds
 is written into a finished ``<lab>-<name>.mcap``, and the manifest is written, so
-the crashed run is collected like any other. A recording that is not whole
-(recovered, or truncated at its size limit) has ``<lab>-<name>.incomplete.json``
-beside it, listed in its manifest: what is missing and why; :func:`collect`
-reports it.
+the crashed run is collected like any other. A recording its agent had finished
+(killed while the manifest's SHA-256 was computed) is only finalized: nothing
+copied, not marked recovered. A copy waits while the agent records a run, and
+for free space (the original's size and ``record_min_free_mb``); a file whose lock
+cannot be told is left alone. A recording that is not whole (recovered, or
+truncated at its size limit) has ``<lab>-<name>.incomplete.json`` beside it,
+listed in its manifest: what is missing and why; :func:`collect` reports it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import hashlib
 import json
 import logging
 import os
 import queue
+import shutil
 import threading
 import time
 from collections import deque
@@ -40,7 +45,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import IO, Any, NamedTuple
 
 import zenoh
 from pydantic import ValidationError
@@ -55,13 +60,24 @@ from federation.core.chunking import (
     parse_request,
     resume_offset,
 )
-from federation.runtime.recorder import Salvage, hold, salvage
+from federation.runtime.recorder import (
+    RECORDING_METADATA,
+    RECOVERY_METADATA,
+    Salvage,
+    from_metadata,
+    hold,
+    is_finished,
+    read_metadata,
+    salvage,
+)
 from federation.runtime.session import ConnectError
+from schemas.config import AgentConfig
 from schemas.messages import CHUNK_SIZE, FileEntry, Manifest
 
 __all__ = [
     "CollectError",
     "CollectResult",
+    "Deferred",
     "Fetch",
     "Fetched",
     "RecordingServer",
@@ -70,6 +86,7 @@ __all__ = [
     "describe",
     "describe_incomplete",
     "finalize",
+    "free_bytes",
     "incomplete_name",
     "manifest_name",
     "recover_run",
@@ -85,6 +102,10 @@ log = logging.getLogger("fedlab.collect")
 TOPIC = "recordings"
 QUEUE_SIZE = 64  # queries waiting for the reader thread; more are refused (busy)
 WINDOW = 16  # chunk requests a collector keeps in flight
+MIB = 1 << 20
+DEFAULT_MIN_FREE_MB: int = AgentConfig.model_fields["record_min_free_mb"].default
+RECOVERY_RETRY = 1.0
+"""s between looks at whether the agent's run is over, recoveries waiting for it."""
 
 
 class CollectError(ConnectionError):
@@ -112,6 +133,18 @@ def write_incomplete(run_dir: Path, agent: str, run_id: str, what: dict[str, Any
     return path
 
 
+def free_bytes(path: Path) -> int | None:
+    """Bytes free for this user on the filesystem of ``path`` (or of its nearest existing
+    parent: a runs folder is made at the first run); None if it cannot be told."""
+    where = Path(path).absolute()
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    try:
+        return shutil.disk_usage(where).free
+    except OSError:
+        return None
+
+
 def describe_incomplete(data: object) -> str:
     """One line on what an ``incomplete.json`` says (sent by an agent: any JSON)."""
     if not isinstance(data, dict):
@@ -131,6 +164,8 @@ def describe_incomplete(data: object) -> str:
         )
     if data.get("dropped_queue_full"):
         parts.append(f"{data['dropped_queue_full']} messages dropped (buffer full)")
+    if data.get("write_errors"):
+        parts.append(f"{data['write_errors']} write(s) failed: messages lost")
     return ("; ".join(parts) or "its recording is incomplete")[:500]  # an agent's text
 
 
@@ -164,8 +199,31 @@ class Recovery:
     """What :func:`recover_runs` did with an agent's unfinished runs, by run id."""
 
     recovered: dict[str, Salvage] = field(default_factory=dict)
+    finalized: list[str] = field(default_factory=list)  # finished files: manifest written
     in_use: list[str] = field(default_factory=list)  # a running process writes it: left alone
+    lock_unknown: list[str] = field(default_factory=list)  # cannot be told: left alone
+    short_of_space: dict[str, str] = field(default_factory=dict)  # why: the next start
+    waiting: list[str] = field(default_factory=list)  # this agent records a run: after it
     failed: dict[str, str] = field(default_factory=dict)  # why it could not be (logged)
+
+    def add(self, other: Recovery) -> None:
+        """What a later pass did (the runs that had waited for the agent's run)."""
+        self.recovered |= other.recovered
+        self.finalized += other.finalized
+        self.in_use += other.in_use
+        self.lock_unknown += other.lock_unknown
+        self.short_of_space |= other.short_of_space
+        self.waiting = list(other.waiting)
+        self.failed |= other.failed
+
+
+class Deferred(Exception):
+    """Why a run's recovery is left for later; ``kind``: the :class:`Recovery` list it
+    goes in (``in_use``, ``lock_unknown``, ``short_of_space``, ``waiting``)."""
+
+    def __init__(self, kind: str, why: str):
+        super().__init__(why)
+        self.kind = kind
 
 
 def unfinished_runs(runs_dir: Path, agent: str) -> list[Path]:
@@ -184,34 +242,118 @@ def unfinished_runs(runs_dir: Path, agent: str) -> list[Path]:
     ]
 
 
-def recover_run(run_dir: Path, agent: str, stop: threading.Event | None = None) -> Salvage | None:
-    """Finalize ``agent``'s unfinished recording in ``run_dir``: the original renamed
-    ``.mcap.partial`` (kept, never deleted), every complete record of it written into a
-    finished ``.mcap`` (:func:`~federation.runtime.recorder.salvage`), what is missing
-    in ``.incomplete.json``, then the manifest. None if a process is still writing it
-    (its lock is held). Each step can be cut short and done again: a ``.partial``
-    is the original, the ``.mcap`` beside it only what a recovery wrote."""
+def recover_run(
+    run_dir: Path,
+    agent: str,
+    stop: threading.Event | None = None,
+    *,
+    min_free_mb: int = 0,
+    busy: Callable[[], str | None] | None = None,
+) -> Salvage | None:
+    """Finalize ``agent``'s unfinished recording in ``run_dir``.
+
+    A finished recording (:func:`~federation.runtime.recorder.is_finished`: its agent
+    killed after closing it, before the manifest was written) only gets its manifest:
+    nothing copied, not marked recovered; its ``.incomplete.json`` is kept, or written
+    from its ``fedlab.recording`` metadata if that says something was left out.
+    Returns None.
+
+    A cut one: the original renamed ``.mcap.partial`` (kept, never deleted), every
+    complete record of it written into a finished ``.mcap``
+    (:func:`~federation.runtime.recorder.salvage`, through ``.mcap.recovering``,
+    deleted if the copy fails or stops), what is missing in ``.incomplete.json``, then
+    the manifest. Returns what was read. Each step can be cut short and done again: a
+    ``.partial`` is the original, the ``.mcap`` beside it only what a recovery wrote.
+
+    Raises :class:`Deferred`: the file's lock is held by a process (``in_use``) or
+    cannot be told (``lock_unknown``), ``busy()`` says this agent records a run
+    (``waiting``; asked again during the copy, which then stops), or the filesystem
+    has less free than the original's size and ``min_free_mb`` MiB
+    (``short_of_space``). ``InterruptedError`` when ``stop`` is set during the copy.
+    """
     stem = agent.replace("/", "-")
     mcap = run_dir / f"{stem}.mcap"
     partial = run_dir / f"{stem}.mcap.partial"
+    recovering = run_dir / f"{stem}.mcap.recovering"
     original = partial if partial.exists() else mcap
-    with original.open("rb") as held:
-        if not hold(held):
+    _not_busy(busy)
+    with original.open("r+b") as held:  # r+b: NFS locks (flock) only what is open to write
+        _held(held, original)
+        if original == mcap and is_finished(mcap):
+            _finalize_finished(run_dir, agent)
             return None
+        size = os.fstat(held.fileno()).st_size
+        free = free_bytes(run_dir)
+        if free is not None and free < size + min_free_mb * MIB:
+            raise Deferred(
+                "short_of_space",
+                f"{free / MIB:.0f} MiB free; its copy takes up to {size / MIB:.1f} MiB and "
+                f"record_min_free_mb ({min_free_mb} MiB) must stay free",
+            )
         if original == mcap:
             os.replace(mcap, partial)
-        recovering = run_dir / f"{stem}.mcap.recovering"
         when = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
         note = {"original": partial.name, "recovered_utc": when}
-        salvaged = salvage(partial, recovering, note, stop)
-        if mcap.exists():  # a recovery's, cut short; or a recorder's, begun since: not ours
-            with mcap.open("rb") as other:
-                if not hold(other):
-                    return None
-        os.replace(recovering, mcap)
+
+        def stopped() -> bool:
+            return (stop is not None and stop.is_set()) or (busy is not None and busy() is not None)
+
+        try:
+            salvaged = salvage(partial, recovering, note, stopped)
+            if mcap.exists():  # a recovery's, cut short; or a recorder's, begun since: not ours
+                with mcap.open("r+b") as other:
+                    _held(other, mcap)
+            os.replace(recovering, mcap)
+        finally:  # cut short, failed or refused: nothing half-written left to take room
+            with contextlib.suppress(OSError):
+                recovering.unlink(missing_ok=True)
     sidecar = write_incomplete(run_dir, agent, run_dir.name, salvaged.report() | note)
     finalize(run_dir, agent, run_dir.name, [mcap, run_dir / f"{stem}.jsonl", sidecar])
     return salvaged
+
+
+def _not_busy(busy: Callable[[], str | None] | None) -> None:
+    why = None if busy is None else busy()
+    if why is not None:
+        raise Deferred("waiting", f"this agent records {why}: after it")
+
+
+def _held(file: IO[bytes], path: Path) -> None:
+    """Raise :class:`Deferred` unless this process now holds ``file``'s lock."""
+    state = hold(file)
+    if state is False:
+        raise Deferred("in_use", f"a running process records {path.name}")
+    if state is None:
+        raise Deferred("lock_unknown", f"whether a process writes {path.name} cannot be told")
+
+
+def _finalize_finished(run_dir: Path, agent: str) -> None:
+    """The manifest of a finished recording whose agent stopped before writing it: its
+    ``.incomplete.json`` kept, or written from what its metadata says it misses."""
+    stem = agent.replace("/", "-")
+    mcap = run_dir / f"{stem}.mcap"
+    sidecar = run_dir / incomplete_name(stem)
+    if not sidecar.exists():
+        what = _left_out(mcap)
+        if what is not None:
+            write_incomplete(run_dir, agent, run_dir.name, what)
+    files = [mcap, run_dir / f"{stem}.jsonl", sidecar]
+    finalize(run_dir, agent, run_dir.name, files)  # the sidecar listed if it is there
+
+
+def _left_out(mcap: Path) -> dict[str, Any] | None:
+    """What a finished recording's metadata says it misses (its ``fedlab.recording``
+    record not complete, or a ``fedlab.recovery`` record); None if nothing."""
+    try:
+        meta = read_metadata(mcap)
+    except Exception:  # finished, yet its metadata index unreadable: nothing to say
+        log.warning("%s: metadata unreadable", mcap, exc_info=True)
+        return None
+    recording = meta.get(RECORDING_METADATA)
+    if recording is not None and recording.get("complete") == "false":
+        return from_metadata(recording)
+    recovery = meta.get(RECOVERY_METADATA)
+    return None if recovery is None else from_metadata(recovery)
 
 
 def recover_runs(
@@ -219,27 +361,40 @@ def recover_runs(
     agent: str,
     stop: threading.Event | None = None,
     folders: list[Path] | None = None,
+    *,
+    min_free_mb: int = 0,
+    busy: Callable[[], str | None] | None = None,
 ) -> Recovery:
     """Recover every run of ``agent`` under ``runs_dir`` that it never finalized
-    (``folders``, default :func:`unfinished_runs`; :func:`recover_run`). Never raises: a
-    run that cannot be recovered (a file unreadable, a disk full) is logged, counted and
-    left as it was found, and the next one is tried."""
+    (``folders``, default :func:`unfinished_runs`; :func:`recover_run`, given
+    ``min_free_mb`` and ``busy``). Never raises: a run that cannot be recovered (a
+    file unreadable, a disk full) or is left for later is logged, counted and left
+    as it was found (but for its ``.partial`` name), and the next one is tried."""
     done = Recovery()
     for run_dir in unfinished_runs(runs_dir, agent) if folders is None else folders:
         if stop is not None and stop.is_set():
             break
         run = run_dir.name
         try:
-            salvaged = recover_run(run_dir, agent, stop)
+            salvaged = recover_run(run_dir, agent, stop, min_free_mb=min_free_mb, busy=busy)
+        except Deferred as later:
+            _defer(done, run, run_dir, later)
+            continue
         except InterruptedError:
-            break
+            if stop is not None and stop.is_set():
+                break
+            _defer(done, run, run_dir, Deferred("waiting", "this agent began a run: after it"))
+            continue
         except Exception as error:
             done.failed[run] = f"{type(error).__name__}: {error}"
             log.exception("run %s in %s: not recovered", run, run_dir)
             continue
         if salvaged is None:
-            done.in_use.append(run)
-            log.info("run %s in %s: a running process records it; left alone", run, run_dir)
+            done.finalized.append(run)
+            log.warning(
+                "run %s in %s: its recording was finished but its agent stopped before "
+                "writing the manifest: written now", run, run_dir,
+            )  # fmt: skip
             continue
         done.recovered[run] = salvaged
         log.warning(
@@ -251,10 +406,24 @@ def recover_runs(
     return done
 
 
+def _defer(done: Recovery, run: str, run_dir: Path, later: Deferred) -> None:
+    if later.kind == "short_of_space":
+        done.short_of_space[run] = str(later)
+        log.error(
+            "run %s in %s: not recovered yet, %s; tried again at the next start",
+            run, run_dir, later,
+        )  # fmt: skip
+        return
+    getattr(done, later.kind).append(run)  # a lock that cannot be told: warned once
+    log.info("run %s in %s: left for later (%s)", run, run_dir, later)
+
+
 class RecordingServer:
     """Serves one agent's finished recordings under ``runs_dir`` to ``fedlab collect``;
     first (``recover``), on a thread of its own, recovers the runs the agent never
-    finalized (:func:`recover_runs`): ``recovery`` says what became of them."""
+    finalized (:func:`recover_runs`, each copy leaving ``min_free_mb`` MiB free, none
+    while ``busy()`` says a run is under way: those once it is over): ``recovery``
+    says what became of them, once every run was tried."""
 
     def __init__(
         self,
@@ -264,8 +433,10 @@ class RecordingServer:
         runs_dir: Path,
         busy: Callable[[], str | None] = lambda: None,
         recover: bool = True,
+        min_free_mb: int = DEFAULT_MIN_FREE_MB,
     ):
         self.runs_dir = Path(runs_dir)
+        self.min_free_mb = min_free_mb
         self.agent = agent
         self.stem = f"{agent.lab}-{agent.name}"
         # Replies go on the agent's own key, never on the query's (a wildcard): the lab
@@ -294,7 +465,22 @@ class RecordingServer:
         )
 
     def _recover(self, folders: list[Path]) -> None:
-        self.recovery = recover_runs(self.runs_dir, str(self.agent), self._stop, folders)
+        done = Recovery()
+        while True:
+            got = recover_runs(
+                self.runs_dir, str(self.agent), self._stop, folders,
+                min_free_mb=self.min_free_mb, busy=self.busy,
+            )  # fmt: skip
+            done.add(got)
+            if not got.waiting:
+                break
+            folders = [self.runs_dir / run for run in got.waiting]
+            while self.busy() is not None:  # the run is over: those runs then
+                if self._stop.wait(RECOVERY_RETRY):
+                    break
+            if self._stop.is_set():
+                break  # the next start tries them
+        self.recovery = done
 
     def _on_query(self, query: zenoh.Query) -> None:
         try:

@@ -21,18 +21,25 @@ A recorder given ``max_bytes`` stops there: a peer publishing far too fast (a bu
 insider) fills no disk. Messages past it are dropped and counted, one warning is
 logged and one ``recording_truncated`` event written on ``/control``; the file is
 still finished, and its ``fedlab.recording`` metadata record (written at close, in
-every file) says how many messages it holds and what was left out.
+every file) says how many messages it holds and what was left out. The agent's own
+``/control`` events and ``/status`` lines (a few a second) still take up to
+``RESERVE_BYTES`` more: ``fedlab report`` finds a run's start in its control events
+and an agent's role and peers in its last status. A write that failed (a full disk)
+is counted too: such a file is not ``complete`` either.
 
 An open recorder holds an advisory lock on its file (``flock``; gone with its process):
-:func:`salvage`'s caller leaves a file that is still being written alone. :func:`salvage`
-copies every complete record of an unfinished file (its agent killed, its host's
-power lost: no summary, a chunk cut short, zeros or garbage after the last record)
-into a finished one.
+:func:`salvage`'s caller leaves a file that is still being written alone, and one
+whose lock cannot be told (:func:`hold`). :func:`is_finished` tells a finished file
+(its agent killed after closing it, before its manifest was written) from a cut
+one; :func:`salvage` copies every complete record of an unfinished file (its agent
+killed, its host's power lost: no summary, a chunk cut short, zeros or garbage
+after the last record) into a finished one.
 """
 
 from __future__ import annotations
 
 import ctypes
+import errno
 import fcntl
 import io
 import json
@@ -43,7 +50,7 @@ import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -77,13 +84,16 @@ from federation.core.channels import (
 __all__ = [
     "RECORDING_METADATA",
     "RECOVERY_METADATA",
+    "RESERVE_BYTES",
     "WRITER_THREAD",
     "Message",
     "Recorder",
     "Salvage",
     "Shared",
     "as_metadata",
+    "from_metadata",
     "hold",
+    "is_finished",
     "name_os_thread",
     "read_messages",
     "read_metadata",
@@ -115,6 +125,13 @@ _MESSAGE_OVERHEAD = 47
 # Bytes the chunk being gathered may still add to the file (it is not there yet): at
 # most CHUNK_SIZE of records before compression, their index entries, its header.
 _CHUNK_BOUND = 2 * CHUNK_SIZE
+RESERVE_BYTES = 1 << 20
+"""Bytes a truncated recording still takes, past its limit, for the agent's own
+``/control`` events and ``/status`` lines (the truncation event included): a run's
+start, end and last status stay in the file. Half of it for status lines as they
+come; past that only the latest is kept, written at close."""
+_RESERVED = frozenset({str(Channel.CONTROL), str(Channel.STATUS)})
+_RESERVE_QUEUE = 1000  # messages of those channels buffered once truncated
 
 
 class Shared:
@@ -168,11 +185,14 @@ class Recorder:
         self.max_bytes = max_bytes
         self.truncated = False  # max_bytes reached: every later message dropped
         self.over_budget = 0  # messages dropped because of it
+        self.reserve_used = 0  # bytes past it: /control and /status (RESERVE_BYTES)
+        self.write_errors = 0  # writes that failed (a full disk): messages lost
+        self._held_status: tuple[int, bytes, int] | None = None  # past half the reserve
         self._pending: deque[tuple[str, int, Message]] = deque()
         self._write_lock = threading.Lock()  # the writer thread or close(), not both
         self._closed = False
         self._file = self.path.open("wb")
-        if not hold(self._file):
+        if hold(self._file) is False:
             log.warning("%s is locked by another process: two recorders write it", self.path)
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE)
         self._writer.start(profile="", library="fedlab")
@@ -212,6 +232,9 @@ class Recorder:
             return
         if len(self._pending) >= self.capacity:  # 0 once truncated: dropped here, cheaply
             if self.truncated:
+                if topic in _RESERVED and len(self._pending) < _RESERVE_QUEUE:
+                    self._pending.append((topic, time.time_ns(), message))  # the reserve's
+                    return
                 self.over_budget += 1
             else:
                 self.dropped += 1
@@ -227,19 +250,25 @@ class Recorder:
                 self._bound = self._file.tell() + _CHUNK_BOUND
 
     def flush(self) -> None:
-        """Encode and write the buffered messages (the writer thread calls it)."""
+        """Encode and write the buffered messages (the writer thread calls it). A write
+        that fails is counted (``write_errors``: the file is no longer complete) and
+        raised."""
         if not self._pending:
             return  # nothing gathered: no lock taken
         with self._write_lock:
             if not self._closed:
-                self._write_pending()
+                try:
+                    self._write_pending()
+                except Exception:
+                    self.write_errors += 1
+                    raise
 
     def _write_pending(self) -> None:
         pending, channels, add = self._pending, self._channels, self._writer.add_message
         limit = self.max_bytes
         while pending:
             topic, stamp, message = pending.popleft()
-            if self.truncated:  # queued before the budget was reached: dropped all the same
+            if self.truncated and topic not in _RESERVED:  # queued before: dropped all the same
                 self.over_budget += 1
                 continue
             try:
@@ -259,11 +288,16 @@ class Recorder:
                 size = len(data) + _MESSAGE_OVERHEAD
                 if shown is not None:
                     size += len(shown[0]) + len(shown[1]) + 2 * _MESSAGE_OVERHEAD
-                self._bound += size
-                if self._bound > limit and not self._refit(size, limit):
-                    self._truncate(stamp)
-                    self.over_budget += 1
-                    continue
+                if not self.truncated:
+                    self._bound += size
+                    if self._bound > limit and not self._refit(size, limit):
+                        self._truncate(stamp)
+                if self.truncated:  # now or before: only /control and /status, in the reserve
+                    if topic not in _RESERVED:
+                        self.over_budget += 1
+                        continue
+                    if not self._in_reserve(topic, stamp, data, size):
+                        continue
             add(channels[topic], stamp, data, stamp)
             self.written += 1
             if shown is not None:
@@ -279,9 +313,39 @@ class Recorder:
         self._bound = self._file.tell() + _CHUNK_BOUND + size
         return self._bound <= limit
 
+    def _in_reserve(self, topic: str, stamp: int, data: bytes, size: int) -> bool:
+        """Whether a ``/control`` or ``/status`` message past the limit is written now,
+        taking ``size`` bytes of the reserve: a control event while the reserve lasts; a
+        status line while half of it does, else kept (the latest only) for close. The
+        others are dropped and counted."""
+        if topic == Channel.STATUS and self.reserve_used + size > RESERVE_BYTES // 2:
+            if self._held_status is not None:
+                self.over_budget += 1  # a later one replaces it
+            self._held_status = (stamp, data, size)
+            return False
+        if self.reserve_used + size > RESERVE_BYTES:
+            self.over_budget += 1
+            return False
+        self.reserve_used += size
+        return True
+
+    def _write_held_status(self) -> None:
+        """At close: the last status line past half the reserve, if the reserve holds it."""
+        held, self._held_status = self._held_status, None
+        if held is None:
+            return
+        stamp, data, size = held
+        if self.reserve_used + size > RESERVE_BYTES:
+            self.over_budget += 1
+            return
+        self.reserve_used += size
+        self._writer.add_message(self._channels[Channel.STATUS], stamp, data, stamp)
+        self.written += 1
+
     def _truncate(self, stamp: int) -> None:
-        """The budget is reached: drop every later message (``record`` at once), say so
-        once in the log and once in the file (a ``/control`` event, past the budget)."""
+        """The budget is reached: drop every later message (``record`` at once) but the
+        reserve's, say so once in the log and once in the file (a ``/control`` event,
+        past the budget, in the reserve)."""
         self.truncated = True
         self.capacity = 0
         detail = (
@@ -293,9 +357,9 @@ class Recorder:
             "event": "recording_truncated", "command": None, "at": None, "t_sim": None,
             "host_monotonic": time.monotonic(), "detail": detail,
         }  # fmt: skip
-        self._writer.add_message(
-            self._channels[Channel.CONTROL], stamp, json.dumps(event).encode(), stamp
-        )
+        data = json.dumps(event).encode()
+        self.reserve_used += len(data) + _MESSAGE_OVERHEAD
+        self._writer.add_message(self._channels[Channel.CONTROL], stamp, data, stamp)
 
     def report(self) -> dict[str, Any]:
         """What the file holds and what it left out, as JSON-ready data."""
@@ -307,12 +371,17 @@ class Recorder:
             "dropped_over_budget": self.over_budget,
             "dropped_queue_full": self.dropped,
             "unwritable": self.unwritable,
+            "write_errors": self.write_errors,
+            "reserve_bytes": self.reserve_used,
         }
 
     @property
     def complete(self) -> bool:
-        """Every message given was written: none dropped, none left out."""
-        return not (self.truncated or self.over_budget or self.dropped or self.unwritable)
+        """Every message given was written: none dropped, none left out, no write failed."""
+        return not (
+            self.truncated or self.over_budget or self.dropped or self.unwritable
+            or self.write_errors
+        )  # fmt: skip
 
     def _foxglove_pair(self, stamp: int, message: dict[str, Any]) -> tuple[bytes, bytes] | None:
         """The pose sent as Foxglove's transform and pose in frame (encoded), stamped as
@@ -346,6 +415,10 @@ class Recorder:
             try:
                 try:
                     self._write_pending()
+                    self._write_held_status()
+                except Exception:
+                    self.write_errors += 1  # said in the metadata record below
+                    raise
                 finally:  # whatever the last messages were, the file is finished
                     self._writer.add_metadata(RECORDING_METADATA, as_metadata(self.report()))
                     self._writer.finish()  # type: ignore[no-untyped-call]
@@ -360,6 +433,8 @@ class Recorder:
                 "%s: %d messages dropped past its limit of %s bytes",
                 self.path, self.over_budget, self.max_bytes,
             )  # fmt: skip
+        if self.write_errors:
+            log.warning("%s: %d writes failed: messages lost", self.path, self.write_errors)
 
 
 class _WriterThread:
@@ -394,8 +469,11 @@ class _WriterThread:
             for recorder in recorders:
                 try:
                     recorder.flush()
-                except Exception:  # a full disk: keep writing the others
-                    log.exception("writing %s failed", recorder.path)
+                except Exception:  # a full disk: keep writing the others (counted: flush)
+                    if recorder.write_errors == 1:
+                        log.exception("writing %s failed", recorder.path)
+                    else:  # every period while the disk is full: not a traceback each time
+                        log.debug("writing %s failed again", recorder.path, exc_info=True)
 
 
 _WRITER = _WriterThread()
@@ -436,17 +514,54 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
         return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
 
 
-def hold(file: IO[bytes]) -> bool:
-    """Take the advisory lock of an open file (``flock``, exclusive, without waiting); False
-    if another open file holds it (a process writing it, this one included). Released
-    when the file is closed or its process dies, killed or not. True where the
-    filesystem keeps no locks: nobody can hold one there."""
+_lock_unknown_said = False  # hold() could not tell once: logged, not at every file
+
+
+def hold(file: IO[bytes]) -> bool | None:
+    """Take the advisory lock of an open file (``flock``, exclusive, without waiting):
+    True once taken (released when the file is closed or its process dies, killed or
+    not); False if another open file holds it (a process writing it, this one
+    included); None if it cannot be told (the filesystem refused: ``ENOLCK`` where it
+    keeps no locks, ``EBADF`` where NFS emulates ``flock`` with a write lock and the
+    file is open read-only, anything else), logged once a process. Open the file
+    ``r+b`` (or for writing) to ask: a file that cannot be told must be left alone."""
+    global _lock_unknown_said
     try:
         fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         return False
-    except OSError:  # ENOLCK, EINVAL: no locks on this filesystem
-        return True
+    except OSError as error:
+        if not _lock_unknown_said:
+            _lock_unknown_said = True
+            name = errno.errorcode.get(error.errno or 0, str(error.errno))
+            log.warning(
+                "%s: whether another process writes it cannot be told (flock: %s, %s): "
+                "such recordings are left alone (said once)",
+                getattr(file, "name", "a file"), name, error.strerror,
+            )  # fmt: skip
+        return None
+    return True
+
+
+def is_finished(path: Path) -> bool:
+    """Whether ``path`` is a finished MCAP file: the magic at both ends, a footer whose
+    summary reads, and each chunk its index lists where it says. A recorder closed it
+    (its agent killed before the manifest was written): not a file cut short."""
+    try:
+        with Path(path).open("rb") as f:
+            f.seek(-len(_MAGIC), io.SEEK_END)
+            if f.read(len(_MAGIC)) != _MAGIC:
+                return False
+            f.seek(0)
+            summary = make_reader(f).get_summary()  # the magic at its start checked
+            if summary is None:
+                return False
+            for index in summary.chunk_indexes:
+                f.seek(index.chunk_start_offset)
+                if f.read(1) != bytes([Opcode.CHUNK]):
+                    return False
+    except Exception:  # short, cut, garbage: mcap raises many kinds (struct, EOF, McapError)
+        return False
     return True
 
 
@@ -509,11 +624,28 @@ def _text(value: object) -> str:
     return str(value)
 
 
+def from_metadata(record: dict[str, str]) -> dict[str, Any]:
+    """An MCAP metadata record written by :func:`as_metadata` as JSON-ready data again:
+    ``true``/``false`` as booleans, integers as integers, ``""`` as None."""
+    out: dict[str, Any] = {}
+    for key, text in record.items():
+        if text in ("true", "false"):
+            out[key] = text == "true"
+        elif text == "":
+            out[key] = None
+        else:
+            try:
+                out[key] = int(text)
+            except ValueError:
+                out[key] = text
+    return out
+
+
 def salvage(
     damaged: Path,
     out: Path,
     note: dict[str, str] | None = None,
-    stop: threading.Event | None = None,
+    stop: threading.Event | Callable[[], bool] | None = None,
 ) -> Salvage:
     """Write every complete record of an unfinished recording ``damaged`` into a finished
     one, ``out``: schemas, channels, messages, metadata and attachments in their order,
@@ -524,17 +656,19 @@ def salvage(
     garbage a lost power left); a chunk whose CRC, compression or records are bad is
     left out and counted, and reading goes on after it. A file that is empty or not an
     MCAP at all gives a finished file with no message. Raises only ``OSError`` (reading
-    or writing failed; ``InterruptedError`` when ``stop`` is set), never on the content.
+    or writing failed; ``InterruptedError`` when ``stop`` is set, or returns True: it is
+    asked before each record), never on the content; ``out`` is then left as it is.
     Memory holds one chunk at a time; the interpreter is yielded after each record, so
     that an agent's loop on another thread keeps its pace.
     """
     result = Salvage(size=damaged.stat().st_size)
+    stopped = stop.is_set if isinstance(stop, threading.Event) else stop
     with damaged.open("rb") as source, out.open("wb") as sink:
         writer = Writer(sink, chunk_size=CHUNK_SIZE)
         writer.start(profile="", library="fedlab")
         copy = _Copier(writer, result)
         for opcode, body in _records(source, result):
-            if stop is not None and stop.is_set():
+            if stopped is not None and stopped():
                 raise InterruptedError(f"salvaging {damaged}: stopped")
             if opcode == Opcode.DATA_END:
                 result.whole = True

@@ -24,7 +24,6 @@ import datetime
 import json
 import logging
 import platform as host_platform
-import shutil
 import socket
 import subprocess
 import sys
@@ -36,8 +35,8 @@ from pathlib import Path
 from typing import IO, Any
 
 from federation.core.channels import Channel
-from federation.runtime.collect import finalize, write_incomplete
-from federation.runtime.recorder import Message, Recorder
+from federation.runtime.collect import finalize, free_bytes, write_incomplete
+from federation.runtime.recorder import Message, Recorder, is_finished
 from schemas.config import AgentConfig
 
 __all__ = ["RunRecording", "free_bytes", "low_space", "software_versions", "space_problem"]
@@ -50,18 +49,6 @@ MIB = 1 << 20
 SPACE_CHECK_PERIOD = 5.0
 """s a free-space look is reused for: status asks every period, the disk need not answer."""
 _space_checks: dict[tuple[Path, int], tuple[float, str | None]] = {}
-
-
-def free_bytes(path: Path) -> int | None:
-    """Bytes free for this user on the filesystem of ``path`` (or of its nearest existing
-    parent: a runs folder is made at the first run); None if it cannot be told."""
-    where = Path(path).absolute()
-    while not where.exists() and where != where.parent:
-        where = where.parent
-    try:
-        return shutil.disk_usage(where).free
-    except OSError:
-        return None
 
 
 def space_problem(where: Path, free: int | None, min_free_mb: int) -> str | None:
@@ -216,9 +203,15 @@ class RunRecording:
         def work() -> None:
             try:
                 recorder = self.recorder
-                recorder.close()
-                if status_file is not None:
-                    status_file.close()
+                try:
+                    recorder.close()
+                except Exception:  # a write failed (counted in its report)
+                    if not is_finished(self.mcap):  # cut: the next start recovers it
+                        raise
+                    log.exception("run %s: a write to %s failed", self.run_id, self.mcap)
+                finally:
+                    if status_file is not None:
+                        status_file.close()
                 files = [self.mcap, self.status]
                 if not recorder.complete:  # said beside it: collect tells whoever fetches it
                     what = recorder.report()

@@ -17,7 +17,9 @@ from mcap.stream_reader import StreamReader
 from federation.core.channels import Channel
 from federation.fleet.launch import wait_for
 from federation.runtime import recorder as recorder_module
-from federation.runtime.recorder import Recorder, Shared, read_messages
+from federation.runtime.collect import describe_incomplete, manifest_name
+from federation.runtime.recorder import Recorder, Shared, read_messages, read_metadata
+from federation.runtime.runs import RunRecording
 
 
 def writers() -> int:
@@ -282,3 +284,62 @@ def test_one_message_that_cannot_be_written_loses_only_itself(tmp_path: Path) ->
     messages = read_messages(path)  # a finished file: summary and index readable
     assert len(messages["/pose/sent"]) == 1 and len(messages["/sync/exchange"]) == 1
     assert rec.unwritable == 1
+
+
+def test_a_write_that_fails_is_counted_and_the_recording_is_not_complete(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A full disk under the writer thread had only been logged: the run was finalized
+    as complete, its gap unsaid."""
+    run = RunRecording(tmp_path, "r1", "lab/x", None, "{}", None)
+    rec = run.recorder
+    real = rec._writer.add_message
+    failures = []
+
+    def full_disk(*args: Any, **kwargs: Any) -> None:
+        if not failures:
+            failures.append(1)
+            raise OSError(28, "No space left on device")
+        real(*args, **kwargs)
+
+    monkeypatch.setattr(rec._writer, "add_message", full_disk)
+    rec.record("/status", {"agent": "lab/x", "t_exec": 0.0})
+    assert wait_for(lambda: rec.write_errors == 1, timeout=5)  # the writer thread's write
+    rec.record("/status", {"agent": "lab/x", "t_exec": 1.0})
+    run.finish(wait=True)
+    assert rec.report()["write_errors"] == 1 and not rec.complete
+    summary = read_metadata(run.mcap)["fedlab.recording"]
+    assert summary["complete"] == "false" and summary["write_errors"] == "1"
+    note = json.loads((tmp_path / "r1" / "lab-x.incomplete.json").read_text())
+    assert note["write_errors"] == 1 and note["complete"] is False
+    assert "1 write(s) failed" in describe_incomplete(note)
+    manifest = json.loads((tmp_path / "r1" / manifest_name("lab-x")).read_text())
+    assert "lab-x.incomplete.json" in {f["name"] for f in manifest["files"]}
+    assert [m["t_exec"] for m in read_messages(run.mcap)["/status"]] == [1.0]
+
+
+def test_a_write_failing_at_close_still_finalizes_the_run_marked_incomplete(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its last messages lost, the file finished all the same: finalized, and said."""
+    run = RunRecording(tmp_path, "r1", "lab/x", None, "{}", None)
+    rec = run.recorder
+    recorder_module._WRITER.remove(rec)  # only close() writes: its failure is the one
+    for k in range(3):
+        rec.record("/status", {"agent": "lab/x", "t_exec": float(k)})
+
+    def full_disk(*args: Any, **kwargs: Any) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(rec._writer, "add_message", full_disk)
+    run.finish(wait=True)
+    assert rec.write_errors == 1 and not rec.complete
+    assert read_metadata(run.mcap)["fedlab.recording"]["write_errors"] == "1"
+    manifest = json.loads((tmp_path / "r1" / manifest_name("lab-x")).read_text())
+    assert {f["name"] for f in manifest["files"]} == {
+        "lab-x.mcap",
+        "lab-x.jsonl",
+        "lab-x.incomplete.json",
+    }
+    note = json.loads((tmp_path / "r1" / "lab-x.incomplete.json").read_text())
+    assert note["write_errors"] == 1

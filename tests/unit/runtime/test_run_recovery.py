@@ -7,7 +7,10 @@ empty and garbage files, a file still being written, a process killed mid-run.""
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -28,16 +31,25 @@ from mcap.stream_reader import breakup_chunk
 from federation.core.keys import AgentId
 from federation.fleet.launch import wait_for
 from federation.runtime import collect as collect_module
+from federation.runtime import recorder as recorder_module
 from federation.runtime.collect import (
     RecordingServer,
     collect,
     manifest_name,
+    recover_run,
     recover_runs,
     sha256_file,
     unfinished_runs,
+    write_incomplete,
     zenoh_fetch,
 )
-from federation.runtime.recorder import Recorder, read_messages, read_metadata, salvage
+from federation.runtime.recorder import (
+    Recorder,
+    is_finished,
+    read_messages,
+    read_metadata,
+    salvage,
+)
 from federation.runtime.runs import RunRecording
 from schemas.messages import Manifest
 
@@ -357,7 +369,7 @@ def test_the_recording_server_recovers_at_start_and_collect_says_so(
     runs = tmp_path / "runs"
     chunks = _chunks(finished)
     _unfinished(runs, "crashed", finished.read_bytes()[: chunks[2].end + 3])
-    server = RecordingServer(session, "default", AgentId("kiruna", "knatte"), runs)
+    server = RecordingServer(session, "default", AgentId("kiruna", "knatte"), runs, min_free_mb=0)
     try:
         assert wait_for(lambda: server.recovery is not None, timeout=10)
         assert server.recovery is not None and set(server.recovery.recovered) == {"crashed"}
@@ -373,3 +385,220 @@ def test_the_recording_server_recovers_at_start_and_collect_says_so(
         assert _ts(out / f"{STEM}.mcap") == _ts(finished)[: len(_ts(out / f"{STEM}.mcap"))]
     finally:
         server.close()
+
+
+# -- a finished recording whose manifest was not written ---------------------------------
+def _closed_not_finalized(runs: Path, max_mb: int | None) -> RunRecording:
+    """A run whose agent was killed after its recorder closed the file, before the
+    manifest was written (its SHA-256 takes a while on a large file)."""
+    run = RunRecording(runs, "r1", AGENT, None, "{}", None, max_mb=max_mb)
+    for k in range(15_000):
+        run.record("/pose/received", {"agent": "rome/p", "t": float(k), "p": os.urandom(60).hex()})
+        if k % 500 == 0:
+            run.recorder.flush()
+    run.status_line('{"agent": "kiruna/knatte"}')
+    run.recorder.close()
+    assert run._status_file is not None
+    run._status_file.close()
+    return run
+
+
+@pytest.mark.parametrize("case", ["whole", "truncated", "truncated, its note written"])
+def test_a_finished_recording_without_its_manifest_is_only_finalized(
+    tmp_path: Path, case: str
+) -> None:
+    """It had been renamed .partial, copied and said 'recovered after its agent stopped
+    mid-run', its truncation details lost and its disk use doubled."""
+    runs = tmp_path / "runs"
+    run = _closed_not_finalized(runs, None if case == "whole" else 1)
+    report = run.recorder.report()
+    assert report["complete"] is (case == "whole")
+    note = run.dir / f"{STEM}.incomplete.json"
+    if case == "truncated, its note written":  # killed during the manifest's SHA-256
+        write_incomplete(run.dir, AGENT, "r1", report)
+        note_bytes = note.read_bytes()
+    original = run.mcap.read_bytes()
+    assert is_finished(run.mcap)
+
+    result = recover_runs(runs, AGENT)
+
+    assert result.finalized == ["r1"] and not result.recovered and not result.failed
+    assert run.mcap.read_bytes() == original  # neither renamed nor copied
+    assert sorted(p.name for p in run.dir.iterdir() if ".mcap" in p.name) == [f"{STEM}.mcap"]
+    manifest = Manifest.model_validate_json((run.dir / manifest_name(STEM)).read_text())
+    listed = {f.name: f for f in manifest.files}
+    assert listed[f"{STEM}.mcap"].sha256 == sha256_file(run.mcap)
+    assert "fedlab.recovery" not in read_metadata(run.mcap)
+    if case == "whole":
+        assert set(listed) == {f"{STEM}.mcap", f"{STEM}.jsonl"} and not note.exists()
+        return
+    assert set(listed) == {f"{STEM}.mcap", f"{STEM}.jsonl", f"{STEM}.incomplete.json"}
+    said = json.loads(note.read_text())
+    assert said == {"agent": AGENT, "run_id": "r1", **report}  # as finish() would have
+    assert said["truncated"] is True and "recovered" not in said
+    if case == "truncated, its note written":
+        assert note.read_bytes() == note_bytes  # kept as it was
+    assert unfinished_runs(runs, AGENT) == []
+
+
+def test_a_cut_recording_is_not_taken_for_a_finished_one(finished: Path, tmp_path: Path) -> None:
+    data = finished.read_bytes()
+    for cut in (len(data) - 1, len(data) - 40, _chunks(finished)[-1].end, 8, 0):
+        (tmp_path / "cut.mcap").write_bytes(data[:cut])
+        assert not is_finished(tmp_path / "cut.mcap"), cut
+    garbled = bytearray(data)
+    garbled[_chunks(finished)[1].start] = 0  # an index pointing at no chunk (a torn write)
+    (tmp_path / "torn.mcap").write_bytes(bytes(garbled))
+    assert not is_finished(tmp_path / "torn.mcap")
+    assert is_finished(finished)
+
+
+# -- disk space, failures, a run under way -----------------------------------------------
+def test_a_recovery_waits_for_the_space_its_copy_takes(
+    finished: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    runs = tmp_path / "runs"
+    content = finished.read_bytes()[: _chunks(finished)[2].end + 5]
+    folder = _unfinished(runs, "r1", content)
+    floor = 10  # MiB: record_min_free_mb
+    free = len(content) + floor * (1 << 20) - 1
+    monkeypatch.setattr(collect_module, "free_bytes", lambda path: free)
+    result = recover_runs(runs, AGENT, min_free_mb=floor)
+    assert list(result.short_of_space) == ["r1"] and not result.recovered
+    assert "record_min_free_mb (10 MiB)" in result.short_of_space["r1"]
+    assert sorted(p.name for p in folder.iterdir()) == [f"{STEM}.jsonl", f"{STEM}.mcap"]
+    assert unfinished_runs(runs, AGENT) == [folder]  # tried again at the next start
+    free += 1
+    assert set(recover_runs(runs, AGENT, min_free_mb=floor).recovered) == {"r1"}
+
+
+@pytest.mark.parametrize("how", ["disk full", "stopped"])
+def test_a_copy_that_fails_or_stops_leaves_no_half_written_file(
+    finished: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
+) -> None:
+    """A .recovering left behind took its room until the next start, and again then."""
+    runs = tmp_path / "runs"
+    content = finished.read_bytes()[: _chunks(finished)[3].end]
+    folder = _unfinished(runs, "r1", content)
+    recovering = folder / f"{STEM}.mcap.recovering"
+    stop = None
+    if how == "disk full":
+        real = collect_module.salvage
+
+        def full(damaged: Path, out: Path, note: object, stopped: object) -> object:
+            def fails() -> bool:
+                if out.exists() and out.stat().st_size > 0:
+                    raise OSError(errno.ENOSPC, "No space left on device")
+                return False
+
+            return real(damaged, out, note, fails)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(collect_module, "salvage", full)
+        result = recover_runs(runs, AGENT)
+        assert list(result.failed) == ["r1"] and "No space" in result.failed["r1"]
+    else:
+        stop = __import__("threading").Event()
+        stop.set()  # the agent stopping: its recovery stops between two records
+        with pytest.raises(InterruptedError):
+            recover_run(folder, AGENT, stop)
+    assert not recovering.exists()
+    assert (folder / f"{STEM}.mcap.partial").read_bytes() == content
+    assert unfinished_runs(runs, AGENT) == [folder]
+
+
+def test_no_copy_is_made_while_the_agent_records_a_run(finished: Path, tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    content = finished.read_bytes()[: _chunks(finished)[4].end]
+    folder = _unfinished(runs, "r1", content)
+    running = "run r9 running"
+    result = recover_runs(runs, AGENT, busy=lambda: running)
+    assert result.waiting == ["r1"] and not result.recovered
+    assert sorted(p.name for p in folder.iterdir()) == [f"{STEM}.jsonl", f"{STEM}.mcap"]
+    # A run armed during the copy stops it; it is done once the run is over.
+    asked = 0
+
+    def armed_meanwhile() -> str | None:
+        nonlocal asked
+        asked += 1
+        return None if asked <= 3 else running
+
+    result = recover_runs(runs, AGENT, busy=armed_meanwhile)
+    assert result.waiting == ["r1"] and asked > 3
+    assert not (folder / f"{STEM}.mcap.recovering").exists()
+    assert not (folder / manifest_name(STEM)).exists()
+    assert set(recover_runs(runs, AGENT, busy=lambda: None).recovered) == {"r1"}
+
+
+def test_the_recording_server_recovers_once_the_agents_run_is_over(
+    session: zenoh.Session, finished: Path, tmp_path: Path
+) -> None:
+    runs = tmp_path / "runs"
+    folder = _unfinished(runs, "r1", finished.read_bytes()[: _chunks(finished)[2].end])
+    state = {"busy": "run r9 running"}
+    server = RecordingServer(
+        session, "default", AgentId("kiruna", "knatte"), runs,
+        busy=lambda: state["busy"], min_free_mb=0,
+    )  # fmt: skip
+    try:
+        time.sleep(2.5 * collect_module.RECOVERY_RETRY)
+        assert server.recovery is None  # waiting for the run
+        assert sorted(p.name for p in folder.iterdir()) == [f"{STEM}.jsonl", f"{STEM}.mcap"]
+        state["busy"] = None  # type: ignore[assignment]
+        assert wait_for(lambda: server.recovery is not None, timeout=10)
+        assert server.recovery is not None and set(server.recovery.recovered) == {"r1"}
+        assert not server.recovery.waiting
+        assert (folder / manifest_name(STEM)).exists()
+    finally:
+        server.close()
+
+
+# -- a lock that cannot be told -----------------------------------------------------------
+def test_a_live_recording_on_nfs_is_left_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """NFS emulates flock with a write lock: on a read-only descriptor it fails (EBADF),
+    which had been taken for 'no locks here', and the live file renamed."""
+    real = fcntl.flock
+
+    def nfs(fd: int, operation: int) -> None:
+        if fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDONLY:
+            raise OSError(errno.EBADF, "Bad file descriptor")
+        real(fd, operation)
+
+    monkeypatch.setattr(fcntl, "flock", nfs)
+    runs = tmp_path / "runs"
+    rec = Recorder(runs / "live" / f"{STEM}.mcap", AGENT)
+    try:
+        rec.record("/status", {"agent": AGENT, "t_exec": 0.0})
+        rec.flush()
+        result = recover_runs(runs, AGENT)
+        assert result.in_use == ["live"] and not result.recovered
+        assert sorted(p.name for p in (runs / "live").iterdir()) == [f"{STEM}.mcap"]
+    finally:
+        rec.close()
+
+
+def test_a_recording_whose_lock_cannot_be_told_is_left_alone_said_once(
+    finished: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:  # fmt: skip
+    def no_locks(fd: int, operation: int) -> None:
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    monkeypatch.setattr(recorder_module, "_lock_unknown_said", False)
+    caplog.set_level(logging.WARNING, logger="fedlab.recorder")
+    runs = tmp_path / "runs"
+    content = finished.read_bytes()[: _chunks(finished)[1].end]
+    for run in ("a", "b"):
+        _unfinished(runs, run, content)
+    result = recover_runs(runs, AGENT)
+    assert result.lock_unknown == ["a", "b"] and not result.recovered
+    for run in ("a", "b"):
+        assert (runs / run / f"{STEM}.mcap").read_bytes() == content  # not renamed
+    said = [
+        r
+        for r in caplog.records
+        if r.levelno >= logging.WARNING and "cannot be told" in r.getMessage()
+    ]
+    assert len(said) == 1 and "ENOLCK" in said[0].getMessage()
