@@ -14,7 +14,6 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Iterator
 
 import pytest
 import zenoh
@@ -26,16 +25,6 @@ from schemas.bridge import UdpBridgeConfig
 from schemas.config import validate
 
 LEGACY_POSE = wire.Pose(1.25, -0.5, 0.3)
-
-
-@pytest.fixture
-def session() -> Iterator[zenoh.Session]:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-    with zenoh.open(conf) as s:
-        yield s
 
 
 def udp_socket() -> socket.socket:

@@ -230,9 +230,9 @@ def test_no_pose_is_published_before_the_platforms_first_fix() -> None:
     assert len(sent) == 1
 
 
-def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
-    # The step judged the link resumed; before it released, the abort ran in full on
-    # Zenoh's thread (hold, aborted). The release then undid the abort's hold.
+def _stale_then_flowing() -> Follower:
+    """A follower in a run, held for a stale pose, whose pose flows again and a sync
+    has completed since: its next step (after a pose) judges the link resumed."""
     f = Follower()
     f.synced()
     f.command("start", run_id="r1")
@@ -242,6 +242,13 @@ def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
     assert f.agent.hold_reason == "stale"
     f.pose()
     f.sync()
+    return f
+
+
+def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
+    # The step judged the link resumed; before it released, the abort ran in full on
+    # Zenoh's thread (hold, aborted). The release then undid the abort's hold.
+    f = _stale_then_flowing()
     real = f.agent._let_go
 
     def abort_meanwhile(cause: str) -> bool:
@@ -263,15 +270,7 @@ def test_no_release_judged_before_an_abort_follows_its_hold() -> None:
     # stepped with valves free after the abort's hold.
     import threading
 
-    f = Follower()
-    f.synced()
-    f.command("start", run_id="r1")
-    f.pose()
-    f.step()
-    f.step(1.0)  # stale hold
-    assert f.agent.hold_reason == "stale"
-    f.pose()
-    f.sync()
+    f = _stale_then_flowing()
     f.pose()  # the next step judges the link resumed
     platform = f.agent.platform
     real_hold, real_step = platform.hold, platform.step

@@ -1,4 +1,4 @@
-"""A real Zenoh session on loopback for the runtime's tests (closed after each)."""
+"""A real Zenoh session on loopback for the unit tests that need one (closed after each)."""
 
 from __future__ import annotations
 
