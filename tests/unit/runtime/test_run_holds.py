@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -302,18 +303,14 @@ def test_no_release_judged_before_an_abort_follows_its_hold() -> None:
     assert f.agent.hold_reason == "aborted"
 
 
-def test_a_start_released_on_zenohs_thread_does_not_undo_a_stale_hold_meanwhile() -> None:
-    # A start arriving just after its instant starts the run on Zenoh's thread, whose
-    # _let_go read the link as fresh; the loop's step then held for a stale pose; the
-    # release went on and left the platform free with the link still judged stale.
+def _late_start_meanwhile(f: Follower, meanwhile: Callable[[], None]) -> None:
+    """A start just after its instant, applied on "Zenoh's thread", which reads the link
+    watch as it decides to release and is descheduled there; ``meanwhile`` runs on the
+    loop's thread in that pause."""
     import threading
 
-    f = Follower(wait_start=True)
-    f.synced()
-    f.pose()
-    f.step()
     agent, real = f.agent, f.agent.link_watch
-    read_fresh = threading.Event()
+    deciding = threading.Event()
 
     class Watch:
         def __getattr__(self, name: str) -> Any:
@@ -323,8 +320,8 @@ def test_a_start_released_on_zenohs_thread_does_not_undo_a_stale_hold_meanwhile(
         def holding(self) -> bool:
             value = real.holding
             if threading.current_thread() is not threading.main_thread():
-                read_fresh.set()
-                threading.Event().wait(0.3)  # Zenoh's thread descheduled after the read
+                deciding.set()
+                threading.Event().wait(0.3)  # descheduled after the read
             return value
 
     agent.link_watch = Watch()  # type: ignore[assignment]
@@ -335,13 +332,25 @@ def test_a_start_released_on_zenohs_thread_does_not_undo_a_stale_hold_meanwhile(
     )
     start.start()
     try:
-        assert read_fresh.wait(5.0)
-        f.step(1.0)  # the loop's step, meanwhile: the leader's pose is 1 s old
+        assert deciding.wait(5.0)
+        meanwhile()
     finally:
         start.join(5.0)
-    agent.link_watch = real  # type: ignore[assignment]
+        agent.link_watch = real  # type: ignore[assignment]
+
+
+def test_a_start_released_on_zenohs_thread_does_not_undo_a_stale_hold_meanwhile() -> None:
+    # A start arriving just after its instant starts the run on Zenoh's thread, whose
+    # _let_go read the link as fresh; the loop's step then held for a stale pose; the
+    # release went on and left the platform free with the link still judged stale.
+    f = Follower(wait_start=True)
+    f.synced()
+    f.pose()
+    f.step()
+    _late_start_meanwhile(f, lambda: f.step(1.0))  # the leader's pose 1 s old meanwhile
+    agent = f.agent
     assert agent.run_state.mode == "running"
-    assert real.holding and agent.platform.held and agent.hold_reason == "stale"
+    assert agent.link_watch.holding and agent.platform.held and agent.hold_reason == "stale"
 
 
 def test_a_step_never_runs_free_while_a_cause_of_hold_stands() -> None:
@@ -603,41 +612,18 @@ def test_a_release_for_one_cause_does_not_undo_a_hold_for_another() -> None:
     # A start applied on Zenoh's thread let go of the waiting hold by the run's mode
     # alone: a hold for another cause made meanwhile on the loop's thread (its own pose
     # not finite: held for good) was released and its reason wiped.
-    import threading
-
     f = Follower(wait_start=True)
     f.synced()
     f.pose()
     f.step()
-    agent, real = f.agent, f.agent.link_watch
+    agent = f.agent
     assert agent.hold_reason == "waiting"
-    deciding = threading.Event()
 
-    class Watch:
-        def __getattr__(self, name: str) -> Any:
-            return getattr(real, name)
-
-        @property
-        def holding(self) -> bool:
-            if threading.current_thread() is not threading.main_thread():
-                deciding.set()
-                threading.Event().wait(0.3)  # Zenoh's thread descheduled mid-decision
-            return real.holding
-
-    agent.link_watch = Watch()  # type: ignore[assignment]
-    t_sim = agent.sim_time(f.clock.now())
-    assert t_sim is not None
-    start = threading.Thread(
-        target=f.command, args=("start",), kwargs={"run_id": "r1", "at": t_sim - 0.5}
-    )
-    start.start()
-    try:
-        assert deciding.wait(5.0)
-        agent.pose = wire.Pose(x=float("nan"))  # the loop's thread, meanwhile
+    def nonfinite() -> None:
+        agent.pose = wire.Pose(x=float("nan"))
         agent.publish_pose()
-    finally:
-        start.join(5.0)
-    agent.link_watch = real  # type: ignore[assignment]
+
+    _late_start_meanwhile(f, nonfinite)
     assert agent.run_state.mode == "running"
     assert agent.platform.held and agent.hold_reason == "nonfinite"
 
