@@ -90,6 +90,13 @@ class Follower:
         self.now += dt
         self.agent.control_step()
 
+    def in_a_run(self) -> None:
+        """Synced with the leader, in run r1 (started on receipt), its pose fresh."""
+        self.synced()
+        self.command("start", run_id="r1")
+        self.pose()
+        self.step()
+
 
 @pytest.mark.parametrize("ending", ["done", "abort, reset"])
 def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending: str) -> None:
@@ -132,10 +139,7 @@ def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
     # json.loads raised RecursionError on it; the handler logged a traceback and held
     # nothing: "an abort is honoured when it says abort in JSON" was broken.
     f = Follower()
-    f.synced()
-    f.command("start", run_id="r1")
-    f.pose()
-    f.step()
+    f.in_a_run()
     assert f.agent.run_state.mode == "running" and not f.agent.platform.held
     deep = b'{"command": "abort", "a": ' + b"[" * 200_000 + b"]" * 200_000 + b"}"
     f.agent._on_control(_RawSample(deep))  # type: ignore[arg-type]
@@ -235,10 +239,7 @@ def _stale_then_flowing() -> Follower:
     """A follower in a run, held for a stale pose, whose pose flows again and a sync
     has completed since: its next step (after a pose) judges the link resumed."""
     f = Follower()
-    f.synced()
-    f.command("start", run_id="r1")
-    f.pose()
-    f.step()
+    f.in_a_run()
     f.step(1.0)  # stale hold
     assert f.agent.hold_reason == "stale"
     f.pose()
@@ -357,10 +358,7 @@ def test_a_step_never_runs_free_while_a_cause_of_hold_stands() -> None:
     # Whatever released the platform (a path not yet thought of), the next step holds
     # it again while the link is judged stale or a cause is named.
     f = Follower()
-    f.synced()
-    f.command("start", run_id="r1")
-    f.pose()
-    f.step()
+    f.in_a_run()
     f.step(1.0)  # stale hold
     assert f.agent.hold_reason == "stale"
     f.agent.platform.release()
