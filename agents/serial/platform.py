@@ -76,7 +76,12 @@ log = logging.getLogger("fedlab.serial")
 
 _U32 = 1 << 32
 _READ_CHUNK = 4096
-_MAX_READS = 64  # per step: bounds the time spent on a device that never stops talking
+# Per step: bounds the time spent decoding under the platform's lock, which a hold from
+# another thread (an abort) waits for. A device that never stops talking, or junk that
+# keeps the decoder searching (1.5 us a byte: 64 reads had held the lock 385 ms), then
+# waits in the port's buffer; its frames grow old there and are dropped as such, the
+# valves closed for stale data. A real link brings about 115 bytes a step at 115200 baud.
+_MAX_READS = 2
 # Sent before the all-closed VALVES after a write cut off: completes any frame left
 # half-sent on the line (its CRC then fails), so the device decodes the VALVES at once.
 # No 0xA5 in it: never a false sync.

@@ -560,6 +560,22 @@ def test_a_hold_whose_frame_times_out_is_not_confirmed(
         assert _valves_of(pty_dev.received())[-1] == 0
 
 
+def test_a_flood_of_junk_is_read_a_bounded_amount_a_step(pty_dev: Pty) -> None:
+    # Junk that keeps the decoder searching costs 1.5 us a byte under the platform's
+    # lock, which an abort's hold waits for: 64 reads a step had held it 385 ms.
+    with SerialPlatform(pty_dev.path) as plat:
+        reads: list[int] = []
+
+        def talker(size: int = 1) -> bytes:  # a device that never stops sending junk
+            reads.append(size)
+            return bytes.fromhex("a55a0140") * (size // 4)
+
+        plat._serial.read = talker  # type: ignore[method-assign, assignment]
+        plat.step(0.0, AHEAD, 0.0)
+        assert 0 < plat.counters["bytes_in"] <= 2 * 4096 and len(reads) <= 2, reads
+        assert plat.valves == CLOSED
+
+
 def test_a_backlog_in_the_devices_order_is_not_a_fix(pty_dev: Pty) -> None:
     # POSE(4.3) then the IMU samples that followed it, up to 5.0: read together after a
     # stall, the POSE was once judged against the IMU before it, and taken as a fix.
