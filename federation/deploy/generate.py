@@ -487,11 +487,12 @@ def _retire_old_identities(
     """Move the pairs of identities no longer listed, or listed as another kind than
     ``before`` says, to ``ca/retired/``: listing the name again issues a new pair."""
     labs = {*fed.labs, "ca"}
+    hosted = _hosted_names(fed)
     for pem in sorted(ca.glob("*.pem")):
         if pem.stem in labs:
             continue  # the CA and the labs' own pairs
         cn = _common_name(pem)
-        if cn in now and before.get(cn, now[cn]) == now[cn]:
+        if cn in hosted or (cn in now and before.get(cn, now[cn]) == now[cn]):
             continue
         retired = ca / "retired"
         retired.mkdir(exist_ok=True)
@@ -531,6 +532,18 @@ def _refuse_trusted_again(fed: FederationFile, ca: Path, before: dict[str, str])
             )
 
 
+def _hosted_names(fed: FederationFile) -> set[str]:
+    """The common names of the agents run by a host. Moved into a host, an agent is not
+    distrusted: its pair stays in the CA folder (unused: the host speaks for it, and no
+    rule names it) for when it moves out again, and its kind stays in the roles file."""
+    return {
+        certs.agent_common_name(lab, n)
+        for lab, entry in fed.labs.items()
+        for n in entry.agents
+        if entry.host_of(n) is not None
+    }
+
+
 def _read_roles(ca: Path) -> dict[str, str]:
     path = ca / ROLES_FILE
     try:
@@ -566,7 +579,9 @@ def _issue_certificates(fed: FederationFile, ca: Path, out: Generated) -> None:
                     else:
                         certs.issue_agent(ca, lab, who.name.split("/", 1)[1], force=True)
                     out.issued.append(who.name)
-    _write(ca / ROLES_FILE, json.dumps(now, indent=2, sort_keys=True) + "\n", 0o644, out)
+    kept = {cn: before[cn] for cn in _hosted_names(fed) if cn in before}
+    roles = {**kept, **now}
+    _write(ca / ROLES_FILE, json.dumps(roles, indent=2, sort_keys=True) + "\n", 0o644, out)
     out.role_changed = sorted(n for n, k in now.items() if before.get(n, k) != k)
 
 

@@ -142,6 +142,36 @@ def test_one_edit_moves_agents_into_and_out_of_a_host(tmp_path: Path) -> None:
     assert "rome/hosts/pad" not in (out / "rome" / "routers" / "rome.json5").read_text()
 
 
+def test_an_agent_moved_through_a_host_keeps_its_pair_and_its_kind(tmp_path: Path) -> None:
+    # Hosted, it is not distrusted: moved out again it flies on its own pair. Moved out
+    # as an operator, its agent certificate would gain control: refused.
+    from cryptography import x509
+
+    out = tmp_path / "fed"
+    pem = out / "ca" / "kiruna.f1.pem"
+
+    def serial() -> int:
+        return x509.load_pem_x509_certificate(pem.read_bytes()).serial_number
+
+    source = write(tmp_path, BASE)
+    gen.generate(load_federation(source), out)
+    first = serial()
+    source.write_text(HOSTED)
+    gen.generate(load_federation(source), out)
+    source.write_text(BASE)
+    gen.generate(load_federation(source), out)
+    assert serial() == first
+    # (A host removed is retired like any identity: hosted again under another name.)
+    source.write_text(BASE + '[labs.kiruna.hosted]\nsim2 = ["f1"]\n')
+    gen.generate(load_federation(source), out)
+    as_operator = BASE.replace(
+        'agents.f1 = { role = "follower", follow = "kiruna/knatte" }\n', 'operators = ["f1"]\n'
+    )
+    source.write_text(as_operator)
+    with pytest.raises(ConfigError, match="kiruna/f1 was a agent until now"):
+        gen.generate(load_federation(source), out)
+
+
 @pytest.mark.parametrize(
     ("hosted", "said"),
     [
