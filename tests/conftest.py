@@ -1,4 +1,5 @@
-"""Fixtures for integration tests: real routers and agents as processes on loopback."""
+"""Fixtures: real routers and agents as processes on loopback (integration tests), and a
+real Zenoh session on loopback (unit tests that need one; closed after each)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from federation.fleet.launch import Fleet
 
@@ -22,3 +24,13 @@ def fleet(tmp_path: Path) -> Iterator[Fleet]:
             log = f.log_path(name)
             if log.exists():
                 print(f"--- {name} (exit {codes[name]}) ---\n{log.read_text()[-3000:]}")
+
+
+@pytest.fixture
+def session() -> Iterator[zenoh.Session]:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    with zenoh.open(conf) as s:
+        yield s
