@@ -84,7 +84,14 @@ CLOSED: tuple[bool, ...] = (False,) * len(THRUSTERS)
 """Every valve closed."""
 
 Reason = Literal[
-    "held", "no_fix", "device_restart", "fix_rejected", "stale_fix", "stale_imu", "nonfinite"
+    "held",
+    "no_fix",
+    "device_restart",
+    "fix_restart",
+    "fix_rejected",
+    "stale_fix",
+    "stale_imu",
+    "nonfinite",
 ]
 """Why every valve is closed (the first that holds, in this order)."""
 
@@ -133,6 +140,7 @@ class GncChain:
         self._shadow: NavigationFilter | None = None
         self._agreeing = 0
         self._rejecting = False  # the latest fix was rejected: closed until one is taken
+        self._restarted = False  # restarted from outliers: closed until acknowledged
         self.pid = HeadingPid(c.kp, c.ki, c.kd, config.pair_torque, c.integral_limit)
         # Channels: body x force, body y force, torque. The torque pairs share valves
         # with the x pairs, so x pulses sit at the end of the period, torque at the start.
@@ -203,6 +211,11 @@ class GncChain:
         self._shadow = None
         self._agreeing = 0
         self._rejecting = False
+
+    def acknowledge_restart(self) -> None:
+        """An operator has seen the estimate restarted from agreeing outliers
+        (``fix_restart``; ``fedlab ctl reset``): control may resume on it."""
+        self._restarted = False
 
     def restart(self) -> None:
         """Start the estimate afresh: every valve closed (``no_fix``) until a new fix and
@@ -331,6 +344,11 @@ class GncChain:
             self._fix_at = now
             self._shadow, self._agreeing, self._rejecting = None, 0, False
             self.counters["fix_restarts"] += 1
+            # Closed until an operator acknowledges it (acknowledge_restart): agreeing
+            # fixes are where the platform is only if the metrology is right, and a
+            # frozen or glitching one repeats the same wrong value (five of them had
+            # taken over the estimate and flown the platform by it).
+            self._restarted = True
             if self.position_hold is not None and not self._explicit_target:
                 self._hold_at_estimate()
             return True
@@ -365,6 +383,8 @@ class GncChain:
             return "no_fix"
         if closed_for is not None:
             return closed_for
+        if self._restarted:
+            return "fix_restart"
         if self._rejecting:
             return "fix_rejected"
         if now - self._fix_at > self.fix_timeout:

@@ -147,7 +147,8 @@ class Status(BaseModel):
         "(link lost), contested, aborted, done, reset, workspace, name_taken (another "
         "process runs under this name: held for good), nonfinite (its own pose was not "
         "finite: held for good), ended (its duration passed), no_router (its session "
-        "lost its router)",
+        "lost its router), fix_restart (its estimate restarted from agreeing outlier fixes: "
+        "until fedlab ctl reset)",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"

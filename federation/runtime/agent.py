@@ -280,6 +280,7 @@ class AgentRuntime:
         )
         self.run_recording: RunRecording | None = None  # this run's, under runs_dir
         self.finishing: list[threading.Thread] = []  # recordings finishing after a close
+        self._closing = False
         # The channels recorded now (the file's and the run's): read on every message.
         self._recorded: frozenset[str] = frozenset()
         self._update_recorded()
@@ -454,6 +455,7 @@ class AgentRuntime:
         otherwise find the run unfinished and recover it beside the finish. Without
         (``fedlab host``, whose other agents fly on), it finishes on its own thread
         (:attr:`finishing`), which the caller joins."""
+        self._closing = True  # no command but an abort is taken from here on
         self.platform.hold()  # leave the platform with every valve closed
         try:
             self.platform.close()  # a serial platform sends all-closed and releases its port
@@ -551,24 +553,28 @@ class AgentRuntime:
         if self.name_clash is not None and self.hold_reason != "name_taken":
             self._hold_for_name(t_exec, host)
         self._watch_link(t_exec, host)
-        mode = self.run_state.mode
-        if not self.platform.held and (
-            mode in HOLD_MODES
-            or self.hold_reason is not None
-            or (self.follow is not None and self.link_watch.holding)
-        ):
-            # Whatever let go (a release on another thread), a step never runs free while
-            # the run has not begun or has ended, a cause is named, or the link is stale.
-            self.platform.hold()
-            if self.hold_reason is None:
-                if self.follow is not None and self.link_watch.holding:
-                    self.hold_reason = "stale"
-                else:
-                    self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
+        self._watch_fix_restart(host)
+        restored = None
+        with self._hold_lock:  # the mode read with the hold: a start released meanwhile
+            mode = self.run_state.mode  # on Zenoh's thread is not held again as "waiting"
+            if not self.platform.held and (
+                mode in HOLD_MODES
+                or self.hold_reason is not None
+                or (self.follow is not None and self.link_watch.holding)
+            ):
+                # Whatever let go (a release on another thread), a step never runs free
+                # while the run has not begun or has ended, a cause is named, or the link
+                # is stale.
+                self.platform.hold()
+                if self.hold_reason is None:
+                    if self.follow is not None and self.link_watch.holding:
+                        self.hold_reason = "stale"
+                    else:
+                        self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
+                restored = self.hold_reason
+        if restored is not None:
             self.count("holds_restored")
-            log.warning(
-                "run %s: the platform was released; held again (%s)", mode, self.hold_reason
-            )
+            log.warning("run %s: the platform was released; held again (%s)", mode, restored)
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
             if self._scenario_new_run:
@@ -607,6 +613,7 @@ class AgentRuntime:
             "name_taken",
             "workspace",
             "nonfinite",
+            "fix_restart",
         ):
             return  # held by the run, the name or the area, not the link: it releases nothing
         if self._contest_hold(t_exec, host):
@@ -665,6 +672,20 @@ class AgentRuntime:
             self._hold("no_router")
             self.count("no_router_holds")
             log.error("%s: safe hold until it is back", detail)
+
+    def _watch_fix_restart(self, host: float) -> None:
+        """Hold (``fix_restart``) and end a ctl run here once the platform's estimate has
+        restarted from agreeing outlier fixes: they are where the platform is only if the
+        metrology is right (a frozen or glitching one repeats one wrong value). Let go
+        only by ``fedlab ctl reset``, which acknowledges it."""
+        chain = getattr(self.platform, "chain", None)
+        if getattr(chain, "reason", None) != "fix_restart" or self.hold_reason == "fix_restart":
+            return
+        detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
+        self._end_run_here("fix_restart", detail, host)
+        self._hold("fix_restart", keep=("name_taken", "workspace", "nonfinite"))
+        self.count("fix_restart_holds")
+        log.error("%s: safe hold until fedlab ctl reset", detail)
 
     def _rehearse_clock_step(self) -> None:
         step = self.config.clock_step
@@ -749,7 +770,16 @@ class AgentRuntime:
             if event.kind in ("aborted", "done", "reset"):
                 # Held for good (the name, the area left): no run's end relabels it, so
                 # no start releases it, and status and preflight keep saying why.
-                self._hold(event.kind, keep=("name_taken", "workspace", "nonfinite"))
+                keep: tuple[str, ...] = ("name_taken", "workspace", "nonfinite")
+                if event.kind == "reset":  # an operator's act: a restarted estimate seen
+                    acknowledge = getattr(
+                        getattr(self.platform, "chain", None), "acknowledge_restart", None
+                    )
+                    if acknowledge is not None:
+                        acknowledge()
+                else:
+                    keep += ("fix_restart",)
+                self._hold(event.kind, keep=keep)
             elif event.kind == "armed":
                 run = (self.run_state.run_id, self.run_state.start_at)
                 if self.scenario is not None and run != self._scenario_run:
@@ -945,7 +975,8 @@ class AgentRuntime:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         detail = ""
         if self.hold_reason in (
-            "stale", "aborted", "name_taken", "workspace", "contested", "nonfinite"
+            "stale", "aborted", "name_taken", "workspace", "contested", "nonfinite",
+            "fix_restart",
         ):  # fmt: skip
             detail = f"held ({self.hold_reason})"
         elif self.link_watch.holding:  # stale before the run ended: still stale
@@ -959,6 +990,7 @@ class AgentRuntime:
                 "stale_imu": "IMU silent",
                 "nonfinite": "estimate or reference not finite",
                 "fix_rejected": "metrology fixes rejected (off the table or outliers)",
+                "fix_restart": "estimate restarted from outlier fixes: ctl reset",
                 "device_restart": "device restarted, not yet confirmed",
             }.get(reason or "", "")
         locked, bound = True, 0.0 if self.reference == self.me else None
@@ -1393,9 +1425,13 @@ class AgentRuntime:
             log.exception("control sample on %s failed", sample.key_expr)
 
     def _not_mine(self, command: Command) -> str | None:
-        """Why a command is not for this agent: it names the participants and not this
-        one (a start for one experiment had armed, and later released, every agent
-        waiting in the federation, none of them preflighted or awaited by ctl)."""
+        """Why a command is not for this agent: it is closing (its recording finishing, a
+        start had armed a run no one would finish and released the platform), or the
+        command names the participants and not this one (a start for one experiment had
+        armed, and later released, every agent waiting in the federation, none of them
+        preflighted or awaited by ctl)."""
+        if self._closing:
+            return "this agent is stopping"
         if command.participants is None or str(self.me) in command.participants:
             return None
         return f"not a participant of {command.experiment or 'this run'}"

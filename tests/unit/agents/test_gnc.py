@@ -49,6 +49,7 @@ def test_no_valve_opens_before_the_first_fix() -> None:
         "closed_held": 0,
         "closed_no_fix": 201,
         "closed_device_restart": 0,
+        "closed_fix_restart": 0,
         "closed_fix_rejected": 0,
         "closed_stale_fix": 0,
         "closed_stale_imu": 0,
@@ -354,16 +355,34 @@ def test_a_platform_that_really_moved_restarts_the_estimate_with_valves_closed()
     assert chain.counters["fix_outlier"] == 4 and chain.counters["fix_restarts"] == 1
     assert chain.counters["fix_rejected"] == 4  # the fifth restarted the estimate
     assert reasons[:20] == ["fix_rejected"] * 20  # four outliers, 50 ms apart
-    assert reasons[20:] == [None] * 10  # the fifth: restarted, flying again
+    # The fifth restarted the estimate; agreeing fixes are where the platform is only if
+    # the metrology is right: closed until an operator acknowledges it.
+    assert reasons[20:] == ["fix_restart"] * 10
+    for j in range(30, 100):
+        fix = moved if (k + j) % 5 == 0 else None
+        assert chain.update((k + j) * TICK, 0.5, 0.0, imu=STILL, fix=fix) == CLOSED
+    assert chain.reason == "fix_restart"
+    chain.acknowledge_restart()  # fedlab ctl reset
     est = chain.estimate
     assert (est.x, est.y, est.heading) == pytest.approx((0.8, 0.2, 0.5), abs=0.01)
     assert chain.position_hold is not None
     assert chain.position_hold.target == pytest.approx((0.8, 0.2), abs=0.01)
     # Then it holds there: nothing to do at rest on its point and heading.
-    for j in range(30, 230):
+    for j in range(100, 300):
         fix = moved if (k + j) % 5 == 0 else None
         assert chain.update((k + j) * TICK, 0.5, 0.0, imu=STILL, fix=fix) == CLOSED
     assert chain.counters["fix_rejected"] == 4
+
+
+def test_a_metrology_repeating_one_wrong_value_never_flies_the_platform() -> None:
+    # Frozen or glitching: the same wrong fix at every vision tick. Five agreed, took over
+    # the estimate and the hold point, and valves opened in 80 of the next 100 steps.
+    chain, k = _settled()
+    wrong = Pose(0.9, -0.4, 1.3)
+    for j in range(400):
+        fix = wrong if (k + j) % 5 == 0 else None
+        assert chain.update((k + j) * TICK, 0.0, 0.0, imu=STILL, fix=fix) == CLOSED, j
+    assert chain.counters["fix_restarts"] == 1 and chain.reason == "fix_restart"
 
 
 def test_outliers_that_disagree_never_restart_the_estimate() -> None:

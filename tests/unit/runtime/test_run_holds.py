@@ -693,3 +693,49 @@ def test_a_hosted_agent_closing_waits_for_no_disk() -> None:
     (thread,) = f.agent.finishing
     thread.join(5.0)
     assert order == ["undeclared", "finished"]
+
+
+def test_an_estimate_restarted_from_outliers_holds_until_ctl_reset() -> None:
+    # Agreeing outlier fixes are where the platform is only if the metrology is right:
+    # a frozen one repeating a wrong value had taken over the estimate and flown by it.
+    f = Follower(platform="pinocchio", wait_start=True)
+    f.synced()
+    f.command("start", run_id="r1", at=(f.agent.sim_time(f.clock.now()) or 0.0) + 0.02)
+    f.pose()
+    f.step(0.05)
+    assert f.agent.run_state.mode == "running"
+    f.agent.platform.chain._restarted = True  # type: ignore[attr-defined]
+    f.step()  # the chain closes every valve (fix_restart); the agent sees it next step
+    f.step()
+    assert f.agent.hold_reason == "fix_restart" and f.agent.platform.held
+    assert f.agent.run_state.mode == "aborted"  # the ctl run ended here
+    assert f.agent.counters["fix_restart_holds"] == 1
+    assert "fix_restart" in f.agent.readiness(f.clock.now()).platform_detail
+    f.command("reset")
+    f.step()
+    assert not f.agent.platform.chain._restarted  # type: ignore[attr-defined]
+    assert f.agent.hold_reason == "reset"
+
+
+def test_a_closing_agent_takes_no_start_while_its_recording_finishes() -> None:
+    # Its subscribers stay while the run's recording finishes (up to 30 s): a start then
+    # armed a run no one would finish and released the platform after close's hold.
+    import threading
+
+    f = Follower(wait_start=True)
+    f.synced()
+    order: list[str] = []
+
+    class Slow(_Run):
+        def finish(self, wait: bool = False) -> Any:
+            t_sim = f.agent.sim_time(f.clock.now())
+            f.command("start", run_id="r2", at=(t_sim or 0.0) - 0.1)  # arrives meanwhile
+            return super().finish(wait)
+
+    f.agent.run_recording = Slow(order, 0.05)  # type: ignore[assignment]
+    closer = threading.Thread(target=f.agent.close)
+    closer.start()
+    closer.join(5.0)
+    assert f.agent.run_state.mode == "waiting" and f.agent.platform.held
+    (outcome,) = [c for c in f.agent.command_log if c.command == "start"]
+    assert outcome.outcome == "ignored" and "stopping" in outcome.detail
