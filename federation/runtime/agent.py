@@ -92,6 +92,9 @@ NO_ROUTER_HOLD = 1.0
 """s without a router (after having one) before an agent holds (``no_router``)."""
 ROUTER_CHECK_PERIOD = 0.25
 """s between looks at the session's router."""
+FOR_GOOD = ("name_taken", "workspace", "nonfinite")
+"""Holds no run's end relabels and nothing but a new process (or the area re-entered by
+hand) lets go: the name taken, the area left, the platform's own pose not finite."""
 _ACTIVE = frozenset({"armed", "running", "frozen"})
 """Run modes in which a run is under way."""
 _LOCAL_ABORT = Command(command="abort", seq=-1, issuer="fedlab (this agent)")
@@ -554,27 +557,8 @@ class AgentRuntime:
             self._hold_for_name(t_exec, host)
         self._watch_link(t_exec, host)
         self._watch_fix_restart(host)
-        restored = None
-        with self._hold_lock:  # the mode read with the hold: a start released meanwhile
-            mode = self.run_state.mode  # on Zenoh's thread is not held again as "waiting"
-            if not self.platform.held and (
-                mode in HOLD_MODES
-                or self.hold_reason is not None
-                or (self.follow is not None and self.link_watch.holding)
-            ):
-                # Whatever let go (a release on another thread), a step never runs free
-                # while the run has not begun or has ended, a cause is named, or the link
-                # is stale.
-                self.platform.hold()
-                if self.hold_reason is None:
-                    if self.follow is not None and self.link_watch.holding:
-                        self.hold_reason = "stale"
-                    else:
-                        self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
-                restored = self.hold_reason
-        if restored is not None:
-            self.count("holds_restored")
-            log.warning("run %s: the platform was released; held again (%s)", mode, restored)
+        if not self.platform.held and self._cause_of_hold() is not None:
+            self._hold_again()
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
             if self._scenario_new_run:
@@ -607,14 +591,8 @@ class AgentRuntime:
         """Safe hold while the followed pose is stale; resume once it flows again and a
         sync exchange has completed since (re-synchronized). An abort overrides it."""
         if self.follow is None or self.hold_reason in (
-            "aborted",
-            "done",
-            "reset",
-            "name_taken",
-            "workspace",
-            "nonfinite",
-            "fix_restart",
-        ):
+            "aborted", "done", "reset", "fix_restart", *FOR_GOOD
+        ):  # fmt: skip
             return  # held by the run, the name or the area, not the link: it releases nothing
         if self._contest_hold(t_exec, host):
             return
@@ -623,15 +601,13 @@ class AgentRuntime:
         last = None if client is None else client.last
         # On a shared feed the link is measured once for all its agents; the hold is each one's.
         threshold = None if self.feed is None else self.feed.watch.threshold
-        with self._hold_lock:  # judged and held at once: a _let_go on Zenoh's thread (a start
-            # applied there) decides under this lock, so it sees the hold or comes first
-            action = self.link_watch.update(
-                t_exec, received, None if last is None else last.t3, threshold
-            )
-            if action == "stale_hold" and received is not None:
-                self.hold_reason = "stale"
-                self.platform.hold()
+        action = self.link_watch.update(
+            t_exec, received, None if last is None else last.t3, threshold
+        )
         if action == "stale_hold" and received is not None:
+            # Held under the lock _let_go decides under: a release on Zenoh's thread (a start
+            # applied there) either read the watch holding already or comes before this hold.
+            self._hold("stale")
             self.count("stale_holds")
             log.warning(
                 "no pose from %s for %.0f ms: safe hold", self.follow, (t_exec - received) * 1e3
@@ -644,6 +620,32 @@ class AgentRuntime:
                 self.follow, "released" if released else f"held ({self.hold_reason})",
             )  # fmt: skip
             self._event("link_resumed", t_exec, host, "")
+
+    def _cause_of_hold(self) -> str | None:
+        """Why the platform must be held now, whatever let it go: the run not begun or
+        ended, a cause named, or the link judged stale (None: nothing)."""
+        if self.hold_reason is not None:
+            return self.hold_reason
+        if self.follow is not None and self.link_watch.holding:
+            return "stale"
+        mode = self.run_state.mode
+        if mode in HOLD_MODES:
+            return "waiting" if mode in ("waiting", "armed") else mode
+        return None
+
+    def _hold_again(self) -> None:
+        """A step never runs free while a cause of hold stands (a release on another
+        thread). Judged again under the hold lock: a start released meanwhile on Zenoh's
+        thread is not held again as ``waiting``."""
+        with self._hold_lock:
+            cause = None if self.platform.held else self._cause_of_hold()
+            if cause is None:
+                return
+            self.platform.hold()
+            self.hold_reason = cause
+        self.count("holds_restored")
+        mode = self.run_state.mode
+        log.warning("run %s: the platform was released; held again (%s)", mode, cause)
 
     def _watch_router(self, host: float) -> None:
         """Hold (``no_router``) once the session has had no router for ``NO_ROUTER_HOLD``
@@ -683,7 +685,7 @@ class AgentRuntime:
             return
         detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
         self._end_run_here("fix_restart", detail, host)
-        self._hold("fix_restart", keep=("name_taken", "workspace", "nonfinite"))
+        self._hold("fix_restart", keep=FOR_GOOD)
         self.count("fix_restart_holds")
         log.error("%s: safe hold until fedlab ctl reset", detail)
 
@@ -770,7 +772,7 @@ class AgentRuntime:
             if event.kind in ("aborted", "done", "reset"):
                 # Held for good (the name, the area left): no run's end relabels it, so
                 # no start releases it, and status and preflight keep saying why.
-                keep: tuple[str, ...] = ("name_taken", "workspace", "nonfinite")
+                keep = FOR_GOOD
                 if event.kind == "reset":  # an operator's act: a restarted estimate seen
                     acknowledge = getattr(
                         getattr(self.platform, "chain", None), "acknowledge_restart", None

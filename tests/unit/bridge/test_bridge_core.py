@@ -592,6 +592,6 @@ def test_datagrams_from_another_host_are_dropped(size: int) -> None:
 
 def test_a_peer_given_by_name_is_compared_as_resolved() -> None:
     core = BridgeCore(config(peer="legacy.example:9001"), peer=PEER)
-    outcome = core.on_datagram(b"\x00" * 3, ("10.0.0.9", 9001), 1.0)
+    outcome = core.on_datagram(b"\x00" * 3, ("127.0.0.9", 9001), 1.0)
     assert "--peer legacy.example:9001 (127.0.0.1:9001)" in (outcome.rejected or "")
     assert core.on_datagram(b"\x00" * 3, PEER, 1.0).kind == "malformed"  # heard
