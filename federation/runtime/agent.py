@@ -92,7 +92,7 @@ NO_ROUTER_HOLD = 1.0
 """s without a router (after having one) before an agent holds (``no_router``)."""
 ROUTER_CHECK_PERIOD = 0.25
 """s between looks at the session's router."""
-FOR_GOOD = ("name_taken", "workspace", "nonfinite")
+FOR_GOOD: tuple[str, ...] = ("name_taken", "workspace", "nonfinite")
 """Holds no run's end relabels and nothing but a new process (or the area re-entered by
 hand) lets go: the name taken, the area left, the platform's own pose not finite."""
 _ACTIVE = frozenset({"armed", "running", "frozen"})
