@@ -420,7 +420,7 @@ def _defer(done: Recovery, run: str, run_dir: Path, later: Deferred) -> None:
 
 class RecordingServer:
     """Serves one agent's finished recordings under ``runs_dir`` to ``fedlab collect``;
-    first (``recover``), on a thread of its own, recovers the runs the agent never
+    first, on a thread of its own, recovers the runs the agent never
     finalized (:func:`recover_runs`, each copy leaving ``min_free_mb`` MiB free, none
     while ``busy()`` says a run is under way: those once it is over): ``recovery``
     says what became of them, once every run was tried."""
@@ -432,7 +432,6 @@ class RecordingServer:
         agent: keys.AgentId,
         runs_dir: Path,
         busy: Callable[[], str | None] = lambda: None,
-        recover: bool = True,
         min_free_mb: int = DEFAULT_MIN_FREE_MB,
     ):
         self.runs_dir = Path(runs_dir)
@@ -452,7 +451,7 @@ class RecordingServer:
         # Looked for now (a folder listing); recovered off the agent's loop and Zenoh's
         # threads, the finished runs served meanwhile. No thread when there is none (a
         # process of 256 agents).
-        unfinished = unfinished_runs(self.runs_dir, str(agent)) if recover else []
+        unfinished = unfinished_runs(self.runs_dir, str(agent))
         self.recovery: Recovery | None = None if unfinished else Recovery()  # once done
         self._recovering = threading.Thread(
             target=self._recover, args=(unfinished,), name="run-recovery", daemon=True

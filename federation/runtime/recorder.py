@@ -71,7 +71,7 @@ from mcap.records import Attachment, Chunk, McapRecord, Metadata, Schema
 from mcap.records import Channel as McapChannel
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import breakup_chunk
-from mcap.writer import Writer
+from mcap.writer import MCAP0_MAGIC, Writer
 
 from federation.core.channels import (
     CHANNEL_FIELDS,
@@ -549,8 +549,8 @@ def is_finished(path: Path) -> bool:
     (its agent killed before the manifest was written): not a file cut short."""
     try:
         with Path(path).open("rb") as f:
-            f.seek(-len(_MAGIC), io.SEEK_END)
-            if f.read(len(_MAGIC)) != _MAGIC:
+            f.seek(-len(MCAP0_MAGIC), io.SEEK_END)
+            if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
                 return False
             f.seek(0)
             summary = make_reader(f).get_summary()  # the magic at its start checked
@@ -565,7 +565,6 @@ def is_finished(path: Path) -> bool:
     return True
 
 
-_MAGIC = b"\x89MCAP0\r\n"
 _OPCODES = frozenset(int(o) for o in Opcode)
 _RECORD_LIMIT = 256 << 20
 """Bytes: no record of a recording is longer (a chunk holds about CHUNK_SIZE); a longer
@@ -645,7 +644,7 @@ def salvage(
     damaged: Path,
     out: Path,
     note: dict[str, str] | None = None,
-    stop: threading.Event | Callable[[], bool] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> Salvage:
     """Write every complete record of an unfinished recording ``damaged`` into a finished
     one, ``out``: schemas, channels, messages, metadata and attachments in their order,
@@ -662,13 +661,12 @@ def salvage(
     that an agent's loop on another thread keeps its pace.
     """
     result = Salvage(size=damaged.stat().st_size)
-    stopped = stop.is_set if isinstance(stop, threading.Event) else stop
     with damaged.open("rb") as source, out.open("wb") as sink:
         writer = Writer(sink, chunk_size=CHUNK_SIZE)
         writer.start(profile="", library="fedlab")
         copy = _Copier(writer, result)
         for opcode, body in _records(source, result):
-            if stopped is not None and stopped():
+            if stop is not None and stop():
                 raise InterruptedError(f"salvaging {damaged}: stopped")
             if opcode == Opcode.DATA_END:
                 result.whole = True
@@ -697,10 +695,10 @@ def _records(source: IO[bytes], result: Salvage) -> Iterator[tuple[int, bytes]]:
     if result.size == 0:
         result.problem = "the file is empty: nothing of it reached the disk"
         return
-    if source.read(len(_MAGIC)) != _MAGIC:
+    if source.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
         result.problem = "not an MCAP file (no MCAP magic at its start)"
         return
-    offset = result.readable = len(_MAGIC)
+    offset = result.readable = len(MCAP0_MAGIC)
     while True:
         head = source.read(9)
         if not head:
