@@ -7,7 +7,7 @@ import json
 import math
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from schemas.config import ManeuverConfig
 from schemas.scenario import LabFrame
@@ -213,6 +213,13 @@ class Command(BaseModel):
         "agent not named ignores it (an abort is for every agent); none: every agent",
     )
 
+    def not_for(self, agent: str) -> str | None:
+        """Why this command is not for ``agent`` (it names the participants, not this
+        one), or None; an abort is for every agent."""
+        if self.command == "abort" or self.participants is None or agent in self.participants:
+            return None
+        return f"not a participant of {self.experiment or 'this run'}"
+
 
 def is_abort(payload: bytes) -> bool:
     """Whether a control payload that did not validate still says ``abort``: an abort
@@ -226,6 +233,12 @@ def is_abort(payload: bytes) -> bool:
         # that cannot be read is still honoured, since honouring one only closes valves.
         return b'"abort"' in bytes(payload)
     return isinstance(data, dict) and data.get("command") == "abort"
+
+
+def validation_reason(error: ValidationError) -> str:
+    """Where a message failed to validate and why, in a line: ``field.sub: message``."""
+    first = error.errors()[0]
+    return f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
 
 
 def malformed_outcome(payload: bytes, why: str) -> CommandOutcome | None:

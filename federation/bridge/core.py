@@ -104,6 +104,7 @@ from schemas.messages import (
     Status,
     is_abort,
     malformed_outcome,
+    validation_reason,
 )
 
 __all__ = ["BridgeCore", "Maintenance", "Outcome", "TokenBucket"]
@@ -480,10 +481,7 @@ class BridgeCore:
         except (ValidationError, ValueError) as error:
             self.counters["control_malformed"] += 1
             if not is_abort(payload):
-                why = str(error)
-                if isinstance(error, ValidationError):
-                    first = error.errors()[0]
-                    why = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
+                why = validation_reason(error) if isinstance(error, ValidationError) else str(error)
                 reported = malformed_outcome(payload, why)
                 if reported is not None:  # ctl says why, not "command not seen"
                     self.commands.append(reported)
@@ -495,10 +493,9 @@ class BridgeCore:
             if verdict.outcome != "repeat":
                 self._outcome(command, verdict.outcome, verdict.detail)
             return None
-        if command.command != "abort" and (
-            command.participants is not None and str(self.me) not in command.participants
-        ):
-            self._outcome(command, "ignored", f"not a participant of {command.experiment}")
+        not_mine = command.not_for(str(self.me))
+        if not_mine is not None:
+            self._outcome(command, "ignored", not_mine)
             return None
         if command.command == "abort":
             done = "aborted: no replies to the legacy agent until fedlab ctl reset"

@@ -78,6 +78,7 @@ from schemas.messages import (
     Status,
     is_abort,
     malformed_outcome,
+    validation_reason,
 )
 from schemas.platform import PlatformConfig
 
@@ -1362,8 +1363,7 @@ class AgentRuntime:
                 command = Command.model_validate_json(payload)
             except ValidationError as error:
                 self.count("control_malformed")
-                first = error.errors()[0]
-                why = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
+                why = validation_reason(error)
                 self.rejects("control command", f"{sample.key_expr}: {why}")
                 if not is_abort(payload):
                     reported = malformed_outcome(payload, why)
@@ -1434,9 +1434,7 @@ class AgentRuntime:
         preflighted or awaited by ctl)."""
         if self._closing:
             return "this agent is stopping"
-        if command.participants is None or str(self.me) in command.participants:
-            return None
-        return f"not a participant of {command.experiment or 'this run'}"
+        return command.not_for(str(self.me))
 
     def _recorded_before(self, command: Command) -> str | None:
         """Why a start must be refused: its run is recorded on this host already (a run
