@@ -178,6 +178,7 @@ class BridgeCore:
         ``config.peer_address`` as written, a numeric address)."""
         self.config = config
         self.peer = peer if peer is not None else config.peer_address
+        self._reply_port = config.reply_port or self.peer[1]  # where replies may come from
         self.requests = TokenBucket(config.request_rate_limit, config.request_burst)
         self.me = config.me
         self.legacy = _Link(self._client())
@@ -273,7 +274,7 @@ class BridgeCore:
                 return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_request(data, now)
         if len(data) == wire.REPLY_SIZE:
-            if port != (self.config.reply_port or self.peer[1]):
+            if port != self._reply_port:
                 self.counters["udp_replies_foreign_port"] += 1
                 said = f"a reply from port {port}: taken from " + (
                     f"--reply-port {self.config.reply_port} only"

@@ -411,7 +411,6 @@ class UdpBridge:
                 log.exception("datagram from %s failed", addr)
 
     def _on_datagram(self, data: bytes, addr: Any, now: float) -> None:
-        source = format_address((addr[0], addr[1]))
         with self._lock:  # the core decides whose datagrams are heard, and how many answered
             outcome = self.core.on_datagram(data, (addr[0], addr[1]), now)
         if outcome.reply is not None:
@@ -419,7 +418,7 @@ class UdpBridge:
                 self.sock.sendto(outcome.reply, addr)
             except OSError as error:
                 self._count("udp_send_errors")
-                self.rejects("udp send", f"to {source}: {error}")
+                self.rejects("udp send", f"to {format_address(addr[:2])}: {error}")
         if outcome.pose is not None:
             self._pose_pub.put(outcome.pose)
         if outcome.kind == "unsynced":
@@ -429,6 +428,7 @@ class UdpBridge:
         elif outcome.reply is not None:
             self._unsynced_noted = False  # said again should reference time be lost again
         elif outcome.rejected is not None:
+            source = format_address(addr[:2])  # only said on a drop: not for every datagram
             self.rejects(f"udp datagram ({outcome.kind})", f"from {source}: {outcome.rejected}")
 
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------

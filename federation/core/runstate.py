@@ -45,7 +45,7 @@ ready, not from its clock's zero.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, Protocol, get_args
 
 __all__ = ["HOLD_MODES", "MOVING_MODES", "Event", "Mode", "RunCommand", "RunState"]
 
@@ -56,8 +56,8 @@ HOLD_MODES: frozenset[str] = frozenset({"waiting", "armed", "done", "aborted"})
 (running, or frozen: holding its point). Before its start it waits, held: a real
 platform had fired its valves from the moment its agent started, steering to heading
 0 or after its leader, before any operator's start."""
-MOVING_MODES: frozenset[str] = frozenset({"running", "frozen"})
-"""Modes in which a platform that nothing else holds is released."""
+MOVING_MODES: frozenset[str] = frozenset(get_args(Mode)) - HOLD_MODES
+"""Modes in which a platform that nothing else holds is released: running, frozen."""
 LATE_START = 1.0
 """s: a start received later than this after its instant is refused (``ignored``)."""
 
