@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError
 
-from federation.core.keys import validate_name
+from federation.core.keys import validate_lab, validate_name
 
 __all__ = ["ConfigError", "Model", "format_validation_error", "load_model", "name", "validate"]
 
@@ -29,6 +29,10 @@ class ConfigError(ValueError):
 def name(what: str) -> AfterValidator:
     """A validator of a name (lab, agent, platform ...): lowercase letters, digits, - and _."""
     return AfterValidator(lambda v: validate_name(v, what))
+
+
+LAB_NAME = AfterValidator(validate_lab)
+"""A validator of a lab's name: a name (:func:`name`), and not a reserved one."""
 
 
 class Model(BaseModel):

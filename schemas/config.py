@@ -95,7 +95,7 @@ class AgentConfig(_Model):
     """One agent of a federation."""
 
     federation: Annotated[str, _name("federation name")] = DEFAULT_FEDERATION
-    lab: Annotated[str, _name("lab name")]
+    lab: Annotated[str, base.LAB_NAME]
     name: Annotated[str, _name("agent name")]
     role: Literal["leader", "follower", "member"]
     follow: AgentRef | None = Field(None, description="LAB/NAME of the agent a follower tracks")
@@ -261,7 +261,7 @@ class AgentConfig(_Model):
 class RouterConfig(_Model):
     """A lab router: the only fedlab process that crosses the lab's firewall."""
 
-    lab: Annotated[str, _name("lab name")]
+    lab: Annotated[str, base.LAB_NAME]
     listen: list[Endpoint] = Field(default_factory=list, description="endpoints to listen on")
     connect: list[Endpoint] = Field(
         default_factory=list, description="other labs' routers to dial (outbound only)"

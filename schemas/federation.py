@@ -216,7 +216,7 @@ class FederationFile(base.Model):
             raise _field_error(
                 "labs.ca", "'ca' is the CA's folder (DIR/ca): name the lab otherwise"
             )
-        for reserved in keys.RESERVED_LABS & set(self.labs):
+        if reserved := min(keys.RESERVED_LABS & set(self.labs), default=None):
             raise _field_error(
                 f"labs.{reserved}",
                 f"{reserved!r} is reserved: a lab of that name would be let publish the "

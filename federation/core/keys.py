@@ -27,6 +27,7 @@ __all__ = [
     "all_of",
     "control_key",
     "parse_agent_key",
+    "validate_lab",
     "validate_name",
 ]
 
@@ -47,8 +48,15 @@ def validate_name(value: str, what: str = "name") -> str:
         raise ValueError(
             f"invalid {what} {value!r}: use 1-63 lowercase letters, digits, '-' or '_'"
         )
-    if what == "lab name" and value in RESERVED_LABS:
-        raise ValueError(f"invalid {what} {value!r}: reserved for the federation's control key")
+    return value
+
+
+def validate_lab(value: str) -> str:
+    """Return ``value`` if it is a valid lab name (a name, not reserved), else raise
+    ValueError."""
+    validate_name(value, "lab name")
+    if value in RESERVED_LABS:
+        raise ValueError(f"invalid lab name {value!r}: reserved for the federation's control key")
     return value
 
 
@@ -71,7 +79,7 @@ class AgentId:
         return known if known is not None else super().__new__(cls)
 
     def __post_init__(self) -> None:
-        validate_name(self.lab, "lab name")
+        validate_lab(self.lab)
         validate_name(self.name, "agent name")
         _INTERNED[(self.lab, self.name)] = self
         # Looked up in a dict at every time-base read (several per control step): the

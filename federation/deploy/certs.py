@@ -40,7 +40,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from federation.core.keys import DEFAULT_FEDERATION, validate_name
+from federation.core.keys import DEFAULT_FEDERATION, validate_lab, validate_name
 
 __all__ = [
     "CA_DAYS",
@@ -89,24 +89,24 @@ def ca_common_name(federation: str) -> str:
 
 def agent_common_name(lab: str, name: str) -> str:
     """An agent certificate's Common Name, ``"<lab>/<name>"``: what ACL subjects list."""
-    return f"{validate_name(lab, 'lab name')}/{validate_name(name, 'agent name')}"
+    return f"{validate_lab(lab)}/{validate_name(name, 'agent name')}"
 
 
 def agent_stem(lab: str, name: str) -> str:
     """An agent's file name stem in the certificate folder, ``"<lab>.<name>"``."""
-    return f"{validate_name(lab, 'lab name')}.{validate_name(name, 'agent name')}"
+    return f"{validate_lab(lab)}.{validate_name(name, 'agent name')}"
 
 
 def host_common_name(lab: str, host: str) -> str:
     """A hosted process's Common Name, ``"<lab>/hosts/<host>"`` (``fedlab host``): never
     an agent's, whose names hold no ``/``, so no agent's old certificate or password
     becomes a host's (nor the other way round) when a name moves between them."""
-    return f"{validate_name(lab, 'lab name')}/hosts/{validate_name(host, 'host name')}"
+    return f"{validate_lab(lab)}/hosts/{validate_name(host, 'host name')}"
 
 
 def host_stem(lab: str, host: str) -> str:
     """A hosted process's file name stem in the certificate folder, ``"<lab>.hosts.<host>"``."""
-    return f"{validate_name(lab, 'lab name')}.hosts.{validate_name(host, 'host name')}"
+    return f"{validate_lab(lab)}.hosts.{validate_name(host, 'host name')}"
 
 
 def tls_settings(
@@ -200,7 +200,7 @@ def issue_lab(
     It is valid both as a TLS server and as a TLS client: a router listens and dials
     with the same certificate.
     """
-    validate_name(lab, "lab name")
+    validate_lab(lab)
     if not hosts:
         raise CertError("a lab certificate needs at least one host name (--host)")
     sans = [_san(h) for h in hosts]

@@ -253,7 +253,7 @@ def test_parse_agent_key_rejects_empty_topic() -> None:
 def test_control_is_not_a_lab_name() -> None:
     # A lab's keys, fedlab/<fed>/<lab>/**, would take in fedlab/<fed>/control.
     with pytest.raises(ValueError, match="reserved"):
-        keys.validate_name("control", "lab name")
+        keys.validate_lab("control")
     with pytest.raises(ValueError, match="reserved"):
         keys.AgentId.parse("control/x")
     assert keys.validate_name("control", "agent name") == "control"
