@@ -252,7 +252,7 @@ class PlatformConfig(_Model):
             raise ValueError(f"thrust {self.thrust} N exceeds max_thrust {self.max_thrust} N")
         if self.torque > self.max_torque:
             raise ValueError(f"torque {self.torque} Nm exceeds max_torque {self.max_torque} Nm")
-        x0, x1, y0, y1 = self._area()
+        x0, x1, y0, y1 = self.usable_area
         if not (x0 < x1 and y0 < y1):
             raise ValueError(
                 f"no usable area: the table and the vision coverage, less table.margin "
@@ -270,8 +270,9 @@ class PlatformConfig(_Model):
             )
         return self
 
-    def _area(self) -> tuple[float, float, float, float]:
-        t, v, m = self.table, self.vision, self.table.margin
+    def _area(self, inset: float) -> tuple[float, float, float, float]:
+        """The table and the vision coverage overlap, less ``inset`` on each side."""
+        t, v, m = self.table, self.vision, inset
         return (
             max(t.origin[0] - t.width / 2, v.origin[0] - v.width / 2) + m,
             min(t.origin[0] + t.width / 2, v.origin[0] + v.width / 2) - m,
@@ -283,19 +284,13 @@ class PlatformConfig(_Model):
     def usable_area(self) -> tuple[float, float, float, float]:
         """Where the platform's centre may go, table frame: (x_min, x_max, y_min, y_max), m:
         the table and the vision coverage overlap, less ``table.margin``."""
-        return self._area()
+        return self._area(self.table.margin)
 
     @property
     def fix_area(self) -> tuple[float, float, float, float]:
         """Where a metrology fix may lie, table frame: (x_min, x_max, y_min, y_max), m: the
         table and the vision coverage overlap, grown by ``vision.fix_margin``."""
-        t, v, m = self.table, self.vision, self.vision.fix_margin
-        return (
-            max(t.origin[0] - t.width / 2, v.origin[0] - v.width / 2) - m,
-            min(t.origin[0] + t.width / 2, v.origin[0] + v.width / 2) + m,
-            max(t.origin[1] - t.height / 2, v.origin[1] - v.height / 2) - m,
-            min(t.origin[1] + t.height / 2, v.origin[1] + v.height / 2) + m,
-        )
+        return self._area(-self.vision.fix_margin)
 
     @property
     def moment_arm(self) -> float:

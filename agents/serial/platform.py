@@ -287,6 +287,13 @@ class SerialPlatform:
         self.close()
 
     # -- internals -----------------------------------------------------------------
+    def _discard_output(self) -> None:
+        """Drop what waits in the port's output queue (a port gone: PlatformError)."""
+        try:
+            self._serial.reset_output_buffer()
+        except (serial.SerialException, OSError) as error:
+            self._vanished(error)
+
     def _close_valves(self, why: str, flush: bool = False) -> None:
         """Hold the chain and send all-closed at once (best effort on a live port).
 
@@ -395,18 +402,12 @@ class SerialPlatform:
         # covers a line that stays stuck.
         self._valves = CLOSED
         self.valves_confirmed = False
-        try:
-            self._serial.reset_output_buffer()
-        except (serial.SerialException, OSError) as error:
-            self._vanished(error)
+        self._discard_output()
         resent = self._write(_FILLER + encode_valves(self._next_seq(), 0))
         if resent:
             self._host["frames_sent"] += 1
         else:
-            try:
-                self._serial.reset_output_buffer()
-            except (serial.SerialException, OSError) as error:
-                self._vanished(error)
+            self._discard_output()
         self._cut_offs += 1
         failed = self._cut_offs
         if _rate_limited(failed):
