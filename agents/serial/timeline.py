@@ -19,9 +19,10 @@ that time and the host's time ``now`` when it was read. The rules it keeps:
    kind; a frame on neither the current nor the candidate timeline starts a new
    candidate, and one on the current timeline ends it (a stray old frame, a replay).
 5. The candidate becomes the current timeline (``restarted``: the frame is its first
-   one taken) once ``confirm`` frames in a row are on it, or at once with a STATUS on
-   it that says no HEARTBEAT has arrived since power-up (only a device that restarted
-   says so while the host sends heartbeats).
+   one taken) once ``confirm`` frames in a row are on it, or sooner, at its second frame,
+   when a STATUS on it says no HEARTBEAT has arrived since power-up (only a device that
+   restarted says so while the host sends heartbeats; one such STATUS alone, replayed
+   from an earlier power-up, confirms nothing).
 
 A single old POSE (a replay, a backlog from a previous run) or one from the future (a
 corrupted time) is thus never a "restart" nor a fix, nor does it move the timeline; a
@@ -50,6 +51,7 @@ class _Line:
     def __init__(self, kind: Kind, t: float, now: float):
         self.newest, self.newest_at = t, now
         self.last: dict[str, float] = {kind: t}
+        self.fresh = False  # a STATUS on it said no HEARTBEAT since power-up
 
     def holds(self, t: float, now: float, tolerance: float) -> bool:
         ahead = self.newest + max(0.0, now - self.newest_at) + tolerance
@@ -126,7 +128,8 @@ class DeviceTimeline:
         else:
             candidate = self._candidate = _Line(kind, t, now)
             self._streak = 1
-        if self._streak >= self.confirm or (kind == "status" and fresh):
+        candidate.fresh = candidate.fresh or (kind == "status" and fresh)
+        if self._streak >= self.confirm or (candidate.fresh and self._streak >= 2):
             self._current, self._candidate, self._streak = candidate, None, 0
             return "restarted"
         return "off_timeline"

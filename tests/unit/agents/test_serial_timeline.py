@@ -73,6 +73,23 @@ def test_a_status_of_a_device_just_powered_up_confirms_at_once() -> None:
     assert line.judge("status", 0.02, 0.03, fresh=True) == "take"
 
 
+def test_one_replayed_power_up_status_alone_is_no_restart() -> None:
+    line = DeviceTimeline(0.5, confirm=10)
+    assert line.judge("imu", 100.0, 0.0) == "take"
+    # A STATUS from an earlier power-up (a replay, a backlog): it starts a candidate only.
+    assert line.judge("status", 0.01, 0.005, fresh=True) == "off_timeline"
+    assert line.pending
+    assert line.judge("imu", 100.01, 0.01) == "take"  # the device's clock goes on: no restart
+    assert not line.pending and line.newest == 100.01
+
+
+def test_a_power_up_status_confirms_with_the_frame_that_follows_it() -> None:
+    line = DeviceTimeline(0.5, confirm=10)
+    assert line.judge("imu", 100.0, 0.0) == "take"
+    assert line.judge("status", 0.01, 0.02, fresh=True) == "off_timeline"
+    assert line.judge("imu", 0.02, 0.03) == "restarted"  # the second frame of its clock
+
+
 def test_a_candidate_frame_out_of_order_starts_afresh() -> None:
     line = DeviceTimeline(0.5, confirm=3)
     line.judge("imu", 100.0, 0.0)
