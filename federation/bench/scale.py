@@ -151,6 +151,21 @@ def _per_thread(
     return {k: round(1e3 * v / agent_seconds, 3) for k, v in sorted(total.items()) if v > 0}
 
 
+def _fields_moved(
+    before: list[dict[int, tuple[str, float, float]]],
+    after: list[dict[int, tuple[str, float, float]]],
+) -> int:
+    """How many of the threads' user and system times moved between two readings (of
+    the threads :func:`_per_thread` counts): each reading is whole ticks, so each that
+    moved may overstate the thread's CPU by up to a tick."""
+    moved = 0
+    for b, a in zip(before, after, strict=True):
+        for tid, (_, spent, system) in a.items():
+            _, spent0, system0 = b.get(tid, ("", 0.0, 0.0))
+            moved += (system > system0) + (spent - system > spent0 - system0)
+    return moved
+
+
 def hosting_cores() -> tuple[frozenset[int], frozenset[int]]:
     """The routers' core and the workers' cores when the routers are pinned: the first
     core this process may use, and the others (ConfigError with fewer than two)."""
@@ -247,6 +262,7 @@ def run_one(
         threads1 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
         threads = _per_thread(threads0, threads1, wall * n)
         kernel = _per_thread(threads0, threads1, wall * n, kernel=True)
+        moved = _fields_moved(threads0, threads1)
         wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
     scores = _score_bare(out, leader) if mode == "bare" else _score(out, agents, seconds)
     total = sum(cpu.values()) / wall
@@ -264,6 +280,10 @@ def run_one(
         "cpu_per_agent": total / n,
         "worker_threads_ms": threads,
         "worker_threads_kernel_ms": kernel,
+        # How far above the truth the threads' sum may be: /proc gives each thread's
+        # user and system time in whole clock ticks, so each that moved may have moved
+        # by up to one tick more than the thread ran.
+        "worker_threads_error_ms": round(moved * 1e3 / os.sysconf("SC_CLK_TCK") / (wall * n), 3),
         "rss_mib": rss,
         "seconds": seconds,
     }

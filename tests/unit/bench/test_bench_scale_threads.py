@@ -8,7 +8,7 @@ import sys
 import threading
 import time
 
-from federation.bench.scale import _per_thread, _thread_cpu
+from federation.bench.scale import _fields_moved, _per_thread, _thread_cpu
 
 
 def test_a_named_thread_that_burns_cpu_shows_under_its_folded_name() -> None:
@@ -51,6 +51,16 @@ def test_per_thread_sums_the_workers_by_name_per_agent_second() -> None:
     assert split == {"python": 30.0, "rx-#": 35.0, "tx-#": 5.0}
     kernel = _per_thread(before, after, 20.0, kernel=True)
     assert kernel == {"python": 5.0, "rx-#": 10.0, "tx-#": 5.0}
+
+
+def test_each_thread_time_that_moved_may_overstate_by_a_tick() -> None:
+    # (name, CPU seconds, of which in the kernel): user and system times moved or not
+    before = [{1: ("python", 1.0, 0.2), 2: ("rx-#", 0.5, 0.1), 4: ("idle", 0.3, 0.1)}]
+    after = [{1: ("python", 1.4, 0.3), 2: ("rx-#", 0.6, 0.1), 3: ("tx-#", 0.01, 0.0),
+              4: ("idle", 0.3, 0.1)}]  # fmt: skip
+    # python: both moved; rx-#: user only; tx-# (new): user only; idle: neither
+    assert _fields_moved(before, after) == 4
+    assert _fields_moved(after, after) == 0
 
 
 def test_a_thread_that_ended_takes_nothing_from_others_of_its_name() -> None:
