@@ -10,6 +10,7 @@ session (:func:`open_session`, :func:`open_interruptible`).
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
 import math
 import signal
@@ -57,6 +58,10 @@ else:  # not subscriptable at run time
 # SIGHUP too: an agent started from a terminal or an SSH session that drops had died
 # without closing its platform's valves (the device's failsafe was all that closed them).
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+# A clean stop takes well under this; a process still stopping after it writes every
+# thread's stack to stderr, so a stop that hangs says where (and a supervisor's
+# SIGKILL that follows does not leave that unknown).
+STOP_REPORT_AFTER = 4.0
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -125,11 +130,15 @@ def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
 
 
 def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT, SIGTERM, SIGHUP or SIGQUIT: each stops cleanly, exit code 0."""
+    """An event set by SIGINT, SIGTERM, SIGHUP or SIGQUIT: each stops cleanly, exit code 0.
+    A process still stopping :data:`STOP_REPORT_AFTER` seconds later dumps its threads'
+    stacks to stderr."""
     stop = threading.Event()
 
     def handler(signum: int, frame: FrameType | None) -> None:
         log.info("received %s, stopping", signal.Signals(signum).name)
+        if not stop.is_set():
+            faulthandler.dump_traceback_later(STOP_REPORT_AFTER, exit=False)
         stop.set()
 
     for sig in _SIGNALS:

@@ -319,6 +319,32 @@ def test_main_puts_signal_handlers_back(monkeypatch: pytest.MonkeyPatch) -> None
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+_SLOW_STOP = """
+import sys, time
+from federation.cli import common
+common.STOP_REPORT_AFTER = 0.3
+stop = common.stop_on_signals()
+print("ready", flush=True)
+stop.wait(30)
+time.sleep(3)  # a stop that takes too long: what is it waiting for?
+"""
+
+
+def test_a_stop_that_takes_too_long_says_where_each_thread_is() -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SLOW_STOP], cwd=ROOT, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == "ready\n"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+        proc.wait(10)
+    assert "Timeout (0:00:00.300000)!" in err and "in <module>" in err, err
+
+
 @pytest.mark.parametrize(
     "argv",
     [
