@@ -49,6 +49,22 @@ that is not finite or beyond the sensor's range (``imu.gyro_range``,
   innovation covariance from the estimate (x, y and heading together; the first fix of
   an estimate is not gated, there is nothing to gate it on).
 
+A fix is never taken alone when the estimate has none to check it against: the first
+fix of an estimate, and the first after a gap longer than ``control.fix_timeout``
+(out of the cameras' view, dead reckoning on the IMU alone, the gate as wide as the
+drift), start a trial copy of the estimate, and the estimate takes it only once
+``navigation.fixes_to_start`` fixes in a row agree with it (each within the gate of
+the trial so far): a glitch right after a gap had been taken, and flown on. Until
+then the valves stay closed (``no_fix``, ``stale_fix``; ``fix_acquiring`` counts the
+fixes held back).
+
+A fix describes the platform when the metrology saw it, which may be some time before
+it reaches the chain (``fix_age``: a camera pipeline's latency, known from the
+device's clock): it is carried forward to ``now`` by the motion the IMU has shown
+since (:meth:`~agents.navigation.NavigationFilter.motion_since`) before it is gated
+and taken. As a turn began, a lag the gate did not know of had made good fixes
+outliers that agreed with one another, and restarted the estimate.
+
 Outliers go to a second filter that runs beside the first, started from the first of
 them and fed with the same IMU: when ``navigation.outliers_to_restart`` outliers in a row
 agree with it (each within the gate of it), the platform is where they say (it was moved,
@@ -67,6 +83,7 @@ integral and the PWM period start afresh (bumpless restart).
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Literal, get_args
 
@@ -135,7 +152,11 @@ class GncChain:
         """Where a fix may lie (x_min, x_max, y_min, y_max), m; beyond: rejected."""
         self.fix_gate: float = config.navigation.fix_gate
         self._outliers_to_restart = config.navigation.outliers_to_restart
+        self._fixes_to_start = config.navigation.fixes_to_start
         self.filter = self._new_filter()
+        # The estimate's trial copy while fixes are acquired, and how many it has taken.
+        self._trial: NavigationFilter | None = None
+        self._trial_fixes = 0
         # The second filter that outliers feed, and how many in a row have agreed with it.
         self._shadow: NavigationFilter | None = None
         self._agreeing = 0
@@ -182,12 +203,14 @@ class GncChain:
             "fix_rejected": 0,
             "fix_outside": 0,
             "fix_outlier": 0,
+            "fix_acquiring": 0,
             "fix_restarts": 0,
             "clock_steps_back": 0,
             "restarts": 0,
         }
         """Control steps closed, per reason; sensor data dropped (``fix_rejected``: every
-        fix dropped, of which ``fix_outside`` and ``fix_outlier``); estimates restarted:
+        fix dropped, of which ``fix_outside`` and ``fix_outlier``); fixes held back until
+        enough agree (``fix_acquiring``); estimates restarted:
         from agreeing outliers (``fix_restarts``), after the clock stepped back
         (``clock_steps_back``), by :meth:`restart` (``restarts``)."""
 
@@ -201,6 +224,7 @@ class GncChain:
             unmodelled_accel=n.unmodelled_accel,
             gyro_bias_walk=n.gyro_bias_walk,
             accel_bias_walk=n.accel_bias_walk,
+            history=self.fix_timeout,
         )
 
     def _restart_estimate(self) -> None:
@@ -208,8 +232,8 @@ class GncChain:
         self.filter = self._new_filter()
         self._fix_at = self._imu_at = None
         self._imu = ImuSample(0.0, 0.0, 0.0)
-        self._shadow = None
-        self._agreeing = 0
+        self._shadow = self._trial = None
+        self._agreeing = self._trial_fixes = 0
         self._rejecting = False
 
     def acknowledge_restart(self) -> None:
@@ -238,6 +262,7 @@ class GncChain:
         fix: Pose | None = None,
         track: Track | None = None,
         closed_for: PlatformReason | None = None,
+        fix_age: float = 0.0,
     ) -> tuple[bool, ...]:
         """The eight valve states for the control step starting at ``now`` (s).
 
@@ -250,13 +275,16 @@ class GncChain:
         imu : ImuSample, optional
             A new IMU sample; None: keep using the last one.
         fix : Pose, optional
-            A new metrology fix (x, y, heading; its rates are ignored), taken now.
+            A new metrology fix (x, y, heading; its rates are ignored).
         track : Track, optional
             A position reference with its rates (this chain's frame, the table's); None:
             hold the target if position hold is on, else no force.
         closed_for : str, optional
             The platform's reason to keep every valve closed this step (the estimate
             goes on): ``"device_restart"``.
+        fix_age : float
+            How long before ``now`` the metrology took ``fix``, s (its latency); the fix
+            is carried forward to ``now`` along the estimate. At most ``fix_timeout``.
         """
         if self._last_now is not None and now < self._last_now:
             self.counters["clock_steps_back"] += 1
@@ -270,8 +298,10 @@ class GncChain:
         self.filter.predict(now, self._imu)
         if self._shadow is not None:
             self._shadow.predict(now, self._imu)
+        if self._trial is not None:
+            self._trial.predict(now, self._imu)
         if fix is not None:
-            self._take_fix(now, fix)
+            self._take_fix(now, fix, fix_age)
         reason = self._closed_reason(now, closed_for)
         if reason is not None:
             return self._close(reason)
@@ -303,25 +333,51 @@ class GncChain:
         self._valves = allocate(*signs)
         return self._valves
 
-    def _take_fix(self, now: float, fix: Pose) -> None:
-        """Correct the filter with ``fix``, or reject it (and maybe restart from outliers)."""
+    def _take_fix(self, now: float, fix: Pose, age: float) -> None:
+        """Correct the filter with ``fix`` (taken ``age`` s ago), or hold it back until
+        enough agree, or reject it (and maybe restart from outliers)."""
         x, y, heading = fix.x, fix.y, fix.heading
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(heading)):
+        if not (
+            math.isfinite(x) and math.isfinite(y) and math.isfinite(heading) and math.isfinite(age)
+        ):
             self._reject(None)
             return
         x0, x1, y0, y1 = self.fix_area
-        if not (x0 <= x <= x1 and y0 <= y <= y1):
+        if not (x0 <= x <= x1 and y0 <= y <= y1):  # where the metrology saw it
             self._reject("fix_outside")
             return
+        if age > 0.0:  # where the platform is now: moved on since as the IMU says
+            dx, dy, dpsi = self.filter.motion_since(now - min(age, self.fix_timeout))
+            fix = Pose(x + dx, y + dy, heading + dpsi)
         if self.filter.fixes and not self.filter.innovation_distance(fix) <= self.fix_gate:
             if not self._outlier(now, fix):
                 self._reject("fix_outlier")
             return
-        self.filter.correct(now, fix)
+        if self._fix_at is None or now - self._fix_at > self.fix_timeout:
+            if not self._acquired(now, fix):
+                return
+        else:
+            self.filter.correct(now, fix)
         self._fix_at = now
         self._shadow, self._agreeing, self._rejecting = None, 0, False
         if self.position_hold is not None and not self._target_set:
             self._hold_at_estimate()
+
+    def _acquired(self, now: float, fix: Pose) -> bool:
+        """A fix with nothing recent to check it: into the trial copy of the estimate,
+        which becomes the estimate once ``fixes_to_start`` in a row agree (True)."""
+        trial = self._trial
+        if trial is None or not trial.innovation_distance(fix) <= self.fix_gate:
+            trial = self._trial = copy.deepcopy(self.filter)  # a first, or one that disagrees
+            self._trial_fixes = 0
+        trial.correct(now, fix)
+        self._trial_fixes += 1
+        if self._trial_fixes < self._fixes_to_start:
+            self.counters["fix_acquiring"] += 1
+            self._rejecting = False  # not rejected: closed for want of a fix, as before it
+            return False
+        self.filter, self._trial, self._trial_fixes = trial, None, 0
+        return True
 
     def _reject(self, kind: str | None) -> None:
         self.counters["fix_rejected"] += 1
@@ -333,6 +389,7 @@ class GncChain:
         """Feed the second filter; restart the estimate from it once enough agree (True:
         this outlier completed them, and the estimate restarted)."""
         shadow = self._shadow
+        self._trial, self._trial_fixes = None, 0  # the estimate's fixes no longer agree
         if shadow is None or not shadow.innovation_distance(fix) <= self.fix_gate:
             shadow = self._shadow = self._new_filter()  # a first, or one that disagrees
             shadow.predict(now, self._imu)

@@ -38,11 +38,18 @@ is the Mahalanobis distance of its innovation, heading wrapped:
 
 For a filter whose noise model holds, :math:`d^2` is chi-square with 3 degrees of
 freedom: :math:`P(d > 5) = 1.5 \\times 10^{-5}`, :math:`P(d > 6) = 7 \\times 10^{-8}`.
+
+A fix that reached the filter late (the metrology's latency) describes the platform
+as it was then: :meth:`NavigationFilter.motion_since` gives how far the predictions
+alone (the IMU, no fix) moved the estimate since a past time, to carry such a fix to
+now. The filter keeps ``history`` seconds of them.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -79,6 +86,8 @@ class NavigationFilter:
     initial_sigma : tuple of float
         1-sigma uncertainty of the start: position (m), heading (rad), velocity
         (m/s), gyro bias (rad/s), accelerometer bias (m/s^2).
+    history : float
+        How far back :meth:`motion_since` reaches, s.
     """
 
     def __init__(
@@ -92,6 +101,7 @@ class NavigationFilter:
         accel_bias_walk: float = 1e-4,
         initial: Pose | None = None,
         initial_sigma: tuple[float, float, float, float, float] = (1.0, 1.0, 0.1, 0.02, 0.05),
+        history: float = 1.0,
     ):
         self._q_gyro = gyro_noise**2
         self._q_accel = accel_noise**2 + unmodelled_accel**2
@@ -122,6 +132,11 @@ class NavigationFilter:
         self._gyro = 0.0
         self._imu = ImuSample(0.0, 0.0, 0.0)
         self.fixes = 0
+        # The predictions' motion summed (x, y, heading) at each prediction's time: what
+        # motion_since reads. Corrections are not in it: they are news, not motion.
+        self._history = history
+        self._odometry: deque[tuple[float, float, float, float]] = deque()
+        self._moved = (0.0, 0.0, 0.0)
 
     @property
     def time(self) -> float | None:
@@ -175,9 +190,22 @@ class NavigationFilter:
             u[0, 0] = c * ax - s * ay
             u[1, 0] = s * ax + c * ay
             u[2, 0] = 0.5 * (prev.gyro + imu.gyro)
+            x = kf.x
+            x0, y0, psi0 = float(x[_X, 0]), float(x[_Y, 0]), psi
             kf.predict(u=u)
+            x = kf.x
+            mx, my, mpsi = self._moved
+            self._moved = (
+                mx + float(x[_X, 0]) - x0,
+                my + float(x[_Y, 0]) - y0,
+                mpsi + float(x[_PSI, 0]) - psi0,
+            )
         if self._t is None or now > self._t:
             self._t = now
+            odometry = self._odometry
+            odometry.append((now, *self._moved))
+            while now - odometry[0][0] > self._history:
+                odometry.popleft()
         self._imu = imu
         self._gyro = imu.gyro
 
@@ -197,6 +225,24 @@ class NavigationFilter:
         self.fixes += 1
         if self._t is None:
             self._t = now
+
+    def motion_since(self, then: float) -> tuple[float, float, float]:
+        """How far the predictions moved the estimate from time ``then`` to the last
+        prediction: x, y (m) and heading (rad); interpolated between predictions, from
+        the oldest kept (``history``) when ``then`` is older, nothing when ``then`` is
+        not in the past."""
+        odometry = self._odometry
+        if not odometry or not then < odometry[-1][0]:
+            return (0.0, 0.0, 0.0)
+        _, mx, my, mpsi = odometry[-1]
+        i = bisect.bisect_right(odometry, then, key=lambda entry: entry[0])
+        if i == 0:
+            _, ox, oy, opsi = odometry[0]
+        else:
+            (t0, x0, y0, p0), (t1, x1, y1, p1) = odometry[i - 1], odometry[i]
+            w = (then - t0) / (t1 - t0)
+            ox, oy, opsi = x0 + w * (x1 - x0), y0 + w * (y1 - y0), p0 + w * (p1 - p0)
+        return (mx - ox, my - oy, mpsi - opsi)
 
     def innovation_distance(self, fix: Pose) -> float:
         """Mahalanobis distance of a fix (x, y, heading) from the estimate: how many

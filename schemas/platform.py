@@ -141,6 +141,14 @@ class NavigationConfig(_Model):
         "innovation covariance (x, y and heading together, Mahalanobis): a fix beyond it is "
         "an outlier, dropped and counted",
     )
+    fixes_to_start: int = Field(
+        3,
+        ge=1,
+        le=1000,
+        description="fixes in a row, consistent with one another, that an estimate takes "
+        "before control starts on it: at the first fix, and after a gap longer than "
+        "control.fix_timeout (1: the first fix alone)",
+    )
     outliers_to_restart: int = Field(
         5,
         ge=2,

@@ -10,9 +10,11 @@ never blocks on a read; a write waits at most ``write_timeout``.
 
 Safety
 ------
-- No valve opens before the device has sent a POSE, nor while its latest POSE is
-  older than ``pose_timeout`` seconds of the agent's time (the chain fails closed:
-  ``reason`` ``no_fix`` or ``stale_fix``, counted in :attr:`SerialPlatform.counters`).
+- No valve opens before the device has sent POSEs that agree (``fixes_to_start``), nor
+  while its latest POSE is older than ``pose_timeout`` seconds of the agent's time
+  (the chain fails closed: ``reason`` ``no_fix`` or ``stale_fix``, counted in
+  :attr:`SerialPlatform.counters`). A POSE is carried forward by the motion since it
+  was measured: the device's IMU time minus its time (:mod:`agents.gnc`).
 - :meth:`~SerialPlatform.hold` closes every valve now and keeps them closed
   until :meth:`~SerialPlatform.release`; :meth:`~SerialPlatform.close` closes
   them and the port.
@@ -27,7 +29,8 @@ Safety
   more than ``pose_timeout`` older than the device's newest is on no timeline and
   dropped (``device_frames_off_timeline``): a replayed old POSE is never a fix. The
   device restarted (its clock began again) only once ``restart_frames`` frames in a row,
-  or a STATUS saying it has had no heartbeat since power-up, are on the new timeline;
+  or a STATUS saying it has had no heartbeat since power-up and one more frame, are on
+  the new timeline;
   meanwhile every valve stays closed (``device_restart``). A confirmed restart
   (``device_restarts``) restarts the chain's estimate: closed (``no_fix``) until a POSE
   of the new timeline, and position hold re-takes its point there.
@@ -205,6 +208,10 @@ class SerialPlatform:
                 self._vanished(error)
             imu, fix = self._new_imu, self._new_fix
             self._new_imu = self._new_fix = None
+            # The POSE lags the latest IMU by the metrology's latency (device clock).
+            age = 0.0
+            if fix is not None and self.imu is not None and self.pose_time is not None:
+                age = max(0.0, self.imu.t - self.pose_time)
             chain = self.chain
             closed_for: PlatformReason | None = "device_restart" if self._timeline.pending else None
             try:
@@ -212,7 +219,7 @@ class SerialPlatform:
                     bool(v)
                     for v in chain.update(
                         t, heading_ref, rate_ref, imu=imu, fix=fix, track=track,
-                        closed_for=closed_for,
+                        closed_for=closed_for, fix_age=age,
                     )
                 )  # fmt: skip
                 if len(valves) != N_VALVES:

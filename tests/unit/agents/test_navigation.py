@@ -168,3 +168,18 @@ def test_innovation_distance_is_in_sigmas_of_the_innovation_covariance() -> None
     for bad in (Pose(math.nan, 0, 0), Pose(0, math.inf, 0), Pose(0, 0, math.nan), Pose(3e38, 0, 0)):
         assert nav.innovation_distance(bad) > 1e30 or nav.innovation_distance(bad) == math.inf
     assert nav.innovation_distance(Pose(math.nan, 0, 0)) == math.inf
+
+
+def test_motion_since_is_the_predictions_alone_and_reaches_back_its_history() -> None:
+    nav = NavigationFilter(0.002, 0.01, 0.005, 0.0087, history=0.5)
+    turning = ImuSample(1.0, 0.0, 0.0)  # 1 rad/s, no acceleration
+    for k in range(101):
+        nav.predict(k * 0.01, turning)
+        if k == 50:  # a fix 1.5 rad from the estimate: news, not motion
+            nav.correct(0.5, Pose(0.0, 0.0, 2.0))
+    assert nav.estimate.heading > 1.5
+    assert nav.motion_since(0.9) == pytest.approx((0.0, 0.0, 0.1), abs=1e-3)
+    assert nav.motion_since(0.905) == pytest.approx((0.0, 0.0, 0.095), abs=1e-3)  # between
+    assert nav.motion_since(0.2) == pytest.approx((0.0, 0.0, 0.5), abs=1e-3)  # kept: 0.5 s
+    assert nav.motion_since(1.0) == nav.motion_since(2.0) == (0.0, 0.0, 0.0)
+    assert NavigationFilter(0.002, 0.01, 0.005, 0.0087).motion_since(0.0) == (0.0, 0.0, 0.0)
