@@ -153,6 +153,12 @@ class Status(BaseModel):
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"
     )
+    valves_confirmed: bool | None = Field(
+        None,
+        description="whether the platform's last valve command is known to have reached it "
+        "(a serial link: false after a write was cut off, until a write goes through; the "
+        "device's heartbeat failsafe covers the line meanwhile); null: a platform with no link",
+    )
     pose: list[float] = Field(description="x, y, heading, vx, vy, omega (m, rad, m/s, rad/s)")
     peers: dict[str, PeerStatus] = Field(
         description="LAB/NAME -> what this agent knows of that agent's clock, for every "

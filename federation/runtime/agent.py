@@ -966,6 +966,7 @@ class AgentRuntime:
             follow=None if self.follow is None else str(self.follow),
             hold=self.hold_reason,
             pose_age=pose_age,
+            valves_confirmed=getattr(self.platform, "valves_confirmed", None),
             pose=list(self.pose),
             peers=peers,
             counters=self.counter_snapshot(),
@@ -984,6 +985,8 @@ class AgentRuntime:
             detail = f"held ({self.hold_reason})"
         elif self.link_watch.holding:  # stale before the run ended: still stale
             detail = "held (stale)"
+        elif getattr(self.platform, "valves_confirmed", True) is False:
+            detail = "valve command not confirmed (a write to the device was cut off)"
         else:
             chain = getattr(self.platform, "chain", None)
             reason = getattr(chain, "reason", None)

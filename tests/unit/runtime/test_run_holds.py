@@ -741,3 +741,20 @@ def test_a_closing_agent_takes_no_start_while_its_recording_finishes() -> None:
     assert f.agent.run_state.mode == "waiting" and f.agent.platform.held
     (outcome,) = [c for c in f.agent.command_log if c.command == "start"]
     assert outcome.outcome == "ignored" and "stopping" in outcome.detail
+
+
+def test_a_valve_command_not_confirmed_shows_in_status_and_preflight() -> None:
+    # A serial write cut off: the valves are commanded closed but nothing says the device
+    # got it (its heartbeat failsafe covers the line). That had reached neither status
+    # nor preflight.
+    f = Follower(platform="pinocchio")
+    f.synced()
+    assert f.agent.status().valves_confirmed is None  # no link to confirm
+    f.agent.platform.valves_confirmed = False  # type: ignore[attr-defined]
+    status = f.agent.status()
+    assert status.valves_confirmed is False
+    assert status.ready is not None and not status.ready.platform
+    assert "not confirmed" in status.ready.platform_detail
+    f.agent.platform.valves_confirmed = True  # type: ignore[attr-defined]
+    status = f.agent.status()
+    assert status.valves_confirmed is True and "confirmed" not in status.ready.platform_detail
