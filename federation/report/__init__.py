@@ -56,7 +56,10 @@ def write_report(
     out = Path(out if out is not None else run.directory)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(run, sync_phase)
-    summary |= scenario_summary(run)  # formation, docking, workspace (issue 14)
+    scenario = scenario_summary(run)  # formation, docking, workspace (issue 14)
+    notes = summary["notes"] + scenario.pop("notes", [])  # the run's notes stay
+    summary |= scenario
+    summary["notes"] = notes
     figures = write_figures(run, summary, out, sync_phase)
     figures |= write_scenario_figures(run, summary, out)
     summary["figures"] = {k: p.name for k, p in figures.items()}

@@ -33,7 +33,7 @@ from agents.workspace import Area, Frame
 from federation.core.channels import Channel
 from federation.core.wire import Pose
 from federation.report.load import Run
-from schemas.base import validate
+from schemas.base import ConfigError, validate
 from schemas.experiment import ExperimentConfig
 from schemas.platform import load_platform
 from schemas.scenario import LabFrame
@@ -45,8 +45,15 @@ GRID_S = 0.1  # s between formation samples
 CONTACT_GRID_S = 0.01  # s between docking samples
 
 
+# Rules for launching a run, not for what a run flew: a run recorded before one was
+# made stricter is read with its value raised to today's least (else its report failed).
+_LAUNCH_ONLY_LEAST = {"start_delay": 1.0}
+
+
 def experiment_of(run: Run) -> ExperimentConfig | None:
-    """The run's experiment (run.json's ``experiment``, else experiment.json), if any."""
+    """The run's experiment (run.json's ``experiment``, else experiment.json), if any.
+
+    ConfigError naming the file and the field when it does not load."""
     data = (run.meta or {}).get("experiment")
     source = "run.json: experiment"
     if not isinstance(data, dict) and run.directory:
@@ -56,7 +63,20 @@ def experiment_of(run: Run) -> ExperimentConfig | None:
             source = str(path)
     if not isinstance(data, dict):
         return None
+    data = dict(data)
+    for field, least in _LAUNCH_ONLY_LEAST.items():
+        value = data.get(field)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value < least:
+            data[field] = least
     return validate(ExperimentConfig, data, source)
+
+
+def _experiment_or_note(run: Run) -> tuple[ExperimentConfig | None, str | None]:
+    """The run's experiment, or why it cannot be read (the rest of the report stands)."""
+    try:
+        return experiment_of(run), None
+    except ConfigError as error:
+        return None, f"the run's experiment does not load ({error}): no scenario figures"
 
 
 def _truth(run: Run, agent: str) -> dict[str, Array] | None:
@@ -95,7 +115,9 @@ def _frames(experiment: ExperimentConfig) -> dict[str, tuple[Frame, Area | None]
 
 def scenario_summary(run: Run) -> dict[str, Any]:
     """``formation``, ``docking`` and ``workspace`` figures (empty for attitude tracking)."""
-    experiment = experiment_of(run)
+    experiment, why = _experiment_or_note(run)
+    if why is not None:
+        return {"notes": [why]}
     if experiment is None or experiment.kind == "attitude-tracking":
         return {}
     origin = _run_time_origin(run, experiment)
@@ -243,7 +265,7 @@ def _workspace(
 def write_scenario_figures(run: Run, summary: dict[str, Any], out: Path) -> dict[str, Path]:
     """``trajectories.png`` (common frame and each table), ``formation_error.png`` or
     ``relative_range.png``."""
-    experiment = experiment_of(run)
+    experiment, _ = _experiment_or_note(run)  # why not: in the summary's notes
     if experiment is None or experiment.kind == "attitude-tracking":
         return {}
     import matplotlib
