@@ -29,6 +29,9 @@ it at all is decided first by :class:`federation.core.commands.CommandGate`):
    later than the present, not earlier than the run's start or the freeze) or the
    present; an ``at`` more than ``LATE_START`` past is ``ignored``, as a start's is;
    anything else is ``ignored``.
+6. A start, freeze or resume without ``at`` acts on receipt, unless its ``issued_at``
+   (the reference time it was sent) is more than ``LATE_START`` past: ``ignored`` (it
+   waited behind a cut link; acted on now, it would do what no one now chose).
 
 :meth:`RunState.update` makes the transitions no command makes: armed to running
 once the reference time reaches the start, running to done once the run time
@@ -129,6 +132,15 @@ class RunState:
             return [Event("ignored", t_sim, f"reset while {self.mode}: abort first")]
         if self.mode == "aborted":
             return [Event("ignored", t_sim, f"{kind} after abort: fedlab ctl reset first")]
+        issued = getattr(cmd, "issued_at", None)
+        if (
+            cmd.at is None
+            and issued is not None
+            and t_sim is not None
+            and t_sim - issued > LATE_START
+        ):
+            # On receipt, but received long after it was sent (behind a cut link).
+            return [Event("ignored", t_sim, f"{kind} issued {t_sim - issued:.1f} s ago")]
         if kind == "start":
             if self.mode in ("running", "frozen"):
                 return [Event("ignored", t_sim, f"start while {self.mode}: abort first")]

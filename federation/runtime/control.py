@@ -11,7 +11,12 @@ with the run's duration; every agent begins when its own synchronized clock
 reaches that instant, and is ``done`` after the duration.
 
 ``abort`` is published at once, before anything is discovered or synchronized:
-nothing it needs can be missing. The other commands act on receipt too.
+nothing it needs can be missing; ``reset`` too. ``freeze`` and ``resume`` act at the
+reference time they were issued at (ctl syncs with the reference first, as for a
+start): every agent freezes or resumes at the same instant of the run, and one that
+receives it more than a second late (queued behind a cut link) ignores it rather than
+freeze or set a platform moving at a time no one chose. A freeze whose reference does
+not answer goes out unstamped, on receipt; a resume does not go out.
 
 Each :func:`issue` is a new issuer (host, pid and a random tag) numbering its
 commands 1, 2, 3... (:class:`Issuer`): agents order commands per issuer
@@ -472,6 +477,11 @@ def issue(
     issuer = issuer or Issuer()
     fed = Federation(session, federation)
     try:
+        if action in ("freeze", "resume"):
+            return _issue_stamped(
+                session, action, fed, federation, experiment, reference, wait, discover,
+                issuer, progress,
+            )  # fmt: skip
         if action != "start":
             # On receipt, nothing to look up first: an abort leaves at once.
             command = Command(
@@ -623,6 +633,44 @@ def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> froz
     if experiment is not None:
         return frozenset(str(p.agent) for p in experiment.participants)
     return frozenset(seen)
+
+
+def _issue_stamped(
+    session: Any,
+    action: Literal["freeze", "resume"],
+    fed: Federation,
+    federation: str,
+    experiment: ExperimentConfig | None,
+    reference: AgentId | None,
+    wait: float,
+    discover: float,
+    issuer: Issuer,
+    progress: Callable[[str], None],
+) -> ControlResult:
+    """A freeze or resume at the reference time it is issued (see the module's notes)."""
+    time.sleep(discover)  # statuses arrive once a second
+    seen = fed.snapshot()
+    expected = _expected(experiment, seen)
+    if not expected:
+        raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
+    ref = choose_reference(reference, experiment, seen)
+    try:
+        at: float | None = reference_now(session, federation, ref, ExecClock())
+    except ConnectError as error:
+        if action == "resume":  # a platform set moving whenever it arrives: not sent
+            raise ConnectError(f"resume not sent: {error}") from None
+        progress(f"{error}: freeze sent unstamped (each agent freezes on receipt)")
+        at = None
+    if at is not None:
+        progress(f"{action} at reference time {at:.3f} s ({ref}'s clock)")
+    command = Command(
+        command=action, at=at, issued_at=at, seq=issuer.next_seq(), issuer=issuer.name,
+        experiment=experiment.name if experiment else None,
+        participants=sorted(_expected(experiment, {})) if experiment is not None else None,
+    )  # fmt: skip
+    sent = publish(session, federation, command)
+    modes = confirm(command, expected, fed, wait, progress)
+    return _result(command, ref, expected, modes, sent, fed)
 
 
 def _result(

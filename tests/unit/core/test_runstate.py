@@ -23,6 +23,7 @@ class Cmd:
     at: float | None = None
     run_id: str | None = "run"
     duration: float | None = 1000.0  # a run must end (rule 4)
+    issued_at: float | None = None
 
 
 def in_mode(mode: Mode) -> RunState:
@@ -109,6 +110,21 @@ def test_a_freeze_or_resume_whose_instant_passed_is_ignored(kind: str, at: float
     (event,) = state.command(Cmd(kind, 3, at=at), t_sim=50.0)
     assert event.kind == "ignored" and "instant passed" in event.detail
     assert (state.mode, state.frozen_at, state.frozen_total) == before
+
+
+@pytest.mark.parametrize("kind", ["freeze", "resume", "start"])
+def test_a_command_on_receipt_issued_long_ago_is_ignored(kind: str) -> None:
+    # Sent on receipt, it waited behind a cut link: a resume set the platform moving
+    # whenever it came (rule 6).
+    modes: dict[str, Mode] = {"freeze": "running", "resume": "frozen", "start": "waiting"}
+    state = in_mode(modes[kind])
+    before = (state.mode, state.frozen_at, state.frozen_total)
+    (event,) = state.command(Cmd(kind, 3, issued_at=48.9), t_sim=50.0)
+    assert event.kind == "ignored" and "issued 1.1 s ago" in event.detail
+    assert (state.mode, state.frozen_at, state.frozen_total) == before
+    # Fresh, it acts on receipt as before.
+    events = state.command(Cmd(kind, 3, issued_at=49.5), t_sim=50.0)
+    assert events and events[0].kind in ("frozen", "resumed", "armed"), events
 
 
 def test_a_start_without_a_duration_is_ignored_unless_the_agent_has_one() -> None:
