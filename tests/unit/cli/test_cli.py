@@ -506,6 +506,34 @@ def test_ctl_sends_an_abort_urgently_and_again_until_confirmed(
         assert options["congestion_control"] == zenoh.CongestionControl.BLOCK
 
 
+def test_ctl_freeze_and_resume_carry_their_instant_and_a_resume_needs_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    statuses = {"lab/a": {"mode": "frozen", "role": "leader"}}
+    monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
+    monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
+    session = _Recorder()
+    lines: list[str] = []
+    control.issue(session, "freeze", wait=0.1, discover=0.0, progress=lines.append)
+    (command,) = {p[1]["seq"]: p[1] for p in session.puts}.values()  # copies of one command
+    assert command["command"] == "freeze" and command["at"] == command["issued_at"] == 100.0
+    assert "freeze at reference time 100.000 s (lab/a's clock)" in lines
+
+    def silent(*args: Any, **kwargs: Any) -> float:
+        raise ConnectError("reference lab/a did not answer")
+
+    monkeypatch.setattr(control, "reference_now", silent)
+    session.puts.clear()
+    control.issue(session, "freeze", wait=0.1, discover=0.0, progress=lines.append)
+    assert {(p[1]["at"], p[1]["issued_at"]) for p in session.puts} == {(None, None)}
+    assert "did not answer: freeze sent unstamped" in " ".join(lines)
+    # A resume sets platforms moving: not sent without the instant it is issued at.
+    session.puts.clear()
+    with pytest.raises(ConnectError, match="resume not sent: reference lab/a did not answer"):
+        control.issue(session, "resume", wait=0.1, discover=0.0)
+    assert session.puts == []
+
+
 def test_ctl_refuses_a_start_that_would_never_end() -> None:
     with pytest.raises(ConfigError, match="a run must end"):
         control.issue(_Recorder(), "start", discover=0.0, wait=0.1)  # no experiment, no duration
