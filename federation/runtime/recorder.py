@@ -422,6 +422,10 @@ class Recorder:
                 finally:  # whatever the last messages were, the file is finished
                     self._writer.add_metadata(RECORDING_METADATA, as_metadata(self.report()))
                     self._writer.finish()  # type: ignore[no-untyped-call]
+                    # On disk before anyone (a run's manifest, collect) takes it as
+                    # finished: after a power cut, a finished file is a whole one.
+                    self._file.flush()
+                    os.fsync(self._file.fileno())
             finally:
                 self._file.close()
         if self.dropped:

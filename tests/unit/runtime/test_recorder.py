@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -343,3 +344,24 @@ def test_a_write_failing_at_close_still_finalizes_the_run_marked_incomplete(
     }
     note = json.loads((tmp_path / "r1" / "lab-x.incomplete.json").read_text())
     assert note["write_errors"] == 1
+
+
+def test_a_closed_recording_is_on_disk_whole_before_close_returns(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A run's manifest marks its recording finished: after a power cut, such a file
+    # must not be the part of it the kernel had not written yet.
+    synced: list[int] = []
+    real_fsync = recorder_module.os.fsync
+
+    def fsync(fd: int) -> None:
+        synced.append(os.fstat(fd).st_size)
+        real_fsync(fd)
+
+    monkeypatch.setattr(recorder_module.os, "fsync", fsync)
+    path = tmp_path / "a.mcap"
+    rec = Recorder(path, "lab/a")
+    rec.record("/pose/sent", {"t_exec": 1.0})
+    rec.close()
+    assert synced == [path.stat().st_size]  # the whole file, summary and all
+    assert read_messages(path, ["/pose/sent"])["/pose/sent"] == [{"t_exec": 1.0}]
