@@ -11,11 +11,13 @@ the agent's loop never waits for the disk.
 Nothing a peer sends can fill the disk: a run's MCAP stops at ``record_max_mb``, or
 at half the space its filesystem had free when the run was armed, whichever is
 less (then it is finished as usual, marked truncated: ``<lab>-<name>.incomplete.json``
-beside it). A filesystem with less than ``record_min_free_mb`` free fails preflight
-(:func:`low_space`: ``ready.recording`` false, so ``fedlab ctl start`` starts nothing
-unless ``--force``); a run armed all the same is recorded, with an error logged and
-``low_space`` in its metadata: a run flown unrecorded would be worse, and the start
-was given for every lab, not only this one.
+beside it). What this process has already promised the runs still recording on that
+filesystem counts as taken: agents hosted together (``fedlab host``), armed by one
+start, had each been given half of the same free space. A filesystem with less than
+``record_min_free_mb`` free fails preflight (:func:`low_space`: ``ready.recording``
+false, so ``fedlab ctl start`` starts nothing unless ``--force``); a run armed all the
+same is recorded, with an error logged and ``low_space`` in its metadata: a run flown
+unrecorded would be worse, and the start was given for every lab, not only this one.
 """
 
 from __future__ import annotations
@@ -108,6 +110,34 @@ def software_versions() -> dict[str, str]:
     }
 
 
+class _Promises:
+    """Bytes promised to the run recordings still open, per filesystem (this process)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._by_device: dict[int, dict[int, int]] = {}
+
+    def take(self, directory: Path, free: int, max_bytes: int | None, who: object) -> int:
+        """At most half of what is free and not promised already (and ``max_bytes``);
+        promised to ``who`` until :meth:`give_back`."""
+        device = directory.stat().st_dev
+        with self._lock:
+            promised = self._by_device.setdefault(device, {})
+            budget = max(0, free - sum(promised.values())) // 2
+            if max_bytes is not None:
+                budget = min(budget, max_bytes)
+            promised[id(who)] = budget
+        return budget
+
+    def give_back(self, directory: Path, who: object) -> None:
+        with self._lock:
+            for promised in self._by_device.values():
+                promised.pop(id(who), None)
+
+
+PROMISES = _Promises()
+
+
 class RunRecording:
     """An agent's recording of one run; ``record`` and ``status_line`` until ``finish``.
     Its MCAP takes at most ``max_mb`` MiB (None: no limit of its own) and at most half
@@ -136,13 +166,17 @@ class RunRecording:
         self.low_space = space_problem(self.dir, free, min_free_mb)
         self.max_bytes = None if max_mb is None else max_mb * MIB
         if free is not None:  # the rest for the host (its logs, the other agents' runs)
-            self.max_bytes = free // 2 if self.max_bytes is None else min(self.max_bytes, free // 2)
+            self.max_bytes = PROMISES.take(self.dir, free, self.max_bytes, self)
         if self.low_space is not None:
             log.error(
                 "run %s: %s; recorded all the same, in at most %d MiB (half of what is free)",
                 run_id, self.low_space, (self.max_bytes or 0) // MIB,
             )  # fmt: skip
-        self.recorder = Recorder(self.mcap, agent, channels, max_bytes=self.max_bytes)
+        try:
+            self.recorder = Recorder(self.mcap, agent, channels, max_bytes=self.max_bytes)
+        except BaseException:
+            PROMISES.give_back(self.dir, self)  # no recording: nothing promised
+            raise
         self._status_file: IO[str] | None = self.status.open("a", encoding="utf-8")
         self._status_lock = threading.Lock()
         self.status_write_errors = 0
@@ -210,6 +244,7 @@ class RunRecording:
                         raise
                     log.exception("run %s: a write to %s failed", self.run_id, self.mcap)
                 finally:
+                    PROMISES.give_back(self.dir, self)
                     if status_file is not None:
                         status_file.close()
                 files = [self.mcap, self.status]

@@ -121,6 +121,27 @@ def test_a_run_takes_at_most_half_the_space_free_and_a_low_disk_is_said(
     assert read_metadata(low.mcap)["fedlab.run"]["low_space"] == low.low_space
 
 
+def test_runs_recording_together_share_the_free_space_not_each_take_half(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Agents hosted together, armed by one start: each had been given half of the same
+    # 600 MiB, 1200 MiB in all for three of them.
+    monkeypatch.setattr(runs_module, "free_bytes", lambda path: 600 * MIB)
+    agents = ["lab/a", "lab/b", "lab/c"]
+    runs = [RunRecording(tmp_path, "r1", a, None, "{}", None, max_mb=2048) for a in agents]
+    try:
+        budgets = [run.max_bytes for run in runs]
+        assert budgets == [300 * MIB, 150 * MIB, 75 * MIB]
+        assert sum(b or 0 for b in budgets) < 600 * MIB
+    finally:
+        for run in runs:
+            run.finish(wait=True)
+    # Finished, they give their share back: the next run may take half again.
+    again = RunRecording(tmp_path, "r2", AGENT, None, "{}", None, max_mb=2048)
+    again.finish(wait=True)
+    assert again.max_bytes == 300 * MIB
+
+
 def test_space_problem_names_the_place_the_space_and_the_setting() -> None:
     assert space_problem(Path("runs"), 2048 * MIB, 1024) is None
     assert space_problem(Path("runs"), None, 1024) is None  # not known: not refused
