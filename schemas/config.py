@@ -181,8 +181,9 @@ class AgentConfig(_Model):
         2048,
         ge=1,
         le=1 << 20,
-        description="MiB a run's recording under runs_dir may take, and at most half the "
-        "space free when the run is armed: past it, messages are dropped and counted and the "
+        description="MiB a run's recording under runs_dir (or the record file) may take, and "
+        "at most half the space free (and not taken by this process's other recordings) when "
+        "the run is armed (the agent starts): past it, messages are dropped and counted and the "
         "recording is finished marked truncated (a peer publishing far too fast fills no disk)",
     )
     record_min_free_mb: int = Field(

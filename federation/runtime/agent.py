@@ -67,7 +67,13 @@ from federation.runtime.names import (
     name_alive,
 )
 from federation.runtime.recorder import Message, Recorder, Shared
-from federation.runtime.runs import RunRecording, low_space, software_versions
+from federation.runtime.runs import (
+    PROMISES,
+    RunRecording,
+    low_space,
+    recording_budget,
+    software_versions,
+)
 from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
@@ -279,9 +285,13 @@ class AgentRuntime:
         self.counters: Counter[str] = Counter()
         self.lateness = FloatRing(2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
-        self.recorder = (
-            Recorder(config.record, str(self.me), config.record_channels) if config.record else None
-        )
+        self.recorder: Recorder | None = None
+        if config.record:  # a peer publishing far too fast fills no disk here either
+            config.record.parent.mkdir(parents=True, exist_ok=True)
+            _, budget = recording_budget(config.record.parent, config.record_max_mb, self)
+            self.recorder = Recorder(
+                config.record, str(self.me), config.record_channels, max_bytes=budget
+            )
         self.run_recording: RunRecording | None = None  # this run's, under runs_dir
         self.finishing: list[threading.Thread] = []  # recordings finishing after a close
         self._closing = False
@@ -484,6 +494,7 @@ class AgentRuntime:
             self._status_file = None
         if self.recorder is not None:
             self.recorder.close()
+            PROMISES.give_back(self.recorder.path.parent, self)
             self.recorder = None
             self._update_recorded()
 

@@ -129,6 +129,11 @@ class _Promises:
             promised[id(who)] = budget
         return budget
 
+    def promised(self, directory: Path) -> int:
+        """Bytes promised to recordings on ``directory``'s filesystem, still open."""
+        with self._lock:
+            return sum(self._by_device.get(directory.stat().st_dev, {}).values())
+
     def give_back(self, directory: Path, who: object) -> None:
         with self._lock:
             for promised in self._by_device.values():
@@ -136,6 +141,20 @@ class _Promises:
 
 
 PROMISES = _Promises()
+
+
+def recording_budget(
+    directory: Path, max_mb: int | None, who: object
+) -> tuple[int | None, int | None]:
+    """The space free in ``directory`` (None if unknown) and the bytes a recording there
+    may take: ``max_mb`` MiB at most, and half of what is free and not promised to
+    other recordings of this process; promised to ``who`` until
+    ``PROMISES.give_back(directory, who)``."""
+    free = free_bytes(directory)
+    max_bytes = None if max_mb is None else max_mb * MIB
+    if free is not None:  # the rest for the host (its logs, the other agents' runs)
+        max_bytes = PROMISES.take(directory, free, max_bytes, who)
+    return free, max_bytes
 
 
 class RunRecording:
@@ -162,11 +181,8 @@ class RunRecording:
         stem = agent.replace("/", "-")
         self.mcap = self.dir / f"{stem}.mcap"
         self.status = self.dir / f"{stem}.jsonl"
-        free = free_bytes(self.dir)
+        free, self.max_bytes = recording_budget(self.dir, max_mb, self)
         self.low_space = space_problem(self.dir, free, min_free_mb)
-        self.max_bytes = None if max_mb is None else max_mb * MIB
-        if free is not None:  # the rest for the host (its logs, the other agents' runs)
-            self.max_bytes = PROMISES.take(self.dir, free, self.max_bytes, self)
         if self.low_space is not None:
             log.error(
                 "run %s: %s; recorded all the same, in at most %d MiB (half of what is free)",

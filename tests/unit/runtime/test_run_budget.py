@@ -317,3 +317,21 @@ def test_the_reserve_is_bounded_and_still_ends_with_the_last_status(tmp_path: Pa
     assert status[-1] == 1999.0 and 200 < len(status) < 300  # half the reserve, then the last
     assert [m["event"] for m in messages["/control"]][-1] == "done"
     assert rec.over_budget > 1500
+
+
+def test_a_record_file_has_a_budget_too(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # --record FILE recorded without limit: a peer publishing far too fast filled the disk.
+    monkeypatch.setattr(runs_module, "free_bytes", lambda path: 600 * MIB)
+    capped = Follower(record=tmp_path / "a.mcap", record_max_mb=100)
+    roomy = Follower(record=tmp_path / "b.mcap", record_max_mb=2048)
+    try:
+        assert capped.agent.recorder is not None and roomy.agent.recorder is not None
+        assert capped.agent.recorder.max_bytes == 100 * MIB
+        assert roomy.agent.recorder.max_bytes == 250 * MIB  # half of 600 less the 100 promised
+    finally:
+        capped.agent.close()
+        roomy.agent.close()
+    again = Follower(record=tmp_path / "c.mcap", record_max_mb=2048)
+    again.agent.close()
+    assert again.agent.recorder is None
+    assert runs_module.PROMISES.promised(tmp_path) == 0  # every promise given back
