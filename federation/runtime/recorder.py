@@ -129,7 +129,9 @@ RESERVE_BYTES = 1 << 20
 """Bytes a truncated recording still takes, past its limit, for the agent's own
 ``/control`` events and ``/status`` lines (the truncation event included): a run's
 start, end and last status stay in the file. Half of it for status lines as they
-come; past that only the latest is kept, written at close."""
+come; past that only the latest is kept, written at close. A quarter at most for the
+commands received (``/control`` events ``command``: any lab's operator may send them),
+so that those flooding in leave room for the agent's own events (its run's end)."""
 _RESERVED = frozenset({str(Channel.CONTROL), str(Channel.STATUS)})
 _RESERVE_QUEUE = 1000  # messages of those channels buffered once truncated
 
@@ -186,6 +188,7 @@ class Recorder:
         self.truncated = False  # max_bytes reached: every later message dropped
         self.over_budget = 0  # messages dropped because of it
         self.reserve_used = 0  # bytes past it: /control and /status (RESERVE_BYTES)
+        self.reserve_commands = 0  # of which commands received (a quarter at most)
         self.write_errors = 0  # writes that failed (a full disk): messages lost
         self._held_status: tuple[int, bytes, int] | None = None  # past half the reserve
         self._pending: deque[tuple[str, int, Message]] = deque()
@@ -296,7 +299,8 @@ class Recorder:
                     if topic not in _RESERVED:
                         self.over_budget += 1
                         continue
-                    if not self._in_reserve(topic, stamp, data, size):
+                    received = isinstance(message, dict) and message.get("event") == "command"
+                    if not self._in_reserve(topic, stamp, data, size, received):
                         continue
             add(channels[topic], stamp, data, stamp)
             self.written += 1
@@ -313,11 +317,16 @@ class Recorder:
         self._bound = self._file.tell() + _CHUNK_BOUND + size
         return self._bound <= limit
 
-    def _in_reserve(self, topic: str, stamp: int, data: bytes, size: int) -> bool:
+    def _in_reserve(
+        self, topic: str, stamp: int, data: bytes, size: int, received: bool = False
+    ) -> bool:
         """Whether a ``/control`` or ``/status`` message past the limit is written now,
-        taking ``size`` bytes of the reserve: a control event while the reserve lasts; a
-        status line while half of it does, else kept (the latest only) for close. The
-        others are dropped and counted."""
+        taking ``size`` bytes of the reserve: a control event while the reserve lasts (a
+        ``received`` command while its quarter does); a status line while half of it
+        does, else kept (the latest only) for close. The others are dropped and counted."""
+        if received and self.reserve_commands + size > RESERVE_BYTES // 4:
+            self.over_budget += 1
+            return False
         if topic == Channel.STATUS and self.reserve_used + size > RESERVE_BYTES // 2:
             if self._held_status is not None:
                 self.over_budget += 1  # a later one replaces it
@@ -327,6 +336,8 @@ class Recorder:
             self.over_budget += 1
             return False
         self.reserve_used += size
+        if received:
+            self.reserve_commands += size
         return True
 
     def _write_held_status(self) -> None:

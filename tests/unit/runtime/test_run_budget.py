@@ -319,6 +319,30 @@ def test_the_reserve_is_bounded_and_still_ends_with_the_last_status(tmp_path: Pa
     assert rec.over_budget > 1500
 
 
+def test_commands_flooding_in_leave_the_reserve_for_the_agents_own_events(
+    tmp_path: Path,
+) -> None:
+    # Any lab's operator may send commands, and each received is recorded: past the
+    # limit, a flood of them had used up the reserve and the run's end was lost.
+    path = tmp_path / "a.mcap"
+    rec = Recorder(path, AGENT, max_bytes=MIB)
+    for batch in range(30):
+        _flood(rec.record, 500, batch * 500)
+        rec.flush()
+    assert rec.truncated
+    pad = "x" * 2000
+    for k in range(1000):  # 2 MB of commands received: twice the reserve
+        command = {"command": "freeze", "seq": k, "issuer": "elsewhere", "pad": pad}
+        rec.record("/control", {"event": "command", "command": command, "t_exec": float(k)})
+        if k % 100 == 0:
+            rec.flush()
+    rec.record("/control", {"event": "done", "t_exec": 1e4})
+    rec.close()
+    assert 0 < rec.reserve_commands <= RESERVE_BYTES // 4 and rec.reserve_used <= RESERVE_BYTES
+    events = [m["event"] for m in read_messages(path)["/control"]]
+    assert events[-1] == "done" and 100 < events.count("command") < 130
+
+
 def test_a_record_file_has_a_budget_too(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # --record FILE recorded without limit: a peer publishing far too fast filled the disk.
     monkeypatch.setattr(runs_module, "free_bytes", lambda path: 600 * MIB)
