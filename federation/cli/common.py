@@ -291,7 +291,7 @@ def check_agent_identity(args: argparse.Namespace, agent: object) -> None:
     must be ``agent``'s lab/name (an IdentityError, a ConfigError: exit 2), checked before
     any session. The lab router lets an identity write only under its own keys: under
     another name, what the agent sends would be dropped, silently."""
-    from federation.deploy.identity import check_identity
+    from federation.runtime.identity import check_identity
     from federation.runtime.router import refuse_reachable_agent
 
     conf, source = client_conf(args)

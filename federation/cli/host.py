@@ -129,7 +129,7 @@ def _check_identity(args: argparse.Namespace, hosted: list[tuple[str, AgentConfi
     """The identity the Zenoh config proves (certificate CN, user name) may speak for
     every hosted agent: the lab router drops what it sends for any other (an
     IdentityError: exit 2)."""
-    from federation.deploy.identity import check_hosted_identity
+    from federation.runtime.identity import check_hosted_identity
     from federation.runtime.router import refuse_reachable_agent
 
     conf, source = client_conf(args)

@@ -51,7 +51,7 @@ from cryptography import x509
 
 from federation.core.keys import control_key
 from federation.deploy import certs
-from federation.deploy.identity import HOSTED_FIELD, certificate_cn
+from federation.runtime.identity import HOSTED_FIELD, certificate_cn
 from federation.runtime.session import DATA_QUEUE_BATCHES
 from schemas.base import ConfigError
 from schemas.federation import FederationFile, LabEntry
@@ -297,7 +297,7 @@ def host_zenoh(
 ) -> dict[str, Any]:
     """The Zenoh client config of hosted process ``lab/hosts/host``: as an agent's, with
     the agents it runs listed in its metadata (``fedlab host`` checks them at start:
-    :func:`federation.deploy.identity.check_hosted_identity`)."""
+    :func:`federation.runtime.identity.check_hosted_identity`)."""
     identity = (certs.host_common_name(lab, host), certs.host_stem(lab, host))
     doc = agent_zenoh(fed, lab, host, root, password, identity)
     doc["metadata"] = {HOSTED_FIELD: [f"{lab}/{n}" for n in fed.labs[lab].hosted[host]]}

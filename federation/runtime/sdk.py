@@ -11,6 +11,11 @@
         time.sleep(10)
         print(ghost.others())             # {"kiruna/knatte": (t_sim, Pose(...)), ...}
 
+In a federation whose routers check who speaks (``fedlab deploy``), give the Zenoh
+configuration that proves the agent's name: ``config="lab3-ghost.json5"`` (its
+certificate's Common Name, or its user name, is ``lab3/ghost``). One proving another
+name is refused before any session opens (its router would drop what it sends).
+
 The agent joins by name, answers sync queries, publishes its pose at ``rate`` Hz
 (stamped with its reference time) and status once a second, exactly like ``fedlab
 agent``; it runs in a background thread until the ``with`` block ends. Given a
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, Protocol, cast
 
 import zenoh
@@ -31,6 +37,8 @@ from agents.guidance import Track
 from agents.kinematic import KinematicPlatform
 from federation.core.wire import Pose
 from federation.runtime.agent import AgentRuntime
+from federation.runtime.identity import check_identity
+from federation.runtime.router import refuse_reachable_agent
 from federation.runtime.session import DEFAULT_TIMEOUT, build_config, connect_error, fail_fast
 from schemas.config import AgentConfig, ZenohOptions, validate
 
@@ -73,8 +81,10 @@ class Agent:
     ``reference``: the agent whose clock is simulation time (default: the agent's
     own). ``timeout``: seconds to reach the router before ``with`` raises
     :class:`~federation.runtime.session.ConnectError` naming each endpoint and why
-    (refused, unreachable, TLS). Further keyword arguments are
-    :class:`schemas.config.AgentConfig` fields.
+    (refused, unreachable, TLS). ``config``: a Zenoh json5 configuration file (TLS
+    certificates, user and password), whose identity must be ``name``: else ``with``
+    raises :class:`~federation.runtime.identity.IdentityError` naming both. Further
+    keyword arguments are :class:`schemas.config.AgentConfig` fields.
     """
 
     def __init__(
@@ -86,6 +96,7 @@ class Agent:
         reference: str | None = None,
         rate: float = 20.0,
         timeout: float = DEFAULT_TIMEOUT,
+        config: str | Path | None = None,
         **settings: Any,
     ):
         lab, _, agent = name.partition("/")
@@ -94,7 +105,8 @@ class Agent:
         }  # fmt: skip
         data |= {"reference": reference, "pose_rate": rate, "watch_all": True, **settings}
         self.config = validate(AgentConfig, data, f"Agent({name!r})")
-        self.options = validate(ZenohOptions, {"connect": list(connect)}, f"Agent({name!r})")
+        options = {"connect": list(connect), "config": config}
+        self.options = validate(ZenohOptions, options, f"Agent({name!r})")
         self._source = pose
         self.timeout = timeout
         self._stop = threading.Event()
@@ -104,6 +116,10 @@ class Agent:
 
     def __enter__(self) -> Agent:
         conf = build_config(self.options, default_mode="client")
+        me = f"{self.config.lab}/{self.config.name}"
+        source = str(self.options.config) if self.options.config else f"Agent({me!r})"
+        check_identity(conf, me, source)  # identity = name: refused before a session
+        refuse_reachable_agent(conf, source)
         fail_fast(conf, self.timeout)
         try:
             self._session = zenoh.open(conf)

@@ -1,5 +1,5 @@
 """One federation file -> every config (federation/deploy/generate.py, schemas/federation.py)
-and identity = name (federation/deploy/identity.py). No processes: the generated
+and identity = name (federation/runtime/identity.py). No processes: the generated
 configs run with real routers in tests/integration/test_trust.py."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import zenoh
 from federation import cli
 from federation.core.keys import AgentId
 from federation.deploy import generate as gen
-from federation.deploy.identity import IdentityError, check_identity, identities
+from federation.runtime.identity import IdentityError, check_identity, identities
 from schemas.base import ConfigError
 from schemas.config import AgentConfig
 from schemas.federation import load_federation

@@ -1,6 +1,6 @@
 """A lab's hosted processes in the federation file (``labs.<lab>.hosted``): one identity
 that speaks for exactly the agents it runs (federation/deploy/generate.py,
-schemas/federation.py, federation/deploy/identity.py). No processes: the generated
+schemas/federation.py, federation/runtime/identity.py). No processes: the generated
 files run with real routers in tests/integration/test_hosted_trust.py."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import zenoh
 
 from federation.core.keys import AgentId
 from federation.deploy import generate as gen
-from federation.deploy.identity import IdentityError, check_hosted_identity
+from federation.runtime.identity import IdentityError, check_hosted_identity
 from schemas.base import ConfigError
 from schemas.config import AgentConfig
 from schemas.federation import load_federation
@@ -289,7 +289,7 @@ def test_a_pair_issued_for_another_name_is_never_reused(tmp_path: Path) -> None:
     or left by another layout) is replaced, not handed to the new name."""
     import shutil
 
-    from federation.deploy.identity import certificate_cn
+    from federation.runtime.identity import certificate_cn
 
     out = tmp_path / "fed"
     gen.generate(load_federation(write(tmp_path, BASE)), out)
@@ -324,7 +324,7 @@ def test_two_agents_of_one_host_writing_one_file_are_refused(tmp_path: Path) -> 
 
 
 def test_a_hosts_config_run_as_an_agent_says_so(tmp_path: Path) -> None:
-    from federation.deploy.identity import check_identity
+    from federation.runtime.identity import check_identity
 
     out = tmp_path / "fed"
     gen.generate(load_federation(write(tmp_path, HOSTED)), out, local=True)
