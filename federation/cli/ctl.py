@@ -45,7 +45,9 @@ def add(sub: Subparsers) -> None:
             "when its own synchronized clock reaches that instant and is done (valves closed,\n"
             "recording finalized) after the experiment's duration. abort is sent at once and\n"
             "puts every platform in safe hold; reset brings aborted agents back to waiting.\n"
-            "freeze and resume act on receipt. status prints the preflight table. Exit code 1\n"
+            "freeze acts on receipt; resume syncs with the run's reference and resumes every\n"
+            "agent at the reference time it is issued (one receiving it over 1 s late ignores\n"
+            "it). status prints the preflight table. Exit code 1\n"
             "if an agent did not confirm (the table says why) or the router is unreachable."
         ),
         epilog=(
@@ -62,7 +64,7 @@ def add(sub: Subparsers) -> None:
     p.add_argument(
         "action",
         choices=[*control.ACTIONS, "status"],
-        help="start at a common instant; freeze, resume, abort, reset on receipt; status",
+        help="start or resume at a common instant; freeze, abort, reset on receipt; status",
     )
     p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
     add_federation_flag(p, "federation name (an experiment's own wins)")

@@ -27,11 +27,13 @@ it at all is decided first by :class:`federation.core.commands.CommandGate`):
    ``ignored``: a run must end.
 5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` (not
    later than the present, not earlier than the run's start or the freeze) or the
-   present; an ``at`` more than ``LATE_START`` past is ``ignored``, as a start's is;
-   anything else is ``ignored``.
-6. A start, freeze or resume without ``at`` acts on receipt, unless its ``issued_at``
-   (the reference time it was sent) is more than ``LATE_START`` past: ``ignored`` (it
-   waited behind a cut link; acted on now, it would do what no one now chose).
+   present; a resume's ``at`` more than ``LATE_START`` past is ``ignored``, as a
+   start's is, and a freeze's makes it freeze at the present; anything else is
+   ``ignored``.
+6. A start or resume without ``at`` acts on receipt, unless its ``issued_at`` (the
+   reference time it was sent) is more than ``LATE_START`` past: ``ignored`` (it waited
+   behind a cut link; acted on now, it would set platforms moving when no one chose).
+   A freeze acts on receipt however late.
 
 :meth:`RunState.update` makes the transitions no command makes: armed to running
 once the reference time reaches the start, running to done once the run time
@@ -134,7 +136,8 @@ class RunState:
             return [Event("ignored", t_sim, f"{kind} after abort: fedlab ctl reset first")]
         issued = getattr(cmd, "issued_at", None)
         if (
-            cmd.at is None
+            kind != "freeze"  # a freeze late is a freeze now: it sets nothing moving
+            and cmd.at is None
             and issued is not None
             and t_sim is not None
             and t_sim - issued > LATE_START
@@ -159,11 +162,16 @@ class RunState:
             self.run_id = getattr(cmd, "run_id", None)
             self.duration = self.default_duration if duration is None else duration
             return [Event("armed", self.start_at), *self.update(t_sim)]
-        if cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START:
-            # Acted on at a past instant, a freeze had rewound the run's clock (the leader
-            # slewed back to an old heading) and a resume jumped it: as late as a start.
+        late = cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START
+        if late and kind == "resume":
+            # Acted on at a past instant, a resume had jumped the run's clock (and set the
+            # platform moving at a time no one chose now): as late as a start.
+            assert cmd.at is not None and t_sim is not None
             return [Event("ignored", t_sim, f"{kind} instant passed {t_sim - cmd.at:.1f} s ago")]
-        at = t_sim if cmd.at is None or t_sim is None else min(cmd.at, t_sim)
+        # A freeze at a long past instant had rewound the run's clock (the leader slewed
+        # back to an old heading): late, it freezes now instead (ignored, it had left the
+        # platforms flying).
+        at = t_sim if cmd.at is None or t_sim is None or late else min(cmd.at, t_sim)
         if kind == "freeze" and at is not None and self.start_at is not None:
             at = max(at, self.start_at)  # an instant before the run is not one of its own
         if kind == "resume" and at is not None and self.frozen_at is not None:

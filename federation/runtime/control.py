@@ -10,13 +10,14 @@ as agents do, and announces a start at a reference time some seconds ahead,
 with the run's duration; every agent begins when its own synchronized clock
 reaches that instant, and is ``done`` after the duration.
 
-``abort`` is published at once, before anything is discovered or synchronized:
-nothing it needs can be missing; ``reset`` too. ``freeze`` and ``resume`` act at the
-reference time they were issued at (ctl syncs with the reference first, as for a
-start): every agent freezes or resumes at the same instant of the run, and one that
-receives it more than a second late (queued behind a cut link) ignores it rather than
-freeze or set a platform moving at a time no one chose. A freeze whose reference does
-not answer goes out unstamped, on receipt; a resume does not go out.
+``abort``, ``freeze`` and ``reset`` are published at once, before anything is
+discovered or synchronized, and act on receipt: nothing they need can be missing, and
+none sets a platform moving. ``resume`` does: ctl syncs with the reference clock the
+participants report (as for a start) and sends it stamped with the reference time it
+is issued at; every agent resumes at that instant of the run, and one that receives
+it more than a second late (queued behind a cut link) ignores it rather than set its
+platform moving at a time no one chose. Without a reference that answers (within a
+few seconds), or one all participants share, no resume goes out.
 
 Each :func:`issue` is a new issuer (host, pid and a random tag) numbering its
 commands 1, 2, 3... (:class:`Issuer`): agents order commands per issuer
@@ -216,10 +217,15 @@ class ControlResult:
         }
 
 
+REFERENCE_UNANSWERED = 3
+"""Sync queries in a row the reference may leave unanswered (1 s each) before ctl gives up."""
+
+
 def reference_now(session: Any, federation: str, reference: AgentId, clock: ExecClock) -> float:
     """The reference agent's clock now, from a burst of sync exchanges (best of 20).
 
-    Raises :class:`~federation.runtime.session.ConnectError` when it never answers.
+    Raises :class:`~federation.runtime.session.ConnectError` when it does not answer
+    (:data:`REFERENCE_UNANSWERED` queries in a row: a few seconds, not twenty).
     """
     import zenoh
 
@@ -227,13 +233,19 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
     key = keys.agent_key(federation, reference, "sync")
     done = threading.Event()
 
+    answered = [False]
+
     def on_reply(reply: Any) -> None:
         t3 = clock.now()
-        if reply.ok is not None:
-            client.receive(reply.ok.payload.to_bytes(), t3)
+        if reply.ok is not None and client.receive(reply.ok.payload.to_bytes(), t3) is not None:
+            answered[0] = True
         done.set()
 
+    unanswered = 0
     for _ in range(20):
+        if unanswered >= REFERENCE_UNANSWERED:
+            break
+        answered[0] = False
         done.clear()
         session.get(
             key,
@@ -243,6 +255,7 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
             consolidation=zenoh.ConsolidationMode.NONE,
         )
         done.wait(1.0)
+        unanswered = 0 if answered[0] else unanswered + 1
         time.sleep(0.02)
     t = clock.now()
     offset = client.offset_at(t)
@@ -477,10 +490,10 @@ def issue(
     issuer = issuer or Issuer()
     fed = Federation(session, federation)
     try:
-        if action in ("freeze", "resume"):
-            return _issue_stamped(
-                session, action, fed, federation, experiment, reference, wait, discover,
-                issuer, progress,
+        if action == "resume":
+            return _issue_resume(
+                session, fed, federation, experiment, reference, wait, discover, issuer,
+                progress,
             )  # fmt: skip
         if action != "start":
             # On receipt, nothing to look up first: an abort leaves at once.
@@ -635,9 +648,8 @@ def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> froz
     return frozenset(seen)
 
 
-def _issue_stamped(
+def _issue_resume(
     session: Any,
-    action: Literal["freeze", "resume"],
     fed: Federation,
     federation: str,
     experiment: ExperimentConfig | None,
@@ -647,30 +659,41 @@ def _issue_stamped(
     issuer: Issuer,
     progress: Callable[[str], None],
 ) -> ControlResult:
-    """A freeze or resume at the reference time it is issued (see the module's notes)."""
+    """A resume at the reference time it is issued (see the module's notes)."""
     time.sleep(discover)  # statuses arrive once a second
     seen = fed.snapshot()
     expected = _expected(experiment, seen)
     if not expected:
-        raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
-    ref = choose_reference(reference, experiment, seen)
+        raise ConnectError(
+            f"no agent found in federation {federation!r} within {discover:g} s: resume not sent"
+        )
+    ref = reference or _shared_reference(expected, seen)
     try:
-        at: float | None = reference_now(session, federation, ref, ExecClock())
-    except ConnectError as error:
-        if action == "resume":  # a platform set moving whenever it arrives: not sent
-            raise ConnectError(f"resume not sent: {error}") from None
-        progress(f"{error}: freeze sent unstamped (each agent freezes on receipt)")
-        at = None
-    if at is not None:
-        progress(f"{action} at reference time {at:.3f} s ({ref}'s clock)")
+        at = reference_now(session, federation, ref, ExecClock())
+    except ConnectError as error:  # a platform set moving whenever it arrives: not sent
+        raise ConnectError(f"resume not sent: {error}") from None
+    progress(f"resume at reference time {at:.3f} s ({ref}'s clock)")
     command = Command(
-        command=action, at=at, issued_at=at, seq=issuer.next_seq(), issuer=issuer.name,
+        command="resume", at=at, issued_at=at, seq=issuer.next_seq(), issuer=issuer.name,
         experiment=experiment.name if experiment else None,
         participants=sorted(_expected(experiment, {})) if experiment is not None else None,
     )  # fmt: skip
     sent = publish(session, federation, command)
     modes = confirm(command, expected, fed, wait, progress)
     return _result(command, ref, expected, modes, sent, fed)
+
+
+def _shared_reference(expected: frozenset[str] | set[str], seen: dict[str, Any]) -> AgentId:
+    """The reference clock every expected agent reports (their run's, whatever ctl would
+    choose now); ConfigError when they report none or several."""
+    refs = {str((seen.get(agent) or {}).get("reference") or "") for agent in expected}
+    if len(refs) != 1 or "" in refs:
+        named = ", ".join(sorted(r or "none" for r in refs))
+        raise ConfigError(
+            f"resume not sent: the participants report {len(refs)} reference clocks ({named}); "
+            "name the one of the run with --reference LAB/NAME"
+        )
+    return AgentId.parse(refs.pop())
 
 
 def _result(

@@ -50,12 +50,12 @@ def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None
         lambda: all((a.last() or {}).get("mode") == "running" for a in agents.values()),
         timeout=10,
     )
-    # Freeze and resume: each at the reference time ctl issued it, the same for both labs.
+    # Freeze on receipt; resume at the reference time ctl issued it, the same for both labs.
     for action, mode in (("freeze", "frozen"), ("resume", "running")):
         done = ctl(action, "--experiment", str(EXPERIMENT), "-e", pair.rome.endpoint)
         assert done.returncode == 0, done.stdout + done.stderr
-        assert f"{action} at reference time" in done.stdout + done.stderr
         assert all((a.last() or {}).get("mode") == mode for a in agents.values())
+    assert "resume at reference time" in done.stdout + done.stderr
     aborted = ctl("abort", "--experiment", str(EXPERIMENT), "--json", "-e", pair.kiruna.endpoint)
     assert aborted.returncode == 0, aborted.stdout + aborted.stderr
     sent = json.loads(aborted.stdout)["sent_monotonic"]  # this host's clock, as the agents'
@@ -80,15 +80,14 @@ def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None
         print(f"{agent}: started {error * 1e3:+.2f} ms from the common instant")
         assert abs(error) < 0.010, agent
 
-        # Frozen and resumed at the instants the commands carry (on the reference clock).
-        for kind, event in (("freeze", "frozen"), ("resume", "resumed")):
-            (sent_cmd,) = [
-                e["command"] for e in control
-                if e["event"] == "command" and e["command"]["command"] == kind
-            ]  # fmt: skip
-            (done_at,) = [e for e in control if e["event"] == event]
-            assert sent_cmd["at"] is not None and sent_cmd["issued_at"] == sent_cmd["at"]
-            assert done_at["t_sim"] == pytest.approx(sent_cmd["at"], abs=1e-9), (agent, kind)
+        # Resumed at the instant the command carries (on the reference clock).
+        (resume,) = [
+            e["command"] for e in control
+            if e["event"] == "command" and e["command"]["command"] == "resume"
+        ]  # fmt: skip
+        (resumed,) = [e for e in control if e["event"] == "resumed"]
+        assert resume["at"] is not None and resume["issued_at"] == resume["at"]
+        assert resumed["t_sim"] == pytest.approx(resume["at"], abs=1e-9), agent
 
         held = next(e for e in control if e["event"] == "aborted")
         hold_latency = held["host_monotonic"] - sent

@@ -506,32 +506,62 @@ def test_ctl_sends_an_abort_urgently_and_again_until_confirmed(
         assert options["congestion_control"] == zenoh.CongestionControl.BLOCK
 
 
-def test_ctl_freeze_and_resume_carry_their_instant_and_a_resume_needs_one(
+def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    statuses = {"lab/a": {"mode": "frozen", "role": "leader"}}
+    statuses: dict[str, dict[str, Any]] = {
+        "lab/a": {"mode": "frozen", "role": "leader", "reference": "lab/a"},
+        "lab/b": {"mode": "frozen", "role": "follower", "reference": "lab/a"},
+    }
     monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
-    monkeypatch.setattr(control, "reference_now", lambda *a, **k: 100.0)
+    synced: list[AgentId] = []
+
+    def reference_now(session: Any, federation: str, ref: AgentId, clock: Any) -> float:
+        synced.append(ref)
+        return 100.0
+
+    monkeypatch.setattr(control, "reference_now", reference_now)
     session = _Recorder()
+    # A freeze leaves at once, before any look-up: nothing it needs can be missing.
+    control.issue(session, "freeze", wait=0.1, discover=0.0)
+    assert {(p[1]["at"], p[1]["issued_at"]) for p in session.puts} == {(None, None)}
+    assert synced == []
+    # A resume sets platforms moving: at the instant it is issued, on the participants'
+    # reference (not a leader ctl would pick now).
+    session.puts.clear()
     lines: list[str] = []
-    control.issue(session, "freeze", wait=0.1, discover=0.0, progress=lines.append)
+    control.issue(session, "resume", wait=0.1, discover=0.0, progress=lines.append)
     (command,) = {p[1]["seq"]: p[1] for p in session.puts}.values()  # copies of one command
-    assert command["command"] == "freeze" and command["at"] == command["issued_at"] == 100.0
-    assert "freeze at reference time 100.000 s (lab/a's clock)" in lines
+    assert command["command"] == "resume" and command["at"] == command["issued_at"] == 100.0
+    assert synced == [AgentId("lab", "a")]
+    assert "resume at reference time 100.000 s (lab/a's clock)" in lines
+    # Participants on different reference clocks: not sent, and why.
+    statuses["lab/b"]["reference"] = "lab/b"
+    session.puts.clear()
+    with pytest.raises(ConfigError, match=r"2 reference clocks \(lab/a, lab/b\)"):
+        control.issue(session, "resume", wait=0.1, discover=0.0)
+    statuses["lab/b"]["reference"] = "lab/a"
 
     def silent(*args: Any, **kwargs: Any) -> float:
         raise ConnectError("reference lab/a did not answer")
 
     monkeypatch.setattr(control, "reference_now", silent)
-    session.puts.clear()
-    control.issue(session, "freeze", wait=0.1, discover=0.0, progress=lines.append)
-    assert {(p[1]["at"], p[1]["issued_at"]) for p in session.puts} == {(None, None)}
-    assert "did not answer: freeze sent unstamped" in " ".join(lines)
-    # A resume sets platforms moving: not sent without the instant it is issued at.
-    session.puts.clear()
     with pytest.raises(ConnectError, match="resume not sent: reference lab/a did not answer"):
         control.issue(session, "resume", wait=0.1, discover=0.0)
     assert session.puts == []
+
+
+def test_a_silent_reference_is_given_up_after_a_few_queries_not_twenty() -> None:
+    class Silent(_Recorder):
+        def get(self, *args: Any, **kwargs: Any) -> None:
+            self.queries = getattr(self, "queries", 0) + 1  # no queryable: no reply
+
+    session = Silent()
+    t0 = time.monotonic()
+    with pytest.raises(ConnectError, match="reference agent lab/a did not answer"):
+        control.reference_now(session, "default", AgentId("lab", "a"), control.ExecClock())
+    assert session.queries == control.REFERENCE_UNANSWERED == 3
+    assert time.monotonic() - t0 < 5.0  # a silent leader had held ctl 20 s
 
 
 def test_ctl_refuses_a_start_that_would_never_end() -> None:
