@@ -62,8 +62,11 @@ A fix describes the platform when the metrology saw it, which may be some time b
 it reaches the chain (``fix_age``: a camera pipeline's latency, known from the
 device's clock): it is carried forward to ``now`` by the motion the IMU has shown
 since (:meth:`~agents.navigation.NavigationFilter.motion_since`) before it is gated
-and taken. As a turn began, a lag the gate did not know of had made good fixes
-outliers that agreed with one another, and restarted the estimate.
+and taken, and its staleness counts from when it was taken. As a turn began, a lag
+the gate did not know of had made good fixes outliers that agreed with one another,
+and restarted the estimate. While fixes are acquired only the turn is carried: the
+velocity has had no fix to check it. A fix older than ``vision.latency_max`` is
+rejected (``fix_late``): no metrology is that late, a device time is wrong.
 
 Outliers go to a second filter that runs beside the first, started from the first of
 them and fed with the same IMU: when ``navigation.outliers_to_restart`` outliers in a row
@@ -154,9 +157,13 @@ class GncChain:
         self._outliers_to_restart = config.navigation.outliers_to_restart
         self._fixes_to_start = config.navigation.fixes_to_start
         self.filter = self._new_filter()
-        # The estimate's trial copy while fixes are acquired, and how many it has taken.
+        # The estimate's trial copy while fixes are acquired, how many it has taken, when
+        # it took the last.
         self._trial: NavigationFilter | None = None
         self._trial_fixes = 0
+        self._trial_at = -math.inf
+        self.latency_max: float = min(config.vision.latency_max, self.fix_timeout)
+        """Oldest a fix may be when it arrives (``fix_age``), s; older: rejected."""
         # The second filter that outliers feed, and how many in a row have agreed with it.
         self._shadow: NavigationFilter | None = None
         self._agreeing = 0
@@ -203,14 +210,17 @@ class GncChain:
             "fix_rejected": 0,
             "fix_outside": 0,
             "fix_outlier": 0,
+            "fix_late": 0,
             "fix_acquiring": 0,
+            "fix_acquire_restarts": 0,
             "fix_restarts": 0,
             "clock_steps_back": 0,
             "restarts": 0,
         }
         """Control steps closed, per reason; sensor data dropped (``fix_rejected``: every
-        fix dropped, of which ``fix_outside`` and ``fix_outlier``); fixes held back until
-        enough agree (``fix_acquiring``); estimates restarted:
+        fix dropped, of which ``fix_outside``, ``fix_late`` and ``fix_outlier``); fixes
+        held back until enough agree (``fix_acquiring``) and trials begun again
+        (``fix_acquire_restarts``: a fix disagreed, or a gap); estimates restarted:
         from agreeing outliers (``fix_restarts``), after the clock stepped back
         (``clock_steps_back``), by :meth:`restart` (``restarts``)."""
 
@@ -234,6 +244,7 @@ class GncChain:
         self._imu = ImuSample(0.0, 0.0, 0.0)
         self._shadow = self._trial = None
         self._agreeing = self._trial_fixes = 0
+        self._trial_at = -math.inf
         self._rejecting = False
 
     def acknowledge_restart(self) -> None:
@@ -346,20 +357,27 @@ class GncChain:
         if not (x0 <= x <= x1 and y0 <= y <= y1):  # where the metrology saw it
             self._reject("fix_outside")
             return
+        if age > self.latency_max:  # no metrology is that late: a device time gone wrong
+            self._reject("fix_late")
+            return
+        age = max(0.0, age)  # a POSE newer than the IMU: taken as of now
+        established = self._fix_at is not None and now - self._fix_at <= self.fix_timeout
         if age > 0.0:  # where the platform is now: moved on since as the IMU says
-            dx, dy, dpsi = self.filter.motion_since(now - min(age, self.fix_timeout))
+            dx, dy, dpsi = self.filter.motion_since(now - age)
+            if not established:  # a velocity no fix has checked of late: the gyro's turn only
+                dx = dy = 0.0
             fix = Pose(x + dx, y + dy, heading + dpsi)
         if self.filter.fixes and not self.filter.innovation_distance(fix) <= self.fix_gate:
             if not self._outlier(now, fix):
                 self._reject("fix_outlier")
             return
-        if self._fix_at is None or now - self._fix_at > self.fix_timeout:
-            if not self._acquired(now, fix):
-                return
-        else:
+        self._shadow, self._agreeing = None, 0  # within the gate: outliers are not in a row
+        if not established and not self._acquired(now, fix):
+            return
+        if established:
             self.filter.correct(now, fix)
-        self._fix_at = now
-        self._shadow, self._agreeing, self._rejecting = None, 0, False
+        self._fix_at = now - age  # its staleness counts from when the metrology took it
+        self._rejecting = False
         if self.position_hold is not None and not self._target_set:
             self._hold_at_estimate()
 
@@ -367,11 +385,18 @@ class GncChain:
         """A fix with nothing recent to check it: into the trial copy of the estimate,
         which becomes the estimate once ``fixes_to_start`` in a row agree (True)."""
         trial = self._trial
-        if trial is None or not trial.innovation_distance(fix) <= self.fix_gate:
-            trial = self._trial = copy.deepcopy(self.filter)  # a first, or one that disagrees
+        if (
+            trial is None
+            or now - self._trial_at > self.fix_timeout  # its fixes are old news: a gap since
+            or not trial.innovation_distance(fix) <= self.fix_gate
+        ):
+            if trial is not None:
+                self.counters["fix_acquire_restarts"] += 1
+            trial = self._trial = copy.deepcopy(self.filter)  # from the estimate as it is now
             self._trial_fixes = 0
         trial.correct(now, fix)
         self._trial_fixes += 1
+        self._trial_at = now
         if self._trial_fixes < self._fixes_to_start:
             self.counters["fix_acquiring"] += 1
             self._rejecting = False  # not rejected: closed for want of a fix, as before it

@@ -204,7 +204,8 @@ class NavigationFilter:
             self._t = now
             odometry = self._odometry
             odometry.append((now, *self._moved))
-            while now - odometry[0][0] > self._history:
+            # One entry at or before the window's start stays, to interpolate from.
+            while len(odometry) > 2 and now - odometry[1][0] >= self._history:
                 odometry.popleft()
         self._imu = imu
         self._gyro = imu.gyro

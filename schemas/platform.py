@@ -93,6 +93,14 @@ class VisionConfig(_Model):
     origin: tuple[float, float] = Field(
         (0.0, 0.0), description="centre of the coverage rectangle in the lab frame (x, y), m"
     )
+    latency_max: float = Field(
+        0.25,
+        ge=0,
+        le=10,
+        description="oldest a fix may be when it reaches the GNC chain, s (by the device's "
+        "clock: its POSE's time against its IMU's): older, it is rejected (fix_late), since "
+        "no metrology is that late and the device's time is wrong",
+    )
     fix_margin: float = Field(
         0.2,
         ge=0,

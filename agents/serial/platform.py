@@ -208,10 +208,13 @@ class SerialPlatform:
                 self._vanished(error)
             imu, fix = self._new_imu, self._new_fix
             self._new_imu = self._new_fix = None
-            # The POSE lags the latest IMU by the metrology's latency (device clock).
+            # The POSE lags the IMU read with it by the metrology's latency (the device's
+            # clock). Only an IMU sample of this read: one frame timed ahead (on the
+            # timeline still) would otherwise age every POSE until real ones pass it.
             age = 0.0
-            if fix is not None and self.imu is not None and self.pose_time is not None:
-                age = max(0.0, self.imu.t - self.pose_time)
+            if fix is not None and imu is not None and self.imu is not None:
+                assert self.pose_time is not None
+                age = self.imu.t - self.pose_time
             chain = self.chain
             closed_for: PlatformReason | None = "device_restart" if self._timeline.pending else None
             try:

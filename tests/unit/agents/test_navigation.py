@@ -183,3 +183,13 @@ def test_motion_since_is_the_predictions_alone_and_reaches_back_its_history() ->
     assert nav.motion_since(0.2) == pytest.approx((0.0, 0.0, 0.5), abs=1e-3)  # kept: 0.5 s
     assert nav.motion_since(1.0) == nav.motion_since(2.0) == (0.0, 0.0, 0.0)
     assert NavigationFilter(0.002, 0.01, 0.005, 0.0087).motion_since(0.0) == (0.0, 0.0, 0.0)
+
+
+def test_motion_since_spans_a_step_longer_than_its_history() -> None:
+    # A host stalled 0.6 s (history 0.5 s): the entry before the stall had been dropped
+    # and a turn of 1 rad/s showed no motion at all over the last 0.1 s.
+    nav = NavigationFilter(0.002, 0.01, 0.005, 0.0087, history=0.5)
+    turning = ImuSample(1.0, 0.0, 0.0)
+    for t in (0.0, 0.01, 0.49, 1.09):
+        nav.predict(t, turning)
+    assert nav.motion_since(0.99)[2] == pytest.approx(0.1, abs=1e-6)

@@ -147,9 +147,13 @@ def test_valves_open_once_three_poses_agree_each_carried_by_its_age(pty_dev: Pty
             assert (plat.valves == POSITIVE_TORQUE) == (k == 2), k
         assert plat.counters["closed_no_fix"] == 2 and plat.chain.counters["fix_acquiring"] == 2
         assert ages == pytest.approx([0.03] * 3)
-        # A POSE newer than the IMU is no older than now.
+        # A POSE newer than the IMU: the chain takes it as of now.
         pty_dev.send(encode_imu(1.03, 0.0, 0.0, 0.0) + encode_pose(1.035, Pose()))
         plat.step(1.03, AHEAD, 0.0)
+        assert ages[-1] == pytest.approx(-0.005) and plat.chain.counters["fix_rejected"] == 0
+        # Without an IMU sample read with it, a POSE's age is not known: none is carried.
+        pty_dev.send(encode_pose(1.04, Pose()))
+        plat.step(1.04, AHEAD, 0.0)
         assert ages[-1] == 0.0
 
 
