@@ -59,8 +59,11 @@ def experiment_of(run: Run) -> ExperimentConfig | None:
     if not isinstance(data, dict) and run.directory:
         path = Path(run.directory) / "experiment.json"
         if path.is_file():
-            data = json.loads(path.read_text(encoding="utf-8"))
             source = str(path)
+            try:
+                data = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as error:  # cut short, not UTF-8, unreadable
+                raise ConfigError(f"{source}: not a JSON file: {error}") from None
     if not isinstance(data, dict):
         return None
     data = dict(data)

@@ -493,8 +493,10 @@ class AgentRuntime:
             self._status_file.close()
             self._status_file = None
         if self.recorder is not None:
-            self.recorder.close()
-            PROMISES.give_back(self.recorder.path.parent, self)
+            try:
+                self.recorder.close()
+            finally:
+                PROMISES.give_back(self.recorder.path.parent, self)
             self.recorder = None
             self._update_recorded()
 

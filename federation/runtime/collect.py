@@ -127,10 +127,36 @@ def write_incomplete(run_dir: Path, agent: str, run_id: str, what: dict[str, Any
     ``run_dir``; returns its path, for the manifest."""
     path = run_dir / incomplete_name(agent.replace("/", "-"))
     data = {"agent": agent, "run_id": run_id, **what}
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_durably(path, json.dumps(data, indent=1) + "\n")
     return path
+
+
+def write_durably(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` whole: to a temporary name, on disk, then renamed (and
+    the rename on disk): never seen half-written, nor lost after a power cut once this
+    returns."""
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    sync_directory(path.parent)
+
+
+def sync_directory(directory: Path) -> None:
+    """The directory's entries (a rename, a new file) on disk; best effort: a filesystem
+    that cannot say so is left as it is."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def free_bytes(path: Path) -> int | None:
@@ -180,7 +206,7 @@ def sha256_file(path: Path, block: int = CHUNK_SIZE) -> str:
 
 def finalize(run_dir: Path, agent: str, run_id: str, files: list[Path]) -> Path:
     """Write the manifest of an agent's finished ``files`` of a run; returns its path.
-    Written to a temporary name and renamed: a manifest is never seen half-written."""
+    Written durably (:func:`write_durably`): a manifest is never seen half-written."""
     entries = [
         FileEntry(name=p.name, size=p.stat().st_size, sha256=sha256_file(p))
         for p in files
@@ -188,9 +214,7 @@ def finalize(run_dir: Path, agent: str, run_id: str, files: list[Path]) -> Path:
     ]
     manifest = Manifest(agent=agent, run_id=run_id, files=entries)
     path = run_dir / manifest_name(agent.replace("/", "-"))
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(manifest.model_dump_json(indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_durably(path, manifest.model_dump_json(indent=1) + "\n")
     return path
 
 

@@ -130,8 +130,10 @@ RESERVE_BYTES = 1 << 20
 ``/control`` events and ``/status`` lines (the truncation event included): a run's
 start, end and last status stay in the file. Half of it for status lines as they
 come; past that only the latest is kept, written at close. A quarter at most for the
-commands received (``/control`` events ``command``: any lab's operator may send them),
-so that those flooding in leave room for the agent's own events (its run's end)."""
+``/control`` events other than a run's end (``done``, ``aborted``): commands flooding
+in (any lab's operator may send them), and the events they cause (``ignored``,
+``frozen``, ``resumed``), leave room for the run's end."""
+_RUN_ENDS = frozenset({"done", "aborted"})
 _RESERVED = frozenset({str(Channel.CONTROL), str(Channel.STATUS)})
 _RESERVE_QUEUE = 1000  # messages of those channels buffered once truncated
 
@@ -188,7 +190,7 @@ class Recorder:
         self.truncated = False  # max_bytes reached: every later message dropped
         self.over_budget = 0  # messages dropped because of it
         self.reserve_used = 0  # bytes past it: /control and /status (RESERVE_BYTES)
-        self.reserve_commands = 0  # of which commands received (a quarter at most)
+        self.reserve_events = 0  # of which /control but a run's end (a quarter at most)
         self.write_errors = 0  # writes that failed (a full disk): messages lost
         self._held_status: tuple[int, bytes, int] | None = None  # past half the reserve
         self._pending: deque[tuple[str, int, Message]] = deque()
@@ -299,8 +301,10 @@ class Recorder:
                     if topic not in _RESERVED:
                         self.over_budget += 1
                         continue
-                    received = isinstance(message, dict) and message.get("event") == "command"
-                    if not self._in_reserve(topic, stamp, data, size, received):
+                    other = topic == Channel.CONTROL and not (
+                        isinstance(message, dict) and message.get("event") in _RUN_ENDS
+                    )
+                    if not self._in_reserve(topic, stamp, data, size, other):
                         continue
             add(channels[topic], stamp, data, stamp)
             self.written += 1
@@ -318,13 +322,13 @@ class Recorder:
         return self._bound <= limit
 
     def _in_reserve(
-        self, topic: str, stamp: int, data: bytes, size: int, received: bool = False
+        self, topic: str, stamp: int, data: bytes, size: int, other: bool = False
     ) -> bool:
         """Whether a ``/control`` or ``/status`` message past the limit is written now,
-        taking ``size`` bytes of the reserve: a control event while the reserve lasts (a
-        ``received`` command while its quarter does); a status line while half of it
+        taking ``size`` bytes of the reserve: a run's end while the reserve lasts, an
+        ``other`` control event while its quarter does; a status line while half of it
         does, else kept (the latest only) for close. The others are dropped and counted."""
-        if received and self.reserve_commands + size > RESERVE_BYTES // 4:
+        if other and self.reserve_events + size > RESERVE_BYTES // 4:
             self.over_budget += 1
             return False
         if topic == Channel.STATUS and self.reserve_used + size > RESERVE_BYTES // 2:
@@ -336,8 +340,8 @@ class Recorder:
             self.over_budget += 1
             return False
         self.reserve_used += size
-        if received:
-            self.reserve_commands += size
+        if other:
+            self.reserve_events += size
         return True
 
     def _write_held_status(self) -> None:
@@ -416,6 +420,17 @@ class Recorder:
         )  # fmt: skip
         return FrameTransforms(transforms=[tf]).encode(), pose.encode()
 
+    def _sync(self) -> None:
+        """The file on disk; a failure (EIO) counts as a failed write: the recording is
+        then not complete, and its run says so. A file that cannot be synced (a pipe,
+        /dev/null: EINVAL) has nothing to lose."""
+        try:
+            os.fsync(self._file.fileno())
+        except OSError as error:
+            if error.errno != errno.EINVAL:
+                self.write_errors += 1
+                log.error("%s: not on disk: %s", self.path, error)
+
     def close(self) -> None:
         """Write what is buffered, then finish the file (summary and index)."""
         _WRITER.remove(self)
@@ -436,7 +451,7 @@ class Recorder:
                     # On disk before anyone (a run's manifest, collect) takes it as
                     # finished: after a power cut, a finished file is a whole one.
                     self._file.flush()
-                    os.fsync(self._file.fileno())
+                    self._sync()
             finally:
                 self._file.close()
         if self.dropped:

@@ -22,9 +22,11 @@ unrecorded would be worse, and the start was given for every lab, not only this 
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import logging
+import os
 import platform as host_platform
 import socket
 import subprocess
@@ -193,7 +195,24 @@ class RunRecording:
         except BaseException:
             PROMISES.give_back(self.dir, self)  # no recording: nothing promised
             raise
-        self._status_file: IO[str] | None = self.status.open("a", encoding="utf-8")
+        try:
+            self._status_file: IO[str] | None = self.status.open("a", encoding="utf-8")
+            self._start(run_id, agent, experiment, config_json, free, extra)
+        except BaseException:  # no run after all: nothing open, nothing promised
+            with contextlib.suppress(Exception):
+                self.recorder.close()
+            PROMISES.give_back(self.dir, self)
+            raise
+
+    def _start(
+        self,
+        run_id: str,
+        agent: str,
+        experiment: Path | None,
+        config_json: str,
+        free: int | None,
+        extra: dict[str, Any] | None,
+    ) -> None:
         self._status_lock = threading.Lock()
         self.status_write_errors = 0
         experiment_text = ""
@@ -262,6 +281,12 @@ class RunRecording:
                 finally:
                     PROMISES.give_back(self.dir, self)
                     if status_file is not None:
+                        try:  # on disk before the manifest names it
+                            status_file.flush()
+                            os.fsync(status_file.fileno())
+                        except (OSError, ValueError) as error:
+                            self.status_write_errors += 1
+                            log.error("run %s: %s not on disk: %s", self.run_id, self.status, error)
                         status_file.close()
                 files = [self.mcap, self.status]
                 if not recorder.complete:  # said beside it: collect tells whoever fetches it

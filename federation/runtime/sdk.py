@@ -82,8 +82,10 @@ class Agent:
     own). ``timeout``: seconds to reach the router before ``with`` raises
     :class:`~federation.runtime.session.ConnectError` naming each endpoint and why
     (refused, unreachable, TLS). ``config``: a Zenoh json5 configuration file (TLS
-    certificates, user and password), whose identity must be ``name``: else ``with``
-    raises :class:`~federation.runtime.identity.IdentityError` naming both. Further
+    certificates, user and password, its router's endpoints), whose identity must be
+    ``name``: else ``with`` raises :class:`~federation.runtime.identity.IdentityError`
+    naming both. ``connect``: endpoints to dial instead of the file's (default: the
+    file's, or ``tcp/127.0.0.1:7447`` without one). Further
     keyword arguments are :class:`schemas.config.AgentConfig` fields.
     """
 
@@ -91,7 +93,7 @@ class Agent:
         self,
         name: str,
         pose: PoseSource,
-        connect: Sequence[str] = ("tcp/127.0.0.1:7447",),
+        connect: Sequence[str] | None = None,
         federation: str = "default",
         reference: str | None = None,
         rate: float = 20.0,
@@ -105,6 +107,8 @@ class Agent:
         }  # fmt: skip
         data |= {"reference": reference, "pose_rate": rate, "watch_all": True, **settings}
         self.config = validate(AgentConfig, data, f"Agent({name!r})")
+        if connect is None:  # the config file's endpoints, else a router on this host
+            connect = [] if config is not None else ["tcp/127.0.0.1:7447"]
         options = {"connect": list(connect), "config": config}
         self.options = validate(ZenohOptions, options, f"Agent({name!r})")
         self._source = pose

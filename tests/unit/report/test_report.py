@@ -446,6 +446,10 @@ def test_an_old_or_broken_experiment_json_costs_the_report_nothing_else(tmp_path
     assert "experiment.json: field 'duration'" in notes and "no scenario figures" in notes
     assert "no run.json" in notes  # the run's own notes are kept beside it
     assert summary["followers"] and (tmp_path / "report.md").exists()
+    # Cut short (a power cut): a note too, not a crash.
+    (tmp_path / "experiment.json").write_text(json.dumps(old)[:20])
+    notes = " ".join(write_report(tmp_path)["notes"])
+    assert "experiment.json: not a JSON file" in notes and "no scenario figures" in notes
 
 
 def test_damaged_recordings_are_recovered_or_skipped_with_a_note(

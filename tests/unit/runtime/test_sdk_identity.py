@@ -42,3 +42,18 @@ def test_an_sdk_agent_proving_its_own_name_goes_on_to_its_router(tmp_path: Path)
     )  # fmt: skip
     with pytest.raises(ConnectError, match=f"127.0.0.1:{port}"):
         ghost.__enter__()
+
+
+def test_an_sdk_agent_dials_its_config_files_router(tmp_path: Path) -> None:
+    # connect's default (this host's router) had replaced the file's endpoints: the
+    # ghost dialled localhost in plain TCP, not its lab's router.
+    port = free_port()
+    path = tmp_path / "ghost.json5"
+    auth = 'usrpwd: {user: "lab3/ghost", password: "x"}'
+    path.write_text(
+        f'{{mode: "client", connect: {{endpoints: ["tcp/127.0.0.1:{port}"]}}, '
+        f"transport: {{auth: {{{auth}}}}}}}"
+    )
+    ghost = Agent("lab3/ghost", lambda t: Pose(), timeout=1.0, config=path)
+    with pytest.raises(ConnectError, match=f"127.0.0.1:{port}"):
+        ghost.__enter__()
