@@ -33,7 +33,8 @@ it at all is decided first by :class:`federation.core.commands.CommandGate`):
 6. A start or resume without ``at`` acts on receipt, unless its ``issued_at`` (the
    reference time it was sent) is more than ``LATE_START`` past: ``ignored`` (it waited
    behind a cut link; acted on now, it would set platforms moving when no one chose).
-   A freeze acts on receipt however late.
+   A resume with neither is ``ignored`` (ctl stamps every resume). A freeze acts on
+   receipt however late, and without the reference time at the last one known.
 
 :meth:`RunState.update` makes the transitions no command makes: armed to running
 once the reference time reaches the start, running to done once the run time
@@ -108,6 +109,7 @@ class RunState:
         self.frozen_total = 0.0
         self.run_id: str | None = None
         self.duration: float | None = duration
+        self.last_t_sim: float | None = None  # the reference time of the last update
         self.autostart = autostart
         if autostart:
             self.mode = "armed"  # start_at set at the first update with a reference time
@@ -162,6 +164,10 @@ class RunState:
             self.run_id = getattr(cmd, "run_id", None)
             self.duration = self.default_duration if duration is None else duration
             return [Event("armed", self.start_at), *self.update(t_sim)]
+        if kind == "resume" and cmd.at is None and issued is None:
+            # ctl stamps every resume: one that does not say when it was sent may have
+            # waited any time (an older ctl, a script), and sets platforms moving.
+            return [Event("ignored", t_sim, "resume without at or issued_at: not sent by ctl")]
         late = cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START
         if late and kind == "resume":
             # Acted on at a past instant, a resume had jumped the run's clock (and set the
@@ -176,6 +182,10 @@ class RunState:
             at = max(at, self.start_at)  # an instant before the run is not one of its own
         if kind == "resume" and at is not None and self.frozen_at is not None:
             at = max(at, self.frozen_at)  # no run time is made up before the freeze
+        if kind == "freeze" and self.mode == "running" and at is None:
+            # No reference time now (its link contested, say): frozen at the last one
+            # known, not left running while the others freeze.
+            at = self.last_t_sim if self.last_t_sim is not None else self.start_at
         if kind == "freeze" and self.mode == "running" and at is not None:
             self.mode, self.frozen_at = "frozen", at
             return [Event("frozen", at)]
@@ -191,6 +201,7 @@ class RunState:
         a running one is done once its run time reaches its duration."""
         if t_sim is None:
             return []
+        self.last_t_sim = t_sim
         events = []
         if self.mode == "armed" and self.autostart and self.start_at is None:
             self.start_at = t_sim

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import errno
 import hashlib
 import json
 import logging
@@ -136,11 +137,20 @@ def write_durably(path: Path, text: str) -> None:
     the rename on disk): never seen half-written, nor lost after a power cut once this
     returns."""
     tmp = path.with_suffix(".tmp")
-    with tmp.open("w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with tmp.open("w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            try:
+                os.fsync(f.fileno())
+            except OSError as error:
+                if error.errno != errno.EINVAL:  # EINVAL: a file with nothing to sync
+                    raise
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
     sync_directory(path.parent)
 
 
@@ -192,6 +202,10 @@ def describe_incomplete(data: object) -> str:
         parts.append(f"{data['dropped_queue_full']} messages dropped (buffer full)")
     if data.get("write_errors"):
         parts.append(f"{data['write_errors']} write(s) failed: messages lost")
+    if data.get("status_write_errors"):
+        parts.append(f"{data['status_write_errors']} status line write(s) failed")
+    if data.get("not_recorded"):
+        parts.append(str(data["not_recorded"]))
     return ("; ".join(parts) or "its recording is incomplete")[:500]  # an agent's text
 
 

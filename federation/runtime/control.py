@@ -667,7 +667,13 @@ def _issue_resume(
         raise ConnectError(
             f"no agent found in federation {federation!r} within {discover:g} s: resume not sent"
         )
-    ref = reference or _shared_reference(expected, seen)
+    shared = _shared_reference(expected, seen)
+    if reference is not None and reference != shared:
+        raise ConfigError(
+            f"resume not sent: --reference {reference}, but the participants count time on "
+            f"{shared}'s clock"
+        )
+    ref = shared
     try:
         at = reference_now(session, federation, ref, ExecClock())
     except ConnectError as error:  # a platform set moving whenever it arrives: not sent
@@ -680,18 +686,35 @@ def _issue_resume(
     )  # fmt: skip
     sent = publish(session, federation, command)
     modes = confirm(command, expected, fed, wait, progress)
-    return _result(command, ref, expected, modes, sent, fed)
+    result = _result(command, ref, expected, modes, sent, fed)
+    if result.pending:
+        # Some flying, some frozen is no run: freeze them all again (as a start not every
+        # participant confirmed is aborted), and say so.
+        freeze = Command(
+            command="freeze", seq=issuer.next_seq(), issuer=issuer.name,
+            experiment=command.experiment, participants=command.participants,
+        )  # fmt: skip
+        publish(session, federation, freeze)
+        for agent in result.pending:
+            result.reasons[agent] += "; freeze sent to all again"
+        progress(f"not resumed by {', '.join(result.pending)}: freeze sent to all again")
+    return result
 
 
 def _shared_reference(expected: frozenset[str] | set[str], seen: dict[str, Any]) -> AgentId:
     """The reference clock every expected agent reports (their run's, whatever ctl would
     choose now); ConfigError when they report none or several."""
-    refs = {str((seen.get(agent) or {}).get("reference") or "") for agent in expected}
-    if len(refs) != 1 or "" in refs:
-        named = ", ".join(sorted(r or "none" for r in refs))
+    absent = sorted(agent for agent in expected if not (seen.get(agent) or {}).get("reference"))
+    if absent:
         raise ConfigError(
-            f"resume not sent: the participants report {len(refs)} reference clocks ({named}); "
-            "name the one of the run with --reference LAB/NAME"
+            f"resume not sent: the reference clock of {', '.join(absent)} is not known (no "
+            "status from it)"
+        )
+    refs = {str(seen[agent]["reference"]) for agent in expected}
+    if len(refs) != 1:
+        raise ConfigError(
+            f"resume not sent: the participants report {len(refs)} reference clocks "
+            f"({', '.join(sorted(refs))}): not one run"
         )
     return AgentId.parse(refs.pop())
 

@@ -130,10 +130,12 @@ RESERVE_BYTES = 1 << 20
 ``/control`` events and ``/status`` lines (the truncation event included): a run's
 start, end and last status stay in the file. Half of it for status lines as they
 come; past that only the latest is kept, written at close. A quarter at most for the
-``/control`` events other than a run's end (``done``, ``aborted``): commands flooding
-in (any lab's operator may send them), and the events they cause (``ignored``,
-``frozen``, ``resumed``), leave room for the run's end."""
+``/control`` events other than a run's end (``done``, ``aborted``), and an eighth at
+most for the commands received and those ignored (any lab's operator may send
+them): a flood of them leaves room for the agent's own events, and those for the
+run's end."""
 _RUN_ENDS = frozenset({"done", "aborted"})
+_RECEIVED = frozenset({"command", "ignored"})
 _RESERVED = frozenset({str(Channel.CONTROL), str(Channel.STATUS)})
 _RESERVE_QUEUE = 1000  # messages of those channels buffered once truncated
 
@@ -191,6 +193,7 @@ class Recorder:
         self.over_budget = 0  # messages dropped because of it
         self.reserve_used = 0  # bytes past it: /control and /status (RESERVE_BYTES)
         self.reserve_events = 0  # of which /control but a run's end (a quarter at most)
+        self.reserve_received = 0  # of which commands received or ignored (an eighth)
         self.write_errors = 0  # writes that failed (a full disk): messages lost
         self._held_status: tuple[int, bytes, int] | None = None  # past half the reserve
         self._pending: deque[tuple[str, int, Message]] = deque()
@@ -301,10 +304,10 @@ class Recorder:
                     if topic not in _RESERVED:
                         self.over_budget += 1
                         continue
-                    other = topic == Channel.CONTROL and not (
-                        isinstance(message, dict) and message.get("event") in _RUN_ENDS
-                    )
-                    if not self._in_reserve(topic, stamp, data, size, other):
+                    event = message.get("event") if isinstance(message, dict) else None
+                    other = topic == Channel.CONTROL and event not in _RUN_ENDS
+                    received = other and event in _RECEIVED
+                    if not self._in_reserve(topic, stamp, data, size, other, received):
                         continue
             add(channels[topic], stamp, data, stamp)
             self.written += 1
@@ -322,12 +325,22 @@ class Recorder:
         return self._bound <= limit
 
     def _in_reserve(
-        self, topic: str, stamp: int, data: bytes, size: int, other: bool = False
+        self,
+        topic: str,
+        stamp: int,
+        data: bytes,
+        size: int,
+        other: bool = False,
+        received: bool = False,
     ) -> bool:
         """Whether a ``/control`` or ``/status`` message past the limit is written now,
         taking ``size`` bytes of the reserve: a run's end while the reserve lasts, an
-        ``other`` control event while its quarter does; a status line while half of it
-        does, else kept (the latest only) for close. The others are dropped and counted."""
+        ``other`` control event while its quarter does (a ``received`` command or one
+        ignored while its eighth does); a status line while half of it does, else kept
+        (the latest only) for close. The others are dropped and counted."""
+        if received and self.reserve_received + size > RESERVE_BYTES // 8:
+            self.over_budget += 1
+            return False
         if other and self.reserve_events + size > RESERVE_BYTES // 4:
             self.over_budget += 1
             return False
@@ -342,6 +355,8 @@ class Recorder:
         self.reserve_used += size
         if other:
             self.reserve_events += size
+        if received:
+            self.reserve_received += size
         return True
 
     def _write_held_status(self) -> None:

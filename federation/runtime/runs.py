@@ -195,14 +195,31 @@ class RunRecording:
         except BaseException:
             PROMISES.give_back(self.dir, self)  # no recording: nothing promised
             raise
+        self._status_file: IO[str] | None = None
         try:
-            self._status_file: IO[str] | None = self.status.open("a", encoding="utf-8")
+            self._status_file = self.status.open("a", encoding="utf-8")
             self._start(run_id, agent, experiment, config_json, free, extra)
-        except BaseException:  # no run after all: nothing open, nothing promised
-            with contextlib.suppress(Exception):
-                self.recorder.close()
-            PROMISES.give_back(self.dir, self)
+        except BaseException as error:  # no run after all: nothing open, nothing promised
+            self._not_recorded(error)
             raise
+
+    def _not_recorded(self, error: BaseException) -> None:
+        """A start that failed: its files closed and said not to be the run's recording
+        (else the next start's recovery would collect its finished, empty MCAP as the
+        run's, complete), its space given back."""
+        if self._status_file is not None:
+            with contextlib.suppress(Exception):
+                self._status_file.close()
+        with contextlib.suppress(Exception):
+            self.recorder.close()
+        PROMISES.give_back(self.dir, self)
+        try:
+            what = {"not_recorded": f"the run's recording could not start: {error}"}
+            write_incomplete(self.dir, self.agent, self.run_id, what)
+        except OSError:  # the disk said no: take away what would pass for a recording
+            for path in (self.mcap, self.status):
+                with contextlib.suppress(OSError):
+                    path.unlink()
 
     def _start(
         self,
@@ -289,8 +306,8 @@ class RunRecording:
                             log.error("run %s: %s not on disk: %s", self.run_id, self.status, error)
                         status_file.close()
                 files = [self.mcap, self.status]
-                if not recorder.complete:  # said beside it: collect tells whoever fetches it
-                    what = recorder.report()
+                if not recorder.complete or self.status_write_errors:  # said beside it
+                    what = recorder.report() | {"status_write_errors": self.status_write_errors}
                     files.append(write_incomplete(self.dir, self.agent, self.run_id, what))
                 finalize(self.dir, self.agent, self.run_id, files)
                 log.info("run %s finalized in %s", self.run_id, self.dir)

@@ -521,7 +521,16 @@ def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
         return 100.0
 
     monkeypatch.setattr(control, "reference_now", reference_now)
-    session = _Recorder()
+    heard = ["lab/a", "lab/b"]  # who takes a resume when it comes
+
+    class Session(_Recorder):
+        def put(self, key: str, payload: str, **options: Any) -> None:
+            super().put(key, payload, **options)
+            mode = {"resume": "running", "freeze": "frozen"}.get(self.puts[-1][1]["command"])
+            for agent in heard if mode == "running" else list(statuses):
+                statuses[agent]["mode"] = mode or statuses[agent]["mode"]
+
+    session = Session()
     # A freeze leaves at once, before any look-up: nothing it needs can be missing.
     control.issue(session, "freeze", wait=0.1, discover=0.0)
     assert {(p[1]["at"], p[1]["issued_at"]) for p in session.puts} == {(None, None)}
@@ -530,17 +539,31 @@ def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
     # reference (not a leader ctl would pick now).
     session.puts.clear()
     lines: list[str] = []
-    control.issue(session, "resume", wait=0.1, discover=0.0, progress=lines.append)
+    result = control.issue(session, "resume", wait=0.5, discover=0.0, progress=lines.append)
     (command,) = {p[1]["seq"]: p[1] for p in session.puts}.values()  # copies of one command
     assert command["command"] == "resume" and command["at"] == command["issued_at"] == 100.0
-    assert synced == [AgentId("lab", "a")]
+    assert synced == [AgentId("lab", "a")] and result.ok
     assert "resume at reference time 100.000 s (lab/a's clock)" in lines
-    # Participants on different reference clocks: not sent, and why.
-    statuses["lab/b"]["reference"] = "lab/b"
+    # One that does not resume (late, say): the others are frozen again, and ctl says so.
+    control.issue(session, "freeze", wait=0.5, discover=0.0)
+    heard.remove("lab/b")
     session.puts.clear()
-    with pytest.raises(ConfigError, match=r"2 reference clocks \(lab/a, lab/b\)"):
+    result = control.issue(session, "resume", wait=0.5, discover=0.0, progress=lines.append)
+    assert [p[1]["command"] for p in session.puts] == ["resume"] * 3 + ["freeze"] * 3
+    assert result.pending == ["lab/b"] and "freeze sent to all again" in result.reasons["lab/b"]
+    assert statuses["lab/a"]["mode"] == "frozen"
+    # Participants on different reference clocks, one absent, or another --reference:
+    # not sent, and why.
+    session.puts.clear()
+    statuses["lab/b"]["reference"] = "lab/b"
+    with pytest.raises(ConfigError, match=r"2 reference clocks \(lab/a, lab/b\): not one run"):
+        control.issue(session, "resume", wait=0.1, discover=0.0)
+    del statuses["lab/b"]["reference"]
+    with pytest.raises(ConfigError, match="reference clock of lab/b is not known"):
         control.issue(session, "resume", wait=0.1, discover=0.0)
     statuses["lab/b"]["reference"] = "lab/a"
+    with pytest.raises(ConfigError, match="--reference lab/x, but the participants"):
+        control.issue(session, "resume", reference=AgentId("lab", "x"), wait=0.1, discover=0.0)
 
     def silent(*args: Any, **kwargs: Any) -> float:
         raise ConnectError("reference lab/a did not answer")

@@ -183,13 +183,29 @@ def test_freeze_only_while_running_and_resume_only_while_frozen(mode: Mode, comm
     assert (state.mode, state.start_at, state.frozen_at, state.frozen_total) == before
 
 
-@pytest.mark.parametrize(("mode", "command"), [("running", "freeze"), ("frozen", "resume")])
-def test_freeze_or_resume_now_unsynchronized_is_ignored(mode: Mode, command: str) -> None:
-    state = in_mode(mode)
-    assert state.command(Cmd(command, 10), t_sim=None) == [
-        Event("ignored", None, f"{command} while {mode}")
+def test_a_resume_now_unsynchronized_is_ignored() -> None:
+    state = in_mode("frozen")
+    assert state.command(Cmd("resume", 10, issued_at=9.0), t_sim=None) == [
+        Event("ignored", None, "resume while frozen")
     ]
-    assert state.mode == mode
+    assert state.mode == "frozen"
+
+
+def test_a_freeze_unsynchronized_freezes_at_the_last_reference_time_known() -> None:
+    # Its reference link contested, the agent had been left running while the others
+    # froze (ignored: "freeze while running").
+    state = in_mode("running")
+    state.update(7.5)
+    assert state.command(Cmd("freeze", 10), t_sim=None) == [Event("frozen", 7.5)]
+    assert state.mode == "frozen" and state.frozen_at == 7.5
+
+
+def test_a_resume_that_does_not_say_when_it_was_sent_is_ignored() -> None:
+    # An unstamped resume (a script, an older ctl) set platforms moving an hour late.
+    state = in_mode("frozen")
+    (event,) = state.command(Cmd("resume", 10), t_sim=3600.0)
+    assert event.kind == "ignored" and "without at or issued_at" in event.detail
+    assert state.mode == "frozen"
 
 
 # ------------------------------------------------------------------ run time
@@ -289,7 +305,7 @@ def test_frozen_time_does_not_count_towards_the_duration() -> None:
     state = RunState()
     state.command(Cmd("start", at=0.0, duration=10.0), t_sim=0.0)
     state.command(Cmd("freeze"), t_sim=4.0)
-    state.command(Cmd("resume"), t_sim=9.0)  # 5 s frozen
+    state.command(Cmd("resume", issued_at=9.0), t_sim=9.0)  # 5 s frozen
     assert state.update(14.9) == []
     assert state.update(15.0) == [Event("done", 15.0)]
 

@@ -15,7 +15,7 @@ from test_run_holds import Follower
 
 from federation.core.preflight import preflight
 from federation.runtime import runs as runs_module
-from federation.runtime.collect import manifest_name
+from federation.runtime.collect import describe_incomplete, manifest_name
 from federation.runtime.recorder import (
     CHUNK_SIZE,
     RESERVE_BYTES,
@@ -337,11 +337,17 @@ def test_commands_flooding_in_leave_the_reserve_for_the_agents_own_events(
         rec.record("/control", {"event": "ignored", "detail": pad, "t_exec": float(k)})
         if k % 100 == 0:
             rec.flush()
+    # The agent's own events after the flood still find room (an eighth for commands
+    # received or ignored), and so does the run's end.
+    for kind in ("frozen", "resumed", "stale_hold"):
+        rec.record("/control", {"event": kind, "t_exec": 2e3})
     rec.record("/control", {"event": "done", "t_exec": 1e4})
     rec.close()
-    assert 0 < rec.reserve_events <= RESERVE_BYTES // 4 and rec.reserve_used <= RESERVE_BYTES
+    assert 0 < rec.reserve_received <= RESERVE_BYTES // 8
+    assert rec.reserve_events <= RESERVE_BYTES // 4 and rec.reserve_used <= RESERVE_BYTES
     events = [m["event"] for m in read_messages(path)["/control"]]
-    assert events[-1] == "done" and 50 < events.count("command") < 70
+    assert events[-4:] == ["frozen", "resumed", "stale_hold", "done"]
+    assert 25 < events.count("command") < 35
 
 
 def test_a_record_file_has_a_budget_too(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -382,6 +388,19 @@ def test_a_recording_not_on_disk_makes_its_run_incomplete(
     assert run.recorder.write_errors == 1 and not run.recorder.complete
     assert (run.dir / "kiruna-knatte.incomplete.json").exists()
 
+    # The status lines not on disk: said too.
+    def status_fails(fd: int) -> None:
+        if os.readlink(f"/proc/self/fd/{fd}").endswith(".jsonl"):
+            raise OSError(errno.EIO, "Input/output error")
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", status_fails)
+    other = RunRecording(tmp_path, "r2", AGENT, None, "{}", None, max_mb=1)
+    other.status_line("{}")
+    other.finish(wait=True)
+    said = json.loads((other.dir / "kiruna-knatte.incomplete.json").read_text())
+    assert said["status_write_errors"] == 1 and other.recorder.complete
+
     # A file that cannot be synced at all (a pipe, /dev/null: EINVAL) loses nothing.
     def unsyncable(fd: int) -> None:
         raise OSError(errno.EINVAL, "Invalid argument")
@@ -399,3 +418,8 @@ def test_a_run_that_cannot_start_gives_its_space_back(tmp_path: Path) -> None:
     with pytest.raises(IsADirectoryError):
         RunRecording(tmp_path, "r1", AGENT, None, "{}", None, max_mb=1)
     assert runs_module.PROMISES.promised(tmp_path) == 0
+    # Its finished, empty MCAP is said not to be the run's recording: the next start's
+    # recovery had collected it as the run's, complete.
+    said = json.loads((tmp_path / "r1" / "kiruna-knatte.incomplete.json").read_text())
+    assert "could not start" in said["not_recorded"]
+    assert "could not start" in describe_incomplete(said)
