@@ -60,13 +60,14 @@ fixes held back).
 
 A fix describes the platform when the metrology saw it, which may be some time before
 it reaches the chain (``fix_age``: a camera pipeline's latency, known from the
-device's clock): it is carried forward to ``now`` by the motion the IMU has shown
-since (:meth:`~agents.navigation.NavigationFilter.motion_since`) before it is gated
-and taken, and its staleness counts from when it was taken. As a turn began, a lag
-the gate did not know of had made good fixes outliers that agreed with one another,
-and restarted the estimate. While fixes are acquired only the turn is carried: the
-velocity has had no fix to check it. A fix older than ``vision.latency_max`` is
-rejected (``fix_late``): no metrology is that late, a device time is wrong.
+device's clock): the filter sets it against the estimate as it was then, by the
+motion the IMU has shown since and the velocity's and gyro bias's part in it
+(:mod:`agents.navigation`), and its staleness counts from when it was taken. As a
+turn began, a lag the gate did not know of had made good fixes outliers that agreed
+with one another, and restarted the estimate. A fix older than the estimate's known
+motion (just restarted) is held back (``fix_uncarried``); one older than
+``vision.latency_max`` is rejected (``fix_late``): no metrology is that late, a
+device time is wrong.
 
 Outliers go to a second filter that runs beside the first, started from the first of
 them and fed with the same IMU: when ``navigation.outliers_to_restart`` outliers in a row
@@ -162,7 +163,11 @@ class GncChain:
         self._trial: NavigationFilter | None = None
         self._trial_fixes = 0
         self._trial_at = -math.inf
-        self.latency_max: float = min(config.vision.latency_max, self.fix_timeout)
+        # Two fix periods inside fix_timeout: a fix that old is still a fresh one (else
+        # every fix would come after the last went stale, and be acquired anew). The
+        # preset is checked so at load; a fix_timeout given here may be shorter.
+        room = self.fix_timeout - 2.0 / config.vision.rate
+        self.latency_max: float = max(0.0, min(config.vision.latency_max, room))
         """Oldest a fix may be when it arrives (``fix_age``), s; older: rejected."""
         # The second filter that outliers feed, and how many in a row have agreed with it.
         self._shadow: NavigationFilter | None = None
@@ -213,6 +218,7 @@ class GncChain:
             "fix_late": 0,
             "fix_acquiring": 0,
             "fix_acquire_restarts": 0,
+            "fix_uncarried": 0,
             "fix_restarts": 0,
             "clock_steps_back": 0,
             "restarts": 0,
@@ -220,7 +226,8 @@ class GncChain:
         """Control steps closed, per reason; sensor data dropped (``fix_rejected``: every
         fix dropped, of which ``fix_outside``, ``fix_late`` and ``fix_outlier``); fixes
         held back until enough agree (``fix_acquiring``) and trials begun again
-        (``fix_acquire_restarts``: a fix disagreed, or a gap); estimates restarted:
+        (``fix_acquire_restarts``: a fix disagreed, or a gap); fixes held back for being
+        older than the estimate's known motion (``fix_uncarried``); estimates restarted:
         from agreeing outliers (``fix_restarts``), after the clock stepped back
         (``clock_steps_back``), by :meth:`restart` (``restarts``)."""
 
@@ -361,40 +368,42 @@ class GncChain:
             self._reject("fix_late")
             return
         age = max(0.0, age)  # a POSE newer than the IMU: taken as of now
-        established = self._fix_at is not None and now - self._fix_at <= self.fix_timeout
-        if age > 0.0:  # where the platform is now: moved on since as the IMU says
-            dx, dy, dpsi = self.filter.motion_since(now - age)
-            if not established:  # a velocity no fix has checked of late: the gyro's turn only
-                dx = dy = 0.0
-            fix = Pose(x + dx, y + dy, heading + dpsi)
-        if self.filter.fixes and not self.filter.innovation_distance(fix) <= self.fix_gate:
-            if not self._outlier(now, fix):
+        if not self.filter.reaches(age):
+            # Older than the estimate's motion is known (it has just started again): set
+            # against it uncarried, the first fixes after a restart in a turn agreed with
+            # one another on a heading 0.1 rad behind. Held back.
+            self.counters["fix_uncarried"] += 1
+            return
+        filt = self.filter
+        if filt.fixes and not filt.innovation_distance(fix, age) <= self.fix_gate:
+            if not self._outlier(now, fix, age):
                 self._reject("fix_outlier")
             return
         self._shadow, self._agreeing = None, 0  # within the gate: outliers are not in a row
-        if not established and not self._acquired(now, fix):
-            return
-        if established:
-            self.filter.correct(now, fix)
+        if self._fix_at is None or now - self._fix_at > self.fix_timeout:
+            if not self._acquired(now, fix, age):
+                return
+        else:
+            filt.correct(now, fix, age)
         self._fix_at = now - age  # its staleness counts from when the metrology took it
         self._rejecting = False
         if self.position_hold is not None and not self._target_set:
             self._hold_at_estimate()
 
-    def _acquired(self, now: float, fix: Pose) -> bool:
+    def _acquired(self, now: float, fix: Pose, age: float) -> bool:
         """A fix with nothing recent to check it: into the trial copy of the estimate,
         which becomes the estimate once ``fixes_to_start`` in a row agree (True)."""
         trial = self._trial
         if (
             trial is None
             or now - self._trial_at > self.fix_timeout  # its fixes are old news: a gap since
-            or not trial.innovation_distance(fix) <= self.fix_gate
+            or not trial.innovation_distance(fix, age) <= self.fix_gate
         ):
             if trial is not None:
                 self.counters["fix_acquire_restarts"] += 1
             trial = self._trial = copy.deepcopy(self.filter)  # from the estimate as it is now
             self._trial_fixes = 0
-        trial.correct(now, fix)
+        trial.correct(now, fix, age)
         self._trial_fixes += 1
         self._trial_at = now
         if self._trial_fixes < self._fixes_to_start:
@@ -410,20 +419,20 @@ class GncChain:
             self.counters[kind] += 1
         self._rejecting = True
 
-    def _outlier(self, now: float, fix: Pose) -> bool:
+    def _outlier(self, now: float, fix: Pose, age: float) -> bool:
         """Feed the second filter; restart the estimate from it once enough agree (True:
         this outlier completed them, and the estimate restarted)."""
         shadow = self._shadow
         self._trial, self._trial_fixes = None, 0  # the estimate's fixes no longer agree
-        if shadow is None or not shadow.innovation_distance(fix) <= self.fix_gate:
+        if shadow is None or not shadow.innovation_distance(fix, age) <= self.fix_gate:
             shadow = self._shadow = self._new_filter()  # a first, or one that disagrees
             shadow.predict(now, self._imu)
             self._agreeing = 0
-        shadow.correct(now, fix)
+        shadow.correct(now, fix, age)  # uncarried while its own history is short
         self._agreeing += 1
         if self._agreeing >= self._outliers_to_restart and all(map(math.isfinite, shadow.estimate)):
             self.filter = shadow
-            self._fix_at = now
+            self._fix_at = now - age
             self._shadow, self._agreeing, self._rejecting = None, 0, False
             self.counters["fix_restarts"] += 1
             # Closed until an operator acknowledges it (acknowledge_restart): agreeing

@@ -39,10 +39,24 @@ is the Mahalanobis distance of its innovation, heading wrapped:
 For a filter whose noise model holds, :math:`d^2` is chi-square with 3 degrees of
 freedom: :math:`P(d > 5) = 1.5 \\times 10^{-5}`, :math:`P(d > 6) = 7 \\times 10^{-8}`.
 
-A fix that reached the filter late (the metrology's latency) describes the platform
-as it was then: :meth:`NavigationFilter.motion_since` gives how far the predictions
-alone (the IMU, no fix) moved the estimate since a past time, to carry such a fix to
-now. The filter keeps ``history`` seconds of them.
+A fix taken ``age`` seconds before the filter's time (the metrology's latency)
+measures the platform as it was then: :math:`z = p - \\Delta`, with
+:math:`\\Delta` the motion since, which the predictions alone (the IMU, no fix)
+estimate (:meth:`NavigationFilter.motion_since`; the filter keeps ``history`` seconds
+of them). Linearized about the estimate, :math:`\\Delta = \\hat\\Delta +
+(\\mathbf{v} - \\hat{\\mathbf{v}})\\,age` for position and :math:`-(b_g -
+\\hat b_g)\\,age` for heading, so the update uses
+
+.. math::
+
+    z' = z + \\hat\\Delta - \\hat{\\mathbf{v}}\\,age \\ (x, y), \\quad
+    z'_\\psi = z_\\psi + \\hat\\Delta_\\psi + \\hat b_g\\,age, \\qquad
+    H_{age} = [I_3\\ \\ {-age}\\,I_{v}\\ \\ {+age}\\,e_{b_g}\\ \\ 0]
+
+its innovation that of the fix carried by :math:`\\hat\\Delta`, its covariance and
+gain knowing that a velocity or bias error shows in it (carried with :math:`H`
+alone, a velocity error confirmed itself: the velocity overshot by 60 % at 0.1 s of
+latency, and the valves fired on it).
 """
 
 from __future__ import annotations
@@ -132,11 +146,13 @@ class NavigationFilter:
         self._gyro = 0.0
         self._imu = ImuSample(0.0, 0.0, 0.0)
         self.fixes = 0
-        # The predictions' motion summed (x, y, heading) at each prediction's time: what
-        # motion_since reads. Corrections are not in it: they are news, not motion.
+        # What the IMU alone says, summed since the filter began, at each prediction's
+        # time (what motion_since reads): the accelerations' velocity (V, lab frame) and
+        # its integral (P), and the gyro's turn (G). No estimate is in them: a correction
+        # that moves the velocity does not make the past motion look otherwise.
         self._history = history
         self._odometry: deque[tuple[float, float, float, float]] = deque()
-        self._moved = (0.0, 0.0, 0.0)
+        self._sums = (0.0, 0.0, 0.0, 0.0, 0.0)  # Px, Py, Vx, Vy, G
 
     @property
     def time(self) -> float | None:
@@ -190,52 +206,85 @@ class NavigationFilter:
             u[0, 0] = c * ax - s * ay
             u[1, 0] = s * ax + c * ay
             u[2, 0] = 0.5 * (prev.gyro + imu.gyro)
-            x = kf.x
-            x0, y0, psi0 = float(x[_X, 0]), float(x[_Y, 0]), psi
             kf.predict(u=u)
-            x = kf.x
-            mx, my, mpsi = self._moved
-            self._moved = (
-                mx + float(x[_X, 0]) - x0,
-                my + float(x[_Y, 0]) - y0,
-                mpsi + float(x[_PSI, 0]) - psi0,
+            px, py, vx, vy, g = self._sums
+            ux, uy = float(u[0, 0]), float(u[1, 0])
+            self._sums = (
+                px + (vx + 0.5 * ux * dt) * dt,
+                py + (vy + 0.5 * uy * dt) * dt,
+                vx + ux * dt,
+                vy + uy * dt,
+                g + float(u[2, 0]) * dt,
             )
         if self._t is None or now > self._t:
             self._t = now
             odometry = self._odometry
-            odometry.append((now, *self._moved))
+            px, py, _, _, g = self._sums
+            odometry.append((now, px, py, g))
             # One entry at or before the window's start stays, to interpolate from.
             while len(odometry) > 2 and now - odometry[1][0] >= self._history:
                 odometry.popleft()
         self._imu = imu
         self._gyro = imu.gyro
 
-    def correct(self, now: float, fix: Pose) -> None:
-        """Update with a vision fix (x, y, heading) taken at ``now`` (s).
-
-        The fix is taken to be at the filter's time: call :meth:`predict` up to
-        ``now`` first.
-        """
+    def correct(self, now: float, fix: Pose, age: float = 0.0) -> None:
+        """Update with a vision fix (x, y, heading) taken ``age`` s before ``now`` (s),
+        the filter's time: call :meth:`predict` up to ``now`` first. An ``age`` the
+        history does not reach back (:meth:`reaches`) is taken as 0."""
         kf = self.kf
-        psi = float(kf.x[_PSI, 0])
         z = self._z
-        z[0, 0] = fix.x
-        z[1, 0] = fix.y
-        z[2, 0] = psi + wrap_angle(fix.heading - psi)
-        kf.update(z)
+        z[0, 0], z[1, 0], z[2, 0] = self._measured(fix, age)
+        try:
+            kf.update(z)
+        finally:
+            self._h_age(0.0)
         self.fixes += 1
         if self._t is None:
             self._t = now
 
-    def motion_since(self, then: float) -> tuple[float, float, float]:
-        """How far the predictions moved the estimate from time ``then`` to the last
-        prediction: x, y (m) and heading (rad); interpolated between predictions, from
-        the oldest kept (``history``) when ``then`` is older, nothing when ``then`` is
-        not in the past."""
+    def reaches(self, age: float) -> bool:
+        """Whether the history reaches ``age`` s back from the filter's time (a fix that
+        old can be set against the motion since)."""
         odometry = self._odometry
-        if not odometry or not then < odometry[-1][0]:
+        return age <= 0.0 or (bool(odometry) and odometry[-1][0] - age >= odometry[0][0])
+
+    def _measured(self, fix: Pose, age: float) -> tuple[float, float, float]:
+        """The fix as :math:`z'` for :math:`H_{age}` (set in ``kf.H``; module notes), its
+        heading next to the measurement predicted (the estimate's, unwrapped)."""
+        x = self.kf.x
+        psi = float(x[_PSI, 0])
+        motion = self.motion_since(self._t - age) if age > 0.0 and self._t is not None else None
+        if motion is None:
+            self._h_age(0.0)
+            return fix.x, fix.y, psi + wrap_angle(fix.heading - psi)
+        self._h_age(age)
+        dx, dy, dpsi = motion
+        predicted = psi + float(x[_BG, 0]) * age  # H_age's heading row on the estimate
+        return fix.x + dx, fix.y + dy, predicted + wrap_angle(fix.heading + dpsi - predicted)
+
+    def _h_age(self, age: float) -> None:
+        h = self.kf.H
+        h[0, _VX] = h[1, _VY] = -age
+        h[2, _BG] = age
+
+    def motion_since(self, then: float) -> tuple[float, float, float] | None:
+        """What the IMU alone says of the motion from time ``then`` to the last
+        prediction, beyond what the model's terms take (module notes): x, y (m), the
+        accelerations' part beyond the velocity now times the time since
+        (:math:`\\hat\\Delta - \\hat{\\mathbf{v}}\\,age`; 0 at a steady velocity), and
+        heading (rad), the gyro's turn (:math:`\\hat\\Delta_\\psi + \\hat b_g\\,age`).
+        Interpolated between predictions; nothing when ``then`` is not in the past;
+        None when it is older than the history kept (``history``, or the filter's
+        start: a restart)."""
+        odometry = self._odometry
+        if odometry and not then < odometry[-1][0]:
             return (0.0, 0.0, 0.0)
-        _, mx, my, mpsi = odometry[-1]
+        if not odometry or then < odometry[0][0]:
+            return None
+        now, mx, my, mpsi = odometry[-1]
+        _, _, vx, vy, _ = self._sums
+        mx -= vx * (now - then)  # the velocity now's part: the model's (H_age)
+        my -= vy * (now - then)
         i = bisect.bisect_right(odometry, then, key=lambda entry: entry[0])
         if i == 0:
             _, ox, oy, opsi = odometry[0]
@@ -245,21 +294,24 @@ class NavigationFilter:
             ox, oy, opsi = x0 + w * (x1 - x0), y0 + w * (y1 - y0), p0 + w * (p1 - p0)
         return (mx - ox, my - oy, mpsi - opsi)
 
-    def innovation_distance(self, fix: Pose) -> float:
-        """Mahalanobis distance of a fix (x, y, heading) from the estimate: how many
-        sigmas of the innovation covariance :math:`S = H P H^T + R` apart they are
-        (heading wrapped). Call :meth:`predict` up to the fix's time first.
+    def innovation_distance(self, fix: Pose, age: float = 0.0) -> float:
+        """Mahalanobis distance of a fix (x, y, heading) taken ``age`` s before the
+        filter's time from the estimate: how many sigmas of the innovation covariance
+        :math:`S = H_{age} P H_{age}^T + R` apart they are (heading wrapped). Call
+        :meth:`predict` up to the filter's time first.
 
         ``inf`` for a fix or a covariance that is not finite.
         """
         kf = self.kf
-        x = kf.x
-        psi = float(x[_PSI, 0])
-        dx, dy, dpsi = fix.x - float(x[_X, 0]), fix.y - float(x[_Y, 0]), fix.heading - psi
-        if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dpsi)):
-            return math.inf
-        nu = np.array([dx, dy, wrap_angle(dpsi)])
-        s = kf.H @ kf.P @ kf.H.T + kf.R
+        try:
+            zx, zy, zpsi = self._measured(fix, age)
+            h = kf.H
+            nu = np.array([zx, zy, zpsi]) - (h @ kf.x)[:, 0]
+            if not all(map(math.isfinite, nu)):
+                return math.inf
+            s = h @ kf.P @ h.T + kf.R
+        finally:
+            self._h_age(0.0)
         try:
             d2 = float(nu @ np.linalg.solve(s, nu))
         except np.linalg.LinAlgError:

@@ -279,6 +279,13 @@ class PlatformConfig(_Model):
                 f"control.fix_timeout ({self.control.fix_timeout} s) is shorter than one vision "
                 f"period (1/vision.rate = {1.0 / self.vision.rate} s): no valve would ever open"
             )
+        room = self.control.fix_timeout - 2.0 / self.vision.rate
+        if self.vision.latency_max > room:
+            raise ValueError(
+                f"vision.latency_max ({self.vision.latency_max} s) leaves less than two vision "
+                f"periods inside control.fix_timeout ({self.control.fix_timeout} s): fixes that "
+                f"late would each come after the last went stale; at most {max(0.0, room):g} s"
+            )
         if self.control.imu_timeout * self.imu.rate < 1.0:
             raise ValueError(
                 f"control.imu_timeout ({self.control.imu_timeout} s) is shorter than one IMU "

@@ -113,7 +113,9 @@ def device_config(
         data["vision"]["rate"] = pose_rate
         # The device runs no controller; keep the preset valid at any fix rate.
         control = data["control"]
-        control["fix_timeout"] = max(control["fix_timeout"], 2.0 / pose_rate)
+        control["fix_timeout"] = max(
+            control["fix_timeout"], 2.0 / pose_rate + data["vision"]["latency_max"] + 0.1
+        )
     if noise != 1.0:
         imu, vision = data["imu"], data["vision"]
         for key in ("gyro_noise", "gyro_bias", "accel_noise"):

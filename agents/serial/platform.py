@@ -169,6 +169,7 @@ class SerialPlatform:
         self._failure: str | None = None
         self._new_imu: ImuSample | None = None  # the latest IMU of this step's read
         self._new_fix: Pose | None = None  # the latest POSE of this step's read
+        self._imu_fresh = 0  # steps ago an IMU sample was read (0: this one)
         self.device_pose: Pose | None = None
         """Latest POSE from the device (None until the first)."""
         self.pose_time: float | None = None
@@ -209,10 +210,12 @@ class SerialPlatform:
             imu, fix = self._new_imu, self._new_fix
             self._new_imu = self._new_fix = None
             # The POSE lags the IMU read with it by the metrology's latency (the device's
-            # clock). Only an IMU sample of this read: one frame timed ahead (on the
-            # timeline still) would otherwise age every POSE until real ones pass it.
+            # clock). Only an IMU sample of this read or the last: one frame timed ahead
+            # (on the timeline still) would otherwise age every POSE until real ones pass
+            # it; a POSE read alone (its IMU frame lost) would go uncarried.
+            self._imu_fresh = 0 if imu is not None else self._imu_fresh + 1
             age = 0.0
-            if fix is not None and imu is not None and self.imu is not None:
+            if fix is not None and self._imu_fresh <= 1 and self.imu is not None:
                 assert self.pose_time is not None
                 age = self.imu.t - self.pose_time
             chain = self.chain

@@ -76,6 +76,7 @@ def test_no_valve_opens_before_the_first_fix() -> None:
         "fix_late": 0,
         "fix_acquiring": 0,
         "fix_acquire_restarts": 0,
+        "fix_uncarried": 0,
         "fix_restarts": 0,
         "clock_steps_back": 0,
         "restarts": 0,
@@ -441,6 +442,10 @@ def test_the_fix_gates_come_from_the_preset_and_are_checked_at_load() -> None:
         bad = {**data, table: {**data[table], field: value}}
         with pytest.raises(ConfigError, match=rf"field '{table}\.{field}'"):
             validate(type(KNATTE), bad, "knatte.toml")
+    # Fixes as late as latency_max must come before the last is stale, two periods on.
+    late = {**data, "vision": {**data["vision"], "latency_max": 0.45}}
+    with pytest.raises(ConfigError, match=r"vision.latency_max \(0.45 s\).*at most 0.4 s"):
+        validate(type(KNATTE), late, "knatte.toml")
     wide = {**data, "vision": {**data["vision"], "fix_margin": 1.0}}
     assert validate(type(KNATTE), wide, "x").fix_area == pytest.approx((-2.5, 2.5, -1.85, 1.85))
 
@@ -584,9 +589,62 @@ def test_a_fix_older_than_any_metrology_is_rejected() -> None:
     chain = GncChain(KNATTE)
     assert KNATTE.vision.latency_max == chain.latency_max == 0.25
     t = acquire(chain, 0.0, ref=0.0) + TICK
+    # Not until the estimate's motion is known that far back (0.2 s): held back.
+    chain.update(t, 0.0, 0.0, imu=STILL, fix=Pose(), fix_age=0.2)
+    assert chain.counters["fix_uncarried"] == 1 and chain.counters["fix_rejected"] == 0
+    t = run(chain, t + TICK, 0.5, ref=0.0, fix_every=0.05) and 0.5 + TICK
     chain.update(t, 0.0, 0.0, imu=STILL, fix=Pose(), fix_age=0.3)
     assert chain.counters["fix_late"] == chain.counters["fix_rejected"] == 1
     chain.update(t + TICK, 0.0, 0.0, imu=STILL, fix=Pose(), fix_age=0.2)
     assert chain.counters["fix_rejected"] == 1 and chain.reason is None
     # Its staleness counts from when it was taken.
     assert chain.fix_time == pytest.approx(t + TICK - 0.2)
+
+
+def _glide(latency: float, seconds: float = 3.0) -> list[float]:
+    """Noise-free KNATTE gliding at 0.05 m/s along x, no acceleration; fixes (20 Hz, from
+    1 s) taken ``latency`` s before they reach the chain: the velocity estimates after
+    each fix."""
+    chain = GncChain(KNATTE, position_hold=False)
+    speeds = []
+    for k in range(round(seconds / TICK)):
+        t = k * TICK
+        due = t >= 1.0 and k % 5 == 0
+        fix = Pose(x=0.05 * (t - latency)) if due else None
+        chain.update(t, 0.0, 0.0, imu=STILL, fix=fix, fix_age=latency if due else 0.0)
+        if due:
+            speeds.append(chain.filter.estimate.vx)
+    return speeds
+
+
+def test_a_late_fix_corrects_the_velocity_it_depends_on() -> None:
+    # Carried by the velocity estimate but corrected as if taken now, a late fix let a
+    # velocity error confirm itself: at 0.25 s of latency the estimate swung to 0.118
+    # m/s and back to -0.052 (the truth 0.05), and the valves fired on it.
+    for latency in (0.0, 0.1, 0.25):
+        speeds = _glide(latency)
+        assert max(speeds) < 0.06 and min(speeds[3:]) > 0.03, (latency, speeds)
+        assert speeds[-1] == pytest.approx(0.05, abs=0.002), latency
+
+
+def test_fixes_older_than_a_restarted_estimates_motion_wait() -> None:
+    # After a restart (a device reset) in a 0.5 rad/s turn, fixes 0.25 s late were set
+    # against an estimate that knew 0.01 s of motion: they agreed with one another on a
+    # heading 0.1 rad behind, and the next fixes restarted the estimate (locked).
+    omega, latency = 0.5, 0.25
+    chain = GncChain(KNATTE, position_hold=False)
+    turning = ImuSample(omega, 0.0, 0.0)
+    opened_at = None
+    for k in range(800):
+        t = k * TICK
+        if k == 500:
+            chain.restart()
+        due = k % 5 == 0 and t >= latency
+        fix = Pose(heading=omega * (t - latency)) if due else None
+        chain.update(t, omega * t, omega, imu=turning, fix=fix, fix_age=latency if due else 0.0)
+        if k > 500 and opened_at is None and chain.reason is None:
+            opened_at = t
+            assert chain.estimate.heading == pytest.approx(omega * t, abs=0.01)
+    assert opened_at is not None and opened_at >= 5.0 + latency  # held back that long
+    assert chain.counters["fix_uncarried"] > 0 and chain.counters["fix_restarts"] == 0
+    assert chain.reason is None

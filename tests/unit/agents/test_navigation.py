@@ -180,9 +180,11 @@ def test_motion_since_is_the_predictions_alone_and_reaches_back_its_history() ->
     assert nav.estimate.heading > 1.5
     assert nav.motion_since(0.9) == pytest.approx((0.0, 0.0, 0.1), abs=1e-3)
     assert nav.motion_since(0.905) == pytest.approx((0.0, 0.0, 0.095), abs=1e-3)  # between
-    assert nav.motion_since(0.2) == pytest.approx((0.0, 0.0, 0.5), abs=1e-3)  # kept: 0.5 s
+    assert nav.motion_since(0.5) == pytest.approx((0.0, 0.0, 0.5), abs=1e-3)  # kept: 0.5 s
+    assert nav.motion_since(0.2) is None and not nav.reaches(0.8)  # not kept: not known
+    assert nav.reaches(0.5) and nav.reaches(0.0)
     assert nav.motion_since(1.0) == nav.motion_since(2.0) == (0.0, 0.0, 0.0)
-    assert NavigationFilter(0.002, 0.01, 0.005, 0.0087).motion_since(0.0) == (0.0, 0.0, 0.0)
+    assert NavigationFilter(0.002, 0.01, 0.005, 0.0087).motion_since(0.0) is None
 
 
 def test_motion_since_spans_a_step_longer_than_its_history() -> None:

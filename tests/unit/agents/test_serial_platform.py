@@ -139,21 +139,32 @@ def test_valves_open_once_three_poses_agree_each_carried_by_its_age(pty_dev: Pty
 
     with SerialPlatform(pty_dev.path, chain=Seen(KNATTE)) as plat:
         assert KNATTE.navigation.fixes_to_start == 3
+        for k in range(5):  # the IMU alone first: the motion known 50 ms back
+            t = 0.95 + 0.01 * k
+            pty_dev.send(encode_imu(t, 0.0, 0.0, 0.0))
+            plat.step(t, AHEAD, 0.0)
         for k in range(3):
             t = 1.0 + 0.01 * k
             # Each POSE taken by the camera 30 ms before the IMU sample read with it.
             pty_dev.send(encode_imu(t, 0.0, 0.0, 0.0) + encode_pose(t - 0.03, Pose()))
             plat.step(t, AHEAD, 0.0)
             assert (plat.valves == POSITIVE_TORQUE) == (k == 2), k
-        assert plat.counters["closed_no_fix"] == 2 and plat.chain.counters["fix_acquiring"] == 2
+        assert plat.counters["closed_no_fix"] == 5 + 2 and plat.chain.counters["fix_acquiring"] == 2
         assert ages == pytest.approx([0.03] * 3)
         # A POSE newer than the IMU: the chain takes it as of now.
         pty_dev.send(encode_imu(1.03, 0.0, 0.0, 0.0) + encode_pose(1.035, Pose()))
         plat.step(1.03, AHEAD, 0.0)
         assert ages[-1] == pytest.approx(-0.005) and plat.chain.counters["fix_rejected"] == 0
-        # Without an IMU sample read with it, a POSE's age is not known: none is carried.
-        pty_dev.send(encode_pose(1.04, Pose()))
+        # Its IMU frame lost: aged by the last one, read a step before.
+        pty_dev.send(encode_imu(1.05, 0.0, 0.0, 0.0))
         plat.step(1.04, AHEAD, 0.0)
+        pty_dev.send(encode_pose(1.04, Pose()))
+        plat.step(1.05, AHEAD, 0.0)
+        assert ages[-1] == pytest.approx(0.01)
+        # No IMU sample read for two steps: its age is not known, none is carried.
+        plat.step(1.06, AHEAD, 0.0)
+        pty_dev.send(encode_pose(1.045, Pose()))
+        plat.step(1.07, AHEAD, 0.0)
         assert ages[-1] == 0.0
 
 
@@ -164,7 +175,7 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
     garbage = b"\x00noise\xff\x5a"
     stream = (
         garbage
-        + encode_pose(1.0, pose)
+        + encode_pose(1.01, pose)  # read with the IMU sample of its time: no age
         + bytes(bad)
         + encode_imu(1.01, 0.0625, 0.0, 0.0)
         + garbage
@@ -173,7 +184,7 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
     with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
         pty_dev.send(stream)
         got = plat.step(5.0, 1.0, 0.0)
-        assert plat.device_pose == pose and plat.pose_time == 1.0
+        assert plat.device_pose == pose and plat.pose_time == 1.01
         # What it returns is the chain's estimate, which has taken the fix and the gyro.
         assert got == plat.pose == plat.chain.estimate
         assert (got.x, got.y, got.heading) == pytest.approx(pose[:3], abs=1e-3)
