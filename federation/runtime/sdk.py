@@ -26,6 +26,7 @@ carries; without one it is its own reference and syncs with every agent alive.
 
 from __future__ import annotations
 
+import json
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -39,10 +40,19 @@ from federation.core.wire import Pose
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.identity import check_identity
 from federation.runtime.router import refuse_reachable_agent
-from federation.runtime.session import DEFAULT_TIMEOUT, build_config, connect_error, fail_fast
+from federation.runtime.session import (
+    DEFAULT_TIMEOUT,
+    build_config,
+    connect_error,
+    endpoints,
+    fail_fast,
+)
 from schemas.config import AgentConfig, ZenohOptions, validate
 
 __all__ = ["Agent", "PoseSource"]
+
+LOCAL_ROUTER = "tcp/127.0.0.1:7447"
+"""Where an agent given no endpoint dials: its lab's router on this host."""
 
 
 class _HasPose(Protocol):
@@ -108,7 +118,7 @@ class Agent:
         data |= {"reference": reference, "pose_rate": rate, "watch_all": True, **settings}
         self.config = validate(AgentConfig, data, f"Agent({name!r})")
         if connect is None:  # the config file's endpoints, else a router on this host
-            connect = [] if config is not None else ["tcp/127.0.0.1:7447"]
+            connect = [] if config is not None else [LOCAL_ROUTER]
         options = {"connect": list(connect), "config": config}
         self.options = validate(ZenohOptions, options, f"Agent({name!r})")
         self._source = pose
@@ -120,6 +130,8 @@ class Agent:
 
     def __enter__(self) -> Agent:
         conf = build_config(self.options, default_mode="client")
+        if not endpoints(conf):  # a file with credentials only: a router on this host
+            conf.insert_json5("connect/endpoints", json.dumps([LOCAL_ROUTER]))
         me = f"{self.config.lab}/{self.config.name}"
         source = str(self.options.config) if self.options.config else f"Agent({me!r})"
         check_identity(conf, me, source)  # identity = name: refused before a session

@@ -57,3 +57,23 @@ def test_an_sdk_agent_dials_its_config_files_router(tmp_path: Path) -> None:
     ghost = Agent("lab3/ghost", lambda t: Pose(), timeout=1.0, config=path)
     with pytest.raises(ConnectError, match=f"127.0.0.1:{port}"):
         ghost.__enter__()
+
+
+def test_an_sdk_agent_whose_file_names_no_router_dials_this_hosts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Credentials only: it had been given no endpoint at all ("give -e/--connect").
+    from federation.runtime import sdk
+    from federation.runtime.session import endpoints
+
+    dialled: list[list[str]] = []
+
+    def stop_here(conf: object, timeout: float) -> None:
+        dialled.append(endpoints(conf))  # type: ignore[arg-type]
+        raise RuntimeError("no session in this test")
+
+    monkeypatch.setattr(sdk, "fail_fast", stop_here)
+    ghost = Agent("lab3/ghost", lambda t: Pose(), config=_user_config(tmp_path, "lab3/ghost"))
+    with pytest.raises(RuntimeError, match="no session"):
+        ghost.__enter__()
+    assert dialled == [[sdk.LOCAL_ROUTER]]
