@@ -165,9 +165,15 @@ class GncChain:
         self._trial_at = -math.inf
         # Two fix periods inside fix_timeout: a fix that old is still a fresh one (else
         # every fix would come after the last went stale, and be acquired anew). The
-        # preset is checked so at load; a fix_timeout given here may be shorter.
+        # preset is checked so at load; a fix_timeout given here must allow it too.
+        self.latency_max: float = config.vision.latency_max
         room = self.fix_timeout - 2.0 / config.vision.rate
-        self.latency_max: float = max(0.0, min(config.vision.latency_max, room))
+        if self.latency_max > room:
+            raise ValueError(
+                f"fix_timeout {self.fix_timeout:g} s leaves less than two vision periods for "
+                f"fixes vision.latency_max ({self.latency_max:g} s) late: at least "
+                f"{self.latency_max + 2.0 / config.vision.rate:g} s, or a smaller latency_max"
+            )
         """Oldest a fix may be when it arrives (``fix_age``), s; older: rejected."""
         # The second filter that outliers feed, and how many in a row have agreed with it.
         self._shadow: NavigationFilter | None = None
@@ -364,7 +370,7 @@ class GncChain:
         if not (x0 <= x <= x1 and y0 <= y <= y1):  # where the metrology saw it
             self._reject("fix_outside")
             return
-        if age > self.latency_max:  # no metrology is that late: a device time gone wrong
+        if age > self.latency_max + 1e-9:  # no metrology is that late: a device time wrong
             self._reject("fix_late")
             return
         age = max(0.0, age)  # a POSE newer than the IMU: taken as of now
@@ -427,6 +433,10 @@ class GncChain:
         if shadow is None or not shadow.innovation_distance(fix, age) <= self.fix_gate:
             shadow = self._shadow = self._new_filter()  # a first, or one that disagrees
             shadow.predict(now, self._imu)
+            # The IMU's record of the motion, not the estimate: late fixes are set against
+            # the shadow as they are against the estimate (taken as current, they had
+            # lagged by the turn since, and the shadow never completed or went wrong).
+            shadow.follow_motion_of(self.filter)
             self._agreeing = 0
         shadow.correct(now, fix, age)  # uncarried while its own history is short
         self._agreeing += 1

@@ -229,18 +229,26 @@ class NavigationFilter:
 
     def correct(self, now: float, fix: Pose, age: float = 0.0) -> None:
         """Update with a vision fix (x, y, heading) taken ``age`` s before ``now`` (s),
-        the filter's time: call :meth:`predict` up to ``now`` first. An ``age`` the
-        history does not reach back (:meth:`reaches`) is taken as 0."""
+        the filter's time: call :meth:`predict` up to ``now`` first. ValueError for an
+        ``age`` the history does not reach back (:meth:`reaches`): taken as of now, it
+        would be a lagging fix taken as a current one."""
         kf = self.kf
         z = self._z
-        z[0, 0], z[1, 0], z[2, 0] = self._measured(fix, age)
         try:
+            z[0, 0], z[1, 0], z[2, 0] = self._measured(fix, age)
             kf.update(z)
         finally:
             self._h_age(0.0)
         self.fixes += 1
         if self._t is None:
             self._t = now
+
+    def follow_motion_of(self, other: NavigationFilter) -> None:
+        """Take ``other``'s record of what the IMU alone said (a filter started beside it
+        on the same IMU: it knows the motion as far back, and can set late fixes against
+        it at once). No estimate is in that record."""
+        self._odometry = deque(other._odometry)
+        self._sums = other._sums
 
     def reaches(self, age: float) -> bool:
         """Whether the history reaches ``age`` s back from the filter's time (a fix that
@@ -253,10 +261,12 @@ class NavigationFilter:
         heading next to the measurement predicted (the estimate's, unwrapped)."""
         x = self.kf.x
         psi = float(x[_PSI, 0])
-        motion = self.motion_since(self._t - age) if age > 0.0 and self._t is not None else None
-        if motion is None:
+        if age <= 0.0:
             self._h_age(0.0)
             return fix.x, fix.y, psi + wrap_angle(fix.heading - psi)
+        motion = None if self._t is None else self.motion_since(self._t - age)
+        if motion is None:
+            raise ValueError(f"a fix {age:g} s old is older than the motion this filter knows")
         self._h_age(age)
         dx, dy, dpsi = motion
         predicted = psi + float(x[_BG, 0]) * age  # H_age's heading row on the estimate
@@ -303,6 +313,8 @@ class NavigationFilter:
         ``inf`` for a fix or a covariance that is not finite.
         """
         kf = self.kf
+        if not self.reaches(age):
+            return math.inf  # not to be set against this estimate: no agreement claimed
         try:
             zx, zy, zpsi = self._measured(fix, age)
             h = kf.H

@@ -170,6 +170,7 @@ class SerialPlatform:
         self._new_imu: ImuSample | None = None  # the latest IMU of this step's read
         self._new_fix: Pose | None = None  # the latest POSE of this step's read
         self._imu_fresh = 0  # steps ago an IMU sample was read (0: this one)
+        self._imu_step = 0.0  # the step's time when it was
         self.device_pose: Pose | None = None
         """Latest POSE from the device (None until the first)."""
         self.pose_time: float | None = None
@@ -214,10 +215,12 @@ class SerialPlatform:
             # (on the timeline still) would otherwise age every POSE until real ones pass
             # it; a POSE read alone (its IMU frame lost) would go uncarried.
             self._imu_fresh = 0 if imu is not None else self._imu_fresh + 1
+            if imu is not None:
+                self._imu_step = t  # the chain's time for that sample
             age = 0.0
             if fix is not None and self._imu_fresh <= 1 and self.imu is not None:
                 assert self.pose_time is not None
-                age = self.imu.t - self.pose_time
+                age = self.imu.t - self.pose_time + (t - self._imu_step)
             chain = self.chain
             closed_for: PlatformReason | None = "device_restart" if self._timeline.pending else None
             try:

@@ -17,6 +17,7 @@ from agents.kinematic import KinematicPlatform
 from agents.platform import Platform, make_platform
 from agents.sensors import ImuSample
 from agents.simulated import Plant, SimulatedPlatform
+from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
 from schemas.platform import load_platform
 
@@ -108,12 +109,18 @@ def test_a_stale_fix_closes_every_valve_until_a_new_one() -> None:
 
 
 def test_the_fix_timeout_can_be_set() -> None:
-    chain = GncChain(KNATTE, fix_timeout=0.1)
+    prompt = KNATTE.model_copy(
+        update={"vision": KNATTE.vision.model_copy(update={"latency_max": 0.0})}
+    )  # fixes never late: fix_timeout needs room for two vision periods only
+    chain = GncChain(prompt, fix_timeout=0.1)
     t = acquire(chain, 0.0)
     assert chain.update(t + 0.1, 1.0, 0.0) == PLUS_TORQUE
     assert chain.update(t + 0.11, 1.0, 0.0) == CLOSED and chain.reason == "stale_fix"
     with pytest.raises(ValueError, match="fix_timeout"):
         GncChain(KNATTE, fix_timeout=0.0)
+    # Too short for the preset's late fixes: refused, not a chain that rejects them all.
+    with pytest.raises(ValueError, match=r"fix_timeout 0.2 s .* at least 0.35 s"):
+        GncChain(KNATTE, fix_timeout=0.2)
 
 
 def test_hold_closes_every_valve_now_and_until_release() -> None:
@@ -648,3 +655,25 @@ def test_fixes_older_than_a_restarted_estimates_motion_wait() -> None:
     assert opened_at is not None and opened_at >= 5.0 + latency  # held back that long
     assert chain.counters["fix_uncarried"] > 0 and chain.counters["fix_restarts"] == 0
     assert chain.reason is None
+
+
+def test_outliers_late_by_the_latency_restart_the_estimate_once_and_right() -> None:
+    # The metrology's origin moved 0.3 m while the platform turned at 1 rad/s, fixes
+    # 0.1 s late. The second filter, knowing no motion, took them as current: it never
+    # agreed with itself (valves closed for good, the platform spinning on) or agreed
+    # on a heading 0.1 rad behind, and restarted over and over.
+    omega, latency = 1.0, 0.1
+    turning = ImuSample(omega, 0.0, 0.0)
+    chain = GncChain(KNATTE, position_hold=False)
+    for k in range(1500):
+        t = k * TICK
+        seen = t - latency
+        due = k % 5 == 0 and seen >= 0
+        fix = Pose(x=0.3 if seen >= 8.0 else 0.0, heading=omega * seen) if due else None
+        chain.update(t, omega * t, omega, imu=turning, fix=fix, fix_age=latency if due else 0.0)
+        if k == 1000:
+            chain.acknowledge_restart()  # fedlab ctl reset, after the restart
+    assert chain.counters["fix_restarts"] == 1 and chain.reason is None
+    est = chain.estimate
+    assert est.x == pytest.approx(0.3, abs=0.01)
+    assert abs(wrap_angle(est.heading - omega * 1499 * TICK)) < 0.01  # a turn or two apart
