@@ -215,6 +215,11 @@ class GncChain:
         self._valves = CLOSED
         self.reason: Reason | None = "no_fix"
         """Why every valve is closed now; None while the chain controls."""
+        self.cause: Reason | None = "no_fix"
+        """Why every valve would be closed now were the platform not held (``reason``
+        says ``held`` then): what preflight tells of a platform waiting for its run."""
+        self.last_rejection: str | None = None
+        """The kind of the latest fix rejected (``fix_outside``, ``fix_late``, ...)."""
         self.counters: dict[str, int] = {
             **{f"closed_{reason}": 0 for reason in get_args(Reason)},
             "imu_rejected": 0,
@@ -310,6 +315,8 @@ class GncChain:
             How long before ``now`` the metrology took ``fix``, s (its latency); the fix
             is carried forward to ``now`` along the estimate. At most ``fix_timeout``.
         """
+        if not math.isfinite(now):  # no time to judge anything by: closed, nothing kept
+            return self._close("nonfinite")
         if self._last_now is not None and now < self._last_now:
             self.counters["clock_steps_back"] += 1
             self._restart_estimate()
@@ -326,7 +333,8 @@ class GncChain:
             self._trial.predict(now, self._imu)
         if fix is not None:
             self._take_fix(now, fix, fix_age)
-        reason = self._closed_reason(now, closed_for)
+        self.cause = self._closed_reason(now, closed_for, held=False)
+        reason = "held" if self._held else self.cause
         if reason is not None:
             return self._close(reason)
         est = self.filter.estimate
@@ -423,6 +431,7 @@ class GncChain:
         self.counters["fix_rejected"] += 1
         if kind is not None:
             self.counters[kind] += 1
+        self.last_rejection = kind or "fix_nonfinite"
         self._rejecting = True
 
     def _outlier(self, now: float, fix: Pose, age: float) -> bool:
@@ -477,8 +486,10 @@ class GncChain:
             and abs(ay) <= self._accel_range
         )
 
-    def _closed_reason(self, now: float, closed_for: PlatformReason | None) -> Reason | None:
-        if self._held:
+    def _closed_reason(
+        self, now: float, closed_for: PlatformReason | None, held: bool = True
+    ) -> Reason | None:
+        if held and self._held:
             return "held"
         if self._fix_at is None:
             return "no_fix"
@@ -524,6 +535,16 @@ class GncChain:
     def estimate(self) -> Pose:
         """The navigation estimate: what the agent publishes."""
         return self.filter.estimate
+
+    @property
+    def restarted(self) -> bool:
+        """The estimate restarted from agreeing outliers, not yet acknowledged."""
+        return self._restarted
+
+    @property
+    def acquiring(self) -> tuple[int, int] | None:
+        """While fixes are acquired: how many agree so far, and how many it takes."""
+        return None if self._trial is None else (self._trial_fixes, self._fixes_to_start)
 
     @property
     def fix_time(self) -> float | None:

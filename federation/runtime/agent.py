@@ -695,7 +695,9 @@ class AgentRuntime:
         metrology is right (a frozen or glitching one repeats one wrong value). Let go
         only by ``fedlab ctl reset``, which acknowledges it."""
         chain = getattr(self.platform, "chain", None)
-        if getattr(chain, "reason", None) != "fix_restart" or self.hold_reason == "fix_restart":
+        # Its own flag, not its reason: held (waiting for a run) the reason is "held", and
+        # a restart then had gone unseen until the run had started.
+        if not getattr(chain, "restarted", False) or self.hold_reason == "fix_restart":
             return
         detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
         self._end_run_here("fix_restart", detail, host)
@@ -1002,16 +1004,22 @@ class AgentRuntime:
             detail = "valve command not confirmed (a write to the device was cut off)"
         else:
             chain = getattr(self.platform, "chain", None)
-            reason = getattr(chain, "reason", None)
+            # Why it would be closed were it not held: held waiting for its run, the
+            # reason is "held", and a platform with no fix at all had passed preflight.
+            reason = getattr(chain, "cause", getattr(chain, "reason", None))
+            acquiring = getattr(chain, "acquiring", None)
+            rejected = getattr(chain, "last_rejection", None) or "off the table or outliers"
             detail = {
                 "no_fix": "no metrology fix yet",
                 "stale_fix": "metrology fix stale",
                 "stale_imu": "IMU silent",
                 "nonfinite": "estimate or reference not finite",
-                "fix_rejected": "metrology fixes rejected (off the table or outliers)",
+                "fix_rejected": f"metrology fixes rejected ({rejected})",
                 "fix_restart": "estimate restarted from outlier fixes: ctl reset",
                 "device_restart": "device restarted, not yet confirmed",
             }.get(reason or "", "")
+            if acquiring is not None and reason in ("no_fix", "stale_fix"):
+                detail = f"metrology fixes being acquired ({acquiring[0]} of {acquiring[1]} agree)"
         locked, bound = True, 0.0 if self.reference == self.me else None
         if self.reference != self.me:
             peer = self.peers.get(self.reference)

@@ -677,3 +677,14 @@ def test_outliers_late_by_the_latency_restart_the_estimate_once_and_right() -> N
     est = chain.estimate
     assert est.x == pytest.approx(0.3, abs=0.01)
     assert abs(wrap_angle(est.heading - omega * 1499 * TICK)) < 0.01  # a turn or two apart
+
+
+def test_a_step_at_no_time_changes_nothing_and_opens_no_valve() -> None:
+    # update(nan) with a fix had left the fix's time NaN: every later staleness check
+    # was false, and with neither fix nor IMU for 10 s the chain controlled throughout.
+    chain = GncChain(KNATTE)
+    t = acquire(chain, 0.0)
+    assert chain.update(math.nan, 1.0, 0.0, imu=STILL, fix=Pose()) == CLOSED
+    assert chain.reason == "nonfinite" and chain.fix_time == t
+    assert set(run(chain, t + TICK, t + 2.0)) == {PLUS_TORQUE, CLOSED}
+    assert chain.reason == "stale_fix"

@@ -634,9 +634,26 @@ def test_a_platform_closed_for_rejected_fixes_or_a_restart_is_not_ready(
     reason: str, said: str
 ) -> None:
     f = Follower(platform="pinocchio")
-    f.agent.platform.chain.reason = reason  # type: ignore[attr-defined]
+    f.agent.platform.chain.cause = reason  # type: ignore[attr-defined]
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and said in ready.platform_detail
+
+
+def test_a_held_platform_is_judged_by_what_would_close_it_unheld() -> None:
+    # Waiting for its run the platform is held, its chain's reason "held": preflight
+    # had passed a platform with no fix at all, and a restart from outliers then went
+    # unseen until the run had started.
+    f = Follower(platform="pinocchio", wait_start=True)
+    chain = f.agent.platform.chain  # type: ignore[attr-defined]
+    f.step()
+    assert f.agent.platform.held and chain.reason == "held" and chain.cause == "no_fix"
+    ready = f.agent.readiness(f.clock.now())
+    # Its simulated camera's first fix came with the first step: one of three so far.
+    assert not ready.platform
+    assert ready.platform_detail == "metrology fixes being acquired (1 of 3 agree)"
+    chain._restarted = True
+    f.step()
+    assert f.agent.hold_reason == "fix_restart"  # seen while waiting, not at the start
 
 
 class _Run:
