@@ -54,7 +54,10 @@ fix of an estimate, and the first after a gap longer than ``control.fix_timeout`
 (out of the cameras' view, dead reckoning on the IMU alone, the gate as wide as the
 drift), start a trial copy of the estimate, and the estimate takes it only once
 ``navigation.fixes_to_start`` fixes in a row agree with it (each within the gate of
-the trial so far): a glitch right after a gap had been taken, and flown on. Until
+the trial so far) and its velocity is known to ``navigation.start_velocity_sigma``: a
+glitch right after a gap had been taken, and flown on; from a standing start, three
+fixes left the velocity 0.06 m/s unsure and the valves opened on one 0.05 to 0.15 m/s
+wrong (or on a glitch as the third fix). Until
 then the valves stay closed (``no_fix``, ``stale_fix``; ``fix_acquiring`` counts the
 fixes held back).
 
@@ -157,6 +160,7 @@ class GncChain:
         self.fix_gate: float = config.navigation.fix_gate
         self._outliers_to_restart = config.navigation.outliers_to_restart
         self._fixes_to_start = config.navigation.fixes_to_start
+        self._start_velocity_sigma = config.navigation.start_velocity_sigma
         self.filter = self._new_filter()
         # The estimate's trial copy while fixes are acquired, how many it has taken, when
         # it took the last.
@@ -420,7 +424,10 @@ class GncChain:
         trial.correct(now, fix, age)
         self._trial_fixes += 1
         self._trial_at = now
-        if self._trial_fixes < self._fixes_to_start:
+        if (
+            self._trial_fixes < self._fixes_to_start
+            or not trial.velocity_sigma <= self._start_velocity_sigma
+        ):
             self.counters["fix_acquiring"] += 1
             self._rejecting = False  # not rejected: closed for want of a fix, as before it
             return False

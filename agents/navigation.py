@@ -349,6 +349,12 @@ class NavigationFilter:
         return float(self.kf.x[_BG, 0])
 
     @property
+    def velocity_sigma(self) -> float:
+        """1-sigma velocity uncertainty the filter claims, along its worse axis, m/s."""
+        p = self.kf.P
+        return math.sqrt(max(float(p[_VX, _VX]), float(p[_VY, _VY])))
+
+    @property
     def heading_sigma(self) -> float:
         """1-sigma heading uncertainty the filter claims, rad."""
         return math.sqrt(float(self.kf.P[_PSI, _PSI]))

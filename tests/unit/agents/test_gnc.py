@@ -33,14 +33,17 @@ ORIGIN = Pose()
 
 
 def acquire(chain: GncChain, t: float, fix: Pose = ORIGIN, ref: float = 1.0) -> float:
-    """Fixes at ``t`` and the steps after until the chain takes them (``TO_START``, all
-    at ``fix``): closed until the last, which the chain controls on; its time."""
-    for k in range(TO_START - 1):
-        assert chain.update(t + k * TICK, ref, 0.0, imu=STILL, fix=fix) == CLOSED, k
-    t += (TO_START - 1) * TICK
-    chain.update(t, ref, 0.0, imu=STILL, fix=fix)
-    assert chain.reason is None, chain.reason
-    return t
+    """Fixes at ``t`` and every step after until the chain takes them (``TO_START``
+    agreeing, the velocity known to ``start_velocity_sigma``; all at ``fix``): closed
+    until the last, which the chain controls on; its time."""
+    for k in range(100):
+        now = t + k * TICK
+        valves = chain.update(now, ref, 0.0, imu=STILL, fix=fix)
+        if chain.reason is None:
+            assert k >= TO_START - 1
+            return now
+        assert valves == CLOSED, k
+    raise AssertionError(f"not acquired in 100 steps: {chain.reason}")
 
 
 def run(
@@ -82,14 +85,13 @@ def test_no_valve_opens_before_the_first_fix() -> None:
         "clock_steps_back": 0,
         "restarts": 0,
     }
-    # The first fixes: held back until three agree, then the chain controls at once.
-    assert TO_START == 3
-    for k, t in enumerate((2.01, 2.02)):
-        assert chain.update(t, 1.0, 0.0, imu=STILL, fix=Pose()) == CLOSED
-        assert chain.reason == "no_fix" and chain.counters["fix_acquiring"] == k + 1
-    valves = chain.update(2.03, 1.0, 0.0, imu=STILL, fix=Pose())
-    assert valves == PLUS_TORQUE and chain.reason is None
-    assert chain.fix_time == 2.03 and chain.counters["fix_rejected"] == 0
+    # The first fixes: held back until three agree and the velocity is known (to 0.02
+    # m/s), then the chain controls at once.
+    assert TO_START == 3 and KNATTE.navigation.start_velocity_sigma == 0.02
+    t = acquire(chain, 2.01)
+    assert chain.valves == PLUS_TORQUE and chain.fix_time == t
+    assert chain.counters["fix_acquiring"] == round((t - 2.01) / TICK) >= TO_START - 1
+    assert chain.filter.velocity_sigma <= 0.02 and chain.counters["fix_rejected"] == 0
 
 
 def test_a_stale_fix_closes_every_valve_until_a_new_one() -> None:
@@ -114,8 +116,8 @@ def test_the_fix_timeout_can_be_set() -> None:
     )  # fixes never late: fix_timeout needs room for two vision periods only
     chain = GncChain(prompt, fix_timeout=0.1)
     t = acquire(chain, 0.0)
-    assert chain.update(t + 0.1, 1.0, 0.0) == PLUS_TORQUE
-    assert chain.update(t + 0.11, 1.0, 0.0) == CLOSED and chain.reason == "stale_fix"
+    assert chain.update(t + 0.099, 1.0, 0.0) == PLUS_TORQUE
+    assert chain.update(t + 0.101, 1.0, 0.0) == CLOSED and chain.reason == "stale_fix"
     with pytest.raises(ValueError, match="fix_timeout"):
         GncChain(KNATTE, fix_timeout=0.0)
     # Too short for the preset's late fixes: refused, not a chain that rejects them all.
@@ -279,7 +281,7 @@ def test_a_silent_imu_closes_the_valves_until_it_speaks_again() -> None:
     assert chain.update(t + 0.12, 1.0, 0.0, imu=STILL, fix=Pose()) == PLUS_TORQUE
     # None at all yet: closed, even with fixes.
     fresh = GncChain(KNATTE)
-    for k in range(TO_START + 1):
+    for k in range(100):
         assert fresh.update(k * TICK, 1.0, 0.0, fix=Pose()) == CLOSED
     assert fresh.reason == "stale_imu"
 
@@ -497,7 +499,7 @@ def test_a_glitch_right_after_a_long_gap_is_not_flown_on() -> None:
     assert opened == 0  # at rest on its point: nothing to do once the true fixes agree
     assert chain.reason is None  # control resumed on them, no operator needed
     assert chain.counters["fix_restarts"] == 0 and chain.counters["fix_outlier"] == 0
-    assert chain.counters["fix_acquiring"] == 2 + 1 + 2  # the first fixes, the glitch, two true
+    assert chain.counters["fix_acquiring"] > 2 + 1 + 2  # the first fixes, the glitch, the true
     est = chain.estimate
     assert (est.x, est.y, est.heading) == pytest.approx((0.0, 0.0, 0.0), abs=0.01)
 
@@ -596,10 +598,7 @@ def test_a_fix_older_than_any_metrology_is_rejected() -> None:
     chain = GncChain(KNATTE)
     assert KNATTE.vision.latency_max == chain.latency_max == 0.25
     t = acquire(chain, 0.0, ref=0.0) + TICK
-    # Not until the estimate's motion is known that far back (0.2 s): held back.
-    chain.update(t, 0.0, 0.0, imu=STILL, fix=Pose(), fix_age=0.2)
-    assert chain.counters["fix_uncarried"] == 1 and chain.counters["fix_rejected"] == 0
-    t = run(chain, t + TICK, 0.5, ref=0.0, fix_every=0.05) and 0.5 + TICK
+    t = run(chain, t, t + 0.5, ref=0.0, fix_every=0.05) and t + 0.5 + TICK
     chain.update(t, 0.0, 0.0, imu=STILL, fix=Pose(), fix_age=0.3)
     assert chain.counters["fix_late"] == chain.counters["fix_rejected"] == 1
     chain.update(t + TICK, 0.0, 0.0, imu=STILL, fix=Pose(), fix_age=0.2)
@@ -619,7 +618,7 @@ def _glide(latency: float, seconds: float = 3.0) -> list[float]:
         due = t >= 1.0 and k % 5 == 0
         fix = Pose(x=0.05 * (t - latency)) if due else None
         chain.update(t, 0.0, 0.0, imu=STILL, fix=fix, fix_age=latency if due else 0.0)
-        if due:
+        if due and chain.reason is None:  # controlling on it
             speeds.append(chain.filter.estimate.vx)
     return speeds
 
@@ -630,7 +629,7 @@ def test_a_late_fix_corrects_the_velocity_it_depends_on() -> None:
     # m/s and back to -0.052 (the truth 0.05), and the valves fired on it.
     for latency in (0.0, 0.1, 0.25):
         speeds = _glide(latency)
-        assert max(speeds) < 0.06 and min(speeds[3:]) > 0.03, (latency, speeds)
+        assert max(speeds) < 0.06 and min(speeds) > 0.03, (latency, speeds)
         assert speeds[-1] == pytest.approx(0.05, abs=0.002), latency
 
 

@@ -56,9 +56,14 @@ from schemas.platform import load_platform
 EMULATOR = [sys.executable, "-m", "federation", "emulate-device"]
 KNATTE = load_platform("knatte")
 # The chain of knatte taking a first fix alone: for the tests of the serial link, each
-# starting from one POSE (the default's three agreeing ones: test_gnc.py, and below).
+# starting from one POSE (the default's agreeing ones with a known velocity: test_gnc.py,
+# and below).
 ONE_FIX = KNATTE.model_copy(
-    update={"navigation": KNATTE.navigation.model_copy(update={"fixes_to_start": 1})}
+    update={
+        "navigation": KNATTE.navigation.model_copy(
+            update={"fixes_to_start": 1, "start_velocity_sigma": 1.0}
+        )
+    }
 )
 ALPHA = KNATTE.pair_torque / KNATTE.inertia  # rad/s^2 of a torque couple: 0.4
 POSITIVE_TORQUE = tuple(i in PAIRS["+torque"] for i in range(8))  # valves 1, 2
@@ -137,8 +142,11 @@ def test_valves_open_once_three_poses_agree_each_carried_by_its_age(pty_dev: Pty
                 ages.append(kwargs["fix_age"])
             return super().update(now, *args, **kwargs)
 
-    with SerialPlatform(pty_dev.path, chain=Seen(KNATTE)) as plat:
-        assert KNATTE.navigation.fixes_to_start == 3
+    three = ONE_FIX.model_copy(
+        update={"navigation": ONE_FIX.navigation.model_copy(update={"fixes_to_start": 3})}
+    )  # three agreeing, the velocity's uncertainty not waited for (test_gnc.py)
+    with SerialPlatform(pty_dev.path, chain=Seen(three)) as plat:
+        assert three.navigation.fixes_to_start == 3
         for k in range(5):  # the IMU alone first: the motion known 50 ms back
             t = 0.95 + 0.01 * k
             pty_dev.send(encode_imu(t, 0.0, 0.0, 0.0))
@@ -397,8 +405,9 @@ def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_pa
     assert abs(rows[-1][1] - ref) < 0.05
     assert max(apart) < 0.02  # the same chain on the same plant
     assert counters["frames_ok"] > 300 and counters["bad_checksum"] == 0
-    # Closed until three fixes agree: 0.1 s of the emulator's 20 Hz, and its first.
-    assert counters["closed_stale_fix"] == 0 and counters["closed_no_fix"] <= 20
+    # Closed until the fixes agree and the velocity is known: 0.3 s of the emulator's
+    # 20 Hz, and its first.
+    assert counters["closed_stale_fix"] == 0 and counters["closed_no_fix"] <= 50
     # close() sent all-valves-closed: the device's last recorded command is mask 0.
     assert fleet.stop("device") == 0
     valves = [e for e in _events(record) if e["event"] == "valves"]

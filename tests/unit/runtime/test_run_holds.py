@@ -228,7 +228,7 @@ def test_no_pose_is_published_before_the_platforms_first_fix() -> None:
     agent._source_info = lambda: None  # type: ignore[assignment, method-assign, return-value]
     agent.publish_pose()
     assert sent == [] and agent.counters["pose_withheld_no_fix"] == 1
-    for _ in range(20):  # the simulated cameras give a fix within a vision period
+    for _ in range(60):  # the simulated cameras' fixes, until they agree (0.3 s)
         now[0] += 0.01
         agent.control_step()
     agent.publish_pose()
