@@ -54,11 +54,13 @@ fix of an estimate, and the first after a gap longer than ``control.fix_timeout`
 (out of the cameras' view, dead reckoning on the IMU alone, the gate as wide as the
 drift), start a trial copy of the estimate, and the estimate takes it only once
 ``navigation.fixes_to_start`` fixes in a row agree with it (each within the gate of
-the trial so far) and its velocity is known to ``navigation.start_velocity_sigma``: a
-glitch right after a gap had been taken, and flown on; from a standing start, three
-fixes left the velocity 0.06 m/s unsure and the valves opened on one 0.05 to 0.15 m/s
-wrong (or on a glitch as the third fix). Until
-then the valves stay closed (``no_fix``, ``stale_fix``; ``fix_acquiring`` counts the
+the trial so far): a glitch right after a gap had been taken, and flown on. The
+estimate then takes the fixes that follow as usual, gated, and the valves stay closed
+(``settling``) until its velocity is known to ``navigation.start_velocity_sigma``: from
+a standing start, three fixes left it 0.06 m/s unsure, and the valves opened on a
+velocity 0.05 to 0.15 m/s wrong (or on a glitch as the third fix); waited for in the
+trial instead, a glitch now and then began it again each time, and it never finished.
+Until then the valves stay closed (``no_fix``, ``stale_fix``; ``fix_acquiring`` counts the
 fixes held back).
 
 A fix describes the platform when the metrology saw it, which may be some time before
@@ -115,6 +117,7 @@ Reason = Literal[
     "fix_rejected",
     "stale_fix",
     "stale_imu",
+    "settling",
     "nonfinite",
 ]
 """Why every valve is closed (the first that holds, in this order)."""
@@ -167,6 +170,7 @@ class GncChain:
         self._trial: NavigationFilter | None = None
         self._trial_fixes = 0
         self._trial_at = -math.inf
+        self._settling = False  # acquired: closed until the velocity is known
         # Two fix periods inside fix_timeout: a fix that old is still a fresh one (else
         # every fix would come after the last went stale, and be acquired anew). The
         # preset is checked so at load; a fix_timeout given here must allow it too.
@@ -266,6 +270,7 @@ class GncChain:
         self._imu = ImuSample(0.0, 0.0, 0.0)
         self._shadow = self._trial = None
         self._agreeing = self._trial_fixes = 0
+        self._settling = False
         self._trial_at = -math.inf
         self._rejecting = False
 
@@ -424,14 +429,15 @@ class GncChain:
         trial.correct(now, fix, age)
         self._trial_fixes += 1
         self._trial_at = now
-        if (
-            self._trial_fixes < self._fixes_to_start
-            or not trial.velocity_sigma <= self._start_velocity_sigma
-        ):
+        if self._trial_fixes < self._fixes_to_start:
             self.counters["fix_acquiring"] += 1
             self._rejecting = False  # not rejected: closed for want of a fix, as before it
             return False
         self.filter, self._trial, self._trial_fixes = trial, None, 0
+        # Closed still until its velocity is known (``settling``): the fixes that follow
+        # are gated and taken by the estimate meanwhile, so a glitch now and then is an
+        # outlier of it, not the end of a trial that must begin again.
+        self._settling = True
         return True
 
     def _reject(self, kind: str | None) -> None:
@@ -510,6 +516,10 @@ class GncChain:
             return "stale_fix"
         if self._imu_at is None or now - self._imu_at > self.imu_timeout:
             return "stale_imu"
+        if self._settling:
+            if not self.filter.velocity_sigma <= self._start_velocity_sigma:
+                return "settling"
+            self._settling = False
         return None
 
     # ------------------------------------------------------------------ safe hold

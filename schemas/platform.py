@@ -161,10 +161,10 @@ class NavigationConfig(_Model):
         0.02,
         gt=0,
         le=1,
-        description="velocity uncertainty (1 sigma, m/s) the estimate must be under, besides "
-        "fixes_to_start agreeing fixes, before control starts on acquired fixes: three fixes "
-        "0.1 s apart leave it at 0.06 m/s, and valves had opened on a velocity 0.05 to 0.15 "
-        "m/s wrong (or on a glitch as the third fix)",
+        description="velocity uncertainty (1 sigma, m/s) an estimate just acquired must come "
+        "under, taking the fixes that follow, before control starts on it (settling): three "
+        "fixes 0.1 s apart leave it at 0.06 m/s, and valves had opened on a velocity 0.05 to "
+        "0.15 m/s wrong (or on a glitch as the third fix)",
     )
     outliers_to_restart: int = Field(
         5,

@@ -1013,6 +1013,7 @@ class AgentRuntime:
                 "no_fix": "no metrology fix yet",
                 "stale_fix": "metrology fix stale",
                 "stale_imu": "IMU silent",
+                "settling": "estimate settling (its velocity not yet known)",
                 "nonfinite": "estimate or reference not finite",
                 "fix_rejected": f"metrology fixes rejected ({rejected})",
                 "fix_restart": "estimate restarted from outlier fixes: ctl reset",
