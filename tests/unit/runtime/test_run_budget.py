@@ -38,6 +38,14 @@ def _flood(record: object, n: int, start: int = 0) -> None:
         record("/pose/received", {"agent": "rome/p", "t": float(k), "pad": pad})  # type: ignore[operator]
 
 
+def _past_its_limit(rec: Recorder) -> None:
+    """Flood a recorder of 1 MiB past its limit (15 000 poses), flushed as the writer does."""
+    for batch in range(30):
+        _flood(rec.record, 500, batch * 500)
+        rec.flush()
+    assert rec.truncated
+
+
 def test_a_recording_stops_at_its_limit_and_is_still_finished(tmp_path: Path) -> None:
     limit = 1 * MIB
     path = tmp_path / "a.mcap"
@@ -271,10 +279,7 @@ def test_a_truncated_recording_keeps_the_agents_control_events_and_last_status(
     path = tmp_path / "a.mcap"
     rec = Recorder(path, AGENT, max_bytes=MIB)
     rec.record("/control", {"event": "started", "at": 5.0, "t_sim": 5.0})
-    for batch in range(30):
-        _flood(rec.record, 500, batch * 500)
-        rec.flush()
-    assert rec.truncated
+    _past_its_limit(rec)
     for k in range(3):  # after the limit: the data cut, the agent's own kept
         _flood(rec.record, 100, 10**6 + k * 100)
         _own(rec, k)
@@ -299,10 +304,7 @@ def test_the_reserve_is_bounded_and_still_ends_with_the_last_status(tmp_path: Pa
     last one (the run's end) is there all the same."""
     path = tmp_path / "a.mcap"
     rec = Recorder(path, AGENT, max_bytes=MIB)
-    for batch in range(30):
-        _flood(rec.record, 500, batch * 500)
-        rec.flush()
-    assert rec.truncated
+    _past_its_limit(rec)
     pad = "x" * 2000
     for k in range(2000):  # 4 MB of status lines: four times the reserve
         rec.record("/status", json.dumps({"agent": AGENT, "t_exec": float(k), "p": pad}).encode())
@@ -326,10 +328,7 @@ def test_commands_flooding_in_leave_the_reserve_for_the_agents_own_events(
     # limit, a flood of them had used up the reserve and the run's end was lost.
     path = tmp_path / "a.mcap"
     rec = Recorder(path, AGENT, max_bytes=MIB)
-    for batch in range(30):
-        _flood(rec.record, 500, batch * 500)
-        rec.flush()
-    assert rec.truncated
+    _past_its_limit(rec)
     pad = "x" * 2000
     for k in range(1000):  # 4 MB of commands received, each ignored: four times the reserve
         command = {"command": "resume", "seq": k, "issuer": "elsewhere", "pad": pad}
