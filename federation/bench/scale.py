@@ -346,16 +346,16 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     a, b = clock_line(lead["/status"])
     sent = [r["t_exec"] for r in lead["/pose/sent"]]
     published = [r["host_monotonic"] for r in lead["/pose/sent"]]
-    syncs = _exchanges(lead["/status"][-1])
+    last = [(agents[0][0], lead["/status"][-1])]
     received = []
     holds = []
-    for _, name in agents[1:]:
+    for lab, name in agents[1:]:
         mine = read_messages(out / f"{name.replace('/', '-')}.mcap", ["/status", "/pose/received"])
         poses = mine["/pose/received"]
         got = [(r["t"], r["host_monotonic"]) for r in poses if r["agent"] == leader]
         received.append(got)
         if mine["/status"]:
-            syncs += _exchanges(mine["/status"][-1])
+            last.append((lab, mine["/status"][-1]))
         if got and published:
             # The same window as the loss: from when routes had settled to the leader's
             # last pose (after it, every follower holds: the run is over).
@@ -364,17 +364,26 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     scores = _latency_and_loss(sent, received, lambda t: (t - a) / b)
     return {
         **scores,
-        "sync_per_s": syncs / (seconds + SETTLE),
+        "sync_per_s": _exchanges(last) / (seconds + SETTLE),
         **_hold_scores(holds),
         **_pose_gaps(published, _listening(received)),
     }
 
 
-def _exchanges(status: dict[str, Any]) -> float:
-    """The sync exchanges an agent's status reports, each shared one divided among the
-    agents that share it (they all report it)."""
-    peers = status["peers"].values()
-    return float(sum(p.get("samples", 0) / p.get("sharing", 1) for p in peers))
+def _exchanges(last: list[tuple[int, dict[str, Any]]]) -> float:
+    """The sync exchanges completed, from each agent's last status (with its worker's
+    lab index): a link counted once per worker and peer.
+
+    A worker's agents share one clock, so one link (one exchange) per peer. Every agent
+    on it reports the link's count, but its ``sharing`` only as it was at that status:
+    an agent whose duration ended a few ms before another's has left the link, and the
+    one left reports it as its own. Dividing by ``sharing`` counted such a link up to
+    twice (288 exchanges a second at 128 agents where 167 were made)."""
+    links: dict[tuple[int, str], float] = {}
+    for lab, status in last:
+        for peer, view in status["peers"].items():
+            links[lab, peer] = max(links.get((lab, peer), 0.0), float(view.get("samples", 0)))
+    return sum(links.values())
 
 
 def _holds_between(statuses: list[dict[str, Any]], start: float, end: float) -> int:
