@@ -288,7 +288,10 @@ class AgentRuntime:
         self.recorder: Recorder | None = None
         if config.record:  # a peer publishing far too fast fills no disk here either
             config.record.parent.mkdir(parents=True, exist_ok=True)
-            _, budget = recording_budget(config.record.parent, config.record_max_mb, self)
+            # The budget of the disk written: a symlinked FILE's target's, not the link's.
+            where = config.record.resolve().parent
+            where.mkdir(parents=True, exist_ok=True)  # a link to a folder not yet made
+            _, budget = recording_budget(where, config.record_max_mb, self)
             self.recorder = Recorder(
                 config.record, str(self.me), config.record_channels, max_bytes=budget
             )

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -422,3 +423,26 @@ def test_a_run_that_cannot_start_gives_its_space_back(tmp_path: Path) -> None:
     said = json.loads((tmp_path / "r1" / "kiruna-knatte.incomplete.json").read_text())
     assert "could not start" in said["not_recorded"]
     assert "could not start" in describe_incomplete(said)
+
+
+def test_a_symlinked_record_file_is_budgeted_on_its_target_disk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # --record pointing at a symlink: the link's folder's disk had been budgeted, and the
+    # file written on the target's, which may be nearly full.
+    shm = Path("/dev/shm")
+    if not shm.is_dir() or shm.stat().st_dev == tmp_path.stat().st_dev:
+        pytest.skip("needs /dev/shm on a filesystem of its own")
+    with tempfile.TemporaryDirectory(dir=shm) as target_dir:
+        target = Path(target_dir) / "run.mcap"
+        link = tmp_path / "run.mcap"
+        link.symlink_to(target)
+        free = {shm.stat().st_dev: 600 * MIB, tmp_path.stat().st_dev: 100_000 * MIB}
+        monkeypatch.setattr(runs_module, "free_bytes", lambda path: free[Path(path).stat().st_dev])
+        follower = Follower(record=link, record_max_mb=2048)
+        try:
+            assert follower.agent.recorder is not None
+            assert follower.agent.recorder.max_bytes == 300 * MIB  # half of the target's 600
+        finally:
+            follower.agent.close()
+        assert target.stat().st_size > 0 and link.is_symlink()
