@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from federation.bench.procfs import rss_mib
+from federation.core.channels import recording_stem
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import clock_line
 from federation.runtime.cpus import format_cpus, usable_cpus
@@ -342,7 +343,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     from federation.runtime.recorder import read_messages
 
     leader = agents[0][1]
-    lead = read_messages(out / f"{leader.replace('/', '-')}.mcap", ["/status", "/pose/sent"])
+    lead = read_messages(out / f"{recording_stem(leader)}.mcap", ["/status", "/pose/sent"])
     a, b = clock_line(lead["/status"])
     sent = [r["t_exec"] for r in lead["/pose/sent"]]
     published = [r["host_monotonic"] for r in lead["/pose/sent"]]
@@ -350,7 +351,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     received = []
     holds = []
     for lab, name in agents[1:]:
-        mine = read_messages(out / f"{name.replace('/', '-')}.mcap", ["/status", "/pose/received"])
+        mine = read_messages(out / f"{recording_stem(name)}.mcap", ["/status", "/pose/received"])
         poses = mine["/pose/received"]
         got = [(r["t"], r["host_monotonic"]) for r in poses if r["agent"] == leader]
         received.append(got)

@@ -43,6 +43,7 @@ __all__ = [
     "FOXGLOVE_CHANNELS",
     "Channel",
     "json_schema",
+    "recording_stem",
 ]
 
 
@@ -114,3 +115,9 @@ def json_schema(channel: Channel) -> dict[str, object]:
         "type": "object",
         "properties": {name: {"type": kind} for name, kind in CHANNEL_TYPES[channel].items()},
     }
+
+
+def recording_stem(agent: str) -> str:
+    """An agent's name as the stem of its recording's files: ``rome/pinocchio`` ->
+    ``rome-pinocchio`` (``rome-pinocchio.mcap``, ``.jsonl``, ``.manifest.json``...)."""
+    return agent.replace("/", "-")

@@ -25,6 +25,7 @@ from rich.live import Live
 from rich.table import Table
 
 from federation.core import paper
+from federation.core.channels import recording_stem
 from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import last_status
 from federation.report.summary import PAPER
@@ -57,16 +58,12 @@ def experiment(duration: float) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _stem(agent: str) -> str:
-    return agent.replace("/", "-")
-
-
 def _progress(run: Path, elapsed: float, total: float, phase: str) -> Table:
     table = Table(title=f"fedlab demo: {phase} {elapsed:5.1f} / {total:.0f} s")
     for column in ("agent", "mode", "run time (s)", "heading (deg)", "offset (s)", "delay (ms)"):
         table.add_column(column, justify="right")
     for agent in (LEADER, FOLLOWER, RAW):
-        line = last_status(run / f"{_stem(agent)}.jsonl")
+        line = last_status(run / f"{recording_stem(agent)}.jsonl")
         if line is None:
             table.add_row(agent, "starting", "", "", "", "")
             continue
@@ -146,11 +143,11 @@ def run_demo(
         for agent, a in agents.items():
             lab, name = agent.split("/")
             fleet.start(
-                _stem(agent),
+                recording_stem(agent),
                 ["agent", "--experiment", str(out / "experiment.json"), "--lab", lab,
                  "--name", name, "-e", str(a["endpoint"]), "--clock-offset", f"{a['clock_offset']}",
-                 "--status-json", str(out / f"{_stem(agent)}.jsonl"),
-                 "--record", str(out / f"{_stem(agent)}.mcap"),
+                 "--status-json", str(out / f"{recording_stem(agent)}.jsonl"),
+                 "--record", str(out / f"{recording_stem(agent)}.mcap"),
                  # Followers query the leader; the leader queries everyone (the paper's
                  # two channels).
                  *(["--sync-with", LEADER] if agent != LEADER else [])],
@@ -163,7 +160,9 @@ def run_demo(
 
                 def synced() -> bool:
                     live.update(_progress(out, time.monotonic() - started, total, "syncing"))
-                    lines = [last_status(out / f"{_stem(a)}.jsonl") for a in (FOLLOWER, RAW)]
+                    lines = [
+                        last_status(out / f"{recording_stem(a)}.jsonl") for a in (FOLLOWER, RAW)
+                    ]
                     return all(line is not None and line["t_sim"] is not None for line in lines)
 
                 if not wait_for(synced, timeout=30, interval=0.5):
@@ -175,7 +174,7 @@ def run_demo(
                 t0 = time.monotonic()
                 while (elapsed := time.monotonic() - t0) < total:
                     live.update(_progress(out, elapsed, total, "running"))
-                    if not all(fleet.alive(_stem(a)) for a in agents):
+                    if not all(fleet.alive(recording_stem(a)) for a in agents):
                         console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
                         break
                     time.sleep(0.5)
@@ -339,12 +338,12 @@ def run_scenario_demo(
         for agent in agents:
             lab, name = agent.split("/")
             fleet.start(
-                _stem(agent),
+                recording_stem(agent),
                 ["agent", "--experiment", str(out / "experiment.json"), "--lab", lab,
                  "--name", name, "-e", endpoints[lab],
                  "--clock-offset", f"{SCENARIO_CLOCKS.get(lab, 1.5)}",
-                 "--status-json", str(out / f"{_stem(agent)}.jsonl"),
-                 "--record", str(out / f"{_stem(agent)}.mcap"),
+                 "--status-json", str(out / f"{recording_stem(agent)}.jsonl"),
+                 "--record", str(out / f"{recording_stem(agent)}.mcap"),
                  # A sync reply takes a round trip: over a relay satellite's 250 ms one
                  # way, longer than the default 0.5 s timeout.
                  "--sync-timeout", f"{max(0.5, 4 * delay_ms / 1e3):g}"],
@@ -353,7 +352,7 @@ def run_scenario_demo(
         try:
 
             def synced() -> bool:
-                lines = [last_status(out / f"{_stem(a)}.jsonl") for a in agents]
+                lines = [last_status(out / f"{recording_stem(a)}.jsonl") for a in agents]
                 return all(line is not None and line["t_sim"] is not None for line in lines)
 
             console.print(f"fedlab demo --scenario {scenario}: waiting for sync")
@@ -364,7 +363,7 @@ def run_scenario_demo(
             t0 = time.monotonic()
             last_print = 0.0
             while (elapsed := time.monotonic() - t0) < total:
-                if not all(fleet.alive(_stem(a)) for a in agents):
+                if not all(fleet.alive(recording_stem(a)) for a in agents):
                     console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
                     break
                 if elapsed - last_print >= 10:

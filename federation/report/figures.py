@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from federation.core import paper
+from federation.core.channels import recording_stem
 from federation.report.analysis import Array, Follow, SyncPair, follows, heading_error, sync_pairs
 from federation.report.load import Run
 from federation.report.summary import compensation_label, fmt
@@ -52,7 +53,7 @@ def write_figures(
     figures: dict[str, Path] = {}
     for pair, s in zip(sync_pairs(run), summary["sync"], strict=True):
         if len(pair.t3):
-            path = out / f"sync_{_slug(pair.client)}_{_slug(pair.peer)}.png"
+            path = out / f"sync_{recording_stem(pair.client)}_{recording_stem(pair.peer)}.png"
             plot_sync(pair, path, s.get("emulated_delay_s"), sync_phase)
             figures[f"sync {pair.client} {pair.peer}"] = path
     follow_list = follows(Run(run.agents, run.meta, [], run.directory))  # notes: summary's
@@ -70,11 +71,6 @@ def write_figures(
     if len(chosen) < len(follow_list):
         summary["notes"].append(f"heading figures show only the followers of {leader}")
     return figures
-
-
-def _slug(agent: str) -> str:
-    """An agent's name as a file name: ``rome/pinocchio`` -> ``rome-pinocchio``."""
-    return agent.replace("/", "-")
 
 
 def _figure(rows: int = 1, height: float = 5.0) -> tuple[Figure, list[Axes]]:

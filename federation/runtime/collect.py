@@ -52,6 +52,7 @@ import zenoh
 from pydantic import ValidationError
 
 from federation.core import keys
+from federation.core.channels import recording_stem
 from federation.core.chunking import (
     ChunkRequest,
     RequestError,
@@ -126,7 +127,7 @@ def incomplete_name(stem: str) -> str:
 def write_incomplete(run_dir: Path, agent: str, run_id: str, what: dict[str, Any]) -> Path:
     """Write ``<lab>-<name>.incomplete.json`` (what a recording misses and why) into
     ``run_dir``; returns its path, for the manifest."""
-    path = run_dir / incomplete_name(agent.replace("/", "-"))
+    path = run_dir / incomplete_name(recording_stem(agent))
     data = {"agent": agent, "run_id": run_id, **what}
     write_durably(path, json.dumps(data, indent=1) + "\n")
     return path
@@ -227,7 +228,7 @@ def finalize(run_dir: Path, agent: str, run_id: str, files: list[Path]) -> Path:
         if p.exists()
     ]
     manifest = Manifest(agent=agent, run_id=run_id, files=entries)
-    path = run_dir / manifest_name(agent.replace("/", "-"))
+    path = run_dir / manifest_name(recording_stem(agent))
     write_durably(path, manifest.model_dump_json(indent=1) + "\n")
     return path
 
@@ -267,7 +268,7 @@ class Deferred(Exception):
 def unfinished_runs(runs_dir: Path, agent: str) -> list[Path]:
     """``agent``'s run folders under ``runs_dir`` that hold its recording (or the original
     a recovery kept aside) but no manifest: runs it never finalized, by name."""
-    stem = agent.replace("/", "-")
+    stem = recording_stem(agent)
     try:
         folders = sorted(p for p in Path(runs_dir).iterdir() if p.is_dir())
     except OSError:  # no runs yet (or unreadable: a recording there would fail too)
@@ -309,7 +310,7 @@ def recover_run(
     has less free than the original's size and ``min_free_mb`` MiB
     (``short_of_space``). ``InterruptedError`` when ``stop`` is set during the copy.
     """
-    stem = agent.replace("/", "-")
+    stem = recording_stem(agent)
     mcap = run_dir / f"{stem}.mcap"
     partial = run_dir / f"{stem}.mcap.partial"
     recovering = run_dir / f"{stem}.mcap.recovering"
@@ -368,7 +369,7 @@ def _held(file: IO[bytes], path: Path) -> None:
 def _finalize_finished(run_dir: Path, agent: str) -> None:
     """The manifest of a finished recording whose agent stopped before writing it: its
     ``.incomplete.json`` kept, or written from what its metadata says it misses."""
-    stem = agent.replace("/", "-")
+    stem = recording_stem(agent)
     mcap = run_dir / f"{stem}.mcap"
     sidecar = run_dir / incomplete_name(stem)
     if not sidecar.exists():
@@ -439,7 +440,7 @@ def recover_runs(
             "run %s in %s was never finalized (its agent stopped mid-run): recovered %d "
             "messages (%s; %d unreadable chunks left out); the original is kept as %s.mcap.partial",
             run, run_dir, salvaged.messages, salvaged.problem or "the file was whole",
-            salvaged.chunks_lost, agent.replace("/", "-"),
+            salvaged.chunks_lost, recording_stem(agent),
         )  # fmt: skip
     return done
 
@@ -706,7 +707,7 @@ def collect(
                 progress(f"{agent}: {entry.name} ({entry.size} bytes)")
             except CollectError as error:
                 result.errors.append(str(error))
-        stem = agent.replace("/", "-")
+        stem = recording_stem(agent)
         if incomplete_name(stem) in result.files[agent]:
             result.incomplete[agent] = _incomplete(out / incomplete_name(stem))
         (out / manifest_name(stem)).write_text(

@@ -38,7 +38,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import IO, Any
 
-from federation.core.channels import Channel
+from federation.core.channels import Channel, recording_stem
 from federation.runtime.collect import finalize, free_bytes, write_incomplete
 from federation.runtime.recorder import Message, Recorder, is_finished
 from schemas.config import AgentConfig
@@ -180,7 +180,7 @@ class RunRecording:
         self.agent = agent
         self.dir = Path(runs_dir) / run_id
         self.dir.mkdir(parents=True, exist_ok=True)
-        stem = agent.replace("/", "-")
+        stem = recording_stem(agent)
         self.mcap = self.dir / f"{stem}.mcap"
         self.status = self.dir / f"{stem}.jsonl"
         free, self.max_bytes = recording_budget(self.dir, max_mb, self)
