@@ -10,6 +10,18 @@ import pytest
 import zenoh
 
 from federation.fleet.launch import Fleet
+from federation.runtime.runs import LEDGER_ENV
+
+
+@pytest.fixture(autouse=True)
+def promises_ledger(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> Path:
+    """Each test's recordings (and its child processes') promise disk space in a ledger of
+    their own, not the host's: no test's budget depends on another's, or on a real run."""
+    folder = tmp_path_factory.mktemp("promises")
+    monkeypatch.setenv(LEDGER_ENV, str(folder))
+    return folder
 
 
 @pytest.fixture

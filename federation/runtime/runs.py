@@ -11,9 +11,10 @@ the agent's loop never waits for the disk.
 Nothing a peer sends can fill the disk: a run's MCAP stops at ``record_max_mb``, or
 at half the space its filesystem had free when the run was armed, whichever is
 less (then it is finished as usual, marked truncated: ``<lab>-<name>.incomplete.json``
-beside it). What this process has already promised the runs still recording on that
-filesystem counts as taken: agents hosted together (``fedlab host``), armed by one
-start, had each been given half of the same free space. A filesystem with less than
+beside it). What was already promised to the recordings still open on that filesystem,
+by this process or any other of the host's (:class:`_Promises`' ledger), counts as
+taken: agents hosted together (``fedlab host``), or each in a process of its own, had
+each been given half of the same free space. A filesystem with less than
 ``record_min_free_mb`` free fails preflight (:func:`low_space`: ``ready.recording``
 false, so ``fedlab ctl start`` starts nothing unless ``--force``); a run armed all the
 same is recorded, with an error logged and ``low_space`` in its metadata: a run flown
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import fcntl
 import json
 import logging
 import os
@@ -31,8 +33,10 @@ import platform as host_platform
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -112,27 +116,56 @@ def software_versions() -> dict[str, str]:
     }
 
 
+LEDGER_ENV = "FEDLAB_PROMISES"
+"""Environment variable naming the folder of the promises ledger (default: a folder of
+this user's in the system's temporary folder)."""
+
+
+def ledger_dir() -> Path:
+    """The folder where every fedlab process of this user on this host writes what it
+    has promised recordings: one folder per filesystem (its device number) inside."""
+    named = os.environ.get(LEDGER_ENV)
+    if named:
+        return Path(named)
+    return Path(tempfile.gettempdir()) / f"fedlab-{os.getuid()}-promises"
+
+
 class _Promises:
-    """Bytes promised to the run recordings still open, per filesystem (this process)."""
+    """Bytes promised to the recordings still open, per filesystem: this process's in
+    memory, and every process's (this one's too) in a ledger on the host
+    (:func:`ledger_dir`), so that agents in processes of their own (one ``fedlab agent``
+    per platform) do not each take half of the same free space.
+
+    A promise in the ledger is a file holding its byte count, kept locked (``flock``,
+    shared) by its process until given back: a file whose lock nobody holds is a dead
+    process's, not counted and removed. Promises are made under the ledger's own lock,
+    so two processes arming at once see each other's. A ledger that cannot be written
+    (no temporary folder) leaves each process on its own, as before, with a warning."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._by_device: dict[int, dict[int, int]] = {}
+        self._files: dict[int, IO[str]] = {}  # id(who) -> its open, locked ledger file
+        self._warned = False
 
     def take(self, directory: Path, free: int, max_bytes: int | None, who: object) -> int:
         """At most half of what is free and not promised already (and ``max_bytes``);
         promised to ``who`` until :meth:`give_back`."""
         device = directory.stat().st_dev
-        with self._lock:
+        with self._lock, self._ledger(device) as ledger:
             promised = self._by_device.setdefault(device, {})
-            budget = max(0, free - sum(promised.values())) // 2
+            others = 0 if ledger is None else _others(ledger, set(self._files.values()))
+            budget = max(0, free - sum(promised.values()) - others) // 2
             if max_bytes is not None:
                 budget = min(budget, max_bytes)
             promised[id(who)] = budget
+            if ledger is not None:
+                self._write(ledger, id(who), budget)
         return budget
 
     def promised(self, directory: Path) -> int:
-        """Bytes promised to recordings on ``directory``'s filesystem, still open."""
+        """Bytes promised to recordings on ``directory``'s filesystem, still open, by
+        this process."""
         with self._lock:
             return sum(self._by_device.get(directory.stat().st_dev, {}).values())
 
@@ -140,6 +173,76 @@ class _Promises:
         with self._lock:
             for promised in self._by_device.values():
                 promised.pop(id(who), None)
+            entry = self._files.pop(id(who), None)
+        if entry is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(entry.name)
+            entry.close()  # its lock goes with it
+
+    @contextlib.contextmanager
+    def _ledger(self, device: int) -> Iterator[Path | None]:
+        """The ledger folder of filesystem ``device``, locked for this process (None:
+        it cannot be used)."""
+        folder = ledger_dir() / str(device)
+        try:
+            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+            lock = (folder / ".lock").open("a")
+        except OSError as error:
+            if not self._warned:
+                self._warned = True
+                log.warning(
+                    "recordings' promises not shared with other processes (%s): %s",
+                    folder, error,
+                )  # fmt: skip
+            yield None
+            return
+        with lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            yield folder
+
+    def _write(self, folder: Path, key: int, budget: int) -> None:
+        """``key``'s promise in the ledger, its file kept open and locked."""
+        old = self._files.pop(key, None)
+        if old is not None:  # promised again (a second take for the same owner)
+            with contextlib.suppress(OSError):
+                os.unlink(old.name)
+            old.close()
+        path = folder / f"{os.getpid()}-{key}"
+        try:
+            entry = path.open("w")
+            fcntl.flock(entry, fcntl.LOCK_SH)
+            entry.write(str(budget))
+            entry.flush()
+        except OSError as error:
+            log.warning("recording's promise not written to %s: %s", path, error)
+            return
+        self._files[key] = entry
+
+
+def _others(folder: Path, mine: set[IO[str]]) -> int:
+    """Bytes the live promises in ``folder`` hold, but for this process's files
+    (``mine``, counted in memory); dead processes' files are removed."""
+    held = {Path(entry.name).name for entry in mine}
+    total = 0
+    for path in folder.iterdir():
+        if path.name.startswith(".") or path.name in held:
+            continue
+        try:
+            with path.open("r") as entry:
+                try:
+                    fcntl.flock(entry, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:  # held: a live process's
+                    text = entry.read()
+                else:  # nobody holds it: its process ended without giving it back
+                    path.unlink(missing_ok=True)
+                    continue
+        except OSError:
+            continue
+        try:
+            total += max(0, int(text))
+        except ValueError:  # being written as we read (it is locked first): counted next time
+            continue
+    return total
 
 
 PROMISES = _Promises()

@@ -446,3 +446,61 @@ def test_a_symlinked_record_file_is_budgeted_on_its_target_disk(
         finally:
             follower.agent.close()
         assert target.stat().st_size > 0 and link.is_symlink()
+
+
+_PROMISER = """
+import sys
+from pathlib import Path
+from federation.runtime.runs import MIB, PROMISES
+budget = PROMISES.take(Path(sys.argv[1]), 600 * MIB, None, object())
+print(budget // MIB, flush=True)
+sys.stdin.read()  # held until the test closes stdin or kills it
+"""
+
+
+def test_agents_in_processes_of_their_own_share_the_free_space(tmp_path: Path) -> None:
+    # Promises had been per process: two fedlab agents on one host, each in its own
+    # process, were each given half of the same free space (all of it together).
+    import subprocess
+    import sys
+
+    other = subprocess.Popen(
+        [sys.executable, "-c", _PROMISER, str(tmp_path)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    first, second = object(), object()
+    try:
+        assert other.stdout is not None
+        assert other.stdout.readline().strip() == "300"  # half of 600
+        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, first) == 150 * MIB
+        # The other process dies without giving its promise back (killed): its promise
+        # is its file's lock, gone with it, so the next promise takes that space again.
+        other.kill()
+        other.wait(timeout=10)
+        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, second) == 225 * MIB
+        ledger = runs_module.ledger_dir() / str(tmp_path.stat().st_dev)
+        assert len([p for p in ledger.iterdir() if not p.name.startswith(".")]) == 2  # ours
+    finally:
+        if other.poll() is None:
+            other.kill()
+            other.wait(timeout=10)
+        runs_module.PROMISES.give_back(tmp_path, first)
+        runs_module.PROMISES.give_back(tmp_path, second)
+    assert [p for p in ledger.iterdir() if not p.name.startswith(".")] == []
+    assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, first) == 300 * MIB
+    runs_module.PROMISES.give_back(tmp_path, first)
+
+
+def test_a_ledger_that_cannot_be_written_leaves_the_process_on_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    monkeypatch.setenv(runs_module.LEDGER_ENV, str(blocker))
+    monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
+    who = object()
+    try:
+        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
+    finally:
+        runs_module.PROMISES.give_back(tmp_path, who)
+    assert "not shared with other processes" in caplog.text
