@@ -183,9 +183,13 @@ class _Promises:
     def _ledger(self, device: int) -> Iterator[Path | None]:
         """The ledger folder of filesystem ``device``, locked for this process (None:
         it cannot be used)."""
-        folder = ledger_dir() / str(device)
+        top = ledger_dir()
+        folder = top / str(device)
         try:
-            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+            top.mkdir(parents=True, exist_ok=True, mode=0o700)
+            if top.stat().st_uid != os.getuid():  # made by another user: its files untrusted
+                raise PermissionError(f"{top} belongs to another user")
+            folder.mkdir(exist_ok=True, mode=0o700)
             lock = (folder / ".lock").open("a")
         except OSError as error:
             if not self._warned:

@@ -6,6 +6,7 @@ all the same is recorded, said loudly."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import tempfile
@@ -504,3 +505,26 @@ def test_a_ledger_that_cannot_be_written_leaves_the_process_on_its_own(
     finally:
         runs_module.PROMISES.give_back(tmp_path, who)
     assert "not shared with other processes" in caplog.text
+
+
+def test_a_ledger_another_user_made_is_not_trusted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Another user of the host could make the ledger's folder first and fill it with
+    # huge promises: every recording of this user would then get no space.
+    ledger = tmp_path / "ledger"
+    (ledger / str(tmp_path.stat().st_dev)).mkdir(parents=True)
+    planted = ledger / str(tmp_path.stat().st_dev) / "1-1"
+    planted.write_text(str(10**15))
+    monkeypatch.setenv(runs_module.LEDGER_ENV, str(ledger))
+    monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
+    real_getuid = os.getuid
+    monkeypatch.setattr(runs_module.os, "getuid", lambda: real_getuid() + 1)
+    who = object()
+    with planted.open() as held:  # its "process" alive: the promise locked
+        fcntl.flock(held, fcntl.LOCK_SH)
+        try:
+            assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
+        finally:
+            runs_module.PROMISES.give_back(tmp_path, who)
+    assert "belongs to another user" in caplog.text
