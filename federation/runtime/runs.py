@@ -31,6 +31,7 @@ import logging
 import os
 import platform as host_platform
 import socket
+import stat
 import subprocess
 import sys
 import tempfile
@@ -186,23 +187,30 @@ class _Promises:
         top = ledger_dir()
         folder = top / str(device)
         try:
-            top.mkdir(parents=True, exist_ok=True, mode=0o700)
-            if top.stat().st_uid != os.getuid():  # made by another user: its files untrusted
-                raise PermissionError(f"{top} belongs to another user")
-            folder.mkdir(exist_ok=True, mode=0o700)
+            for where in (top, folder):
+                where.mkdir(exist_ok=True, mode=0o700, parents=where is top)
+                _check_own_folder(where)
             lock = (folder / ".lock").open("a")
         except OSError as error:
-            if not self._warned:
-                self._warned = True
-                log.warning(
-                    "recordings' promises not shared with other processes (%s): %s",
-                    folder, error,
-                )  # fmt: skip
+            self._alone(folder, error)
             yield None
             return
         with lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+            except OSError as error:  # a filesystem without locks (NFS without lockd)
+                self._alone(folder, error)
+                yield None
+                return
             yield folder
+
+    def _alone(self, folder: Path, error: OSError) -> None:
+        """The ledger cannot be used: this process promises on its own (said once)."""
+        if not self._warned:
+            self._warned = True
+            log.warning(
+                "recordings' promises not shared with other processes (%s): %s", folder, error
+            )
 
     def _write(self, folder: Path, key: int, budget: int) -> None:
         """``key``'s promise in the ledger, its file kept open and locked."""
@@ -221,6 +229,19 @@ class _Promises:
             log.warning("recording's promise not written to %s: %s", path, error)
             return
         self._files[key] = entry
+
+
+def _check_own_folder(where: Path) -> None:
+    """Raise unless ``where`` is a folder (not a link to one) of this user's that no one
+    else may write: another user of the host could otherwise make it first, or link it
+    to a folder of theirs, and plant promises that leave every recording no space."""
+    seen = os.lstat(where)
+    if not stat.S_ISDIR(seen.st_mode):
+        raise NotADirectoryError(f"{where} is not a folder (a link, or a file)")
+    if seen.st_uid != os.getuid():
+        raise PermissionError(f"{where} belongs to another user")
+    if seen.st_mode & 0o022:
+        raise PermissionError(f"{where} may be written by other users")
 
 
 def _others(folder: Path, mine: set[IO[str]]) -> int:

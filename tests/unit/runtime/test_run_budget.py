@@ -528,3 +528,51 @@ def test_a_ledger_another_user_made_is_not_trusted(
         finally:
             runs_module.PROMISES.give_back(tmp_path, who)
     assert "belongs to another user" in caplog.text
+
+
+@pytest.mark.parametrize("kind", ["a link to a folder", "written by others"])
+def test_a_ledger_folder_others_could_have_planted_is_not_trusted(
+    kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A link made by another user (to a folder they write, under a root-owned sticky
+    # folder) passed the owner check, which followed it.
+    real = tmp_path / "real"
+    planted = real / str(tmp_path.stat().st_dev) / "1-1"
+    planted.parent.mkdir(parents=True)
+    planted.write_text(str(10**15))
+    if kind == "a link to a folder":
+        ledger = tmp_path / "ledger"
+        ledger.symlink_to(real)
+    else:
+        ledger = real
+        real.chmod(0o777)
+    monkeypatch.setenv(runs_module.LEDGER_ENV, str(ledger))
+    monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
+    who = object()
+    with planted.open() as held:  # its "process" alive: the promise locked
+        fcntl.flock(held, fcntl.LOCK_SH)
+        try:
+            assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
+        finally:
+            runs_module.PROMISES.give_back(tmp_path, who)
+    assert "not shared with other processes" in caplog.text
+
+
+def test_a_filesystem_without_locks_leaves_the_process_on_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # flock failing (NFS without lockd) had raised out of take: no run recorded at all,
+    # and an agent given --record did not start.
+    import errno
+
+    def no_locks(fd: object, op: int) -> None:
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(runs_module.fcntl, "flock", no_locks)
+    monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
+    who = object()
+    try:
+        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
+    finally:
+        runs_module.PROMISES.give_back(tmp_path, who)
+    assert "No locks available" in caplog.text
