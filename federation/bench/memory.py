@@ -91,6 +91,7 @@ def measure(n: int, mode: str, out: Path, status_bytes: int) -> dict[str, Any]:
 
 def _fedlab(session: Any, out: Path) -> tuple[Any, Any, Any]:
     """Add, count and close fedlab agents hosted as the scale bench's workers host them."""
+    from federation.bench.scale import BENCH_RECORD_MB
     from federation.runtime.agent import AgentRuntime
     from federation.runtime.clock import ExecClock
     from federation.runtime.fanout import Fanout
@@ -105,7 +106,7 @@ def _fedlab(session: Any, out: Path) -> tuple[Any, Any, Any]:
         config = AgentConfig(
             lab="lab0", name=name, role="leader" if leader else "follower",
             follow=None if leader else "lab0/lead", duration=60.0, status_period=1.0,
-            record=out / f"{name}.mcap",
+            record=out / f"{name}.mcap", record_max_mb=BENCH_RECORD_MB,
             record_channels=["/status", "/pose/sent" if leader else "/pose/received"],
         )  # fmt: skip
         agent = AgentRuntime(config, session, clock, fanout=fanout, links=links)

@@ -517,6 +517,10 @@ def ratios(rows: list[dict[str, Any]]) -> dict[int, dict[str, float]]:
 
 
 # -- worker: several agents in one process ------------------------------------------
+BENCH_RECORD_MB = 64
+"""MiB each bench agent's recording may take (a 240 s run's leader writes about 13)."""
+
+
 def worker(
     endpoint: str, seconds: float, out: Path, mode: str, names: list[str], group: int = GROUP
 ) -> None:
@@ -543,6 +547,9 @@ def worker(
             duration=seconds,
             status_period=1.0,
             record=out / f"{lab}-{agent}.mcap",
+            # Room for the longest run's few MB: every recording on the host promises its
+            # limit (2 GiB by default), and 128 of them would leave the last none.
+            record_max_mb=BENCH_RECORD_MB,
             # Only what the scores need: recording is work too.
             record_channels=["/status", "/pose/sent" if role == "leader" else "/pose/received"],
         ))  # fmt: skip

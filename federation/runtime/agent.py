@@ -292,9 +292,13 @@ class AgentRuntime:
             where = config.record.resolve().parent
             where.mkdir(parents=True, exist_ok=True)  # a link to a folder not yet made
             _, budget = recording_budget(where, config.record_max_mb, self)
-            self.recorder = Recorder(
-                config.record, str(self.me), config.record_channels, max_bytes=budget
-            )
+            try:
+                self.recorder = Recorder(
+                    config.record, str(self.me), config.record_channels, max_bytes=budget
+                )
+            except BaseException:  # no recording: nothing promised (to any process)
+                PROMISES.give_back(where, self)
+                raise
         self.run_recording: RunRecording | None = None  # this run's, under runs_dir
         self.finishing: list[threading.Thread] = []  # recordings finishing after a close
         self._closing = False

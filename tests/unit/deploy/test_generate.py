@@ -342,3 +342,16 @@ def test_a_removed_or_recast_identity_never_gets_its_old_key_or_password_back(
     shutil.rmtree(out / "ca")
     gen.generate(load_federation(files["op"]), out)
     assert _serial(pem) != first
+
+
+def test_every_recording_unit_shares_one_promises_ledger(tmp_path: Path) -> None:
+    # Each unit's /tmp is its own (PrivateTmp): with the ledger's default folder, agents
+    # in units of their own had each taken half of the same free space.
+    out = tmp_path / "fed"
+    gen.generate(load_federation(EXAMPLE), out)
+    for name in ("fedlab-agent@.service", "fedlab-host@.service"):
+        unit = (out / "kiruna" / "systemd" / name).read_text()
+        assert "PrivateTmp=yes" in unit
+        assert "Environment=FEDLAB_PROMISES=/var/lib/fedlab/promises\n" in unit, name
+        states = next(line for line in unit.splitlines() if line.startswith("StateDirectory="))
+        assert "fedlab/promises" in states.split("=", 1)[1].split(), name

@@ -576,3 +576,17 @@ def test_a_filesystem_without_locks_leaves_the_process_on_its_own(
     finally:
         runs_module.PROMISES.give_back(tmp_path, who)
     assert "No locks available" in caplog.text
+
+
+def test_an_agent_whose_record_file_cannot_be_opened_keeps_no_promise(
+    tmp_path: Path, promises_ledger: Path
+) -> None:
+    # --record naming a folder: the agent did not start, but its promise stayed, in the
+    # ledger too (every process on the host then had less space for as long as it ran).
+    folder = tmp_path / "a-folder.mcap"
+    folder.mkdir()
+    for _ in range(3):  # a program retrying
+        with pytest.raises(IsADirectoryError):
+            Follower(record=folder, record_max_mb=2048)
+    assert runs_module.PROMISES.promised(tmp_path) == 0
+    assert [p.name for p in promises_ledger.rglob("*") if p.is_file() and p.name != ".lock"] == []
