@@ -135,6 +135,8 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
 
     import zenoh
 
+    from federation.runtime.signals import stop_event
+
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -169,8 +171,7 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
 
     # Stopped by the testbed (SIGTERM) before its time: save what arrived since the
     # last second's save, or the run's end would seem to have gone unheard.
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_event([signal.SIGTERM])  # no lock in the handler: it cannot wait on itself
     with session:
         sub = session.declare_subscriber(key, on_sample)
         end = time.monotonic() + seconds

@@ -10,7 +10,6 @@ session (:func:`open_session`, :func:`open_interruptible`).
 from __future__ import annotations
 
 import argparse
-import faulthandler
 import logging
 import math
 import signal
@@ -24,6 +23,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 from federation.core import keys
 from federation.runtime.session import ConnectError
+from federation.runtime.signals import stop_event
 from schemas.config import ZenohOptions, validate
 
 __all__ = [
@@ -132,18 +132,8 @@ def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
 def stop_on_signals() -> threading.Event:
     """An event set by SIGINT, SIGTERM, SIGHUP or SIGQUIT: each stops cleanly, exit code 0.
     A process still stopping :data:`STOP_REPORT_AFTER` seconds later dumps its threads'
-    stacks to stderr."""
-    stop = threading.Event()
-
-    def handler(signum: int, frame: FrameType | None) -> None:
-        log.info("received %s, stopping", signal.Signals(signum).name)
-        if not stop.is_set():
-            faulthandler.dump_traceback_later(STOP_REPORT_AFTER, exit=False)
-        stop.set()
-
-    for sig in _SIGNALS:
-        signal.signal(sig, handler)
-    return stop
+    stacks to stderr. The handler takes no lock (:mod:`federation.runtime.signals`)."""
+    return stop_event(_SIGNALS, report_after=STOP_REPORT_AFTER)
 
 
 def exit_on_sigterm() -> None:

@@ -330,6 +330,38 @@ time.sleep(3)  # a stop that takes too long: what is it waiting for?
 """
 
 
+_SIGNAL_INSIDE_WAIT = """
+import os, signal
+from federation.cli import common
+stop = common.stop_on_signals()
+with stop._cond:  # as the main thread is, for a moment, inside stop.wait() or stop.set()
+    os.kill(os.getpid(), signal.SIGTERM)
+    sum(range(100))  # the handler runs here, between two bytecodes
+print("set:", stop.wait(5), flush=True)
+"""
+
+
+def test_a_signal_while_the_main_thread_is_inside_the_stop_event_still_stops_it() -> None:
+    # The handler had called stop.set(), which takes the event's lock: arriving while the
+    # main thread held it (inside a loop's stop.wait(0.1)), it waited for itself for ever,
+    # and the bridge outlived SIGTERM (CI, stop 36). Bounded: a hang fails, not stalls.
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SIGNAL_INSIDE_WAIT], cwd=ROOT, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        out, err = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate(timeout=10)
+        pytest.fail(f"the process hung on its own stop event:\n{err[-2000:]}")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert out == "set: True\n" and proc.returncode == 0, (out, err)
+
+
 def test_a_stop_that_takes_too_long_says_where_each_thread_is() -> None:
     proc = subprocess.Popen(
         [sys.executable, "-c", _SLOW_STOP], cwd=ROOT, text=True,
