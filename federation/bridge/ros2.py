@@ -99,6 +99,7 @@ log = logging.getLogger("fedlab.bridge.ros2")
 SYNC_PERIOD = 0.1  # s between the bridge's sync queries to the reference
 SYNC_TIMEOUT = 0.5  # s
 STATUS_MAX_BYTES = 1 << 20
+MAX_CLOCK_OFFSET = 1e9  # s: an agent's reference minus its own clock, at most (31 years)
 _XCDR1 = Policy.DataRepresentation(use_cdrv0_representation=True)
 
 
@@ -233,10 +234,16 @@ class FederationToRos:
             if status.agent != str(parsed[0]):
                 self.counters["status_malformed"] += 1
                 return
+            offset = None if status.t_sim is None else status.t_sim - status.t_exec
+            if offset is not None and not abs(offset) <= MAX_CLOCK_OFFSET:  # NaN too
+                # Its poses would be stamped at no time ROS can hold (a crash, once).
+                self.counters["status_malformed"] += 1
+                self.rejects("status", f"{sample.key_expr}: clock offset {offset!r} s")
+                return
             with self._lock:
                 self._reference_of[parsed[0]] = reference
-                if status.t_sim is not None:
-                    self._to_reference[parsed[0]] = status.t_sim - status.t_exec
+                if offset is not None:
+                    self._to_reference[parsed[0]] = offset
                 else:
                     self._to_reference.pop(parsed[0], None)
         except Exception:
@@ -314,7 +321,16 @@ class FederationToRos:
             if theta is None or r is None:
                 self.counters["odom_unmapped"] += 1
                 continue
-            stamp = conv.host_stamp(sample.t, r, theta, mono, wall)
+            try:
+                stamp = conv.host_stamp(sample.t, r, theta, mono, wall)
+                odometry = conv.odometry_fields(agent, sample.pose, stamp)
+                transform = conv.transform_fields(agent, sample.pose, stamp)
+            except ValueError as error:  # no ROS time, or a twist not finite once turned
+                # One agent's bad sample: skipped, the others' written (it had stopped
+                # the bridge, and every joined platform with it).
+                self.counters["odom_unwritable"] += 1
+                self.rejects("pose", f"{agent}: {error}")
+                continue
             writer = self._writers.get(agent)
             if writer is None:
                 topic = Topic(
@@ -324,8 +340,8 @@ class FederationToRos:
                     self.participant, topic, odometry_writer_qos()
                 )
                 log.info("%s on ROS 2 topic %s", agent, conv.odometry_topic(agent))
-            writer.write(odometry_message(conv.odometry_fields(agent, sample.pose, stamp)))
-            transforms.append(conv.transform_fields(agent, sample.pose, stamp))
+            writer.write(odometry_message(odometry))
+            transforms.append(transform)
             self.counters["odom_published"] += 1
         if transforms and self._tf is not None:
             self._tf.write(tf_message(transforms))
@@ -340,13 +356,26 @@ class FederationToRos:
         self.publish()
 
 
+ODOM_CLOCK_TOLERANCE = 2.0
+"""s: a joined platform's odometry stamped further than this from the bridge host's wall
+clock is not taken (an hour-old bag replayed, a node on simulated time): keep the ROS
+hosts' clocks synchronized (NTP, chrony)."""
+
+
 class OdometryPlatform(KinematicPlatform):
     """A platform whose pose is the latest valid odometry read from ``reader``.
 
     ``stale``: no valid odometry for ``timeout`` seconds of ``clock`` (or none yet).
     Held (an abort), the pose still follows the odometry: it is a measurement, and a ROS
     platform's actuators are commanded in ROS, not here.
-    """
+
+    Valid is: finite, level, stamped within :data:`ODOM_CLOCK_TOLERANCE` of ``wall`` and
+    after the last one taken (an older sample, or the same one sent again, refreshes
+    nothing: a stuck node re-sending its last pose goes stale), in the frames of the
+    first one taken (``header.frame_id`` -> ``child_frame_id``: another robot's on the
+    same topic, or the odometry of another frame, is not), and while the topic has one
+    publisher (two sources of one platform's pose: whose is it?). Each sample refused is
+    counted by kind; :attr:`last_rejection` says why, for the hold's log line."""
 
     def __init__(
         self,
@@ -354,12 +383,16 @@ class OdometryPlatform(KinematicPlatform):
         timeout: float,
         rate: float = 20.0,
         clock: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
     ):
         super().__init__(rate=rate)
         if not timeout > 0:
             raise ValueError(f"odometry timeout must be positive seconds, not {timeout!r}")
-        self.reader, self.timeout, self.clock = reader, timeout, clock
+        self.reader, self.timeout, self.clock, self.wall = reader, timeout, clock, wall
         self.received_at: float | None = None
+        self.frames: tuple[str, str] | None = None  # (frame_id, child_frame_id), first taken
+        self.stamp: float | None = None  # the last taken sample's header stamp (s)
+        self.last_rejection: str | None = None
         self.counters: Counter[str] = Counter()
         self.rejects = RateLimitedLog(log)
 
@@ -367,11 +400,42 @@ class OdometryPlatform(KinematicPlatform):
     def stale(self) -> bool:
         return self.received_at is None or self.clock() - self.received_at > self.timeout
 
+    def _refuse(self, kind: str, why: str) -> None:
+        self.counters[kind] += 1
+        self.last_rejection = why
+        self.rejects(kind, why)
+
     def step(
         self, t: float, heading_ref: float, rate_ref: float, track: Track | None = None
     ) -> wire.Pose:
-        for sample in self.reader.take(N=100):
-            if not isinstance(sample, Odometry):  # an instance state change, no data
+        samples = [s for s in self.reader.take(N=100) if isinstance(s, Odometry)]
+        if not samples:  # (an instance state change carries no data)
+            return self.pose
+        publishers = len(self.reader.get_matched_publications())
+        for sample in samples:
+            if publishers > 1:
+                self._refuse("odom_contested", f"{publishers} publishers on the topic")
+                continue
+            frames = (sample.header.frame_id, sample.child_frame_id)
+            if self.frames is not None and frames != self.frames:
+                self._refuse(
+                    "odom_foreign_frame",
+                    f"odometry of {frames[0]!r} -> {frames[1]!r}, not the "
+                    f"{self.frames[0]!r} -> {self.frames[1]!r} first taken",
+                )
+                continue
+            stamp = conv.stamp_seconds(sample.header.stamp.sec, sample.header.stamp.nanosec)
+            off = stamp - self.wall()
+            if not abs(off) <= ODOM_CLOCK_TOLERANCE:
+                self._refuse(
+                    "odom_clock", f"stamped {off:+.1f} s from this host's clock "
+                    f"(at most {ODOM_CLOCK_TOLERANCE} s): a replay, or clocks not synchronized",
+                )  # fmt: skip
+                continue
+            if self.stamp is not None and stamp <= self.stamp:
+                self._refuse(
+                    "odom_not_newer", f"stamped {stamp - self.stamp:+.3f} s after the last"
+                )
                 continue
             p, v = sample.pose.pose, sample.twist.twist
             try:
@@ -382,11 +446,13 @@ class OdometryPlatform(KinematicPlatform):
                     (v.angular.x, v.angular.y, v.angular.z),
                 )
             except conv.OdometryError as error:
-                self.counters["odom_malformed"] += 1
-                self.rejects("odometry", str(error))
+                self._refuse("odom_malformed", str(error))
                 continue
+            if self.frames is None:
+                self.frames = frames
+                log.info("odometry taken in frames %r -> %r", *frames)
             self.counters["odom_received"] += 1
-            self.pose = pose
+            self.pose, self.stamp = pose, stamp
             self.received_at = self.clock()
         return self.pose
 
@@ -459,9 +525,11 @@ class Ros2Agent(AgentRuntime):
         if stale and self.hold_reason is None:
             self._hold("stale")  # held and said at once (the step's check would say "released")
             self.count("odom_stale_holds")
+            why = self.platform.last_rejection
             log.warning(
-                "no odometry on %s for %.1f s: hold", self.odom_topic, self.platform.timeout
-            )
+                "no valid odometry on %s for %.1f s%s: hold", self.odom_topic,
+                self.platform.timeout, "" if why is None else f" (last refused: {why})",
+            )  # fmt: skip
         elif not stale and self.hold_reason == "stale":
             released = self._let_go("stale")  # held still if its run has not begun
             log.info(

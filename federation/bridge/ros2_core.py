@@ -172,6 +172,8 @@ def split_stamp(seconds: float) -> tuple[int, int]:
         raise ValueError(f"stamp must be finite seconds, not {seconds!r}")
     total = round(seconds * 1e9)
     sec, nanosec = divmod(total, 1_000_000_000)
+    if not -(2**31) <= sec < 2**31:  # builtin_interfaces/Time's sec is an int32
+        raise ValueError(f"stamp {seconds!r} s is beyond what ROS 2 time holds")
     return int(sec), int(nanosec)
 
 
@@ -244,13 +246,16 @@ class TransformFields:
 def odometry_fields(agent: AgentId, pose: Pose, stamp: float) -> OdometryFields:
     """An agent's pose (common frame) as odometry stamped ``stamp`` (host wall clock, s)."""
     c, s = math.cos(pose.heading), math.sin(pose.heading)
+    linear = (c * pose.vx + s * pose.vy, -s * pose.vx + c * pose.vy, 0.0)
+    if not all(math.isfinite(v) for v in linear):  # finite velocities, too large to turn
+        raise ValueError(f"velocity ({pose.vx!r}, {pose.vy!r}) is not finite in the body frame")
     return OdometryFields(
         stamp=split_stamp(stamp),
         frame_id=COMMON_FRAME,
         child_frame_id=agent_frame(agent),
         position=(pose.x, pose.y, 0.0),
         orientation=heading_quaternion(pose.heading),
-        linear=(c * pose.vx + s * pose.vy, -s * pose.vx + c * pose.vy, 0.0),
+        linear=linear,
         angular=(0.0, 0.0, pose.omega),
     )
 
@@ -280,11 +285,9 @@ def pose_from_odometry(
     heading = quaternion_heading(*orientation)
     c, s = math.cos(heading), math.sin(heading)
     bx, by = linear[0], linear[1]
-    return Pose(
-        x=position[0],
-        y=position[1],
-        heading=heading,
-        vx=c * bx - s * by,
-        vy=s * bx + c * by,
-        omega=angular[2],
-    )
+    vx, vy = c * bx - s * by, s * bx + c * by
+    if not (math.isfinite(vx) and math.isfinite(vy)):
+        # Finite in the body frame, too large to turn: an infinite pose would hold the
+        # platform for good (nonfinite) on one sample.
+        raise OdometryError(f"linear {tuple(linear)} is not finite in the common frame")
+    return Pose(x=position[0], y=position[1], heading=heading, vx=vx, vy=vy, omega=angular[2])

@@ -139,6 +139,10 @@ RUN_SCHEMA = _rows_schema(
 )
 
 
+def _finite(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else value
+
+
 def _ms(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else value * 1e3
 
@@ -165,8 +169,8 @@ def run_row(status: Status, alive: bool = True) -> dict[str, Any]:
         "agent": status.agent,
         "role": status.role,
         "mode": status.mode,
-        "run_time": status.run_time,
-        "t_sim": status.t_sim,
+        "run_time": _finite(status.run_time),  # a NaN is not JSON: the table unreadable
+        "t_sim": _finite(status.t_sim),
         "hold": status.hold,
         "alive": alive,
     }

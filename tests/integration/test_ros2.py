@@ -33,6 +33,7 @@ from cyclonedds.util import duration
 from loopback import LEADER, Agent, Labs, PoseTap
 
 from federation.core import wire
+from federation.core.keys import AgentId
 from federation.fleet.launch import wait_for
 
 ROVER = "ros2lab/rover"
@@ -489,3 +490,48 @@ def test_types_here_are_named_as_ros2_names_them() -> None:
     }
     for cls, name in names.items():
         assert cls.__idl__.idl_transformed_typename == name  # type: ignore[attr-defined]
+
+
+def test_a_second_publisher_on_a_joined_platforms_odometry_is_not_flown_on(
+    dds: DomainParticipant,
+) -> None:
+    """Two writers on the platform's odometry topic (another robot's node, a bag played
+    on it): whose pose is it? Before, each step took whichever came last, the pose
+    jumping 10 m and 3 rad back and forth, nothing counted. Now nothing is taken while
+    two publish, and the platform goes stale (held)."""
+    from federation.bridge import ros2 as bridge
+    from federation.bridge import ros2_core as conv
+    from federation.bridge import ros2_types
+
+    topic = Topic(dds, conv.dds_topic("/rover/odom"), ros2_types.Odometry)
+    reader = DataReader(dds, topic, bridge.odometry_reader_qos())
+    real = DataWriter(dds, topic, bridge.odometry_writer_qos())
+    platform = bridge.OdometryPlatform(reader, timeout=0.5)
+    rover = AgentId.parse("ros2lab/rover")
+
+    def odometry(x: float, heading: float) -> Any:
+        fields = conv.odometry_fields(rover, wire.Pose(x, 0.0, heading), time.time())
+        return ros2_types.odometry_message(fields)
+
+    def steps(n: int, other: DataWriter | None = None) -> list[float]:
+        seen = []
+        for _ in range(n):  # bounded: n control steps at 20 Hz
+            real.write(odometry(0.0, 0.0))
+            if other is not None:
+                other.write(odometry(10.0, 3.0))
+            time.sleep(0.05)
+            seen.append(platform.step(0, 0, 0).x)
+        return seen
+
+    assert wait_for(lambda: len(reader.get_matched_publications()) == 1, timeout=5)
+    assert set(steps(4)) == {0.0} and not platform.stale
+    other = DataWriter(dds, topic, bridge.odometry_writer_qos())
+    assert wait_for(lambda: len(reader.get_matched_publications()) == 2, timeout=5)
+    seen = steps(20, other)
+    assert 10.0 not in seen and platform.stale, seen
+    assert platform.counters["odom_contested"] >= 20, platform.counters
+    assert platform.last_rejection == "2 publishers on the topic"
+    del other  # gone: the one writer's odometry is taken again
+    assert wait_for(lambda: len(reader.get_matched_publications()) == 1, timeout=10)
+    steps(2)
+    assert not platform.stale and platform.pose.x == 0.0
