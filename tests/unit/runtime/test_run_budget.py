@@ -492,6 +492,15 @@ def test_agents_in_processes_of_their_own_share_the_free_space(tmp_path: Path) -
     runs_module.PROMISES.give_back(tmp_path, first)
 
 
+def _promised_alone(tmp_path: Path) -> None:
+    """A promise is taken as if no other process had promised any: half of 600 MiB."""
+    who = object()
+    try:
+        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
+    finally:
+        runs_module.PROMISES.give_back(tmp_path, who)
+
+
 def test_a_ledger_that_cannot_be_written_leaves_the_process_on_its_own(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -499,62 +508,37 @@ def test_a_ledger_that_cannot_be_written_leaves_the_process_on_its_own(
     blocker.write_text("")
     monkeypatch.setenv(runs_module.LEDGER_ENV, str(blocker))
     monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
-    who = object()
-    try:
-        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
-    finally:
-        runs_module.PROMISES.give_back(tmp_path, who)
+    _promised_alone(tmp_path)
     assert "not shared with other processes" in caplog.text
 
 
-def test_a_ledger_another_user_made_is_not_trusted(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
-) -> None:
-    # Another user of the host could make the ledger's folder first and fill it with
-    # huge promises: every recording of this user would then get no space.
-    ledger = tmp_path / "ledger"
-    (ledger / str(tmp_path.stat().st_dev)).mkdir(parents=True)
-    planted = ledger / str(tmp_path.stat().st_dev) / "1-1"
-    planted.write_text(str(10**15))
-    monkeypatch.setenv(runs_module.LEDGER_ENV, str(ledger))
-    monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
-    real_getuid = os.getuid
-    monkeypatch.setattr(runs_module.os, "getuid", lambda: real_getuid() + 1)
-    who = object()
-    with planted.open() as held:  # its "process" alive: the promise locked
-        fcntl.flock(held, fcntl.LOCK_SH)
-        try:
-            assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
-        finally:
-            runs_module.PROMISES.give_back(tmp_path, who)
-    assert "belongs to another user" in caplog.text
-
-
-@pytest.mark.parametrize("kind", ["a link to a folder", "written by others"])
+@pytest.mark.parametrize(
+    "kind", ["made by another user", "a link to a folder", "written by others"]
+)
 def test_a_ledger_folder_others_could_have_planted_is_not_trusted(
     kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    # A link made by another user (to a folder they write, under a root-owned sticky
-    # folder) passed the owner check, which followed it.
+    # Another user of the host could make the ledger's folder first, or link it to a
+    # folder of theirs (under a root-owned sticky folder: the owner check followed the
+    # link), and plant huge promises: every recording of this user would get no space.
     real = tmp_path / "real"
     planted = real / str(tmp_path.stat().st_dev) / "1-1"
     planted.parent.mkdir(parents=True)
     planted.write_text(str(10**15))
+    ledger = real
     if kind == "a link to a folder":
         ledger = tmp_path / "ledger"
         ledger.symlink_to(real)
-    else:
-        ledger = real
+    elif kind == "written by others":
         real.chmod(0o777)
+    else:
+        real_getuid = os.getuid
+        monkeypatch.setattr(runs_module.os, "getuid", lambda: real_getuid() + 1)
     monkeypatch.setenv(runs_module.LEDGER_ENV, str(ledger))
     monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
-    who = object()
     with planted.open() as held:  # its "process" alive: the promise locked
         fcntl.flock(held, fcntl.LOCK_SH)
-        try:
-            assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
-        finally:
-            runs_module.PROMISES.give_back(tmp_path, who)
+        _promised_alone(tmp_path)
     assert "not shared with other processes" in caplog.text
 
 
@@ -570,11 +554,7 @@ def test_a_filesystem_without_locks_leaves_the_process_on_its_own(
 
     monkeypatch.setattr(runs_module.fcntl, "flock", no_locks)
     monkeypatch.setattr(runs_module.PROMISES, "_warned", False)
-    who = object()
-    try:
-        assert runs_module.PROMISES.take(tmp_path, 600 * MIB, None, who) == 300 * MIB
-    finally:
-        runs_module.PROMISES.give_back(tmp_path, who)
+    _promised_alone(tmp_path)
     assert "No locks available" in caplog.text
 
 
