@@ -50,6 +50,7 @@ __all__ = [
 ]
 
 APPROACH, HOLD, FINAL, CONTACT = "approach", "hold", "final", "contact"
+TARGET_JUMP = 0.1  # m a measurement may lie from the target's track before it is a jump
 OVERSHOOT = 0.05  # m past contact the final reference aims at, so contact happens moving
 
 
@@ -167,7 +168,7 @@ class DockingGuidance:
         self.target = TargetFilter()
         self.phase = APPROACH
         self.events: list[tuple[float, str]] = []
-        self.counters = {"backoffs_corridor": 0, "backoffs_lost": 0}
+        self.counters = {"backoffs_corridor": 0, "backoffs_lost": 0, "target_jumps": 0}
         self._carrot: tuple[float, float] | None = None  # (s, l) of the reference point
         self._t: float | None = None
         self._settled_since: float | None = None
@@ -211,6 +212,18 @@ class DockingGuidance:
         if t is None or run_time is None:
             return Reference(self._heading, 0.0, None)
         m = self.sensor.measure(t, target_shared, own)
+        if m is not None and self.target.ready:
+            x, y, _ = to_common(own, m)
+            pred = self.target.at(m.t)
+            if math.hypot(x - pred.x, y - pred.y) > TARGET_JUMP:
+                # The target is not where it was: no approach goes on toward a point
+                # that moved under it. Begin again from where the chaser is.
+                self.counters["target_jumps"] += 1
+                self.target = TargetFilter()
+                self._carrot = None
+                self._settled_since = None
+                if self.phase != APPROACH:
+                    self._go(t, APPROACH)
         if m is not None:
             self.target.update(own, m, self.sensor_config)
             self._last_measurement = t

@@ -56,9 +56,15 @@ from typing import NamedTuple
 from agents.guidance import Reference, Track
 from agents.relative import dead_reckon
 from federation.core.wire import Pose
-from schemas.scenario import FormationConfig
+from schemas.scenario import MAX_PATH_SPEED, FormationConfig
 
-__all__ = ["CirclePath", "FormationGuidance", "PathPoint", "slot_errors"]
+__all__ = ["MEMBER_OFF_MAX", "CirclePath", "FormationGuidance", "PathPoint", "slot_errors"]
+
+MEMBER_OFF_MAX = 0.5
+"""m: a member further than this from its slot around the path, or moving faster than
+MAX_PATH_SPEED against the path, is left out of the consensus (counted): its shared pose
+would move every other member's reference by ``consensus_weight`` of that at once (a
+pose 3 m off, or a velocity of 1 m/s, had driven a platform across its table)."""
 
 
 class PathPoint(NamedTuple):
@@ -137,6 +143,9 @@ class FormationGuidance:
         self.heading = math.radians(config.heading_deg)
         self.used = 0
         """How many others the last reference used."""
+        self.counters = {"members_off_slot": 0, "members_too_fast": 0}
+        """References that left a member out for lying too far from its slot, or moving
+        too fast against the path (:data:`MEMBER_OFF_MAX`)."""
         self._since: dict[str, float] = {}  # reference time each used member appeared
 
     def new_run(self) -> None:
@@ -184,10 +193,18 @@ class FormationGuidance:
                     vx=pose.vx + c.ax * dt,
                     vy=pose.vy + c.ay * dt,
                 )
-            sx += a * (pose.x - slot[0] - c.x)
-            sy += a * (pose.y - slot[1] - c.y)
-            svx += a * (pose.vx - c.vx)
-            svy += a * (pose.vy - c.vy)
+            ex, ey = pose.x - slot[0] - c.x, pose.y - slot[1] - c.y
+            evx, evy = pose.vx - c.vx, pose.vy - c.vy
+            if not math.hypot(ex, ey) <= MEMBER_OFF_MAX:
+                self.counters["members_off_slot"] += 1
+                del since[agent]  # taken in afresh, over join_ramp, once back
+                continue
+            if not math.hypot(evx, evy) <= MAX_PATH_SPEED:
+                self.counters["members_too_fast"] += 1
+                del since[agent]
+                continue
+            sx, sy = sx + a * ex, sy + a * ey
+            svx, svy = svx + a * evx, svy + a * evy
             n, total = n + 1, total + a
         self._since = since  # a member not used now appears afresh when it comes back
         self.used = n

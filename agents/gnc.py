@@ -352,6 +352,8 @@ class GncChain:
             return self._close("nonfinite")
         if not (math.isfinite(heading_ref) and math.isfinite(rate_ref)):
             return self._close("nonfinite")
+        # No reference spins the platform faster than it may turn (a peer's rate).
+        rate_ref = max(-self.config.max_rate, min(self.config.max_rate, rate_ref))
         if self._closed:  # resuming: no integral or PWM period left from before
             self._closed = False
             self.pid.reset()

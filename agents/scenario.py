@@ -173,13 +173,15 @@ class ScenarioGuidance:
 
     @property
     def counters(self) -> dict[str, int]:
-        """Workspace, sensor and docking counters."""
+        """Workspace, sensor, docking and formation counters."""
         out: dict[str, int] = {}
         if isinstance(self.platform, FramedPlatform):
             out |= self.platform.workspace_counters
         if self.docking is not None:
             out |= {f"relative_{k}": v for k, v in self.docking.sensor.counters.items()}
             out |= self.docking.counters
+        if self.formation is not None:
+            out |= self.formation.counters
         return out
 
 

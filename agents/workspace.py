@@ -146,6 +146,8 @@ class FramedPlatform:
         self.workspace_counters: dict[str, int] = {"workspace_clamped": 0, "workspace_holds": 0}
         self.table_pose = Pose()
         """The last estimate, table frame."""
+        # Half a pair's acceleration: what the platform can surely brake with.
+        self._brake = 0.5 * config.pair_force / config.mass if config else None
 
     # -- Platform ----------------------------------------------------------------------
     @property
@@ -169,6 +171,9 @@ class FramedPlatform:
             table_track = self.frame.track_to_table(track)
             if self.area is not None:
                 table_track, clamped = self.area.clamp(table_track)
+                if self._brake is not None and self.has_fix:
+                    table_track, slowed = self._stoppable(table_track)
+                    clamped = clamped or slowed
                 if clamped:
                     self.workspace_counters["workspace_clamped"] += 1
         pose = self.inner.step(t, heading_ref - self.frame.rotation, rate_ref, table_track)
@@ -184,6 +189,33 @@ class FramedPlatform:
             self.workspace_counters["workspace_holds"] += 1
             self.inner.hold()
         return self.frame.to_common(pose)
+
+    def _stoppable(self, track: Track) -> tuple[Track, bool]:
+        """The track limited, on each axis, to what the platform can still brake to rest
+        from before the area's edge it heads for, from where the estimate is: its rate
+        to the speed that leaves room to stop (half a thruster pair's deceleration), and,
+        if the platform already moves faster than that toward the edge, a stop where it
+        is (a shared velocity, a reference running ahead of the platform, had carried it
+        off its table: a hold at the edge shuts the valves, and it coasts on)."""
+        assert self.area is not None and self._brake is not None
+        p, a, b = self.table_pose, self.area, self._brake
+
+        def axis(
+            at: float, moving: float, ref: float, rate: float, accel: float, lo: float, hi: float
+        ) -> tuple[float, float, float, bool]:
+            up, down = math.sqrt(2 * b * max(0.0, hi - at)), math.sqrt(2 * b * max(0.0, at - lo))
+            if not -down <= moving <= up:  # too fast toward an edge already: brake here
+                return at, 0.0, 0.0, True
+            limited = min(max(rate, -down), up)
+            if limited == rate:
+                return ref, rate, accel, False
+            return ref, limited, 0.0, True
+
+        x, vx, ax, slow_x = axis(p.x, p.vx, track.x, track.vx, track.ax, a.x_min, a.x_max)
+        y, vy, ay, slow_y = axis(p.y, p.vy, track.y, track.vy, track.ay, a.y_min, a.y_max)
+        if not (slow_x or slow_y):
+            return track, False
+        return track._replace(x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay), True
 
     @property
     def has_fix(self) -> bool:

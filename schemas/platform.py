@@ -240,7 +240,11 @@ class PlatformConfig(_Model):
         gt=0, allow_inf_nan=False, description="moment of inertia about the vertical axis, kg m^2"
     )
     max_rate: float = Field(
-        0.5, gt=0, description="largest heading rate the kinematic model follows, rad/s"
+        0.5,
+        gt=0,
+        allow_inf_nan=False,
+        description="largest heading rate a reference may ask, rad/s (a leader's shared "
+        "rate is limited to it)",
     )
     thrust: float = Field(
         0.20, gt=0, allow_inf_nan=False, description="force of one thruster as operated, N"

@@ -69,7 +69,7 @@ def test_backs_off_when_out_of_the_corridor() -> None:
     g._last_measurement = 0.0
     own = Pose(0.6, 0.2, math.pi)  # 20 cm off the axis at 10 cm from contact
     g.target.update(
-        own, RelativeMeasurement(0.0, math.hypot(0.6, 0.2), math.atan2(-0.2, 0.6), math.pi), QUIET
+        own, RelativeMeasurement(0.0, math.hypot(0.6, 0.2), math.atan2(0.2, 0.6), math.pi), QUIET
     )
     g.reference(0.05, 0.05, (0.05, Pose()), own)
     assert g.phase == "approach" and g.counters["backoffs_corridor"] == 1
