@@ -373,9 +373,10 @@ class OdometryPlatform(KinematicPlatform):
     after the last one taken (an older sample, or the same one sent again, refreshes
     nothing: a stuck node re-sending its last pose goes stale), in the frames of the
     first one taken (``header.frame_id`` -> ``child_frame_id``: another robot's on the
-    same topic, or the odometry of another frame, is not), and while the topic has one
-    publisher (two sources of one platform's pose: whose is it?). Each sample refused is
-    counted by kind; :attr:`last_rejection` says why, for the hold's log line."""
+    same topic, or the odometry of another frame, is not), and while one writer is heard
+    on the topic within ``timeout`` (two sources of one platform's pose: whose is it?).
+    Each sample refused is counted by kind; :attr:`last_rejection` says why, for the
+    hold's log line."""
 
     def __init__(
         self,
@@ -393,6 +394,7 @@ class OdometryPlatform(KinematicPlatform):
         self.frames: tuple[str, str] | None = None  # (frame_id, child_frame_id), first taken
         self.stamp: float | None = None  # the last taken sample's header stamp (s)
         self.last_rejection: str | None = None
+        self._writers: dict[object, float] = {}  # writer -> clock time last heard
         self.counters: Counter[str] = Counter()
         self.rejects = RateLimitedLog(log)
 
@@ -411,10 +413,16 @@ class OdometryPlatform(KinematicPlatform):
         samples = [s for s in self.reader.take(N=100) if isinstance(s, Odometry)]
         if not samples:  # (an instance state change carries no data)
             return self.pose
-        publishers = len(self.reader.get_matched_publications())
+        now = self.clock()
         for sample in samples:
-            if publishers > 1:
-                self._refuse("odom_contested", f"{publishers} publishers on the topic")
+            # The writers heard within the timeout: a node killed and started again is a
+            # new writer, but the dead one, silent, drops out (matched writers would
+            # count it until its DDS lease ended, 10 s and more).
+            info = getattr(sample, "sample_info", None)
+            self._writers[getattr(info, "publication_handle", None)] = now
+            self._writers = {w: at for w, at in self._writers.items() if now - at <= self.timeout}
+            if len(self._writers) > 1:
+                self._refuse("odom_contested", f"{len(self._writers)} publishers on the topic")
                 continue
             frames = (sample.header.frame_id, sample.child_frame_id)
             if self.frames is not None and frames != self.frames:
@@ -432,6 +440,8 @@ class OdometryPlatform(KinematicPlatform):
                     f"(at most {ODOM_CLOCK_TOLERANCE} s): a replay, or clocks not synchronized",
                 )  # fmt: skip
                 continue
+            if self.stamp is not None and self.stamp - self.wall() > ODOM_CLOCK_TOLERANCE:
+                self.stamp = None  # the clocks were set back: the last stamp is no measure
             if self.stamp is not None and stamp <= self.stamp:
                 self._refuse(
                     "odom_not_newer", f"stamped {stamp - self.stamp:+.3f} s after the last"

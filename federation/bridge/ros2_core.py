@@ -170,10 +170,11 @@ def split_stamp(seconds: float) -> tuple[int, int]:
     """``builtin_interfaces/Time`` of ``seconds``: (sec, nanosec), nanosec in [0, 1e9)."""
     if not math.isfinite(seconds):
         raise ValueError(f"stamp must be finite seconds, not {seconds!r}")
+    if not -(2**31) <= seconds <= 2**31 - 1:  # builtin_interfaces/Time's sec is an int32
+        # (checked first: a stamp near 1e300 overflows in the product below)
+        raise ValueError(f"stamp {seconds!r} s is beyond what ROS 2 time holds")
     total = round(seconds * 1e9)
     sec, nanosec = divmod(total, 1_000_000_000)
-    if not -(2**31) <= sec < 2**31:  # builtin_interfaces/Time's sec is an int32
-        raise ValueError(f"stamp {seconds!r} s is beyond what ROS 2 time holds")
     return int(sec), int(nanosec)
 
 

@@ -532,6 +532,66 @@ def test_a_second_publisher_on_a_joined_platforms_odometry_is_not_flown_on(
     assert platform.counters["odom_contested"] >= 20, platform.counters
     assert platform.last_rejection == "2 publishers on the topic"
     del other  # gone: the one writer's odometry is taken again
-    assert wait_for(lambda: len(reader.get_matched_publications()) == 1, timeout=10)
-    steps(2)
+    steps(15)
     assert not platform.stale and platform.pose.x == 0.0
+
+
+_ODOMETRY_NODE = """
+import sys, time
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.topic import Topic
+from cyclonedds.pub import DataWriter
+from federation.bridge import ros2 as bridge, ros2_core as conv, ros2_types
+from federation.core import wire
+from federation.core.keys import AgentId
+participant = DomainParticipant(int(sys.argv[1]))
+topic = Topic(participant, conv.dds_topic("/rover/odom"), ros2_types.Odometry)
+writer = DataWriter(participant, topic, bridge.odometry_writer_qos())
+rover = AgentId.parse("ros2lab/rover")
+for _ in range(1200):  # bounded: 60 s at 20 Hz
+    pose = wire.Pose(1.0, 0.0, 0.0)
+    writer.write(ros2_types.odometry_message(conv.odometry_fields(rover, pose, time.time())))
+    time.sleep(0.05)
+"""
+
+
+def test_a_robots_odometry_node_killed_and_restarted_is_taken_again_at_once(
+    dds: DomainParticipant,
+) -> None:
+    """The dead node's writer stays matched until its DDS lease ends (10 s and more):
+    counted as a second publisher, it had held the platform all that time."""
+    from federation.bridge import ros2 as bridge
+    from federation.bridge import ros2_core as conv
+    from federation.bridge import ros2_types
+
+    topic = Topic(dds, conv.dds_topic("/rover/odom"), ros2_types.Odometry)
+    reader = DataReader(dds, topic, bridge.odometry_reader_qos())
+    platform = bridge.OdometryPlatform(reader, timeout=0.5)
+    domain = str(dds.domain_id)
+
+    def node() -> subprocess.Popen[bytes]:
+        return subprocess.Popen([sys.executable, "-c", _ODOMETRY_NODE, domain])
+
+    def fresh(seconds: float) -> bool:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:  # bounded by seconds
+            platform.step(0, 0, 0)
+            if not platform.stale:
+                return True
+            time.sleep(0.05)
+        return False
+
+    nodes = [node()]
+    try:
+        assert fresh(20), platform.counters  # the first node up and heard
+        nodes[0].kill()
+        nodes[0].wait(10)
+        nodes.append(node())  # started again at once: a new writer
+        time.sleep(1.0)
+        platform.step(0, 0, 0)
+        assert fresh(5.0), (platform.last_rejection, platform.counters)
+        assert len(reader.get_matched_publications()) >= 1
+    finally:
+        for n in nodes:
+            n.kill()
+            n.wait(10)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -54,8 +55,8 @@ def _status(agent: str, t_exec: float, t_sim: float) -> bytes:
 
 @pytest.mark.parametrize(
     ("t_exec", "t_sim", "t"),
-    [(0.0, math.nan, 1.0), (-1e308, 1e308, 1.0), (0.0, 0.0, 1e12)],
-    ids=["status t_sim NaN", "offset overflowing", "pose beyond ROS time"],
+    [(0.0, math.nan, 1.0), (-1e308, 1e308, 1.0), (0.0, 0.0, 1e12), (0.0, 0.0, 1e300)],
+    ids=["status t_sim NaN", "offset overflowing", "pose beyond ROS time", "pose overflowing"],
 )
 def test_one_members_bad_status_or_pose_skips_that_member_only(
     t_exec: float, t_sim: float, t: float
@@ -98,14 +99,10 @@ def test_a_non_finite_time_in_a_status_leaves_the_live_run_table_json() -> None:
 class _Reader:
     def __init__(self) -> None:
         self.samples: list[Odometry] = []
-        self.publishers = [1]
 
     def take(self, N: int) -> list[Odometry]:
         taken, self.samples = self.samples, []
         return taken
-
-    def get_matched_publications(self) -> list[int]:
-        return self.publishers
 
 
 class _Clock:
@@ -117,10 +114,11 @@ class _Clock:
 
 
 def _odometry(
-    stamp: float, x: float = 1.0, frame: str = "odom", child: str = "base_link"
+    stamp: float, x: float = 1.0, frame: str = "odom", child: str = "base_link", writer: int = 1
 ) -> Odometry:
     message = odometry_message(conv.odometry_fields(ROVER, wire.Pose(x, 2.0, 0.3), stamp))
     message.header.frame_id, message.child_frame_id = frame, child
+    message.sample_info = SimpleNamespace(publication_handle=writer)  # as DDS annotates it
     return message
 
 
@@ -160,12 +158,28 @@ def test_odometry_is_taken_fresh_newer_in_its_frames_and_from_one_publisher() ->
     assert platform.stale and platform.counters["odom_not_newer"] == 7
     assert platform.last_rejection is not None and "after the last" in platform.last_rejection
 
-    # A second publisher on the topic: nothing taken from either while it lasts.
-    reader.publishers = [1, 2]
-    reader.samples = [_odometry(wall.now + 0.2, x=9.0), _odometry(wall.now + 0.3, x=0.0)]
+    # A second writer on the topic: nothing taken from either while both are heard.
+    reader.samples = [_odometry(wall.now + 0.2, x=9.0, writer=2), _odometry(wall.now + 0.3)]
     platform.step(0, 0, 0)
     assert platform.counters["odom_contested"] == 2 and platform.stale and platform.pose.x == 1.0
-    reader.publishers = [1]
-    reader.samples = [_odometry(wall.now + 0.4, x=3.0)]
+    # The first falls silent (a node killed and started again is a new writer): after
+    # the timeout the one heard is taken again, without waiting for a DDS lease.
+    clock.now += 0.6
+    reader.samples = [_odometry(wall.now + 0.4, x=3.0, writer=2)]
     platform.step(0, 0, 0)
     assert not platform.stale and platform.pose.x == 3.0
+
+
+def test_clocks_set_back_hold_the_platform_no_longer_than_the_tolerance() -> None:
+    # The last stamp taken had been kept for good: clocks corrected back by 60 s (NTP)
+    # made every fresh sample "not newer" for 60 s, the platform held all that time.
+    platform, reader, clock, wall = _platform()
+    reader.samples = [_odometry(wall.now)]
+    platform.step(0, 0, 0)
+    wall.now -= 60.0
+    for _ in range(30):  # 3 s at 10 Hz on the corrected clocks
+        clock.now += 0.1
+        wall.now += 0.1
+        reader.samples = [_odometry(wall.now, x=2.0)]
+        platform.step(0, 0, 0)
+    assert not platform.stale and platform.pose.x == 2.0
