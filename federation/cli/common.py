@@ -10,6 +10,7 @@ session (:func:`open_session`, :func:`open_interruptible`).
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
 import math
 import signal
@@ -166,6 +167,9 @@ def signal_handlers_kept() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        # The command has stopped: a stack dump armed by its signal is not for what runs
+        # next in this process (a test, the program that called main()).
+        faulthandler.cancel_dump_traceback_later()
 
 
 def open_interruptible(

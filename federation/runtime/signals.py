@@ -28,9 +28,22 @@ log = logging.getLogger("fedlab")
 
 _lock = threading.Lock()  # never taken by a handler: the relay's and stop_event's only
 _pipe: tuple[int, int] | None = None  # (read, write), made at the first stop_event
-# Events a signal sets, each with the seconds after which a stop still under way dumps
-# every thread's stack (None: never).
-_events: weakref.WeakKeyDictionary[threading.Event, float | None] = weakref.WeakKeyDictionary()
+# Events a signal sets: each with the signals it waits for and the seconds after which a
+# stop still under way dumps every thread's stack (None: never).
+_events: weakref.WeakKeyDictionary[threading.Event, tuple[frozenset[int], float | None]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def _forget_in_child() -> None:
+    """A forked child has the pipe but not the relay thread: its signals would have set
+    its parent's events. It makes its own at its first :func:`stop_event`."""
+    global _pipe
+    _pipe = None
+    _events.clear()
+
+
+os.register_at_fork(after_in_child=_forget_in_child)
 
 
 def stop_event(signals: Iterable[int], report_after: float | None = None) -> threading.Event:
@@ -38,6 +51,7 @@ def stop_event(signals: Iterable[int], report_after: float | None = None) -> thr
     before). With ``report_after``, a process still running that many seconds after the
     event was set writes every thread's stack to stderr (a stop that hangs says where)."""
     global _pipe
+    signals = frozenset(signals)
     stop = threading.Event()
     with _lock:
         if _pipe is None:
@@ -47,7 +61,7 @@ def stop_event(signals: Iterable[int], report_after: float | None = None) -> thr
             threading.Thread(
                 target=_relay, args=(read,), name="fedlab-signals", daemon=True
             ).start()
-        _events[stop] = report_after
+        _events[stop] = (signals, report_after)
     for sig in signals:
         signal.signal(sig, _handler)
     return stop
@@ -73,7 +87,9 @@ def _relay(read: int) -> None:
             log.info("received %s, stopping", signal.Signals(signum).name)
             with _lock:
                 waiting = list(_events.items())
-            for event, report_after in waiting:
+            for event, (signals, report_after) in waiting:
+                if signum not in signals:
+                    continue
                 if not event.is_set() and report_after is not None:
                     faulthandler.dump_traceback_later(report_after, exit=False)
                 event.set()

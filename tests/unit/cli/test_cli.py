@@ -362,6 +362,48 @@ def test_a_signal_while_the_main_thread_is_inside_the_stop_event_still_stops_it(
     assert out == "set: True\n" and proc.returncode == 0, (out, err)
 
 
+_SIGNALS_APART = """
+import os, signal, time
+from federation.cli import common
+from federation.runtime.signals import stop_event
+common.STOP_REPORT_AFTER = 0.5
+term_only = stop_event([signal.SIGTERM])  # as the network bench's
+with common.signal_handlers_kept():  # as main() runs a command
+    command = common.stop_on_signals()
+    os.kill(os.getpid(), signal.SIGINT)
+    print("command stopped:", command.wait(5), flush=True)
+time.sleep(0.3)
+print("SIGTERM-only event set:", term_only.is_set(), flush=True)
+time.sleep(1.0)  # past STOP_REPORT_AFTER: no stack dump once the command has returned
+pid = os.fork()
+if pid == 0:  # a child's signal is its own
+    child = stop_event([signal.SIGTERM])
+    os.kill(os.getpid(), signal.SIGTERM)
+    os._exit(0 if child.wait(5) else 1)
+_, code = os.waitpid(pid, 0)
+print("child stopped itself:", code == 0, flush=True)
+time.sleep(0.3)
+print("parent's event set by the child:", term_only.is_set(), flush=True)
+"""
+
+
+def test_a_signal_sets_only_its_own_events_in_its_own_process() -> None:
+    # The relay had set every live event whatever signals it waited for; after a fork the
+    # child's signals went to the parent's relay; a dump armed by a command's signal
+    # went off seconds after main() had returned.
+    done = subprocess.run(
+        [sys.executable, "-c", _SIGNALS_APART], cwd=ROOT, text=True, capture_output=True,
+        timeout=60,
+    )  # fmt: skip
+    assert done.stdout.splitlines() == [
+        "command stopped: True",
+        "SIGTERM-only event set: False",
+        "child stopped itself: True",
+        "parent's event set by the child: False",
+    ], (done.stdout, done.stderr)
+    assert "Timeout" not in done.stderr, done.stderr
+
+
 def test_a_stop_that_takes_too_long_says_where_each_thread_is() -> None:
     proc = subprocess.Popen(
         [sys.executable, "-c", _SLOW_STOP], cwd=ROOT, text=True,
