@@ -60,6 +60,9 @@ from schemas.scenario import MAX_PATH_SPEED, FormationConfig
 
 __all__ = ["MEMBER_OFF_MAX", "CirclePath", "FormationGuidance", "PathPoint", "slot_errors"]
 
+MEMBER_FADE = 0.2
+"""m: over the last this much before :data:`MEMBER_OFF_MAX` a member's weight fades to
+nothing (and over the last ``MEMBER_FADE / MEMBER_OFF_MAX`` of the speed limit alike)."""
 MEMBER_OFF_MAX = 0.5
 """m: a member further than this from its slot around the path, or moving faster than
 MAX_PATH_SPEED against the path, is left out of the consensus (counted): its shared pose
@@ -202,6 +205,15 @@ class FormationGuidance:
             if not math.hypot(evx, evy) <= MAX_PATH_SPEED:
                 self.counters["members_too_fast"] += 1
                 del since[agent]
+                continue
+            # Let go gradually near either bound: dropped at once, a member drifting
+            # past it had stepped the others' reference by 0.35 m in one step.
+            a = min(
+                a,
+                (MEMBER_OFF_MAX - math.hypot(ex, ey)) / MEMBER_FADE,
+                (MAX_PATH_SPEED - math.hypot(evx, evy)) / (MEMBER_FADE * MAX_PATH_SPEED),
+            )
+            if a <= 0.0:
                 continue
             sx, sy = sx + a * ex, sy + a * ey
             svx, svy = svx + a * evx, svy + a * evy

@@ -124,10 +124,10 @@ def test_a_frozen_run_asks_no_motion() -> None:
 
 
 def test_a_member_joining_or_leaving_moves_the_track_gradually() -> None:
-    """b sits 0.5 m off its slot. Its pose appearing, then going silent, had stepped the
-    others' track by 0.35 m (0.7 x 0.5) in one control step each way."""
+    """b sits 0.25 m off its slot. Its pose appearing, then going silent, had stepped the
+    others' track by 0.175 m (0.7 x 0.25) in one control step each way."""
     g = FormationGuidance("a/x", CONFIG, compensate=False)
-    off = Pose(-0.5, 0.0)  # b's slot is (-1, 0): 0.5 m to +x of it
+    off = Pose(-0.75, 0.0)  # b's slot is (-1, 0): 0.25 m to +x of it
     xs, dt = [], 0.01
     for i in range(1200):  # 12 s at 100 Hz: b talks from 1 s to 6 s, then is silent
         t = 10.0 + i * dt
@@ -137,18 +137,18 @@ def test_a_member_joining_or_leaving_moves_the_track_gradually() -> None:
         assert ref.track is not None
         xs.append(ref.track.x)
     steps = [abs(b - a) for a, b in itertools.pairwise(xs)]
-    assert max(steps[:600]) <= 0.7 * 0.5 / CONFIG.join_ramp * dt * 1.01  # ramp-in
-    assert max(xs) == pytest.approx(0.7 * 0.5)  # fully taken in
+    assert max(steps[:600]) <= 0.7 * 0.25 / CONFIG.join_ramp * dt * 1.01  # ramp-in
+    assert max(xs) == pytest.approx(0.7 * 0.25)  # fully taken in
     assert xs[-1] == pytest.approx(0.0)  # let go by the time it is stale
     # A new run takes every member in afresh: b, fully taken in, counts from nothing again.
     for t in (30.0, 32.5):
         g.reference(t, 0.0, {"b/y": (t, off)})
-    assert g.reference(32.6, 0.0, {"b/y": (32.6, off)}).track.x == pytest.approx(0.35)  # type: ignore[union-attr]
+    assert g.reference(32.6, 0.0, {"b/y": (32.6, off)}).track.x == pytest.approx(0.175)  # type: ignore[union-attr]
     g.new_run()
     ref = g.reference(32.7, 0.0, {"b/y": (32.7, off)})
     assert ref.track is not None and ref.track.x == pytest.approx(0.0)
     # The fade-out is as gradual: over the last half of stale_after, not at once.
-    assert max(steps) <= 0.7 * 0.5 / (CONFIG.stale_after / 2) * dt * 1.01
+    assert max(steps) <= 0.7 * 0.25 / (CONFIG.stale_after / 2) * dt * 1.01
     assert sum(s > 0 for s in steps[600:]) >= 45  # over about 50 steps, not one
 
 

@@ -4,6 +4,7 @@ case in simulation (KNATTE), the fault from the start or mid-run."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -99,3 +100,20 @@ def test_a_leaders_shared_rate_does_not_spin_the_follower_past_its_limit() -> No
         heading, rate = track_heading(PoseSample(t, Pose(omega=50.0 if t >= 5 else 0.0)), now=t)
         platform.step(t, heading, rate)
         assert platform.truth is not None and abs(platform.truth.omega) <= KNATTE.max_rate
+
+
+def test_a_member_drifting_past_the_bound_is_let_go_gradually() -> None:
+    # Dropped at once at 0.5 m, a member drifting off its slot had stepped the others'
+    # reference by 0.35 m (0.7 x 0.5) in one 10 ms step.
+    cfg = FormationConfig(slots={"a/x": (0.0, 0.0), "b/y": (5.0, 0.0)}, radius=0.0, still=1e3)
+    guidance = FormationGuidance("a/x", cfg)
+    xs = []
+    for i in range(4000):  # b drifts off at 2.5 cm/s, then stops 0.6 m off
+        t = i * 0.01
+        off = min(0.6, 0.025 * t)
+        peer = Pose(5.0 + off, 0.0, 0.0, 0.025 if off < 0.6 else 0.0)
+        ref = guidance.reference(t, t, {"b/y": (t, peer)})
+        assert ref.track is not None
+        xs.append(ref.track.x)
+    assert max(abs(b - a) for a, b in itertools.pairwise(xs)) < 0.01
+    assert guidance.used == 0 and guidance.counters["members_off_slot"] > 0
