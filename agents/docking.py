@@ -51,6 +51,7 @@ __all__ = [
 
 APPROACH, HOLD, FINAL, CONTACT = "approach", "hold", "final", "contact"
 TARGET_JUMP = 0.1  # m a measurement may lie from the target's track before it is a jump
+# (at the least: more where the sensor's noise at its range is larger, TargetFilter.jump_gate)
 OVERSHOOT = 0.05  # m past contact the final reference aims at, so contact happens moving
 
 
@@ -91,10 +92,24 @@ class _Axis:
         self.v += k2 * e
         self.p = (p11 - k1 * p11, p12 - k1 * p12, p22 - k2 * p12)
 
+    def variance_at(self, t: float) -> float:
+        """The value's variance predicted to ``t`` (the state left as it is)."""
+        p11, p12, p22 = self.p
+        dt = 0.0 if self.t is None else max(0.0, t - self.t)
+        return p11 + 2 * dt * p12 + dt * dt * p22 + self.q * dt**4 / 4
+
     def at(self, t: float) -> tuple[float, float]:
         """(value, rate) extrapolated to ``t``."""
         dt = 0.0 if self.t is None else max(0.0, t - self.t)
         return self.x + self.v * dt, self.v
+
+
+def position_variance(sensor: RelativeSensorConfig, m: RelativeMeasurement) -> float:
+    """The variance (m^2) of a measurement's position on each axis: the larger of the
+    range's and the bearing's, each growing with range."""
+    sigma_r = sensor.range_noise + sensor.range_noise_per_m * m.range
+    sigma_b = math.radians(sensor.bearing_noise_deg + sensor.bearing_noise_per_m_deg * m.range)
+    return max(sigma_r, sigma_b * m.range, 1e-4) ** 2
 
 
 class TargetFilter:
@@ -112,15 +127,21 @@ class TargetFilter:
 
     def update(self, own: Pose, m: RelativeMeasurement, sensor: RelativeSensorConfig) -> None:
         x, y, psi = to_common(own, m)
-        sigma_r = sensor.range_noise + sensor.range_noise_per_m * m.range
-        sigma_b = math.radians(sensor.bearing_noise_deg + sensor.bearing_noise_per_m_deg * m.range)
-        r_pos = max(sigma_r, sigma_b * m.range, 1e-4) ** 2
+        r_pos = position_variance(sensor, m)
         self.x.update(m.t, x, r_pos)
         self.y.update(m.t, y, r_pos)
         if self.psi.t is not None:  # heading continuous next to the estimate
             psi = self.psi.x + wrap_angle(psi - self.psi.x)
         self.psi.update(m.t, psi, max(math.radians(sensor.heading_noise_deg), 1e-4) ** 2)
         self.updates += 1
+
+    def jump_gate(self, m: RelativeMeasurement, sensor: RelativeSensorConfig) -> float:
+        """How far (m) measurement ``m`` may lie from the target's predicted position
+        before it is a jump: ``TARGET_JUMP``, or five standard deviations of the
+        difference where the sensor's noise (growing with range) and the estimate's own
+        spread make more (at 3.9 m a fixed 0.1 m was 3 sigma: noise alone restarted)."""
+        spread = position_variance(sensor, m) + self.x.variance_at(m.t) + self.y.variance_at(m.t)
+        return max(TARGET_JUMP, 5.0 * math.sqrt(spread))
 
     def at(self, t: float) -> Pose:
         (x, vx), (y, vy), (psi, w) = self.x.at(t), self.y.at(t), self.psi.at(t)
@@ -215,7 +236,7 @@ class DockingGuidance:
         if m is not None and self.target.ready:
             x, y, _ = to_common(own, m)
             pred = self.target.at(m.t)
-            if math.hypot(x - pred.x, y - pred.y) > TARGET_JUMP:
+            if math.hypot(x - pred.x, y - pred.y) > self.target.jump_gate(m, self.sensor_config):
                 # The target is not where it was: no approach goes on toward a point
                 # that moved under it. Begin again from where the chaser is.
                 self.counters["target_jumps"] += 1
