@@ -70,6 +70,18 @@ def legacy_samples(fleet: Fleet) -> int:
     return int(lines[-1]["samples"]) if lines else 0
 
 
+def legacy_samples_since(fleet: Fleet, instant: float, timeout: float = 5.0) -> int:
+    """The legacy agent's replies as of its first line printed after host monotonic
+    ``instant``: its lines are 1 s apart, so the last one printed may predate a reply it
+    had already received (bounded wait)."""
+
+    def printed() -> list[dict[str, Any]]:
+        return [line for line in legacy_lines(fleet) if line["host"] > instant]
+
+    assert wait_for(printed, timeout), f"no line of the legacy agent after {instant}"
+    return int(printed()[0]["samples"])
+
+
 def gone(line: dict[str, Any]) -> bool:
     """The leader's status line shows the legacy agent gone (not yet seen: not gone)."""
     return not line["peers"].get(LEGACY, {"alive": True})["alive"]
@@ -242,12 +254,12 @@ def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_go
         assert "2 processes answer for rome/legacy in federation default" in bridge.log()
         # Held: the legacy agent gets no more replies, and the token went.
         leader.until(gone, timeout=5, what=f"{LEGACY} gone")
-        time.sleep(0.5)
-        before = legacy_lines(fleet)[-1]["samples"]
+        # Held since before the token went; a reply already in flight lands within 0.2 s.
+        before = legacy_samples_since(fleet, time.monotonic() + 0.2)
         while declared:  # the other one stops: the bridge stays held
             declared.pop().undeclare()
         time.sleep(2.0)
-        assert legacy_lines(fleet)[-1]["samples"] == before
+        assert legacy_samples_since(fleet, time.monotonic()) == before
         line = bridge.latest()
         assert line["hold"] == "name_taken" and line["counters"]["name_taken_holds"] == 1
         assert line["counters"]["udp_held_for_name"] > 0
