@@ -3,7 +3,8 @@
     python tests/integration/third_party_agent.py ENDPOINT LAB/NAME CLOCK_OFFSET DURATION
 
 - Its clock is ``time.monotonic() + CLOCK_OFFSET`` (seconds).
-- Declares its liveliness token ``fedlab/default/LAB/NAME``.
+- Declares its liveliness token ``fedlab/default/LAB/NAME`` after its queryable and
+  publisher (peers query it as soon as the token appears).
 - Serves ``fedlab/default/LAB/NAME/sync``: reads ``t2`` when a query arrives; an 8-byte
   request holding a finite ``t1`` gets the 64-byte reply (t1, t2, x, y, heading, vx, vy,
   omega; float64 little-endian) on the query's key; anything else gets no reply. Every
@@ -65,9 +66,10 @@ def main(argv):
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     with zenoh.open(conf) as session:
-        token = session.liveliness().declare_token(key)
+        # The token last (docs/protocol.md): peers query an agent as soon as it appears.
         queryable = session.declare_queryable(f"{key}/sync", on_query)
         publisher = session.declare_publisher(f"{key}/pose")
+        token = session.liveliness().declare_token(key)
         end = time.monotonic() + duration
         next_pose = next_print = time.monotonic()
         while not stopping and time.monotonic() < end:
