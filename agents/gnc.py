@@ -51,8 +51,10 @@ that is not finite or beyond the sensor's range (``imu.gyro_range``,
 
 A fix is never taken alone when the estimate has none to check it against: the first
 fix of an estimate, and the first after a gap longer than ``control.fix_timeout``
-(out of the cameras' view, dead reckoning on the IMU alone, the gate as wide as the
-drift), start a trial copy of the estimate, and the estimate takes it only once
+(no fix received for that long: out of the cameras' view, dead reckoning on the IMU
+alone, the estimate anywhere the drift took it), start a trial copy of the estimate,
+and so do the fixes after it until the trial is taken or dropped (none is gated
+against the dead-reckoned estimate, so none is an outlier), and the estimate takes it only once
 ``navigation.fixes_to_start`` fixes in a row agree with it (each within the gate of
 the trial so far): a glitch right after a gap had been taken, and flown on. The
 estimate then takes the fixes that follow as usual, gated, and the valves stay closed
@@ -217,6 +219,7 @@ class GncChain:
         self._imu = ImuSample(0.0, 0.0, 0.0)
         self._imu_at: float | None = None  # ``now`` of the latest IMU sample used
         self._fix_at: float | None = None  # ``now`` of the latest fix
+        self._seen_at: float | None = None  # ``now`` of the latest fix received, taken or not
         self._last_now: float | None = None
         self._held = False
         self._closed = True  # the last step was forced closed: restart PID and PWM
@@ -272,6 +275,7 @@ class GncChain:
         self._agreeing = self._trial_fixes = 0
         self._settling = False
         self._trial_at = -math.inf
+        self._seen_at = None
         self._rejecting = False
 
     def acknowledge_restart(self) -> None:
@@ -400,15 +404,25 @@ class GncChain:
             self.counters["fix_uncarried"] += 1
             return
         filt = self.filter
-        if filt.fixes and not filt.innovation_distance(fix, age) <= self.fix_gate:
+        seen, self._seen_at = self._seen_at, now
+        stale = self._fix_at is None or now - self._fix_at > self.fix_timeout
+        gap = seen is None or now - seen > self.fix_timeout
+        if stale and (gap or self._trial is not None):
+            # Nothing recent to gate it on: the metrology saw nothing for longer than
+            # fix_timeout (out of the cameras' view), so the estimate is dead reckoning
+            # and a fix that disagrees with it is where the platform went, not an
+            # outlier for an operator to acknowledge. It is acquired, with those that
+            # follow it: taken once ``fixes_to_start`` in a row agree. Fixes that kept
+            # coming and were rejected are no gap: those go on as outliers.
+            self._shadow, self._agreeing = None, 0
+            if not self._acquired(now, fix, age):
+                return
+        elif filt.fixes and not filt.innovation_distance(fix, age) <= self.fix_gate:
             if not self._outlier(now, fix, age):
                 self._reject("fix_outlier")
             return
-        self._shadow, self._agreeing = None, 0  # within the gate: outliers are not in a row
-        if self._fix_at is None or now - self._fix_at > self.fix_timeout:
-            if not self._acquired(now, fix, age):
-                return
         else:
+            self._shadow, self._agreeing = None, 0  # within the gate: outliers not in a row
             filt.correct(now, fix, age)
         self._fix_at = now - age  # its staleness counts from when the metrology took it
         self._rejecting = False

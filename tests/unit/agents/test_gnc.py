@@ -506,6 +506,46 @@ def test_a_glitch_right_after_a_long_gap_is_not_flown_on() -> None:
     assert (est.x, est.y, est.heading) == pytest.approx((0.0, 0.0, 0.0), abs=0.01)
 
 
+def test_fixes_after_a_gap_far_from_dead_reckoning_are_acquired_not_a_restart() -> None:
+    # Held and idle after a run, a simulated KNATTE drifted on the table's slope out of
+    # the camera's view for 53 s; dead reckoning put it metres away. Back in view, its
+    # fixes were outliers of that estimate, five of them agreed, and the estimate
+    # restarted (fix_restart): held until an operator's reset for a fault it did not
+    # have. After a gap there is no estimate to contradict: the fixes are acquired.
+    chain, k = _settled()
+    drifting = ImuSample(0.0, 0.05, -0.03)  # an accelerometer bias the filter integrates
+    gap = round(20.0 / TICK)
+    for j in range(gap):
+        chain.update((k + j) * TICK, 0.0, 0.0, imu=drifting)
+    assert chain.reason == "stale_fix"
+    k += gap
+    back = Pose(0.4, 0.3, 0.0)  # where the platform really is now
+    assert not chain.filter.innovation_distance(back) < KNATTE.navigation.fix_gate
+    for j in range(200):
+        fix = back if j % 5 == 0 else None
+        chain.update((k + j) * TICK, 0.0, 0.0, imu=STILL, fix=fix)
+    assert not chain.restarted and chain.counters["fix_restarts"] == 0
+    assert chain.counters["fix_outlier"] == 0 and chain.reason is None
+    est = chain.estimate
+    assert (est.x, est.y) == pytest.approx((0.4, 0.3), abs=0.02)
+
+
+def test_outliers_that_keep_coming_through_a_stale_estimate_still_restart_it() -> None:
+    # Fixes that kept arriving and were rejected are no gap: when they later agree, the
+    # estimate restarts from them and waits for an operator, however long they took.
+    chain, k = _settled()
+    far = [Pose(0.8, 0.2, 0.0), Pose(-0.5, 0.4, 1.0)]
+    for j in range(200):  # 2 s of disagreeing outliers: the estimate goes stale
+        fix = far[(j // 5) % 2] if j % 5 == 0 else None
+        assert chain.update((k + j) * TICK, 0.0, 0.0, imu=STILL, fix=fix) == CLOSED
+    assert chain.reason == "fix_rejected" or chain.reason == "stale_fix"
+    k += 200
+    for j in range(100):
+        fix = Pose(0.6, -0.4, 0.0) if j % 5 == 0 else None
+        assert chain.update((k + j) * TICK, 0.0, 0.0, imu=STILL, fix=fix) == CLOSED
+    assert chain.restarted and chain.reason == "fix_restart"
+
+
 def test_a_fix_late_by_the_metrologys_latency_is_carried_to_now() -> None:
     # At rest, then a turn at 1 rad/s; the fixes (20 Hz) left the camera 0.1 s before
     # the chain got them. As the turn began they still showed the platform at rest
