@@ -15,8 +15,9 @@ Three configurations, run one after the other on the same hosting:
 - ``default``: no ``sync_with`` anywhere. Each follower syncs with the leader (its
   reference) at 10 Hz and places others' poses by their reference stamps; the
   leader queries every other agent once a second. O(N) sync traffic.
-- ``tuned``: every follower's ``sync_with`` names the leader (the same traffic
-  now; before issue 17 the default was every pair, O(N^2)).
+- ``tuned``: every follower's ``sync_with`` names the leader: the same traffic as
+  ``default``, whose followers sync with their reference only, not every pair
+  (which would be O(N^2)).
 - ``bare``: the floor, :mod:`federation.bench.baselines.zenoh_scale`: bare
   zenoh-python agents with the same declarations and messages per agent.
 
@@ -46,6 +47,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -79,8 +81,8 @@ STATUS_BYTES = 1500
 GROUP = 1
 """Agents of a worker that tick on one wake-up (fedlab's and the bare floor's alike).
 One each by default. Groups of 8 (``--group 8``) cost a third less CPU per agent
-but send bursts, and a pose was then lost in some runs at 64 agents, which the
-default must not do (docs/scale.md, "Wake-ups")."""
+but send bursts that lose a pose in some runs at 64 agents, which the default
+must not do (docs/scale.md, "Wake-ups")."""
 BARE = Path(__file__).with_name("baselines") / "zenoh_scale.py"
 SETTLE = 3.0  # s after start before samples count (discovery, routes)
 DEFAULT_AGENTS = (2, 8, 16, 32, 64)
@@ -184,6 +186,101 @@ def _agents(n: int, labs: int = LABS) -> list[tuple[int, str]]:
     return [(i % labs, f"lab{i % labs}/a{i}") for i in range(n)]
 
 
+def _check(n: int, mode: str, labs: int, group: int) -> None:
+    """ValueError for a run that cannot be made, before anything starts."""
+    if n < 2:
+        raise ValueError(f"{n} agents: at least 2 are needed (a leader and a follower)")
+    if mode not in MODES:
+        raise ValueError(f"mode {mode!r}: one of {', '.join(MODES)}")
+    if labs < 1:
+        raise ValueError(f"{labs} labs: at least one is needed")
+    if group < 1:
+        raise ValueError(f"groups of {group}: at least one agent is needed")
+
+
+def _start_routers(fleet: Fleet, endpoints: list[str], cores: frozenset[int] | None) -> None:
+    """A router per lab listening on its endpoint, every lab but the first dialling the
+    first (a star), each on ``cores`` if given."""
+    for lab, ep in enumerate(endpoints):
+        args = ["router", "--lab", f"lab{lab}", "-l", ep]
+        if lab:
+            args += ["-e", endpoints[0]]
+        if cores is not None:
+            args += ["--cpus", format_cpus(cores)]
+        fleet.start(f"router-lab{lab}", args)
+
+
+def _worker_argv(
+    mode: str, endpoint: str, seconds: float, out: Path, group: int, leader: str, mine: list[str]
+) -> list[str]:
+    """The command of a lab's worker process hosting the agents ``mine``: the bare floor
+    (:data:`BARE`) or fedlab's (:func:`worker`)."""
+    if mode == "bare":
+        return [sys.executable, str(BARE), endpoint, f"{seconds + SETTLE}", str(out),
+                str(STATUS_BYTES), str(group), leader, *mine]  # fmt: skip
+    return [sys.executable, "-m", "federation.bench.scale", "worker", endpoint,
+            f"{seconds + SETTLE}", str(out), mode, str(group), *mine]  # fmt: skip
+
+
+@dataclass
+class _Measured:
+    """What a run's processes cost, measured from the end of :data:`SETTLE` on."""
+
+    hosting: dict[str, list[str]]  # the cores the routers and the workers may run on
+    workers: list[str]  # the workers' process names
+    cpu: dict[str, float]  # CPU seconds by process name
+    wall: float  # s the CPU was measured over
+    threads: dict[str, float]  # the workers' CPU by thread name, ms per agent-second
+    kernel: dict[str, float]  # the part of it in the kernel
+    moved: int  # the thread CPU fields that moved (each up to a tick over)
+    rss: list[tuple[float, float]]  # (s since the start, the workers' total MiB)
+
+
+def _sample_rss(
+    fleet: Fleet, workers: list[str], seconds: float, t0: float, end: float
+) -> list[tuple[float, float]]:
+    """Sleep until ``end``, taking the workers' total resident memory every few seconds
+    (the first after a quarter of the run)."""
+    rss: list[tuple[float, float]] = []
+    while (left := end - time.monotonic()) > 0:
+        time.sleep(min(5.0, left))
+        if time.monotonic() - t0 >= seconds / 4:
+            total = sum(rss_mib(fleet.procs[w].pid) for w in workers)
+            rss.append((round(time.monotonic() - t0, 1), round(total, 1)))
+    return rss
+
+
+def _measure(fleet: Fleet, seconds: float, n: int) -> _Measured:
+    """Measure the fleet's ``n`` agents for about ``seconds``, then wait for the workers
+    to end."""
+    workers = [name for name in fleet.procs if name.startswith("worker")]
+    hosting = {
+        kind: sorted({format_cpus(usable_cpus(p.pid)) for name, p in fleet.procs.items()
+                      if name.startswith(kind)})
+        for kind in ("router", "worker")
+    }  # fmt: skip
+    cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
+    threads0 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
+    t0 = time.monotonic()
+    end = t0 + max(1.0, seconds - 1.0)  # workers run seconds + SETTLE: still alive then
+    rss = _sample_rss(fleet, workers, seconds, t0, end)
+    cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
+    wall = time.monotonic() - t0
+    threads1 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
+    measured = _Measured(
+        hosting=hosting,
+        workers=workers,
+        cpu=cpu,
+        wall=wall,
+        threads=_per_thread(threads0, threads1, wall * n),
+        kernel=_per_thread(threads0, threads1, wall * n, kernel=True),
+        moved=_fields_moved(threads0, threads1),
+        rss=rss,
+    )
+    wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
+    return measured
+
+
 def run_one(
     n: int,
     seconds: float,
@@ -206,14 +303,7 @@ def run_one(
     (the part of it in the kernel),
     ``p50_ms``, ``p99_ms``, ``loss``, ``samples``, ``sync_per_s`` and the workers'
     total ``rss_mib`` sampled every few seconds (the first after a quarter of the run)."""
-    if n < 2:
-        raise ValueError(f"{n} agents: at least 2 are needed (a leader and a follower)")
-    if mode not in MODES:
-        raise ValueError(f"mode {mode!r}: one of {', '.join(MODES)}")
-    if labs < 1:
-        raise ValueError(f"{labs} labs: at least one is needed")
-    if group < 1:
-        raise ValueError(f"groups of {group}: at least one agent is needed")
+    _check(n, mode, labs, group)
     router_cores, worker_cores = hosting_cores() if pin_routers else (None, None)
     out = out / f"n{n}-{mode}"
     out.mkdir(parents=True, exist_ok=True)
@@ -223,49 +313,16 @@ def run_one(
     agents = _agents(n, labs)
     leader = agents[0][1]
     with Fleet(out / "logs") as fleet:
-        for lab, ep in enumerate(endpoints):
-            args = ["router", "--lab", f"lab{lab}", "-l", ep]
-            if lab:
-                args += ["-e", endpoints[0]]
-            if router_cores is not None:
-                args += ["--cpus", format_cpus(router_cores)]
-            fleet.start(f"router-lab{lab}", args)
+        _start_routers(fleet, endpoints, router_cores)
         for lab in range(labs):
             mine = [name for (i, name) in agents if i == lab]
-            if not mine:
-                continue
-            if mode == "bare":
-                argv = [sys.executable, str(BARE), endpoints[lab], f"{seconds + SETTLE}",
-                        str(out), str(STATUS_BYTES), str(group), leader, *mine]  # fmt: skip
-            else:
-                argv = [sys.executable, "-m", "federation.bench.scale", "worker", endpoints[lab],
-                        f"{seconds + SETTLE}", str(out), mode, str(group), *mine]  # fmt: skip
-            fleet.spawn(f"worker-lab{lab}", argv, cpus=worker_cores)
+            if mine:
+                argv = _worker_argv(mode, endpoints[lab], seconds, out, group, leader, mine)
+                fleet.spawn(f"worker-lab{lab}", argv, cpus=worker_cores)
         time.sleep(SETTLE)
-        workers = [name for name in fleet.procs if name.startswith("worker")]
-        hosting = {
-            kind: sorted({format_cpus(usable_cpus(p.pid)) for name, p in fleet.procs.items()
-                          if name.startswith(kind)})
-            for kind in ("router", "worker")
-        }  # fmt: skip
-        cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
-        threads0 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
-        t0 = time.monotonic()
-        end = t0 + max(1.0, seconds - 1.0)  # workers run seconds + SETTLE: still alive then
-        rss: list[tuple[float, float]] = []
-        while (left := end - time.monotonic()) > 0:
-            time.sleep(min(5.0, left))
-            if time.monotonic() - t0 >= seconds / 4:
-                total = sum(rss_mib(fleet.procs[w].pid) for w in workers)
-                rss.append((round(time.monotonic() - t0, 1), round(total, 1)))
-        cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
-        wall = time.monotonic() - t0
-        threads1 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
-        threads = _per_thread(threads0, threads1, wall * n)
-        kernel = _per_thread(threads0, threads1, wall * n, kernel=True)
-        moved = _fields_moved(threads0, threads1)
-        wait_for(lambda: not any(fleet.alive(w) for w in workers), 60, 0.2)
+        m = _measure(fleet, seconds, n)
     scores = _score_bare(out, leader) if mode == "bare" else _score(out, agents, seconds)
+    cpu, wall, workers = m.cpu, m.wall, m.workers
     total = sum(cpu.values()) / wall
     return {
         "n": n,
@@ -273,19 +330,19 @@ def run_one(
         "mode": mode,
         "group": group,
         "pin_routers": pin_routers,
-        "cores": hosting,
+        "cores": m.hosting,
         **scores,
         "cpu_cores": total,
         "cpu_workers_cores": sum(cpu[w] for w in workers) / wall,
         "cpu_routers_cores": sum(v for k, v in cpu.items() if k not in workers) / wall,
         "cpu_per_agent": total / n,
-        "worker_threads_ms": threads,
-        "worker_threads_kernel_ms": kernel,
+        "worker_threads_ms": m.threads,
+        "worker_threads_kernel_ms": m.kernel,
         # How far above the truth the threads' sum may be: /proc gives each thread's
         # user and system time in whole clock ticks, so each that moved may have moved
         # by up to one tick more than the thread ran.
-        "worker_threads_error_ms": round(moved * 1e3 / os.sysconf("SC_CLK_TCK") / (wall * n), 3),
-        "rss_mib": rss,
+        "worker_threads_error_ms": round(m.moved * 1e3 / os.sysconf("SC_CLK_TCK") / (wall * n), 3),
+        "rss_mib": m.rss,
         "seconds": seconds,
     }
 
@@ -377,9 +434,9 @@ def _exchanges(last: list[tuple[int, dict[str, Any]]]) -> float:
 
     A worker's agents share one clock, so one link (one exchange) per peer. Every agent
     on it reports the link's count, but its ``sharing`` only as it was at that status:
-    an agent whose duration ended a few ms before another's has left the link, and the
-    one left reports it as its own. Dividing by ``sharing`` counted such a link up to
-    twice (288 exchanges a second at 128 agents where 167 were made)."""
+    an agent whose duration ends a few ms before another's leaves the link, and the
+    one left reports it as its own. So each link counts once, at the largest count any
+    of its agents reports: dividing by ``sharing`` would count such a link up to twice."""
     links: dict[tuple[int, str], float] = {}
     for lab, status in last:
         for peer, view in status["peers"].items():

@@ -132,10 +132,8 @@ class BareAgent:
             entity.undeclare()
 
 
-def main() -> None:
-    endpoint, seconds, out = sys.argv[1], float(sys.argv[2]), Path(sys.argv[3])
-    status_bytes, group = int(sys.argv[4]), int(sys.argv[5])
-    leader, names = sys.argv[6], sys.argv[7:]
+def _config(endpoint: str) -> zenoh.Config:
+    """A client of the router at ``endpoint``, with fedlab's nodes' transport settings."""
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -145,53 +143,73 @@ def main() -> None:
     conf.insert_json5("transport/link/tx/queue/size/data", "16")  # as fedlab's nodes
     conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router, as fedlab agents do
     conf.insert_json5("connect/exit_on_failure", "false")
-    stop = threading.Event()
-    with zenoh.open(conf) as session:
-        agents = [BareAgent(session, name, leader, status_bytes) for name in names]
-        followers = [a for a in agents if not a.is_leader]
-        # The followers share one clock: one exchange with the leader for all of them.
-        sender = followers[0] if followers else None
-        subscriber = None
-        if followers:  # one shared subscriber per session, as fedlab's Fanout
+    return conf
 
-            def deliver(sample: zenoh.Sample) -> None:
-                arrived = time.monotonic()
-                t = POSE.unpack(sample.payload.to_bytes())[0]
-                attachment = sample.attachment
-                if attachment is not None:
-                    STAMP.unpack(attachment.to_bytes())
-                for agent in followers:
-                    agent.on_pose(t, arrived)
 
-            subscriber = session.declare_subscriber(
-                f"{FEDERATION}/{leader}/pose", zenoh.handlers.Callback(deliver, indirect=False)
+def _follow(session: zenoh.Session, leader: str, followers: list[BareAgent]) -> Any | None:
+    """One shared subscriber per session on the leader's pose, as fedlab's Fanout: each
+    sample is decoded once and handed to every follower (none without followers)."""
+    if not followers:
+        return None
+
+    def deliver(sample: zenoh.Sample) -> None:
+        arrived = time.monotonic()
+        t = POSE.unpack(sample.payload.to_bytes())[0]
+        attachment = sample.attachment
+        if attachment is not None:
+            STAMP.unpack(attachment.to_bytes())
+        for agent in followers:
+            agent.on_pose(t, arrived)
+
+    return session.declare_subscriber(
+        f"{FEDERATION}/{leader}/pose", zenoh.handlers.Callback(deliver, indirect=False)
+    )
+
+
+def _schedule(agents: int, group: int, t0: float) -> list[tuple[float, int, str]]:
+    """The first wakes, a heap of (due, index, task): pose, sync and status per agent, the
+    groups spread over a pose period and a group's agents syncing on their own ticks."""
+    step = POSE_PERIOD / max(1, math.ceil(agents / group))
+    ticks = round(SYNC_PERIOD / POSE_PERIOD)
+    wakes: list[tuple[float, int, str]] = []
+    for i in range(agents):
+        first = t0 + (i // group) * step
+        sync = first + (i % group % ticks) * POSE_PERIOD
+        wakes += [(first, i, "pose"), (sync, i, "sync"), (first, i, "status")]
+    heapq.heapify(wakes)
+    return wakes
+
+
+class _Ticks:
+    """The process's agents ticked on one schedule, and what their sync ticks share: the
+    followers share one clock, so the first of them queries the leader for all; the
+    leader learns the other agents by liveliness and queries each once a second."""
+
+    def __init__(self, session: zenoh.Session, agents: list[BareAgent], leader: str):
+        self.agents, self.leader = agents, leader
+        self.sender = next((a for a in agents if not a.is_leader), None)
+        self.seen: set[str] = set()
+        self.others_phase = 0
+        self.stop = threading.Event()
+        self.watcher = None
+        if any(a.is_leader for a in agents):
+            self.watcher = session.liveliness().declare_subscriber(
+                f"{FEDERATION}/*/*",
+                zenoh.handlers.Callback(self.alive, indirect=False),
+                history=True,
             )
-        # The leader queries every other agent once a second: it learns them by liveliness.
-        seen: set[str] = set()
-        lead = next((a for a in agents if a.is_leader), None)
-        watcher = None
-        if lead is not None:
 
-            def alive(sample: zenoh.Sample) -> None:
-                if sample.kind == zenoh.SampleKind.PUT:
-                    seen.add(str(sample.key_expr).removeprefix(f"{FEDERATION}/"))
+    def alive(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.seen.add(str(sample.key_expr).removeprefix(f"{FEDERATION}/"))
 
-            watcher = session.liveliness().declare_subscriber(
-                f"{FEDERATION}/*/*", zenoh.handlers.Callback(alive, indirect=False), history=True
-            )
+    def run(self, seconds: float, group: int) -> None:
+        """Tick every agent's tasks for ``seconds``, each task rescheduled a period after
+        it was due (or now, if it ran late)."""
         t0 = time.monotonic()
         end = t0 + seconds
-        step = POSE_PERIOD / max(1, math.ceil(len(agents) / group))
-        # (due, index, task): pose, sync, status per agent; groups spread over a pose period.
-        wakes: list[tuple[float, int, str]] = []
-        ticks = round(SYNC_PERIOD / POSE_PERIOD)  # a group's agents sync on their own ticks
-        for i in range(len(agents)):
-            first = t0 + (i // group) * step
-            sync = first + (i % group % ticks) * POSE_PERIOD
-            wakes += [(first, i, "pose"), (sync, i, "sync"), (first, i, "status")]
-        heapq.heapify(wakes)
-        others_phase = 0
-        while wakes and not stop.is_set():
+        wakes = _schedule(len(self.agents), group, t0)
+        while wakes and not self.stop.is_set():
             due, i, task = wakes[0]
             wait = due - time.monotonic()
             if wait > 0:
@@ -199,23 +217,44 @@ def main() -> None:
                 continue
             if due >= end:
                 break
-            agent = agents[i]
-            if task == "pose":
-                agent.publish_pose()
-                period = POSE_PERIOD
-            elif task == "sync":
-                period = SYNC_PERIOD
-                if agent is sender:
-                    agent.query(leader)
-                elif agent.is_leader:  # every other agent once a second, over ten ticks
-                    peers = sorted(seen - {leader})
-                    for peer in peers[others_phase % 10 :: 10]:
-                        agent.query(peer)
-                    others_phase += 1
-            else:
-                agent.publish_status()
-                period = STATUS_PERIOD
+            period = self.tick(self.agents[i], task)
             heapq.heapreplace(wakes, (max(due + period, time.monotonic()), i, task))
+
+    def tick(self, agent: BareAgent, task: str) -> float:
+        """Run ``task`` for ``agent``; returns the task's period."""
+        if task == "pose":
+            agent.publish_pose()
+            return POSE_PERIOD
+        if task == "sync":
+            self.sync(agent)
+            return SYNC_PERIOD
+        agent.publish_status()
+        return STATUS_PERIOD
+
+    def sync(self, agent: BareAgent) -> None:
+        if agent is self.sender:
+            agent.query(self.leader)
+        elif agent.is_leader:  # every other agent once a second, over ten ticks
+            peers = sorted(self.seen - {self.leader})
+            for peer in peers[self.others_phase % 10 :: 10]:
+                agent.query(peer)
+            self.others_phase += 1
+
+    def close(self) -> None:
+        if self.watcher is not None:
+            self.watcher.undeclare()
+
+
+def main() -> None:
+    endpoint, seconds, out = sys.argv[1], float(sys.argv[2]), Path(sys.argv[3])
+    status_bytes, group = int(sys.argv[4]), int(sys.argv[5])
+    leader, names = sys.argv[6], sys.argv[7:]
+    with zenoh.open(_config(endpoint)) as session:
+        agents = [BareAgent(session, name, leader, status_bytes) for name in names]
+        followers = [a for a in agents if not a.is_leader]
+        subscriber = _follow(session, leader, followers)
+        ticks = _Ticks(session, agents, leader)
+        ticks.run(seconds, group)
         time.sleep(0.6)  # the last replies
         result = {
             "sent": [t for a in agents for t in a.sent],
@@ -225,8 +264,7 @@ def main() -> None:
         }
         if subscriber is not None:
             subscriber.undeclare()
-        if watcher is not None:
-            watcher.undeclare()
+        ticks.close()
         for agent in agents:
             agent.close()
     lab = names[0].split("/")[0]
