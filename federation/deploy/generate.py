@@ -508,8 +508,8 @@ def _refuse_trusted_again(fed: FederationFile, ca: Path, before: dict[str, str])
     old certificate still chains to this CA: one removed before (its pair in
     ``ca/retired/``), or one listed now as another kind than before. Routers know an
     identity by its certificate's name alone and Zenoh has no revocation list, so a new
-    pair would not shut the old one out: a leaked key, removed, came back with the name,
-    and an agent's old certificate recast as an operator's could publish control."""
+    pair would not shut the old one out: a leaked key, removed, would come back with the
+    name, and an agent's old certificate recast as an operator's could publish control."""
     retired_dir = ca / "retired"
     retired = (
         {_common_name(p) for p in retired_dir.glob("*.pem")} if retired_dir.is_dir() else set()
@@ -608,6 +608,119 @@ def _prune(folder: Path, keep: Iterable[Path], suffixes: tuple[str, ...], out: G
             out.removed.append(path)
 
 
+def _write_users(
+    lab: str, entry: LabEntry, folder: Path, identities: list[_Identity], out: Generated
+) -> dict[str, str]:
+    """A password lab's passwords by user: each identity keeps its password unless its
+    kind changed (a password is never carried to another kind), a new one gets one, and
+    the dictionary file is written (0600); a certificate lab's file is removed and it
+    has none."""
+    users = folder / f"{lab}.users"
+    if entry.auth != "password":
+        if users.exists():
+            users.unlink()
+            out.removed.append(users)
+        return {}
+    passwords = _passwords(users)
+    for name in out.role_changed:
+        passwords.pop(name, None)
+    for who in identities:
+        passwords.setdefault(who.name, secrets.token_urlsafe(_PASSWORD_BYTES))
+    wanted = {who.name for who in identities}
+    passwords = {u: p for u, p in passwords.items() if u in wanted}
+    _write(users, "".join(f"{u}:{p}\n" for u, p in passwords.items()), 0o600, out)
+    return passwords
+
+
+def _write_agents(
+    fed: FederationFile,
+    lab: str,
+    folder: Path,
+    lab_root: Path,
+    passwords: dict[str, str],
+    header: str,
+    out: Generated,
+) -> None:
+    """Each agent's Zenoh config and settings, but a hosted agent's (under its host's
+    folder); what is no longer listed is removed."""
+    entry, kept = fed.labs[lab], []
+    for name in entry.agents:
+        if entry.host_of(name) is not None:
+            continue  # under hosts/<host>/
+        conf = folder / "agents" / f"{name}.json5"
+        doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
+        _write(conf, json5_text(doc, header), 0o600, out)
+        settings = folder / "agents" / f"{name}.toml"
+        _write(settings, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
+        kept += [conf, settings]
+    _prune(folder / "agents", kept, (".json5", ".toml"), out)
+
+
+def _write_operators(
+    fed: FederationFile,
+    lab: str,
+    folder: Path,
+    lab_root: Path,
+    passwords: dict[str, str],
+    header: str,
+    out: Generated,
+) -> None:
+    """Each operator's Zenoh config; what is no longer listed is removed."""
+    kept = []
+    for name in fed.labs[lab].operators:
+        conf = folder / "operators" / f"{name}.json5"
+        doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
+        _write(conf, json5_text(doc, header), 0o600, out)
+        kept.append(conf)
+    _prune(folder / "operators", kept, (".json5",), out)
+
+
+def _copy_certificates(
+    ca: Path, lab: str, entry: LabEntry, identities: list[_Identity], folder: Path, out: Generated
+) -> None:
+    """The CA's certificate, the lab's pair and (a certificate lab) its identities' pairs
+    into the lab's ``certs/``; what is no longer listed is removed."""
+    stems = ["ca", lab]
+    if entry.auth == "certificate":
+        stems += [who.stem for who in identities]
+    kept = []
+    for stem in stems:
+        for suffix in (".pem", ".key"):
+            if stem == "ca" and suffix == ".key":
+                continue  # the CA key stays in DIR/ca
+            dst = folder / "certs" / f"{stem}{suffix}"
+            _copy(ca / f"{stem}{suffix}", dst, out)
+            kept.append(dst)
+    _prune(folder / "certs", kept, (".pem", ".key"), out)
+
+
+def _write_units(folder: Path, lab_root: Path, out: Generated) -> None:
+    """The systemd unit templates, their paths under ``lab_root``."""
+    for unit in sorted(SYSTEMD_DIR.glob("*.service")):
+        text = unit.read_text(encoding="utf-8")
+        if lab_root != DEFAULT_ROOT:
+            text = text.replace(str(DEFAULT_ROOT), str(lab_root))
+        _write(folder / "systemd" / unit.name, text, 0o644, out)
+
+
+def _write_lab(
+    fed: FederationFile, lab: str, ca: Path, folder: Path, lab_root: Path, out: Generated
+) -> None:
+    """Lab ``lab``'s folder, installed at ``lab_root``."""
+    entry = fed.labs[lab]
+    header = _header(fed, lab)
+    identities = _identities(lab, entry)
+    passwords = _write_users(lab, entry, folder, identities, out)
+    router = folder / "routers" / f"{lab}.json5"
+    _write(router, router_text(fed, lab, lab_root), 0o644, out)
+    _prune(folder / "routers", [router], (".json5",), out)
+    _write_agents(fed, lab, folder, lab_root, passwords, header, out)
+    _write_hosts(fed, lab, folder, lab_root, passwords, header, out)
+    _write_operators(fed, lab, folder, lab_root, passwords, header, out)
+    _copy_certificates(ca, lab, entry, identities, folder, out)
+    _write_units(folder, lab_root, out)
+
+
 def generate(
     fed: FederationFile, out_dir: Path, *, root: Path = DEFAULT_ROOT, local: bool = False
 ) -> Generated:
@@ -620,66 +733,7 @@ def generate(
     out_dir = out_dir.resolve()
     ca = out_dir / "ca"
     _issue_certificates(fed, ca, out)
-    for lab, entry in fed.labs.items():
+    for lab in fed.labs:
         folder = out_dir / lab
-        lab_root = folder if local else root
-        header = _header(fed, lab)
-        users = folder / f"{lab}.users"
-        passwords = _passwords(users) if entry.auth == "password" else {}
-        for name in out.role_changed:  # a password is never carried to another kind
-            passwords.pop(name, None)
-        identities = _identities(lab, entry)
-        if entry.auth == "password":
-            for who in identities:
-                passwords.setdefault(who.name, secrets.token_urlsafe(_PASSWORD_BYTES))
-        wanted = {who.name for who in identities}
-        passwords = {u: p for u, p in passwords.items() if u in wanted}
-        if entry.auth == "password":
-            _write(users, "".join(f"{u}:{p}\n" for u, p in passwords.items()), 0o600, out)
-        elif users.exists():
-            users.unlink()
-            out.removed.append(users)
-
-        router = folder / "routers" / f"{lab}.json5"
-        _write(router, router_text(fed, lab, lab_root), 0o644, out)
-        _prune(folder / "routers", [router], (".json5",), out)
-
-        kept: list[Path] = []
-        for name in entry.agents:
-            if entry.host_of(name) is not None:
-                continue  # under hosts/<host>/
-            conf = folder / "agents" / f"{name}.json5"
-            doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
-            _write(conf, json5_text(doc, header), 0o600, out)
-            settings = folder / "agents" / f"{name}.toml"
-            _write(settings, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
-            kept += [conf, settings]
-        _prune(folder / "agents", kept, (".json5", ".toml"), out)
-        _write_hosts(fed, lab, folder, lab_root, passwords, header, out)
-        kept = []
-        for name in entry.operators:
-            conf = folder / "operators" / f"{name}.json5"
-            doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
-            _write(conf, json5_text(doc, header), 0o600, out)
-            kept.append(conf)
-        _prune(folder / "operators", kept, (".json5",), out)
-
-        stems = ["ca", lab]
-        if entry.auth == "certificate":
-            stems += [who.stem for who in identities]
-        kept = []
-        for stem in stems:
-            for suffix in (".pem", ".key"):
-                if stem == "ca" and suffix == ".key":
-                    continue  # the CA key stays in DIR/ca
-                dst = folder / "certs" / f"{stem}{suffix}"
-                _copy(ca / f"{stem}{suffix}", dst, out)
-                kept.append(dst)
-        _prune(folder / "certs", kept, (".pem", ".key"), out)
-
-        for unit in sorted(SYSTEMD_DIR.glob("*.service")):
-            text = unit.read_text(encoding="utf-8")
-            if lab_root != DEFAULT_ROOT:
-                text = text.replace(str(DEFAULT_ROOT), str(lab_root))
-            _write(folder / "systemd" / unit.name, text, 0o644, out)
+        _write_lab(fed, lab, ca, folder, folder if local else root, out)
     return out
