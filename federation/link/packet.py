@@ -65,6 +65,8 @@ Drop = Literal["cut", "mtu", "loss", "queue", "malformed"]
 """Why a packet was dropped."""
 
 _MIN_MTU = 68  # RFC 791: every IPv4 link carries 68 bytes
+_NON_NEGATIVE = ("delay", "jitter", "reorder_extra", "rate")  # PacketOptions' finite >= 0
+_PROBABILITIES = ("loss", "reorder")  # PacketOptions' in [0, 1]
 
 
 @dataclass(frozen=True)
@@ -88,22 +90,34 @@ class PacketOptions:
     cuts: tuple[tuple[float, float], ...] = ()  # (at, length) after start, s
 
     def __post_init__(self) -> None:
-        for name in ("delay", "jitter", "reorder_extra", "rate"):
+        self._check_ranges()
+        self._check_loss_burst()
+        self._check_sizes()
+        self._check_cuts()
+
+    def _check_ranges(self) -> None:
+        for name in _NON_NEGATIVE:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, not {value!r}")
-        for name in ("loss", "reorder"):
+        for name in _PROBABILITIES:
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"{name} must be a probability in [0, 1], not {value!r}")
+
+    def _check_loss_burst(self) -> None:
         if self.loss >= 1.0 and self.loss_burst > 1:
             raise ValueError("loss 1 cannot come in bursts: use loss_burst 1")
         if not (math.isfinite(self.loss_burst) and self.loss_burst >= 1):
             raise ValueError(f"loss_burst must be >= 1 packet, not {self.loss_burst!r}")
+
+    def _check_sizes(self) -> None:
         if self.queue < 0:
             raise ValueError(f"queue must be >= 0 bytes, not {self.queue!r}")
         if self.mtu and self.mtu < _MIN_MTU:
             raise ValueError(f"mtu must be 0 (none) or >= {_MIN_MTU} bytes, not {self.mtu!r}")
+
+    def _check_cuts(self) -> None:
         for at, length in self.cuts:
             if not (math.isfinite(at) and at >= 0 and math.isfinite(length) and length > 0):
                 raise ValueError(f"cuts: ({at!r}, {length!r}) must be (at >= 0, length > 0) s")
@@ -275,25 +289,45 @@ class PacketPath:
         if self.is_cut(now):
             return self._drop("cut")
         if opts.mtu and n > opts.mtu:
-            verdict = self._drop("mtu")
-            if opts.icmp and router is not None:
-                try:
-                    head = parse_ipv4(packet)
-                except ValueError:
-                    return verdict
-                if head.dont_fragment and head.protocol != 1:
-                    verdict.reply = frag_needed(packet, opts.mtu, router)
-                    self.counters.icmp_sent += 1
-            return verdict
+            return self._too_big(packet, router)
         if self._lost():
             return self._drop("loss")
-        begin = now
-        if opts.rate > 0:
-            backlog = max(0.0, self.link_free - now) * opts.rate
-            if backlog + n > opts.queue:
-                return self._drop("queue")
-            self.link_free = max(self.link_free, now) + n / opts.rate
-            begin = self.link_free
+        begin = self._through_bottleneck(n, now)
+        if begin is None:
+            return self._drop("queue")
+        return self._deliver(n, begin)
+
+    def _too_big(self, packet: bytes, router: str | None) -> Verdict:
+        """Dropped for the MTU. With ``icmp`` and a ``router``, a DF packet that is not
+        ICMP itself gets "fragmentation needed" back (ICMP never answers ICMP)."""
+        verdict = self._drop("mtu")
+        if not self.options.icmp or router is None:
+            return verdict
+        try:
+            head = parse_ipv4(packet)
+        except ValueError:
+            return verdict
+        if head.dont_fragment and head.protocol != 1:
+            verdict.reply = frag_needed(packet, self.options.mtu, router)
+            self.counters.icmp_sent += 1
+        return verdict
+
+    def _through_bottleneck(self, n: int, now: float) -> float | None:
+        """When an ``n``-byte packet offered at ``now`` has left the bottleneck (``now``
+        without one), or None if it does not fit the bottleneck's FIFO (tail drop)."""
+        opts = self.options
+        if opts.rate <= 0:
+            return now
+        backlog = max(0.0, self.link_free - now) * opts.rate
+        if backlog + n > opts.queue:
+            return None
+        self.link_free = max(self.link_free, now) + n / opts.rate
+        return self.link_free
+
+    def _deliver(self, n: int, begin: float) -> Verdict:
+        """An ``n``-byte packet leaving the bottleneck at ``begin``, delivered after the
+        delay model's delay (held back with probability ``reorder``)."""
+        opts = self.options
         delay = self.model.delay(begin)
         held = opts.reorder > 0 and self.rng.random() < opts.reorder
         if held:

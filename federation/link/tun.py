@@ -53,6 +53,97 @@ def open_tun(name: str) -> int:
     return fd
 
 
+class _StageLoop:
+    """The stage on an open TUN descriptor: writes back what is due, offers what the
+    kernel routes in, writes the counters every second; records the cuts it is
+    signalled and stops when told or at its deadline."""
+
+    def __init__(
+        self,
+        stage: PacketStage,
+        fd: int,
+        device: str,
+        wake_r: int,
+        stats_json: Path | None,
+        duration: float | None,
+    ):
+        self.stage, self.fd, self.device, self.wake_r = stage, fd, device, wake_r
+        self.stats_json = stats_json
+        self.stop = False
+        self.cuts: list[dict[str, Any]] = []
+        self.started = time.monotonic()
+        self.deadline = None if duration is None else self.started + duration
+        self.next_stats = self.started
+
+    def on_signal(self, signum: int, _frame: object) -> None:
+        if signum in (signal.SIGTERM, signal.SIGINT):
+            self.stop = True
+            return
+        cut = signum == signal.SIGUSR1
+        self.stage.set_cut(cut)
+        self.cuts.append({"cut": cut, "host_monotonic": time.monotonic()})
+
+    def snapshot(self) -> dict[str, Any]:
+        return self.stage.snapshot() | {
+            "cuts": list(self.cuts),
+            "seconds": time.monotonic() - self.started,
+        }
+
+    def write_stats(self) -> None:
+        """The counters to ``stats_json`` (if any), replaced whole so a reader never
+        sees half a file."""
+        if self.stats_json is None:
+            return
+        tmp = self.stats_json.with_name(self.stats_json.name + ".tmp")
+        try:
+            tmp.write_text(json.dumps(self.snapshot(), indent=2) + "\n", encoding="utf-8")
+            os.replace(tmp, self.stats_json)
+        except OSError as error:
+            log.warning("cannot write %s: %s", self.stats_json, error)
+
+    def run(self) -> None:
+        while not self.stop:
+            now = time.monotonic()
+            if self.deadline is not None and now >= self.deadline:
+                break
+            self._write_due(now)
+            if now >= self.next_stats:
+                self.write_stats()
+                self.next_stats = now + 1.0
+            readable, _, _ = select.select([self.fd, self.wake_r], [], [], self._timeout(now))
+            if self.wake_r in readable:  # a signal: drain the wake-up bytes
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self.wake_r, 512)
+            if self.fd in readable:
+                self._read_burst()
+
+    def _write_due(self, now: float) -> None:
+        for packet in self.stage.due(now):
+            try:
+                os.write(self.fd, packet)
+            except OSError as error:  # e.g. no route for an ICMP reply
+                log.debug("write to %s failed: %s", self.device, error)
+
+    def _timeout(self, now: float) -> float:
+        """How long to wait for a packet: until the next delivery, stats or deadline,
+        a second at most."""
+        timeout = min(self.next_stats - now, 1.0)
+        due = self.stage.next_due()
+        if due is not None:
+            timeout = min(timeout, max(0.0, due - now))
+        if self.deadline is not None:
+            timeout = min(timeout, max(0.0, self.deadline - now))
+        return timeout
+
+    def _read_burst(self) -> None:
+        for _ in range(_READ_BURST):
+            try:
+                packet = os.read(self.fd, 65536)
+            except BlockingIOError:
+                break
+            self.stage.offer(packet, time.monotonic())
+
+
 def run_stage(
     stage: PacketStage,
     device: str,
@@ -67,69 +158,14 @@ def run_stage(
     wake_r, wake_w = os.pipe()
     os.set_blocking(wake_r, False)
     os.set_blocking(wake_w, False)
-    state = {"stop": False}
-    cuts: list[dict[str, Any]] = []
-
-    def on_signal(signum: int, _frame: object) -> None:
-        if signum in (signal.SIGTERM, signal.SIGINT):
-            state["stop"] = True
-            return
-        cut = signum == signal.SIGUSR1
-        stage.set_cut(cut)
-        cuts.append({"cut": cut, "host_monotonic": time.monotonic()})
-
+    loop = _StageLoop(stage, fd, device, wake_r, stats_json, duration)
     handled = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1, signal.SIGUSR2)
-    previous = {sig: signal.signal(sig, on_signal) for sig in handled}
+    previous = {sig: signal.signal(sig, loop.on_signal) for sig in handled}
     old_wakeup = signal.set_wakeup_fd(wake_w)
-    started = time.monotonic()
-    deadline = None if duration is None else started + duration
-    next_stats = started
-
-    def snapshot() -> dict[str, Any]:
-        return stage.snapshot() | {"cuts": list(cuts), "seconds": time.monotonic() - started}
-
-    def write_stats() -> None:
-        if stats_json is None:
-            return
-        tmp = stats_json.with_name(stats_json.name + ".tmp")
-        try:
-            tmp.write_text(json.dumps(snapshot(), indent=2) + "\n", encoding="utf-8")
-            os.replace(tmp, stats_json)
-        except OSError as error:
-            log.warning("cannot write %s: %s", stats_json, error)
-
     if ready is not None:
         ready(device)
     try:
-        while not state["stop"]:
-            now = time.monotonic()
-            if deadline is not None and now >= deadline:
-                break
-            for packet in stage.due(now):
-                try:
-                    os.write(fd, packet)
-                except OSError as error:  # e.g. no route for an ICMP reply
-                    log.debug("write to %s failed: %s", device, error)
-            if now >= next_stats:
-                write_stats()
-                next_stats = now + 1.0
-            due = stage.next_due()
-            timeout = min(next_stats - now, 1.0)
-            if due is not None:
-                timeout = min(timeout, max(0.0, due - now))
-            if deadline is not None:
-                timeout = min(timeout, max(0.0, deadline - now))
-            readable, _, _ = select.select([fd, wake_r], [], [], timeout)
-            if wake_r in readable:
-                with contextlib.suppress(BlockingIOError):
-                    os.read(wake_r, 512)
-            if fd in readable:
-                for _ in range(_READ_BURST):
-                    try:
-                        packet = os.read(fd, 65536)
-                    except BlockingIOError:
-                        break
-                    stage.offer(packet, time.monotonic())
+        loop.run()
     finally:
         signal.set_wakeup_fd(old_wakeup)
         for sig, handler in previous.items():
@@ -137,5 +173,5 @@ def run_stage(
         os.close(wake_r)
         os.close(wake_w)
         os.close(fd)
-        write_stats()
-    return snapshot()
+        loop.write_stats()
+    return loop.snapshot()
