@@ -46,7 +46,7 @@ CONTACT_GRID_S = 0.01  # s between docking samples
 
 
 # Rules for launching a run, not for what a run flew: a run recorded before one was
-# made stricter is read with its value raised to today's least (else its report failed).
+# made stricter is read with its value raised to today's least, so its report loads.
 _LAUNCH_ONLY_LEAST = {"start_delay": 1.0}
 
 
@@ -274,46 +274,43 @@ def write_scenario_figures(run: Run, summary: dict[str, Any], out: Path) -> dict
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Polygon
+    figures = {"trajectories": _trajectories_figure(run, experiment, out / "trajectories.png")}
+    formation = summary.get("formation")
+    if formation is not None:
+        figures["formation_error"] = _formation_figure(formation, out / "formation_error.png")
+    docking = summary.get("docking")
+    if docking is not None:
+        assert experiment.docking is not None
+        figures["relative_range"] = _docking_figure(
+            docking, experiment.docking.contact_distance, out / "relative_range.png"
+        )
+    return figures
 
-    figures: dict[str, Path] = {}
+
+def _save(fig: Any, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _trajectories_figure(run: Run, experiment: ExperimentConfig, path: Path) -> Path:
+    """Every platform's true track in the common frame (with the formation's virtual
+    centre) and, beside it, each in its own table's frame."""
+    import matplotlib.pyplot as plt
+
     frames = _frames(experiment)
     n = len(frames)
     fig, axes = plt.subplots(1, n + 1, figsize=(5 * (n + 1), 5))
     common = axes[0]
     for i, (agent, (frame, area)) in enumerate(frames.items()):
-        color = f"C{i}"
-        truth = _truth(run, agent)
-        if area is not None:
-            corners = frame.area_to_common(area)
-            common.add_patch(Polygon(corners, fill=False, ls="--", color=color))
-        ax = axes[i + 1]
-        if truth is not None:
-            common.plot(truth["x"], truth["y"], color=color, label=agent)
-            table = [
-                frame.point_to_table(float(x), float(y))
-                for x, y in zip(truth["x"], truth["y"], strict=True)
-            ]
-            ax.plot([p[0] for p in table], [p[1] for p in table], color=color)
-        if area is not None:
-            ax.add_patch(
-                Polygon(
-                    [(area.x_min, area.y_min), (area.x_max, area.y_min),
-                     (area.x_max, area.y_max), (area.x_min, area.y_max)],
-                    fill=False, ls="--", color="k", label="usable area",
-                )
-            )  # fmt: skip
-        ax.set_title(f"{agent}: own table frame")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.autoscale_view()
-        ax.legend(loc="upper right", fontsize=8)
+        _plot_table(common, axes[i + 1], agent, frame, area, _truth(run, agent), f"C{i}")
     if experiment.formation is not None:
-        path = CirclePath(experiment.formation)
+        centre = CirclePath(experiment.formation)
         ts = np.linspace(0, experiment.duration, 400)
-        pts = [path(float(t)) for t in ts]
+        pts = [centre(float(t)) for t in ts]
         common.plot([p.x for p in pts], [p.y for p in pts], "k:", label="virtual centre")
     common.set_title("common frame (dashed: usable areas)")
     common.set_xlabel("x (m)")
@@ -321,48 +318,82 @@ def write_scenario_figures(run: Run, summary: dict[str, Any], out: Path) -> dict
     common.set_aspect("equal", adjustable="datalim")
     common.autoscale_view()
     common.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    figures["trajectories"] = out / "trajectories.png"
-    fig.savefig(figures["trajectories"], dpi=110)
-    plt.close(fig)
+    return _save(fig, path)
 
-    formation = summary.get("formation")
-    if formation is not None:
-        fig, ax = plt.subplots(figsize=(9, 4))
-        s = formation["series"]
-        for agent, e in s["error_m"].items():
-            ax.plot(s["run_time_s"], np.array(e) * 100, label=agent)
-        ax.set_xlabel("run time (s)")
-        ax.set_ylabel("distance from slot (cm)")
-        label = "compensated" if formation.get("latency_compensation") else "not compensated"
-        ax.set_title(
-            f"formation error, {formation.get('delay_ms')} ms one way, {label}: "
-            f"RMS {formation['error_rms_m'] * 100:.2f} cm"
-        )
-        ax.legend()
-        fig.tight_layout()
-        figures["formation_error"] = out / "formation_error.png"
-        fig.savefig(figures["formation_error"], dpi=110)
-        plt.close(fig)
-    docking = summary.get("docking")
-    if docking is not None:
-        fig, ax = plt.subplots(figsize=(9, 4))
-        s = docking["series"]
-        ax.plot(s["run_time_s"], s["range_m"], label="chaser to target, truth")
-        assert experiment.docking is not None
-        ax.axhline(experiment.docking.contact_distance, color="k", ls="--", label="contact")
-        for t, phase in docking["phases"]:
-            ax.axvline(t, color="grey", lw=0.5)
-            ax.text(t, ax.get_ylim()[1], phase, rotation=90, va="top", fontsize=8)
-        ax.set_xlabel("run time (s)")
-        ax.set_ylabel("relative range (m)")
-        ax.set_title(f"docking: {'success' if docking['success'] else 'no success'}")
-        ax.legend()
-        fig.tight_layout()
-        figures["relative_range"] = out / "relative_range.png"
-        fig.savefig(figures["relative_range"], dpi=110)
-        plt.close(fig)
-    return figures
+
+def _plot_table(
+    common: Any,
+    ax: Any,
+    agent: str,
+    frame: Frame,
+    area: Area | None,
+    truth: dict[str, Array] | None,
+    color: str,
+) -> None:
+    """``agent``'s truth and usable area on the common axes and on its own table's."""
+    from matplotlib.patches import Polygon
+
+    if area is not None:
+        corners = frame.area_to_common(area)
+        common.add_patch(Polygon(corners, fill=False, ls="--", color=color))
+    if truth is not None:
+        common.plot(truth["x"], truth["y"], color=color, label=agent)
+        table = [
+            frame.point_to_table(float(x), float(y))
+            for x, y in zip(truth["x"], truth["y"], strict=True)
+        ]
+        ax.plot([p[0] for p in table], [p[1] for p in table], color=color)
+    if area is not None:
+        ax.add_patch(
+            Polygon(
+                [(area.x_min, area.y_min), (area.x_max, area.y_min),
+                 (area.x_max, area.y_max), (area.x_min, area.y_max)],
+                fill=False, ls="--", color="k", label="usable area",
+            )
+        )  # fmt: skip
+    ax.set_title(f"{agent}: own table frame")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.legend(loc="upper right", fontsize=8)
+
+
+def _formation_figure(formation: dict[str, Any], path: Path) -> Path:
+    """Each platform's distance from its slot over run time."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    s = formation["series"]
+    for agent, e in s["error_m"].items():
+        ax.plot(s["run_time_s"], np.array(e) * 100, label=agent)
+    ax.set_xlabel("run time (s)")
+    ax.set_ylabel("distance from slot (cm)")
+    label = "compensated" if formation.get("latency_compensation") else "not compensated"
+    ax.set_title(
+        f"formation error, {formation.get('delay_ms')} ms one way, {label}: "
+        f"RMS {formation['error_rms_m'] * 100:.2f} cm"
+    )
+    ax.legend()
+    return _save(fig, path)
+
+
+def _docking_figure(docking: dict[str, Any], contact_distance: float, path: Path) -> Path:
+    """The chaser's true range to the target over run time, with its phases."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    s = docking["series"]
+    ax.plot(s["run_time_s"], s["range_m"], label="chaser to target, truth")
+    ax.axhline(contact_distance, color="k", ls="--", label="contact")
+    for t, phase in docking["phases"]:
+        ax.axvline(t, color="grey", lw=0.5)
+        ax.text(t, ax.get_ylim()[1], phase, rotation=90, va="top", fontsize=8)
+    ax.set_xlabel("run time (s)")
+    ax.set_ylabel("relative range (m)")
+    ax.set_title(f"docking: {'success' if docking['success'] else 'no success'}")
+    ax.legend()
+    return _save(fig, path)
 
 
 def markdown_section(summary: dict[str, Any]) -> str:
