@@ -11,8 +11,8 @@
       +------------reset----------------------- done --start--> armed
     any mode --abort--> aborted --reset--> waiting
 
-The rules, in the order :meth:`RunState.command` applies them (which commands reach
-it at all is decided first by :class:`federation.core.commands.CommandGate`):
+The rules :meth:`RunState.command` keeps (which commands reach it at all is decided
+first by :class:`federation.core.commands.CommandGate`):
 
 1. ``abort`` aborts from any mode; aborted again, nothing happens (idempotent).
 2. ``reset`` brings an aborted, done or armed run back to waiting (an operator's
@@ -36,6 +36,12 @@ it at all is decided first by :class:`federation.core.commands.CommandGate`):
    A resume with neither is ``ignored`` (ctl stamps every resume). A freeze acts on
    receipt however late, and without the reference time at the last one known.
 
+What each command does in each mode (rules 1 to 5 without their instants) is one
+table, :data:`COMMAND_RULES`. What a table cannot say, whether a command came in time,
+is a few named checks: those of rule 6 and a resume's instant run before the table's
+rule (:data:`TIMING_CHECKS`; after an abort none runs, rule 3 answers first), and a
+start's own (not synchronized, instant passed, no duration) once its mode lets it arm.
+
 :meth:`RunState.update` makes the transitions no command makes: armed to running
 once the reference time reaches the start, running to done once the run time
 reaches the duration.
@@ -50,8 +56,9 @@ ready, not from its clock's zero.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal, Protocol, get_args
+from typing import ClassVar, Literal, Protocol, get_args
 
 __all__ = ["HOLD_MODES", "MOVING_MODES", "Event", "Mode", "RunCommand", "RunState"]
 
@@ -59,9 +66,9 @@ Mode = Literal["waiting", "armed", "running", "frozen", "done", "aborted"]
 
 HOLD_MODES: frozenset[str] = frozenset({"waiting", "armed", "done", "aborted"})
 """Modes in which every valve stays closed: a platform moves only in a run under way
-(running, or frozen: holding its point). Before its start it waits, held: a real
-platform had fired its valves from the moment its agent started, steering to heading
-0 or after its leader, before any operator's start."""
+(running, or frozen: holding its point). Before its start it waits, held, so that a
+real platform fires no valve between its agent's start and an operator's (steering to
+heading 0, or after its leader)."""
 MOVING_MODES: frozenset[str] = frozenset(get_args(Mode)) - HOLD_MODES
 """Modes in which a platform that nothing else holds is released: running, frozen."""
 LATE_START = 1.0
@@ -97,6 +104,143 @@ class Event:
     detail: str = ""
 
 
+Outcome = Literal[
+    "arm", "freeze", "resume", "abort", "reset", "nothing", "busy", "after abort", "wrong mode"
+]
+"""What a command does in a mode: a transition (``arm`` to ``reset``: its handler's own
+checks may still refuse it), ``nothing`` (no event), or a refusal (``ignored``):
+``busy`` (a run under way: abort first), ``after abort`` (reset first), ``wrong mode``."""
+
+COMMANDS = ("start", "freeze", "resume", "abort", "reset")
+"""Every command :class:`RunCommand` names, in the columns of :data:`COMMAND_RULES`."""
+
+# fmt: off
+_RULE_ROWS: dict[Mode, tuple[Outcome, Outcome, Outcome, Outcome, Outcome]] = {
+    #            start          freeze         resume         abort      reset
+    "waiting": ("arm",         "wrong mode",  "wrong mode",  "abort",   "nothing"),
+    "armed":   ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
+    "running": ("busy",        "freeze",      "wrong mode",  "abort",   "busy"),
+    "frozen":  ("busy",        "wrong mode",  "resume",      "abort",   "busy"),
+    "done":    ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
+    "aborted": ("after abort", "after abort", "after abort", "nothing", "reset"),
+}
+# fmt: on
+
+COMMAND_RULES: dict[tuple[Mode, str], Outcome] = {
+    (mode, command): outcome
+    for mode, row in _RULE_ROWS.items()
+    for command, outcome in zip(COMMANDS, row, strict=True)
+}
+"""(mode, command) to what the command does in that mode: rules 1 to 5 of the module's
+docstring, without their instants."""
+
+_REFUSALS: dict[Outcome, str] = {
+    "busy": "{command} while {mode}: abort first",
+    "after abort": "{command} after abort: fedlab ctl reset first",
+    "wrong mode": "{command} while {mode}",
+}
+"""The detail of an ``ignored`` event, for each outcome that refuses."""
+
+
+def rule(mode: Mode, command: str) -> Outcome:
+    """What ``command`` does in ``mode``: its :data:`COMMAND_RULES` entry. A command the
+    table does not name is refused as one in the wrong mode, and after an abort as every
+    command but abort and reset."""
+    return COMMAND_RULES.get((mode, command), "after abort" if mode == "aborted" else "wrong mode")
+
+
+def _refusal(outcome: Outcome, command: str, mode: Mode, t_sim: float | None) -> Event:
+    return Event("ignored", t_sim, _REFUSALS[outcome].format(command=command, mode=mode))
+
+
+# ------------------------------------------------------------------ checks of time
+
+Check = Callable[["RunState", RunCommand, float | None], Event | None]
+"""A check of a command against the state and the reference time of its receipt: the
+``ignored`` event that refuses it, or None."""
+
+
+def _sent_long_ago(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
+    """Rule 6: a command on receipt (no ``at``) whose ``issued_at`` is more than
+    ``LATE_START`` past waited behind a cut link; acted on now, it would set platforms
+    moving when no one chose."""
+    issued = getattr(cmd, "issued_at", None)
+    if cmd.at is None and issued is not None and t_sim is not None and t_sim - issued > LATE_START:
+        return Event("ignored", t_sim, f"{cmd.command} issued {t_sim - issued:.1f} s ago")
+    return None
+
+
+def _unstamped(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
+    """Rule 6: ctl stamps every resume; one that says neither when to act nor when it
+    was sent (an older ctl, a script) may have waited any time, and sets platforms
+    moving."""
+    if cmd.at is None and getattr(cmd, "issued_at", None) is None:
+        return Event("ignored", t_sim, f"{cmd.command} without at or issued_at: not sent by ctl")
+    return None
+
+
+def _instant_passed(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
+    """Rules 4 and 5: a start or resume whose ``at`` is more than ``LATE_START`` past.
+    Acted on at that instant it would jump the run's clock, and begun part-way a run is
+    not the one the others fly (ctl aborts a start not every participant confirmed
+    before it: ask again)."""
+    if cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START:
+        return Event("ignored", t_sim, f"{cmd.command} instant passed {t_sim - cmd.at:.1f} s ago")
+    return None
+
+
+def _unsynchronized(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
+    """Rule 4: a start now needs the present reference time."""
+    if cmd.at is None and t_sim is None:
+        return Event("ignored", None, "start now, but not synchronized yet")
+    return None
+
+
+def _endless(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
+    """Rule 4: a run must end. Without a duration, from the start or the run state's
+    default, it would fly until someone aborts it (ctl gives one)."""
+    if getattr(cmd, "duration", None) is None and state.default_duration is None:
+        return Event("ignored", t_sim, "start without a duration: a run must end")
+    return None
+
+
+_ON_RECEIPT: tuple[Check, ...] = (_sent_long_ago,)
+
+TIMING_CHECKS: dict[str, tuple[Check, ...]] = {
+    "start": _ON_RECEIPT,
+    "resume": (_sent_long_ago, _unstamped, _instant_passed),
+    "freeze": (),  # a freeze late is a freeze now: it sets nothing moving
+    "abort": (),
+    "reset": (),
+}
+"""The checks a command passes, in this order, before its rule in :data:`COMMAND_RULES`
+applies (not after an abort: rule 3 answers first). A command not named here is
+checked as one on receipt."""
+
+START_CHECKS: tuple[Check, ...] = (_unsynchronized, _instant_passed, _endless)
+"""The checks a start passes, in this order, once its mode lets it arm."""
+
+
+def _first_refusal(
+    checks: tuple[Check, ...], state: RunState, cmd: RunCommand, t_sim: float | None
+) -> Event | None:
+    for check in checks:
+        refused = check(state, cmd, t_sim)
+        if refused is not None:
+            return refused
+    return None
+
+
+def _instant(cmd: RunCommand, t_sim: float | None) -> float | None:
+    """When a freeze or resume acts: at its ``at`` but not later than the present, and
+    at the present without an ``at``, without the present, or with an ``at`` more than
+    ``LATE_START`` past (a freeze that late would rewind the run's clock, the leader
+    slewing back to an old heading; refused, it would leave the platforms flying)."""
+    if cmd.at is None or t_sim is None or t_sim - cmd.at > LATE_START:
+        return t_sim
+    return min(cmd.at, t_sim)
+
+
 class RunState:
     """The run mode, its start, frozen time, name and duration; ``duration``: a run's
     duration when its start gives none (an experiment's, known to the agent)."""
@@ -115,86 +259,84 @@ class RunState:
             self.mode = "armed"  # start_at set at the first update with a reference time
 
     def command(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
-        """Apply a command received when the reference time was ``t_sim``."""
-        kind = cmd.command
-        if kind == "abort":
-            if self.mode == "aborted":
-                return []
-            if self.mode == "running":
-                self.frozen_at = t_sim  # run time held at the abort
-            elif self.mode in ("waiting", "armed"):
-                self.frozen_at = None  # no run time: it never started
-            self.mode = "aborted"
-            return [Event("aborted", t_sim)]
-        if kind == "reset":
-            if self.mode in ("aborted", "done", "armed"):
-                self.mode, self.start_at, self.frozen_at = "waiting", None, None
-                self.autostart = False
-                return [Event("reset", t_sim)]
-            if self.mode == "waiting":
-                return []
-            return [Event("ignored", t_sim, f"reset while {self.mode}: abort first")]
-        if self.mode == "aborted":
-            return [Event("ignored", t_sim, f"{kind} after abort: fedlab ctl reset first")]
-        issued = getattr(cmd, "issued_at", None)
-        if (
-            kind != "freeze"  # a freeze late is a freeze now: it sets nothing moving
-            and cmd.at is None
-            and issued is not None
-            and t_sim is not None
-            and t_sim - issued > LATE_START
-        ):
-            # On receipt, but received long after it was sent (behind a cut link).
-            return [Event("ignored", t_sim, f"{kind} issued {t_sim - issued:.1f} s ago")]
-        if kind == "start":
-            if self.mode in ("running", "frozen"):
-                return [Event("ignored", t_sim, f"start while {self.mode}: abort first")]
-            if cmd.at is None and t_sim is None:
-                return [Event("ignored", None, "start now, but not synchronized yet")]
-            if cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START:
-                # Begun part-way, the run would not be the one the others fly: ctl aborts
-                # a start not every participant confirmed before it; ask again.
-                return [Event("ignored", t_sim, f"start instant passed {t_sim - cmd.at:.1f} s ago")]
-            duration = getattr(cmd, "duration", None)
-            if duration is None and self.default_duration is None:
-                # A run that never ends flies until someone aborts it (ctl gives one).
-                return [Event("ignored", t_sim, "start without a duration: a run must end")]
-            self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
-            self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
-            self.run_id = getattr(cmd, "run_id", None)
-            self.duration = self.default_duration if duration is None else duration
-            return [Event("armed", self.start_at), *self.update(t_sim)]
-        if kind == "resume" and cmd.at is None and issued is None:
-            # ctl stamps every resume: one that does not say when it was sent may have
-            # waited any time (an older ctl, a script), and sets platforms moving.
-            return [Event("ignored", t_sim, "resume without at or issued_at: not sent by ctl")]
-        late = cmd.at is not None and t_sim is not None and t_sim - cmd.at > LATE_START
-        if late and kind == "resume":
-            # Acted on at a past instant, a resume had jumped the run's clock (and set the
-            # platform moving at a time no one chose now): as late as a start.
-            assert cmd.at is not None and t_sim is not None
-            return [Event("ignored", t_sim, f"{kind} instant passed {t_sim - cmd.at:.1f} s ago")]
-        # A freeze at a long past instant had rewound the run's clock (the leader slewed
-        # back to an old heading): late, it freezes now instead (ignored, it had left the
-        # platforms flying).
-        at = t_sim if cmd.at is None or t_sim is None or late else min(cmd.at, t_sim)
-        if kind == "freeze" and at is not None and self.start_at is not None:
-            at = max(at, self.start_at)  # an instant before the run is not one of its own
-        if kind == "resume" and at is not None and self.frozen_at is not None:
-            at = max(at, self.frozen_at)  # no run time is made up before the freeze
-        if kind == "freeze" and self.mode == "running" and at is None:
+        """Apply a command received when the reference time was ``t_sim``: its checks of
+        time (:data:`TIMING_CHECKS`), then its rule for the present mode
+        (:data:`COMMAND_RULES`)."""
+        outcome = rule(self.mode, cmd.command)
+        if outcome != "after abort":
+            checks = TIMING_CHECKS.get(cmd.command, _ON_RECEIPT)
+            refused = _first_refusal(checks, self, cmd, t_sim)
+            if refused is not None:
+                return [refused]
+        if outcome == "nothing":
+            return []
+        if outcome in _REFUSALS:
+            return [_refusal(outcome, cmd.command, self.mode, t_sim)]
+        return self._TRANSITIONS[outcome](self, cmd, t_sim)
+
+    def _arm(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
+        """Start: arm at ``at``, or now; it names the run and may give its duration."""
+        refused = _first_refusal(START_CHECKS, self, cmd, t_sim)
+        if refused is not None:
+            return [refused]
+        duration = getattr(cmd, "duration", None)
+        self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
+        self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
+        self.run_id = getattr(cmd, "run_id", None)
+        self.duration = self.default_duration if duration is None else duration
+        return [Event("armed", self.start_at), *self.update(t_sim)]
+
+    def _freeze(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
+        """Freeze a running run, at an instant of its own (not before its start)."""
+        at = _instant(cmd, t_sim)
+        if at is not None and self.start_at is not None:
+            at = max(at, self.start_at)
+        if at is None:
             # No reference time now (its link contested, say): frozen at the last one
             # known, not left running while the others freeze.
             at = self.last_t_sim if self.last_t_sim is not None else self.start_at
-        if kind == "freeze" and self.mode == "running" and at is not None:
-            self.mode, self.frozen_at = "frozen", at
-            return [Event("frozen", at)]
-        if kind == "resume" and self.mode == "frozen" and at is not None:
-            assert self.frozen_at is not None
-            self.frozen_total += max(0.0, at - self.frozen_at)
-            self.mode, self.frozen_at = "running", None
-            return [Event("resumed", at)]
-        return [Event("ignored", t_sim, f"{kind} while {self.mode}")]
+        if at is None:
+            return [_refusal("wrong mode", cmd.command, self.mode, t_sim)]
+        self.mode, self.frozen_at = "frozen", at
+        return [Event("frozen", at)]
+
+    def _resume(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
+        """Resume a frozen run; the time frozen is not run time."""
+        at = _instant(cmd, t_sim)
+        if at is None:
+            return [_refusal("wrong mode", cmd.command, self.mode, t_sim)]
+        assert self.frozen_at is not None  # set by the freeze
+        at = max(at, self.frozen_at)  # no run time is made up before the freeze
+        self.frozen_total += max(0.0, at - self.frozen_at)
+        self.mode, self.frozen_at = "running", None
+        return [Event("resumed", at)]
+
+    def _abort(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
+        """Abort, holding the run time where it is: at the abort while running, at the
+        freeze or the end while frozen or done, none before the start."""
+        if self.mode == "running":
+            self.frozen_at = t_sim
+        elif self.mode in ("waiting", "armed"):
+            self.frozen_at = None
+        self.mode = "aborted"
+        return [Event("aborted", t_sim)]
+
+    def _reset(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
+        """Back to waiting for a start (an operator's explicit act)."""
+        self.mode, self.start_at, self.frozen_at = "waiting", None, None
+        self.autostart = False
+        return [Event("reset", t_sim)]
+
+    _TRANSITIONS: ClassVar[
+        dict[Outcome, Callable[[RunState, RunCommand, float | None], list[Event]]]
+    ] = {
+        "arm": _arm,
+        "freeze": _freeze,
+        "resume": _resume,
+        "abort": _abort,
+        "reset": _reset,
+    }
+    """The handler of each outcome that is a transition."""
 
     def update(self, t_sim: float | None) -> list[Event]:
         """Advance time: an armed run starts once the reference time reaches its start;

@@ -9,10 +9,22 @@ more); which commands reach it is the command gate's business (test_commands.py)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import product
+from typing import get_args
 
 import pytest
 
-from federation.core.runstate import Event, Mode, RunCommand, RunState
+from federation.core.runstate import (
+    COMMAND_RULES,
+    COMMANDS,
+    TIMING_CHECKS,
+    Event,
+    Mode,
+    Outcome,
+    RunCommand,
+    RunState,
+    rule,
+)
 from schemas.messages import Command
 
 
@@ -101,7 +113,7 @@ def test_a_resume_before_the_freeze_adds_no_frozen_time() -> None:
 
 @pytest.mark.parametrize("at", [-1e9, 0.0, 48.9])
 def test_a_resume_whose_instant_passed_is_ignored(at: float) -> None:
-    # A resume at -1e9 jumped the run's clock by the whole freeze.
+    # Acted on at -1e9, a resume would jump the run's clock by the whole freeze.
     state = in_mode("frozen")
     before = (state.mode, state.frozen_at, state.frozen_total)
     (event,) = state.command(Cmd("resume", 3, at=at), t_sim=50.0)
@@ -111,9 +123,9 @@ def test_a_resume_whose_instant_passed_is_ignored(at: float) -> None:
 
 @pytest.mark.parametrize("at", [0.0, 48.9])
 def test_a_freeze_whose_instant_passed_freezes_now(at: float) -> None:
-    # A freeze at 0 had rewound the run's clock by 45 s (the leader slewed back to the
-    # maneuver's first heading); ignored instead, a freeze 1.3 s late on a congested link
-    # had left the platforms flying.
+    # Acted on at 0, a freeze would rewind the run's clock by 45 s (the leader slewing
+    # back to the maneuver's first heading); ignored, a freeze 1.3 s late on a congested
+    # link would leave the platforms flying.
     state = in_mode("running")
     assert state.command(Cmd("freeze", 3, at=at), t_sim=50.0) == [Event("frozen", 50.0)]
     assert state.mode == "frozen" and state.frozen_at == 50.0
@@ -121,8 +133,8 @@ def test_a_freeze_whose_instant_passed_freezes_now(at: float) -> None:
 
 @pytest.mark.parametrize("kind", ["resume", "start"])
 def test_a_command_on_receipt_issued_long_ago_is_ignored(kind: str) -> None:
-    # Sent on receipt, it waited behind a cut link: a resume set the platform moving
-    # whenever it came (rule 6). A freeze so late is still a freeze (above).
+    # Sent on receipt, it waited behind a cut link: acted on, a resume would set the
+    # platform moving whenever it came (rule 6). A freeze so late is still a freeze (above).
     modes: dict[str, Mode] = {"resume": "frozen", "start": "waiting"}
     state = in_mode(modes[kind])
     before = (state.mode, state.frozen_at, state.frozen_total)
@@ -137,7 +149,7 @@ def test_a_command_on_receipt_issued_long_ago_is_ignored(kind: str) -> None:
 
 
 def test_a_start_without_a_duration_is_ignored_unless_the_agent_has_one() -> None:
-    # A hand-made start with no duration, to an agent with none, flew until an abort.
+    # A hand-made start with no duration, to an agent with none, would fly until an abort.
     state = RunState()
     (event,) = state.command(Cmd("start", at=5.0, duration=None), t_sim=1.0)
     assert event.kind == "ignored" and "a run must end" in event.detail
@@ -192,8 +204,8 @@ def test_a_resume_now_unsynchronized_is_ignored() -> None:
 
 
 def test_a_freeze_unsynchronized_freezes_at_the_last_reference_time_known() -> None:
-    # Its reference link contested, the agent had been left running while the others
-    # froze (ignored: "freeze while running").
+    # Its reference link contested, the agent freezes at the last reference time it
+    # knows rather than run on while the others freeze.
     state = in_mode("running")
     state.update(7.5)
     assert state.command(Cmd("freeze", 10), t_sim=None) == [Event("frozen", 7.5)]
@@ -201,7 +213,8 @@ def test_a_freeze_unsynchronized_freezes_at_the_last_reference_time_known() -> N
 
 
 def test_a_resume_that_does_not_say_when_it_was_sent_is_ignored() -> None:
-    # An unstamped resume (a script, an older ctl) set platforms moving an hour late.
+    # An unstamped resume (a script, an older ctl) may come an hour late and would set
+    # platforms moving then.
     state = in_mode("frozen")
     (event,) = state.command(Cmd("resume", 10), t_sim=3600.0)
     assert event.kind == "ignored" and "without at or issued_at" in event.detail
@@ -224,7 +237,7 @@ def test_the_schema_command_is_a_run_command() -> None:
     assert state.command(command, t_sim=1.0) == [Event("armed", 5.0)]
 
 
-# ------------------------------------------------------------------ added with run ends
+# ------------------------------------------------------------------ modes and the run's end
 
 
 def test_running_freeze_freezes_and_run_time_stops() -> None:
@@ -359,7 +372,7 @@ def test_abort_holds_the_run_time_where_it_was() -> None:
 
 
 def test_autostart_counts_run_time_from_the_first_reference_time() -> None:
-    """A lone agent whose platform took 7.5 s to build starts then, not at clock zero."""
+    """A lone agent whose platform takes 7.5 s to build starts then, not at clock zero."""
     state = RunState(autostart=True)
     assert state.mode == "armed" and state.start_at is None
     assert state.update(None) == []
@@ -368,7 +381,7 @@ def test_autostart_counts_run_time_from_the_first_reference_time() -> None:
 
 
 def test_a_start_whose_instant_has_passed_is_refused() -> None:
-    # At 1000 s a start "at 0" began running at run time 1000: the leader entered its
+    # At 1000 s a start "at 0" would begin at run time 1000: the leader would enter its
     # maneuver part-way.
     state = RunState()
     (event,) = state.command(Cmd("start", 0, at=0.0), t_sim=1000.0)
@@ -382,17 +395,108 @@ def test_a_start_whose_instant_has_passed_is_refused() -> None:
 
 
 def test_a_freeze_before_the_runs_start_freezes_at_its_start() -> None:
-    # A freeze "at 0" rewound the run time to 0, and moved the run's end later.
+    # A freeze "at 0" would rewind the run time to 0 and move the run's end later.
     state = in_mode("running")  # started at 5 s
     assert state.command(Cmd("freeze", 1, at=4.5), t_sim=5.4) == [Event("frozen", 5.0)]
     assert state.run_time(20.0) == 0.0
 
 
 def test_a_command_whose_maneuver_is_too_short_to_fly_is_malformed() -> None:
-    # A rotation out and back in 1e-12 s asked a rate of 1e300.
+    # A rotation out and back in 1e-12 s would ask a rate of 1e300.
     from pydantic import ValidationError
 
     with pytest.raises(ValidationError, match="duration"):
         Command.model_validate_json(
             '{"command": "start", "seq": 1, "maneuver": {"duration": 1e-12}}'
         )
+
+
+# ------------------------------------------------------------------ the whole table
+
+MODES: tuple[Mode, ...] = get_args(Mode)
+EVERY_RULE = list(product(MODES, COMMANDS))
+
+
+def documented_rule(mode: Mode, command: str) -> Outcome:
+    """Rules 1 to 5 of the module's docstring, as they read there, without instants."""
+    if command == "abort":  # rule 1
+        return "nothing" if mode == "aborted" else "abort"
+    if command == "reset":  # rule 2
+        if mode in ("aborted", "done", "armed"):
+            return "reset"
+        return "nothing" if mode == "waiting" else "busy"
+    if mode == "aborted":  # rule 3
+        return "after abort"
+    if command == "start":  # rule 4
+        return "busy" if mode in ("running", "frozen") else "arm"
+    if command == "freeze":  # rule 5
+        return "freeze" if mode == "running" else "wrong mode"
+    assert command == "resume"
+    return "resume" if mode == "frozen" else "wrong mode"
+
+
+def test_the_table_names_every_command_in_every_mode() -> None:
+    assert get_args(Command.model_fields["command"].annotation) == COMMANDS
+    assert sorted(COMMAND_RULES) == sorted(EVERY_RULE)
+    assert sorted(TIMING_CHECKS) == sorted(COMMANDS)
+
+
+@pytest.mark.parametrize(("mode", "command"), EVERY_RULE)
+def test_the_table_keeps_the_documented_rules(mode: Mode, command: str) -> None:
+    assert COMMAND_RULES[mode, command] == rule(mode, command) == documented_rule(mode, command)
+
+
+def timely(command: str) -> Cmd:
+    """``command`` in time at 9.5 s: sent then, acting then (a start later, at 20 s)."""
+    return Cmd(command, 10, at=20.0 if command == "start" else 9.5, issued_at=9.5)
+
+
+@pytest.mark.parametrize(("mode", "command"), EVERY_RULE)
+def test_every_rule_does_what_the_table_says(mode: Mode, command: str) -> None:
+    """A command in time, in every mode, has the effect its table entry names."""
+    expected: dict[Outcome, tuple[list[Event], Mode]] = {
+        "arm": ([Event("armed", 20.0)], "armed"),
+        "freeze": ([Event("frozen", 9.5)], "frozen"),
+        "resume": ([Event("resumed", 9.5)], "running"),
+        "abort": ([Event("aborted", 9.5)], "aborted"),
+        "reset": ([Event("reset", 9.5)], "waiting"),
+        "nothing": ([], mode),
+        "busy": ([Event("ignored", 9.5, f"{command} while {mode}: abort first")], mode),
+        "after abort": (
+            [Event("ignored", 9.5, f"{command} after abort: fedlab ctl reset first")],
+            mode,
+        ),
+        "wrong mode": ([Event("ignored", 9.5, f"{command} while {mode}")], mode),
+    }
+    state = in_mode(mode)
+    events = state.command(timely(command), t_sim=9.5)
+    assert (events, state.mode) == expected[COMMAND_RULES[mode, command]]
+
+
+def snapshot(state: RunState) -> tuple[object, ...]:
+    return (state.mode, state.start_at, state.frozen_at, state.frozen_total, state.run_id)
+
+
+@pytest.mark.parametrize(("mode", "command"), EVERY_RULE)
+def test_on_receipt_long_after_it_was_sent_only_a_start_or_resume_is_refused(
+    mode: Mode, command: str
+) -> None:
+    """Rule 6 over the whole table: a start or resume on receipt sent 1.1 s before is
+    ignored (after an abort, rule 3 answers first); any other command late does what it
+    does in time."""
+    late_state, fresh_state = in_mode(mode), in_mode(mode)
+    before = snapshot(late_state)
+    late = late_state.command(Cmd(command, 10, issued_at=8.4), t_sim=9.5)
+    fresh = fresh_state.command(Cmd(command, 10, issued_at=9.5), t_sim=9.5)
+    if command in ("start", "resume") and mode != "aborted":
+        assert late == [Event("ignored", 9.5, f"{command} issued 1.1 s ago")]
+        assert snapshot(late_state) == before
+    else:
+        assert (late, snapshot(late_state)) == (fresh, snapshot(fresh_state))
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_command_the_table_does_not_name_is_ignored(mode: Mode) -> None:
+    events = in_mode(mode).command(Cmd("launch", 10, at=9.5), t_sim=9.5)
+    detail = "launch after abort: fedlab ctl reset first" if mode == "aborted" else None
+    assert events == [Event("ignored", 9.5, detail or f"launch while {mode}")]
