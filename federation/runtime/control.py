@@ -313,7 +313,8 @@ START_CONFIRM_MIN = 0.5
 """s: the least ctl waits for a start's confirmations."""
 START_IN_MIN = START_CONFIRM_MIN + START_CONFIRM_MARGIN
 """s: the least time between announcing a start and the start: with less, the agents
-present began (their platforms moving) before ctl could find one missing and abort."""
+present would begin (their platforms moving) before ctl could find one missing and
+abort."""
 
 
 def send(
@@ -487,131 +488,192 @@ def issue(
     if experiment is not None:
         federation = experiment.federation
     keys.validate_name(federation, "federation name")
-    issuer = issuer or Issuer()
     fed = Federation(session, federation)
     try:
-        if action == "resume":
-            return _issue_resume(
-                session, fed, federation, experiment, reference, wait, discover, issuer,
-                progress,
-            )  # fmt: skip
-        if action != "start":
-            # On receipt, nothing to look up first: an abort leaves at once.
-            command = Command(
-                command=action, seq=issuer.next_seq(), issuer=issuer.name,
-                experiment=experiment.name if experiment else None,
-                # An abort is for every agent; the rest for the experiment's only.
-                participants=sorted(_expected(experiment, {}))
-                if experiment is not None and action != "abort"
-                else None,
-            )  # fmt: skip
-            sent = publish(session, federation, command)
-            time.sleep(max(0.0, discover - (time.monotonic() - sent)))
-            seen = fed.snapshot()
-            expected = _expected(experiment, seen)
-            if not expected:
-                raise ConnectError(
-                    f"no agent found in federation {federation!r} within {discover:g} s "
-                    f"({action} was published on {keys.control_key(federation)})"
-                )
-            again = None
-            if action == "abort":
-
-                def again() -> None:
-                    publish(session, federation, command, copies=1)
-
-            modes = confirm(command, expected, fed, wait, progress, resend=again)
-            return _result(command, None, expected, modes, sent, fed)
-        if duration is None and experiment is None:
-            raise ConfigError(
-                "a run must end: give --duration SECONDS or --experiment FILE (whose "
-                "duration it takes)"
-            )
-        if start_in is None:
-            start_in = experiment.start_delay if experiment else DEFAULT_START_IN
-        if start_in < START_IN_MIN:
-            raise ConfigError(
-                f"a start {start_in:g} s ahead (--in, or the experiment's start_delay): it is "
-                f"announced at least {START_IN_MIN:g} s ahead, so that ctl hears every "
-                f"participant confirm it and can abort it {START_CONFIRM_MARGIN:g} s before it "
-                "begins if one has not"
-            )
-        rows = status(
-            session, federation=federation, experiment=experiment, discover=discover,
-            max_bound=max_bound, fed=fed,
-        )  # fmt: skip
-        seen = fed.snapshot()
-        expected = _expected(experiment, seen)
-        if not expected:
-            raise ConnectError(f"no agent found in federation {federation!r} within {discover:g} s")
-        ref = choose_reference(reference, experiment, seen)
-        run_id = _fresh_run_id(run_id, experiment, seen)
-        # Each participant must count time on the clock the start's instant is on.
-        participants = [p.agent for p in experiment.participants] if experiment else list(seen)
-        rows = preflight(participants, seen, fed.ages(), max_bound, reference=str(ref))
-        failed = blocking(rows)
-        overridden = [f"{r.agent}: {m}" for r in failed for m in r.missing]
-        if failed and not force:
-            raise PreflightFailed(rows)
-        for line in overridden:
-            progress(f"--force: starting although {line}")
-        clock = ExecClock()
-        ref_now = reference_now(session, federation, ref, clock)
-        ref_offset = ref_now - clock.now()
-        at = ref_now + start_in
-        progress(f"run {run_id}: start at reference time {at:.3f} s ({ref}'s clock)")
-        command = Command(
-            command="start",
-            at=at,
-            seq=issuer.next_seq(),
-            issued_at=clock.now() + ref_offset,
-            issuer=issuer.name,
-            experiment=experiment.name if experiment else None,
-            maneuver=experiment.maneuver if experiment else None,
-            run_id=run_id,
-            # Only the agents preflighted and awaited: any other one ignores the start.
-            participants=sorted(expected),
-            duration=duration
-            if duration is not None
-            else experiment.duration
-            if experiment
-            else None,
+        it = _Issuing(
+            session, fed, federation, experiment, issuer or Issuer(), wait, discover, progress
         )
-        sent = publish(session, federation, command)
-        # Every participant confirms before the start, or none starts: a run without one
-        # of its platforms is not the experiment (and the others would fly it alone).
-        before_start = max(START_CONFIRM_MIN, start_in - START_CONFIRM_MARGIN)
-        modes = confirm(command, expected, fed, min(wait, before_start), progress)
-        result = _result(command, ref, expected, modes, sent, fed, rows, overridden)
-        if result.pending and not force:
-            abort = Command(
-                command="abort", seq=issuer.next_seq(), issuer=issuer.name,
-                experiment=experiment.name if experiment else None,
-            )  # fmt: skip
-            publish(session, federation, abort)
-            missing = ", ".join(result.pending)
-            progress(f"run {run_id} aborted: {missing} had not confirmed the start before it")
-
-            def again() -> None:
-                publish(session, federation, abort, copies=1)
-
-            # The abort is sent again until every participant confirms it (as `ctl abort`
-            # does): the ones that had not confirmed the start may have taken it late,
-            # on a slow link, and would fly it alone. The result says who did not.
-            aborted = confirm(abort, expected, fed, wait, progress, resend=again)
-            reasons = {
-                a: f"{r}; the run was aborted before its start" for a, r in result.reasons.items()
-            }
-            for agent in sorted(a for a in expected if aborted.get(a) != "aborted"):
-                said = reasons.get(agent, "took the start")
-                reasons[agent] = (
-                    f"{said}; the abort sent after it not confirmed within {wait:g} s "
-                    f"(mode {aborted.get(agent, 'absent')})"
-                )
-            return dataclasses.replace(result, reasons=reasons)
-        return result
+        if action == "resume":
+            return _issue_resume(it, reference)
+        if action != "start":
+            return _issue_on_receipt(it, action)
+        return _issue_start(it, reference, start_in, run_id, duration, force, max_bound)
     finally:
         fed.close()
+
+
+@dataclass(frozen=True)
+class _Issuing:
+    """What every step of one :func:`issue` shares: where it publishes, what it sees of
+    the federation, the run, who numbers its commands, how long it discovers and waits,
+    and where it reports."""
+
+    session: Any
+    fed: Federation
+    federation: str
+    experiment: ExperimentConfig | None
+    issuer: Issuer
+    wait: float
+    discover: float
+    progress: Callable[[str], None]
+
+    def command(self, action: Action, **fields: Any) -> Command:
+        """The issuer's next command ``action``, of the experiment if there is one."""
+        return Command(
+            command=action,
+            seq=self.issuer.next_seq(),
+            issuer=self.issuer.name,
+            experiment=self.experiment.name if self.experiment else None,
+            **fields,
+        )
+
+    def publish(self, command: Command, copies: int = 3) -> float:
+        return publish(self.session, self.federation, command, copies)
+
+    def resender(self, command: Command) -> Callable[[], object]:
+        """One more copy of ``command`` each call (an abort's, while ctl waits)."""
+        return lambda: self.publish(command, copies=1)
+
+
+def _issue_on_receipt(it: _Issuing, action: Action) -> ControlResult:
+    """A freeze, an abort or a reset. Agents act on it on receipt, so there is nothing to
+    look up first: it is published at once (an abort leaves before anything is
+    discovered), then confirmed, an abort sent again while ctl waits."""
+    experiment = it.experiment
+    # An abort is for every agent; the rest for the experiment's only.
+    command = it.command(
+        action,
+        participants=sorted(_expected(experiment, {}))
+        if experiment is not None and action != "abort"
+        else None,
+    )
+    sent = it.publish(command)
+    time.sleep(max(0.0, it.discover - (time.monotonic() - sent)))
+    expected = _expected(experiment, it.fed.snapshot())
+    if not expected:
+        raise ConnectError(
+            f"no agent found in federation {it.federation!r} within {it.discover:g} s "
+            f"({action} was published on {keys.control_key(it.federation)})"
+        )
+    again = it.resender(command) if action == "abort" else None
+    modes = confirm(command, expected, it.fed, it.wait, it.progress, resend=again)
+    return _result(command, None, expected, modes, sent, it.fed)
+
+
+def _start_in(
+    start_in: float | None, duration: float | None, experiment: ExperimentConfig | None
+) -> float:
+    """The s between announcing a start and the start; ConfigError for a run without an
+    end, or a start too soon for ctl to hear every confirmation and abort in time."""
+    if duration is None and experiment is None:
+        raise ConfigError(
+            "a run must end: give --duration SECONDS or --experiment FILE (whose duration it takes)"
+        )
+    if start_in is None:
+        start_in = experiment.start_delay if experiment else DEFAULT_START_IN
+    if start_in < START_IN_MIN:
+        raise ConfigError(
+            f"a start {start_in:g} s ahead (--in, or the experiment's start_delay): it is "
+            f"announced at least {START_IN_MIN:g} s ahead, so that ctl hears every "
+            f"participant confirm it and can abort it {START_CONFIRM_MARGIN:g} s before it "
+            "begins if one has not"
+        )
+    return start_in
+
+
+def _issue_start(
+    it: _Issuing,
+    reference: AgentId | None,
+    start_in: float | None,
+    run_id: str | None,
+    duration: float | None,
+    force: bool,
+    max_bound: float,
+) -> ControlResult:
+    """A start: checked, announced at a reference time ``start_in`` ahead, and aborted
+    if a participant does not confirm it before it begins (unless ``force``)."""
+    experiment = it.experiment
+    start_in = _start_in(start_in, duration, experiment)
+    # Waits ``discover`` s for the statuses; the table is made again below, with the
+    # reference chosen from them.
+    status(
+        it.session, federation=it.federation, experiment=experiment, discover=it.discover,
+        max_bound=max_bound, fed=it.fed,
+    )  # fmt: skip
+    seen = it.fed.snapshot()
+    expected = _expected(experiment, seen)
+    if not expected:
+        raise ConnectError(
+            f"no agent found in federation {it.federation!r} within {it.discover:g} s"
+        )
+    ref = choose_reference(reference, experiment, seen)
+    run_id = _fresh_run_id(run_id, experiment, seen)
+    rows, overridden = _preflight_start(it, seen, ref, max_bound, force)
+    clock = ExecClock()
+    ref_now = reference_now(it.session, it.federation, ref, clock)
+    ref_offset = ref_now - clock.now()
+    at = ref_now + start_in
+    it.progress(f"run {run_id}: start at reference time {at:.3f} s ({ref}'s clock)")
+    if duration is None and experiment is not None:
+        duration = experiment.duration
+    command = it.command(
+        "start",
+        at=at,
+        issued_at=clock.now() + ref_offset,
+        maneuver=experiment.maneuver if experiment else None,
+        run_id=run_id,
+        # Only the agents preflighted and awaited: any other one ignores the start.
+        participants=sorted(expected),
+        duration=duration,
+    )
+    sent = it.publish(command)
+    # Every participant confirms before the start, or none starts: a run without one
+    # of its platforms is not the experiment (and the others would fly it alone).
+    before_start = max(START_CONFIRM_MIN, start_in - START_CONFIRM_MARGIN)
+    modes = confirm(command, expected, it.fed, min(it.wait, before_start), it.progress)
+    result = _result(command, ref, expected, modes, sent, it.fed, rows, overridden)
+    if result.pending and not force:
+        return _abort_start(it, result, run_id)
+    return result
+
+
+def _preflight_start(
+    it: _Issuing, seen: dict[str, Any], ref: AgentId, max_bound: float, force: bool
+) -> tuple[list[Row], list[str]]:
+    """The preflight rows of a start on ``ref``'s clock and the failures ``force``
+    overrides; PreflightFailed if one fails without ``force``."""
+    experiment = it.experiment
+    # Each participant must count time on the clock the start's instant is on.
+    participants = [p.agent for p in experiment.participants] if experiment else list(seen)
+    rows = preflight(participants, seen, it.fed.ages(), max_bound, reference=str(ref))
+    failed = blocking(rows)
+    overridden = [f"{r.agent}: {m}" for r in failed for m in r.missing]
+    if failed and not force:
+        raise PreflightFailed(rows)
+    for line in overridden:
+        it.progress(f"--force: starting although {line}")
+    return rows, overridden
+
+
+def _abort_start(it: _Issuing, result: ControlResult, run_id: str) -> ControlResult:
+    """Abort a start some participant did not confirm in time; ``result`` with, for
+    each agent, why it did not confirm the start or the abort."""
+    abort = it.command("abort")
+    it.publish(abort)
+    missing = ", ".join(result.pending)
+    it.progress(f"run {run_id} aborted: {missing} had not confirmed the start before it")
+    # The abort is sent again until every participant confirms it (as `ctl abort`
+    # does): the ones that did not confirm the start may take it late, on a slow link,
+    # and would fly it alone. The result says who did not.
+    aborted = confirm(abort, result.expected, it.fed, it.wait, it.progress, it.resender(abort))
+    reasons = {a: f"{r}; the run was aborted before its start" for a, r in result.reasons.items()}
+    for agent in sorted(a for a in result.expected if aborted.get(a) != "aborted"):
+        said = reasons.get(agent, "took the start")
+        reasons[agent] = (
+            f"{said}; the abort sent after it not confirmed within {it.wait:g} s "
+            f"(mode {aborted.get(agent, 'absent')})"
+        )
+    return dataclasses.replace(result, reasons=reasons)
 
 
 def _fresh_run_id(
@@ -648,24 +710,16 @@ def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> froz
     return frozenset(seen)
 
 
-def _issue_resume(
-    session: Any,
-    fed: Federation,
-    federation: str,
-    experiment: ExperimentConfig | None,
-    reference: AgentId | None,
-    wait: float,
-    discover: float,
-    issuer: Issuer,
-    progress: Callable[[str], None],
-) -> ControlResult:
+def _issue_resume(it: _Issuing, reference: AgentId | None) -> ControlResult:
     """A resume at the reference time it is issued (see the module's notes)."""
-    time.sleep(discover)  # statuses arrive once a second
-    seen = fed.snapshot()
+    experiment = it.experiment
+    time.sleep(it.discover)  # statuses arrive once a second
+    seen = it.fed.snapshot()
     expected = _expected(experiment, seen)
     if not expected:
         raise ConnectError(
-            f"no agent found in federation {federation!r} within {discover:g} s: resume not sent"
+            f"no agent found in federation {it.federation!r} within {it.discover:g} s: "
+            "resume not sent"
         )
     shared = _shared_reference(expected, seen)
     if reference is not None and reference != shared:
@@ -675,29 +729,24 @@ def _issue_resume(
         )
     ref = shared
     try:
-        at = reference_now(session, federation, ref, ExecClock())
+        at = reference_now(it.session, it.federation, ref, ExecClock())
     except ConnectError as error:  # a platform set moving whenever it arrives: not sent
         raise ConnectError(f"resume not sent: {error}") from None
-    progress(f"resume at reference time {at:.3f} s ({ref}'s clock)")
-    command = Command(
-        command="resume", at=at, issued_at=at, seq=issuer.next_seq(), issuer=issuer.name,
-        experiment=experiment.name if experiment else None,
+    it.progress(f"resume at reference time {at:.3f} s ({ref}'s clock)")
+    command = it.command(
+        "resume", at=at, issued_at=at,
         participants=sorted(_expected(experiment, {})) if experiment is not None else None,
     )  # fmt: skip
-    sent = publish(session, federation, command)
-    modes = confirm(command, expected, fed, wait, progress)
-    result = _result(command, ref, expected, modes, sent, fed)
+    sent = it.publish(command)
+    modes = confirm(command, expected, it.fed, it.wait, it.progress)
+    result = _result(command, ref, expected, modes, sent, it.fed)
     if result.pending:
         # Some flying, some frozen is no run: freeze them all again (as a start not every
         # participant confirmed is aborted), and say so.
-        freeze = Command(
-            command="freeze", seq=issuer.next_seq(), issuer=issuer.name,
-            experiment=command.experiment, participants=command.participants,
-        )  # fmt: skip
-        publish(session, federation, freeze)
+        it.publish(it.command("freeze", participants=command.participants))
         for agent in result.pending:
             result.reasons[agent] += "; freeze sent to all again"
-        progress(f"not resumed by {', '.join(result.pending)}: freeze sent to all again")
+        it.progress(f"not resumed by {', '.join(result.pending)}: freeze sent to all again")
     return result
 
 
