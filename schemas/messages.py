@@ -9,6 +9,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from federation.core.holds import Hold
 from schemas.config import ManeuverConfig
 from schemas.scenario import LabFrame
 
@@ -141,14 +142,10 @@ class Status(BaseModel):
     )
     platform: str = Field("kinematic", description="pose source")
     follow: str | None = Field(None, description="LAB/NAME of the agent followed")
-    hold: str | None = Field(
+    hold: Hold | None = Field(
         None,
-        description="why every valve is held closed: waiting (no run under way yet), stale "
-        "(link lost), contested, aborted, done, reset, workspace, name_taken (another "
-        "process runs under this name: held for good), nonfinite (its own pose was not "
-        "finite: held for good), ended (its duration passed), no_router (its session "
-        "lost its router), fix_restart (its estimate restarted from agreeing outlier fixes: "
-        "until fedlab ctl reset)",
+        description="why every valve is held closed (null: they may open); each hold's "
+        "meaning and what lifts it: docs/holds.md (federation.core.holds.RULES)",
     )
     pose_age: float | None = Field(
         None, description="age of the last pose received from the followed agent, s"

@@ -93,6 +93,7 @@ from federation.core import keys, wire
 from federation.core.commands import CommandGate
 from federation.core.contest import ContestWatch, in_order
 from federation.core.estimators import make_estimator
+from federation.core.holds import Hold
 from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.status import peer_status
@@ -612,7 +613,7 @@ class BridgeCore:
             mode="aborted" if self.aborted else "unmanaged",
             platform=f"udp:{cfg.peer_text}",
             follow=None if follow is None else str(follow),
-            hold="name_taken" if self.name_clash else ("aborted" if self.aborted else None),
+            hold=Hold.NAME_TAKEN if self.name_clash else (Hold.ABORTED if self.aborted else None),
             commands=list(self.commands),
             pose_age=pose_age,
             pose=pose,

@@ -74,6 +74,7 @@ from federation.bridge.ros2_types import (
 )
 from federation.core import keys, wire
 from federation.core.estimators import make_estimator
+from federation.core.holds import Hold, Trigger
 from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.agent import AgentRuntime, RateLimitedLog
@@ -518,7 +519,7 @@ class RunStateToRos:
 class Ros2Agent(AgentRuntime):
     """An agent whose pose is a ROS 2 platform's odometry (:class:`OdometryPlatform`).
 
-    Holds (``hold: "stale"``) and publishes no pose while the odometry is stale; tells
+    Holds (``hold: "source_stale"``) and publishes no pose while the odometry is stale; tells
     ROS whether the platform may move (``state``, :class:`RunStateToRos`)."""
 
     platform: OdometryPlatform
@@ -532,26 +533,23 @@ class Ros2Agent(AgentRuntime):
     def control_step(self) -> None:
         super().control_step()
         stale = self.platform.stale
-        if stale and self.hold_reason is None:
-            self._hold("stale")  # held and said at once (the step's check would say "released")
+        if stale and not self.safety.holds(Hold.SOURCE_STALE):
+            self.safety.apply(Trigger.SOURCE_STALE)  # held and said at once
             self.count("odom_stale_holds")
             why = self.platform.last_rejection
             log.warning(
                 "no valid odometry on %s for %.1f s%s: hold", self.odom_topic,
                 self.platform.timeout, "" if why is None else f" (last refused: {why})",
             )  # fmt: skip
-        elif not stale and self.hold_reason == "stale":
-            released = self._let_go("stale")  # held still if its run has not begun
-            log.info(
-                "odometry on %s flows again: %s",
-                self.odom_topic, "released" if released else f"held ({self.hold_reason})",
-            )  # fmt: skip
+        elif not stale and self.safety.holds(Hold.SOURCE_STALE):
+            self.safety.apply(Trigger.SOURCE_FRESH)  # held still if its run has not begun
+            log.info("odometry on %s flows again: %s", self.odom_topic, self.hold or "released")
         if self.state is not None:
-            # Whatever holds it, said or not yet: a step's own reason, the platform held
+            # Whatever holds it, said or not yet: the supervisor's hold, the platform held
             # (an abort on Zenoh's thread), odometry gone stale since the check above.
-            reason = self.hold_reason
+            reason: str | None = self.hold
             if reason is None and (self.platform.held or self.platform.stale):
-                reason = "held" if self.platform.held else "stale"
+                reason = "held" if self.platform.held else Hold.SOURCE_STALE
             self.state.publish(self.run_state.mode, reason)
 
     def publish_pose(self) -> None:

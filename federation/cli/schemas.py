@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from federation.cli.common import Formatter, Subparsers
+from federation.core.holds import holds_table_markdown
 from schemas import export
 
 __all__ = ["add", "run"]
@@ -24,7 +25,10 @@ def add(sub: Subparsers) -> None:
             "what it publishes and reads. With --check, write nothing and exit 1 if the\n"
             "files differ from the models."
         ),
-        epilog="Examples:\n  fedlab schemas\n  fedlab schemas --check",
+        epilog=(
+            "Examples:\n  fedlab schemas\n  fedlab schemas --check\n"
+            "  fedlab schemas --holds > table.md   # docs/holds.md's table"
+        ),
     )
     p.add_argument(
         "--out", type=Path, default=export.DEFAULT_DIR, metavar="DIR", help="where the files are"
@@ -32,10 +36,18 @@ def add(sub: Subparsers) -> None:
     p.add_argument(
         "--check", action="store_true", help="write nothing; exit 1 if the files are stale"
     )
+    p.add_argument(
+        "--holds",
+        action="store_true",
+        help="print the holds' table (docs/holds.md) from federation.core.holds and exit",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.holds:
+        print(holds_table_markdown(), end="")
+        return 0
     if args.check:
         stale = export.check(args.out)
         if stale:

@@ -43,14 +43,15 @@ from agents.platform import Platform, make_platform
 from agents.scenario import ScenarioGuidance, make_scenario
 from federation.core import keys, wire
 from federation.core.channels import Channel
-from federation.core.commands import CommandGate
+from federation.core.commands import CommandGate, Verdict
 from federation.core.contest import Channel as ContestChannel
 from federation.core.contest import ContestWatch, in_order
 from federation.core.estimators import make_estimator
+from federation.core.holds import Hold, Trigger
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch, SilenceWatch
 from federation.core.ring import FloatRing
-from federation.core.runstate import HOLD_MODES, MOVING_MODES, Event, RunState
+from federation.core.runstate import Event, RunState
 from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient, read_send_time, serve
 from federation.core.timebase import TimeBase
@@ -74,6 +75,7 @@ from federation.runtime.runs import (
     recording_budget,
     software_versions,
 )
+from federation.runtime.safety import Safety
 from federation.runtime.session import undeclare_all
 from federation.runtime.status import loop_stats, peer_status
 from schemas.config import AgentConfig, ManeuverConfig
@@ -99,13 +101,18 @@ NO_ROUTER_HOLD = 1.0
 """s without a router (after having one) before an agent holds (``no_router``)."""
 ROUTER_CHECK_PERIOD = 0.25
 """s between looks at the session's router."""
-FOR_GOOD: tuple[str, ...] = ("name_taken", "workspace", "nonfinite")
-"""Holds no run's end relabels and nothing but a new process (or the area re-entered by
-hand) lets go: the name taken, the area left, the platform's own pose not finite."""
 _ACTIVE = frozenset({"armed", "running", "frozen"})
 """Run modes in which a run is under way."""
 _LOCAL_ABORT = Command(command="abort", seq=-1, issuer="fedlab (this agent)")
 """The abort an agent gives itself (its reference restarted mid-run)."""
+_RUN_TRIGGERS = {
+    "armed": Trigger.RUN_ARMED,
+    "started": Trigger.RUN_STARTED,
+    "done": Trigger.RUN_DONE,
+    "aborted": Trigger.RUN_ABORTED,
+}
+"""The run state's events that the safety supervisor hears (a reset is heard as the
+operator's command, applied: :meth:`AgentRuntime._on_control`)."""
 MAX_SMALL_PAYLOAD = 1024
 """Bytes: a pose sample is 56, a sync request 8 and its reply 64; a payload larger than
 this on those keys is junk, dropped and counted before it is copied (issue 13)."""
@@ -255,11 +262,8 @@ class AgentRuntime:
         self._pose_order: dict[AgentId, tuple[str | None, float]] = {}
         self._pose_lock = threading.Lock()  # the order and the latest pose, together
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
-        # Why valves are held: "stale" (link), "contested" (the followed agent),
-        # "aborted", "done" (run over), "reset" (waiting after an abort), "workspace" or
-        # "name_taken" (another process under this name: for good); the next start
-        # releases "done" and "reset".
-        self.hold_reason: str | None = None
+        # Every hold and release: the supervisor's table (federation.core.holds).
+        self.safety = Safety(self.platform)
         self.link_watch = LinkWatch(config.stale_after)
         # The followed agent's poses, admitted once for the agents of this session that
         # follow it on one sync link (federation.runtime.links); None: handled here.
@@ -309,12 +313,7 @@ class AgentRuntime:
         self.margins = _margins(self.platform)
         self._delay_warned = False
         self._count_lock = threading.Lock()
-        self._lock = threading.Lock()
-        # Every hold and every release is decided under this one (taken before _lock when
-        # both are): a release decided for one cause cannot follow a hold for another, nor
-        # an abort's. Held only for the decision and the platform's hold or release, so
-        # an abort's hold never waits behind a status being built under _lock.
-        self._hold_lock = threading.Lock()
+        self._lock = threading.Lock()  # taken after the safety lock when both are
         self._declared: list[Any] = []
         self._status_file: IO[str] | None = None
         self._pose_pub: Any = None
@@ -357,9 +356,7 @@ class AgentRuntime:
     def start(self) -> None:
         """Declare everything; refuse (NameTaken) if the name is already in the federation.
         The platform starts held until its run starts (``waiting``)."""
-        if self.run_state.mode in HOLD_MODES and self.hold_reason is None:
-            self.platform.hold()
-            self.hold_reason = "waiting"
+        self.safety.enforce()  # held (waiting) until its run starts
         s = self.session
         callback = zenoh.handlers.Callback
         fed = self.config.federation
@@ -444,7 +441,7 @@ class AgentRuntime:
 
     def _hold_for_name(self, t_exec: float, host: float) -> None:
         """Safe hold for good: another process runs under this agent's name."""
-        self._hold("name_taken")
+        self.safety.apply(Trigger.NAME_TAKEN)
         self.count("name_taken_holds")
         log.error("%s: safe hold for good; stop one of them and restart the other", self.name_clash)
         self._event("name_taken_hold", t_exec, host, self.name_clash or "")
@@ -477,7 +474,7 @@ class AgentRuntime:
         (``fedlab host``, whose other agents fly on), it finishes on its own thread
         (:attr:`finishing`), which the caller joins."""
         self._closing = True  # no command but an abort is taken from here on
-        self.platform.hold()  # leave the platform with every valve closed
+        self.safety.apply(Trigger.ENDED)  # leave the platform with every valve closed
         try:
             self.platform.close()  # a serial platform sends all-closed and releases its port
         except Exception as error:
@@ -569,17 +566,23 @@ class AgentRuntime:
             self._router_check = host + ROUTER_CHECK_PERIOD
             self._watch_router(host)
         t_sim = self.sim_time(t_exec)
-        with self._lock:
-            events = self.run_state.update(t_sim)
-            run_time = self.run_state.run_time(t_sim)
+        with self.safety.lock:  # the run's change and its triggers in one section
+            with self._lock:
+                events = self.run_state.update(t_sim)
+                run_time = self.run_state.run_time(t_sim)
+            self._tell_safety(events)
         if events:
             self._apply(events, t_exec, host)
-        if self.name_clash is not None and self.hold_reason != "name_taken":
+        if self.name_clash is not None and not self.safety.holds(Hold.NAME_TAKEN):
             self._hold_for_name(t_exec, host)
         self._watch_link(t_exec, host)
         self._watch_fix_restart(host)
-        if not self.platform.held and self._cause_of_hold() is not None:
-            self._hold_again()
+        restored = self.safety.enforce()  # a step never runs free while a hold stands
+        if restored is not None:
+            self.count("holds_restored")
+            log.warning(
+                "run %s: the platform was released; held again (%s)", self.run_state.mode, restored
+            )
         self.guidance = self.reference_heading(t_exec, run_time, t_sim)
         if self.scenario is not None:
             if self._scenario_new_run:
@@ -590,9 +593,8 @@ class AgentRuntime:
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         if self.scenario is not None and self.scenario.workspace_held and not self._left_area:
             self._left_area = True
-            # The area's frame holds it already; the agent says so too (held for the name
-            # already, it says that).
-            self._hold("workspace", keep=("name_taken",))
+            # The area's frame holds it already; the agent's supervisor says so too.
+            self.safety.apply(Trigger.AREA_LEFT)
             log.warning("safe hold: %s", self.scenario.hold_reason)
             self._event("workspace_hold", t_exec, host, self.scenario.hold_reason or "")
         if self._status_now:
@@ -609,12 +611,11 @@ class AgentRuntime:
             self.track = ref.track
 
     def _watch_link(self, t_exec: float, host: float) -> None:
-        """Safe hold while the followed pose is stale; resume once it flows again and a
-        sync exchange has completed since (re-synchronized). An abort overrides it."""
-        if self.follow is None or self.hold_reason in (
-            "aborted", "done", "reset", "fix_restart", *FOR_GOOD
-        ):  # fmt: skip
-            return  # held by the run, the name or the area, not the link: it releases nothing
+        """Safe hold while the followed pose is stale; lifted once it flows again and a
+        sync exchange has completed since (re-synchronized). Watched whatever else
+        holds: the stale hold is one of its own, lifted by nothing but the link."""
+        if self.follow is None:
+            return
         if self._contest_hold(t_exec, host):
             return
         received = self.pose_received_at.get(self.follow)
@@ -626,47 +627,19 @@ class AgentRuntime:
             t_exec, received, None if last is None else last.t3, threshold
         )
         if action == "stale_hold" and received is not None:
-            # Held under the lock _let_go decides under: a release on Zenoh's thread (a start
-            # applied there) either read the watch holding already or comes before this hold.
-            self._hold("stale")
+            self.safety.apply(Trigger.LINK_STALE)
             self.count("stale_holds")
             log.warning(
                 "no pose from %s for %.0f ms: safe hold", self.follow, (t_exec - received) * 1e3
             )
             self._event("stale_hold", t_exec, host, f"last pose {t_exec - received:.3f} s ago")
         elif action == "link_resumed":
-            released = self._let_go("stale")
+            self.safety.apply(Trigger.LINK_RESUMED)
             log.info(
                 "pose from %s flows again and sync resumed: %s",
-                self.follow, "released" if released else f"held ({self.hold_reason})",
+                self.follow, _held_or_released(self.safety.hold),
             )  # fmt: skip
             self._event("link_resumed", t_exec, host, "")
-
-    def _cause_of_hold(self) -> str | None:
-        """Why the platform must be held now, whatever let it go: the run not begun or
-        ended, a cause named, or the link judged stale (None: nothing)."""
-        if self.hold_reason is not None:
-            return self.hold_reason
-        if self.follow is not None and self.link_watch.holding:
-            return "stale"
-        mode = self.run_state.mode
-        if mode in HOLD_MODES:
-            return "waiting" if mode in ("waiting", "armed") else mode
-        return None
-
-    def _hold_again(self) -> None:
-        """A step never runs free while a cause of hold stands (a release on another
-        thread). Judged again under the hold lock: a start released meanwhile on Zenoh's
-        thread is not held again as ``waiting``."""
-        with self._hold_lock:
-            cause = None if self.platform.held else self._cause_of_hold()
-            if cause is None:
-                return
-            self.platform.hold()
-            self.hold_reason = cause
-        self.count("holds_restored")
-        mode = self.run_state.mode
-        log.warning("run %s: the platform was released; held again (%s)", mode, cause)
 
     def _watch_router(self, host: float) -> None:
         """Hold (``no_router``) once the session has had no router for ``NO_ROUTER_HOLD``
@@ -679,22 +652,21 @@ class AgentRuntime:
             return
         if any(True for _ in session.info.routers_zid()):
             self._had_router, self._router_lost = True, None
-            if self.hold_reason == "no_router":
-                released = self._let_go("no_router")
-                log.warning("router back: %s", "released" if released else self.hold_reason)
+            if self.safety.holds(Hold.NO_ROUTER):
+                self.safety.apply(Trigger.ROUTER_BACK)
+                log.warning("router back: %s", _held_or_released(self.safety.hold))
             return
         if not self._had_router:
             return
         if self._router_lost is None:
             self._router_lost = host
-        if host - self._router_lost < NO_ROUTER_HOLD or self.hold_reason == "no_router":
+        if host - self._router_lost < NO_ROUTER_HOLD or self.safety.holds(Hold.NO_ROUTER):
             return
         detail = f"no router for {host - self._router_lost:.1f} s"
         self._end_run_here("router_lost", detail, host)
-        if self.hold_reason in (None, "waiting", "stale"):
-            self._hold("no_router")
-            self.count("no_router_holds")
-            log.error("%s: safe hold until it is back", detail)
+        self.safety.apply(Trigger.ROUTER_LOST)
+        self.count("no_router_holds")
+        log.error("%s: safe hold until it is back", detail)
 
     def _watch_fix_restart(self, host: float) -> None:
         """Hold (``fix_restart``) and end a ctl run here once the platform's estimate has
@@ -702,13 +674,13 @@ class AgentRuntime:
         metrology is right (a frozen or glitching one repeats one wrong value). Let go
         only by ``fedlab ctl reset``, which acknowledges it."""
         chain = getattr(self.platform, "chain", None)
-        # Its own flag, not its reason: held (waiting for a run) the reason is "held", and
-        # a restart then had gone unseen until the run had started.
-        if not getattr(chain, "restarted", False) or self.hold_reason == "fix_restart":
+        # Its own flag, not its reason: held (waiting for a run), the chain's reason is
+        # "held" whatever else it has seen.
+        if not getattr(chain, "restarted", False) or self.safety.holds(Hold.FIX_RESTART):
             return
         detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
         self._end_run_here("fix_restart", detail, host)
-        self._hold("fix_restart", keep=FOR_GOOD)
+        self.safety.apply(Trigger.FIX_RESTARTED)
         self.count("fix_restart_holds")
         log.error("%s: safe hold until fedlab ctl reset", detail)
 
@@ -747,9 +719,8 @@ class AgentRuntime:
             # Not a pose (NaN or infinity): never sent, and the platform that made it
             # held (the GNC chain's own guard holds first; this covers any platform).
             self.count("pose_not_finite")
-            if self.hold_reason != "nonfinite":
-                # For good: nothing here releases it.
-                self._hold("nonfinite", keep=("name_taken", "workspace"))
+            if not self.safety.holds(Hold.NONFINITE):
+                self.safety.apply(Trigger.POSE_NONFINITE)  # for good: nothing lifts it
                 log.error("own pose not finite (%s): not sent, platform held", self.pose)
             return
         self._pose_pub.put(
@@ -789,39 +760,18 @@ class AgentRuntime:
         self.publish_pose()
 
     def _apply(self, events: list[Event], t_exec: float, host: float) -> None:
-        """Act on run-state events: safe hold on abort, done and reset; release and a new
-        recording when a start arms; log and record each."""
+        """Act on run-state events (the supervisor has heard them): a new recording and
+        the scenario's new run when a start arms; log and record each; a run's
+        recording finished when it ends."""
         for event in events:
-            if event.kind in ("aborted", "done", "reset"):
-                # Held for good (the name, the area left): no run's end relabels it, so
-                # no start releases it, and status and preflight keep saying why.
-                keep = FOR_GOOD
-                if event.kind == "reset":  # an operator's act: a restarted estimate seen
-                    acknowledge = getattr(
-                        getattr(self.platform, "chain", None), "acknowledge_restart", None
-                    )
-                    if acknowledge is not None:
-                        acknowledge()
-                else:
-                    keep += ("fix_restart",)
-                self._hold(event.kind, keep=keep)
-            elif event.kind == "armed":
+            if event.kind == "armed":
                 run = (self.run_state.run_id, self.run_state.start_at)
                 if self.scenario is not None and run != self._scenario_run:
                     # Nothing of the last run's guidance carries over; begun on the loop's
                     # thread at its next step, not under a reference it is computing.
                     self._scenario_run = run
                     self._scenario_new_run = True
-                with self._hold_lock:
-                    if self.hold_reason in ("done", "reset"):
-                        # Held for a stale pose before the run ended: a new run does not
-                        # make the pose fresh (the link watch lets go once the pose flows
-                        # again and a sync exchange has completed since); else held until
-                        # it starts.
-                        self.hold_reason = "stale" if self.link_watch.holding else "waiting"
                 self._begin_run_recording()
-            elif event.kind == "started":
-                self._let_go("waiting")  # the run under way: released, unless held for a cause
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(
                 level, "run %s %s at reference time %s %s",
@@ -986,7 +936,7 @@ class AgentRuntime:
             commands=list(self.command_log),
             platform=self.config.platform,
             follow=None if self.follow is None else str(self.follow),
-            hold=self.hold_reason,
+            hold=self.safety.hold,
             pose_age=pose_age,
             valves_confirmed=getattr(self.platform, "valves_confirmed", None),
             pose=list(self.pose),
@@ -1000,19 +950,15 @@ class AgentRuntime:
     def readiness(self, t_exec: float) -> Readiness:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         detail = ""
-        if self.hold_reason in (
-            "stale", "aborted", "name_taken", "workspace", "contested", "nonfinite",
-            "fix_restart",
-        ):  # fmt: skip
-            detail = f"held ({self.hold_reason})"
-        elif self.link_watch.holding:  # stale before the run ended: still stale
-            detail = "held (stale)"
+        blocking = self.safety.blocking()  # a hold a run's start does not lift
+        if blocking is not None:
+            detail = f"held ({blocking})"
         elif getattr(self.platform, "valves_confirmed", True) is False:
             detail = "valve command not confirmed (a write to the device was cut off)"
         else:
             chain = getattr(self.platform, "chain", None)
-            # Why it would be closed were it not held: held waiting for its run, the
-            # reason is "held", and a platform with no fix at all had passed preflight.
+            # Why it would be closed were it not held (held waiting for its run, the
+            # chain's reason is "held"): a platform with no fix fails preflight.
             reason = getattr(chain, "cause", getattr(chain, "reason", None))
             acquiring = getattr(chain, "acquiring", None)
             rejected = getattr(chain, "last_rejection", None) or "off the table or outliers"
@@ -1099,10 +1045,7 @@ class AgentRuntime:
         for longer), then the last status (a put or a file write that waits no longer
         delays the hold)."""
         try:
-            with self._hold_lock:
-                self.platform.hold()
-                if self.hold_reason is None:
-                    self.hold_reason = "ended"
+            self.safety.apply(Trigger.ENDED)
         finally:
             self.publish_status()
 
@@ -1390,73 +1333,110 @@ class AgentRuntime:
     def _on_control(self, sample: zenoh.Sample) -> None:
         t_exec, host = self.clock.read()
         try:
-            payload = sample.payload.to_bytes()
-            try:
-                command = Command.model_validate_json(payload)
-            except ValidationError as error:
-                self.count("control_malformed")
-                why = validation_reason(error)
-                self.rejects("control command", f"{sample.key_expr}: {why}")
-                if not is_abort(payload):
-                    reported = malformed_outcome(payload, why)
-                    if reported is not None:  # ctl says why, not "command not seen"
-                        self.command_log.append(reported)
-                    return
-                # An abort is honoured even when the rest of it does not validate.
-                command = Command(command="abort", seq=-1, issuer="malformed")
+            command = self._read_command(sample)
+            if command is None:
+                return
             self.count("control_received")
             if command.command == "abort":
-                with self._hold_lock:
-                    # First, before anything else: every valve closed. The run is aborted
-                    # before any release can be decided (under this lock), so none judged
-                    # on the loop's thread before the abort can follow its hold.
-                    self.platform.hold()
-                    with self._lock:
-                        verdict = self.gate.admit(command.command, command.issuer, command.seq)
-                        events = self.run_state.command(command, self.sim_time(t_exec))
+                # First, before anything is judged or said: every valve closed and the run
+                # aborted, under the safety lock, so no release judged on the loop's thread
+                # before the abort can follow its hold.
+                events = self._run_command(command, t_exec)
+                verdict = self.gate.admit(command.command, command.issuer, command.seq)
+                if not self._admitted(command, verdict):
+                    return
             else:
                 verdict = self.gate.admit(command.command, command.issuer, command.seq)
-            if not verdict.admitted:
-                if verdict.outcome == "repeat":
-                    self.count("commands_repeated")  # ctl publishes each command 3 times
+                if not self._admitted(command, verdict):
+                    return
+                refused = self._not_mine(command) or self._recorded_before(command)
+                if refused is not None:  # refused before the run state sees it
+                    events = [Event("ignored", self.sim_time(t_exec), refused)]
                 else:
-                    self.count("commands_dropped")
-                    self._command_outcome(command, verdict.outcome, verdict.detail)
-                    log.warning(
-                        "dropped %s from %s: %s (%s)",
-                        command.command, command.issuer, verdict.outcome, verdict.detail,
-                    )  # fmt: skip
-                return
-            if command.command != "abort":
-                recorded = self._not_mine(command) or self._recorded_before(command)
-                with self._lock:
-                    if recorded is not None:  # refused before the run state sees it
-                        events = [Event("ignored", self.sim_time(t_exec), recorded)]
-                    else:
-                        events = self.run_state.command(command, self.sim_time(t_exec))
-                    if command.maneuver is not None and any(e.kind == "armed" for e in events):
-                        self.maneuver = _maneuver(command.maneuver)
+                    events = self._run_command(command, t_exec)
             ignored = [e.detail for e in events if e.kind == "ignored"]
             if ignored:
                 self.count("commands_ignored")
             self._command_outcome(command, "ignored" if ignored else "applied", "; ".join(ignored))
-            self.record(
-                Channel.CONTROL,
-                {
-                    "event": "command",
-                    "command": command.model_dump(),
-                    "at": command.at,
-                    "t_exec": t_exec,
-                    "t_sim": self.sim_time(t_exec),
-                    "host_monotonic": host,
-                    "mode": self.run_state.mode,
-                    "detail": "",
-                },
-            )
+            self._record_command(command, t_exec, host)
             self._apply(events, t_exec, host)
             self._status_now = True  # ctl waits for it: at the next step, not in a second
         except Exception:
             log.exception("control sample on %s failed", sample.key_expr)
+
+    def _read_command(self, sample: zenoh.Sample) -> Command | None:
+        """The command in ``sample``; None (counted, logged, reported to ctl where it
+        names itself) if it does not validate, except an abort, honoured however
+        malformed the rest of it is."""
+        payload = sample.payload.to_bytes()
+        try:
+            return Command.model_validate_json(payload)
+        except ValidationError as error:
+            self.count("control_malformed")
+            why = validation_reason(error)
+            self.rejects("control command", f"{sample.key_expr}: {why}")
+            if is_abort(payload):
+                return Command(command="abort", seq=-1, issuer="malformed")
+            reported = malformed_outcome(payload, why)
+            if reported is not None:  # ctl says why, not "command not seen"
+                self.command_log.append(reported)
+            return None
+
+    def _admitted(self, command: Command, verdict: Verdict) -> bool:
+        """Whether the gate let ``command`` through; a drop counted, logged and reported
+        (a repeat only counted: ctl publishes each command 3 times)."""
+        if verdict.admitted:
+            return True
+        if verdict.outcome == "repeat":
+            self.count("commands_repeated")
+            return False
+        self.count("commands_dropped")
+        self._command_outcome(command, verdict.outcome, verdict.detail)
+        log.warning(
+            "dropped %s from %s: %s (%s)",
+            command.command, command.issuer, verdict.outcome, verdict.detail,
+        )  # fmt: skip
+        return False
+
+    def _run_command(self, command: Command, t_exec: float) -> list[Event]:
+        """Apply ``command`` to the run state and tell the supervisor what came of it, in
+        one section under the safety lock: no hold or release is decided between the
+        run's change and its trigger. An abort closes every valve first; a reset
+        applied (not ignored) is the operator's, whatever the run's mode."""
+        with self.safety.lock:
+            if command.command == "abort":
+                self.safety.close_valves()
+            with self._lock:
+                events = self.run_state.command(command, self.sim_time(t_exec))
+                if command.maneuver is not None and any(e.kind == "armed" for e in events):
+                    self.maneuver = _maneuver(command.maneuver)
+            self._tell_safety(events)
+            if command.command == "reset" and not any(e.kind == "ignored" for e in events):
+                self._acknowledge_restart()
+                self.safety.apply_locked(Trigger.OPERATOR_RESET)
+        return events
+
+    def _tell_safety(self, events: Iterable[Event]) -> None:
+        """The triggers of run-state ``events``, the safety lock held by the caller."""
+        for event in events:
+            trigger = _RUN_TRIGGERS.get(event.kind)
+            if trigger is not None:
+                self.safety.apply_locked(trigger)
+
+    def _record_command(self, command: Command, t_exec: float, host: float) -> None:
+        self.record(
+            Channel.CONTROL,
+            {
+                "event": "command",
+                "command": command.model_dump(),
+                "at": command.at,
+                "t_exec": t_exec,
+                "t_sim": self.sim_time(t_exec),
+                "host_monotonic": host,
+                "mode": self.run_state.mode,
+                "detail": "",
+            },
+        )
 
     def _not_mine(self, command: Command) -> str | None:
         """Why a command is not for this agent: it is closing (its recording finishing, a
@@ -1709,11 +1689,13 @@ class AgentRuntime:
         log and the recording; nothing outside a ctl run."""
         t_exec = self.clock.at(host)
         state = self.run_state
-        with self._lock:
-            if state.run_id is None or state.mode not in _ACTIVE:
-                return
-            events = state.command(_LOCAL_ABORT, self.sim_time(t_exec))
-        self.platform.hold()  # before anything else is said or recorded: every valve closed
+        with self.safety.lock:  # before anything else is said or recorded: every valve closed
+            with self._lock:
+                if state.run_id is None or state.mode not in _ACTIVE:
+                    return
+                self.safety.close_valves()
+                events = state.command(_LOCAL_ABORT, self.sim_time(t_exec))
+            self._tell_safety(events)
         self.count(counter)
         log.error("run %s: %s: aborted here", state.run_id, detail)
         self._apply([dataclasses.replace(e, detail=detail) for e in events], t_exec, host)
@@ -1731,13 +1713,13 @@ class AgentRuntime:
                 reason = feed.contest.reason(self._follow_name, host)
         if reason is not None:
             self._contest_cleared = None
-            if self.hold_reason != "contested":
-                self._hold("contested")
+            if not self.safety.holds(Hold.CONTESTED):
+                self.safety.apply(Trigger.CONTESTED)
                 self.count("contested_holds")
                 log.error("followed agent %s contested (%s): safe hold", self.follow, reason)
                 self._event("contested_hold", t_exec, host, reason)
             return True
-        if self.hold_reason != "contested":
+        if not self.safety.holds(Hold.CONTESTED):
             return False
         if self._contest_cleared is None:
             self._contest_cleared = t_exec
@@ -1747,46 +1729,24 @@ class AgentRuntime:
         cleared = self._contest_cleared
         if received is None or received <= cleared or last is None or last.t3 <= cleared:
             return True
-        released = self._let_go("contested")
+        self.safety.apply(Trigger.CONTEST_CLEARED)
         log.warning(
             "contest of %s cleared, pose and sync since: %s",
-            self.follow, "released" if released else f"held ({self.hold_reason})",
+            self.follow, _held_or_released(self.safety.hold),
         )  # fmt: skip
         self._event("contest_cleared", t_exec, host, "")
         return False
 
-    def _hold(self, reason: str, keep: tuple[str, ...] = ()) -> None:
-        """Hold the platform (every valve closed) for ``reason``, said in status unless it
-        is held for one of ``keep`` already; under the lock :meth:`_let_go` decides under,
-        so that no release decided for another cause can follow it."""
-        with self._hold_lock:
-            self.platform.hold()
-            if self.hold_reason not in keep:
-                self.hold_reason = reason
+    def _acknowledge_restart(self) -> None:
+        """An operator's reset acknowledges an estimate restarted from outlier fixes."""
+        acknowledge = getattr(getattr(self.platform, "chain", None), "acknowledge_restart", None)
+        if acknowledge is not None:
+            acknowledge()
 
-    def _let_go(self, cause: str) -> bool:
-        """The hold's ``cause`` is gone: release the platform if it is still held for that
-        cause and its run is under way (running or frozen); else it stays held, for
-        another cause met meanwhile, the run's not having begun (``waiting``) or its end
-        (``done``, ``aborted``). True if released.
-
-        Decided and done under the lock an abort holds and aborts under
-        (:meth:`_on_control`), and every other hold is made under (:meth:`_hold`): a
-        release judged for one cause cannot follow a hold for another."""
-        with self._hold_lock:
-            if self.hold_reason != cause:
-                return False  # held for something else now (or let go already)
-            mode = self.run_state.mode
-            if self.follow is not None and self.link_watch.holding:
-                self.hold_reason = "stale"  # its link is still judged stale: the watch lets go
-            elif mode in MOVING_MODES:
-                self.hold_reason = None
-                self.platform.release()
-                return True
-            else:
-                self.hold_reason = "waiting" if mode in ("waiting", "armed") else mode
-            self.platform.hold()
-            return False
+    @property
+    def hold(self) -> Hold | None:
+        """Why every valve is held closed (None: they may open): the supervisor's."""
+        return self.safety.hold
 
     def contested(self) -> dict[str, str]:
         """Every contested peer and why (status)."""
@@ -1854,6 +1814,10 @@ class AgentRuntime:
     def _new_client(self) -> SyncClient:
         cfg = self.config
         return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), timeout=cfg.sync_timeout)
+
+
+def _held_or_released(hold: Hold | None) -> str:
+    return "released" if hold is None else f"held ({hold})"
 
 
 def _on_feed_pose(feed: PoseFeed, sample: Received) -> None:

@@ -366,7 +366,7 @@ def test_a_ros2_platform_joins_and_a_fedlab_follower_follows_it(
 
         # The topic goes stale: the rover holds and publishes no pose, its follower holds.
         platform.running.clear()
-        rover.until(lambda s: s["hold"] == "stale", timeout=3, what="the rover on hold")
+        rover.until(lambda s: s["hold"] == "source_stale", timeout=3, what="the rover on hold")
         follower.until(lambda s: s["hold"] == "stale", timeout=3, what="the follower on hold")
         # Odometry again: both released.
         platform.running.set()

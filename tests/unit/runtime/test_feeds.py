@@ -67,7 +67,7 @@ def test_a_leader_that_stops_holds_every_follower_on_the_feed(session: zenoh.Ses
         assert f1.feed.watch.period is not None  # measured from the poses, once
         for follower in (f1, f2):
             assert follower.counters["stale_holds"] >= 1  # a busy host may add one
-            assert follower.hold_reason == "stale"
+            assert follower.hold == "stale"
             assert follower.platform.held  # type: ignore[attr-defined]
 
 
@@ -117,7 +117,7 @@ def test_a_contested_leader_holds_every_follower_on_the_feed(session: zenoh.Sess
             assert str(LEAD) in follower.contested()
             t_exec, host = follower.clock.read()
             assert follower._contest_hold(t_exec, host)  # held: valves closed
-            assert follower.hold_reason == "contested"
+            assert follower.hold == "contested"
         # Nothing more from it is used while contested, from either source.
         agent_module._on_feed_pose(feed, _Sample(now + 0.1, "aaaa"))  # type: ignore[arg-type]
         assert f1.counters["contested_dropped"] == f2.counters["contested_dropped"] == 2
@@ -138,13 +138,13 @@ def test_each_follower_holds_by_the_threshold_the_feed_measured(
             follower.pose_received_at[LEAD] = t_exec - 0.3  # the last pose 0.3 s ago
         feed.watch.threshold = 0.5  # as measured on a jittery link
         f1._watch_link(t_exec, host)
-        assert f1.hold_reason == "waiting"  # not stale: 0.3 s is within it (floor 0.15 s)
+        assert f1.hold == "waiting"  # not stale: 0.3 s is within it (floor 0.15 s)
         feed.watch.threshold = 0.25
         f1._watch_link(t_exec, host)
-        assert f1.hold_reason == "stale" and f1.platform.held  # type: ignore[attr-defined]
-        assert f2.hold_reason == "waiting"  # each hold its own: f2 has not looked yet
+        assert f1.hold == "stale" and f1.platform.held  # type: ignore[attr-defined]
+        assert f2.hold == "waiting"  # each hold its own: f2 has not looked yet
         f2._watch_link(t_exec, host)
-        assert f2.hold_reason == "stale"
+        assert f2.hold == "stale"
 
 
 def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
@@ -279,7 +279,7 @@ def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
                 assert LEAD not in follower.latest_poses
                 assert follower.reference_offset(follower.clock.now()) is None  # reset
                 t_exec, host = follower.clock.read()
-                assert follower._contest_hold(t_exec, host) and follower.hold_reason == "contested"
+                assert follower._contest_hold(t_exec, host) and follower.hold == "contested"
 
 
 def test_when_the_first_follower_leaves_the_feed_serves_the_rest(session: zenoh.Session) -> None:
@@ -293,7 +293,7 @@ def test_when_the_first_follower_leaves_the_feed_serves_the_rest(session: zenoh.
         received = f2.counters["pose_received"]
         run_for([lead, f2], 1.0)
         assert f2.counters["pose_received"] >= received + 15  # 20 a second, still
-        assert f2.hold_reason is None
+        assert f2.hold is None
     assert fanout._subscribers == {}
 
 

@@ -138,7 +138,7 @@ def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
         assert agent.reference_offset(clock.now()) is None
         t_exec, host = clock.read()
         assert agent._contest_hold(t_exec, host)  # held: valves closed
-        assert agent.hold_reason == "contested"
+        assert agent.hold == "contested"
 
 
 def test_agents_on_clocks_of_their_own_do_not_share(session: zenoh.Session) -> None:

@@ -8,6 +8,7 @@ import json
 from typing import Any
 
 import pytest
+from pydantic import ValidationError
 from rich.console import Console
 
 from federation import cli
@@ -406,7 +407,7 @@ def test_a_status_never_reaches_the_terminal_as_markup_or_escapes() -> None:
     model = MonitorModel()
     model.on_liveliness(key(FOLLOWER), alive=True, now=0.0)
     forged = follower_status(
-        mode="[/]", run_id="[/bold]", platform="x[/x]\x1b[2J", hold="\x1b]0;owned\x07stale"
+        mode="[/]", run_id="[/bold]", platform="x[/x]\x1b[2J", follow="\x1b]0;owned\x07l/x"
     )
     model.on_status(key(FOLLOWER, "status"), forged, now=1.0)
     console = Console(record=True, width=200, color_system=None)
@@ -414,3 +415,9 @@ def test_a_status_never_reaches_the_terminal_as_markup_or_escapes() -> None:
     text = console.export_text()
     assert "[/]" in text and "[/bold]" in text  # shown as they are
     assert "\x1b" not in text and "\x07" not in text
+
+
+def test_a_status_with_a_hold_outside_the_table_is_refused() -> None:
+    # status.hold is one of the supervisor's holds: anything else is not a status.
+    with pytest.raises(ValidationError, match="hold"):
+        follower_status(hold="\x1b]0;owned\x07stale")

@@ -25,7 +25,7 @@ def test_alone_on_its_name_an_agent_finds_no_clash(session: zenoh.Session) -> No
         served = lead.counters["sync_requests_served"]
         assert served == 2, lead.counters  # its own two looks, answered by itself
         run_for([lead], 0.5)
-        assert lead.hold_reason is None and not lead.platform.held  # type: ignore[attr-defined]
+        assert lead.hold is None and not lead.platform.held  # type: ignore[attr-defined]
 
 
 def test_the_looks_are_due_after_start_and_not_before(session: zenoh.Session) -> None:
@@ -46,7 +46,7 @@ def test_a_clash_holds_for_good_through_runs(session: zenoh.Session) -> None:
             agent.name_clash = f"2 processes answer for {agent.me} in federation default"
             t_exec, host = agent.clock.read()
             agent.control_step()
-            assert agent.hold_reason == "name_taken", agent.me
+            assert agent.hold == "name_taken", agent.me
             assert agent.platform.held  # type: ignore[attr-defined]
             assert agent.counters["name_taken_holds"] == 1
             ready = agent.readiness(t_exec)
@@ -54,7 +54,7 @@ def test_a_clash_holds_for_good_through_runs(session: zenoh.Session) -> None:
             # An abort, the run's end and a new start: still held, for the name's sake.
             for kind in ("aborted", "reset", "armed", "done"):
                 agent._apply([Event(kind, None)], t_exec, host)  # type: ignore[arg-type]
-                assert agent.hold_reason == "name_taken"
+                assert agent.hold == "name_taken"
                 assert agent.platform.held  # type: ignore[attr-defined]
             assert agent.status().hold == "name_taken"
 
@@ -67,13 +67,13 @@ def test_a_clash_over_a_stale_hold_outlasts_the_link_coming_back(session: zenoh.
         t_exec, host = f1.clock.read()
         f1.pose_received_at[LEAD] = t_exec - 1.0  # as if the link had gone quiet
         f1._watch_link(t_exec, host)
-        assert f1.hold_reason == "stale" and f1.counters["stale_holds"] == 1
+        assert f1.hold == "stale" and f1.counters["stale_holds"] == 1
         f1.name_clash = "2 processes answer for lab1/f1 in federation default"
         f1.control_step()
-        assert f1.hold_reason == "name_taken"
+        assert f1.hold == "name_taken"
         run_for([lead, f1], 2.0)  # poses and sync exchanges again: a stale hold would end
         assert f1.pose_received_at[LEAD] > t_exec  # the link did come back
-        assert f1.hold_reason == "name_taken" and f1.platform.held  # type: ignore[attr-defined]
+        assert f1.hold == "name_taken" and f1.platform.held  # type: ignore[attr-defined]
         assert f1.counters["name_taken_holds"] == 1  # never released, so never held again
 
 
@@ -94,13 +94,13 @@ def test_a_workspace_hold_after_the_clash_keeps_the_name_as_the_reason(
         run_for([lead], 0.5)
         lead.name_clash = "2 processes answer for lab0/lead in federation default"
         lead.control_step()
-        assert lead.hold_reason == "name_taken"
+        assert lead.hold == "name_taken"
         lead.scenario = _LeftItsArea()  # type: ignore[assignment]
         try:
             lead.control_step()  # the workspace hold comes after: held, reason kept
         finally:
             lead.scenario = None
-        assert lead._left_area and lead.hold_reason == "name_taken"
+        assert lead._left_area and lead.hold == "name_taken"
         assert lead.platform.held  # type: ignore[attr-defined]
         lead.control_step()
         assert lead.counters["name_taken_holds"] == 1  # the reason never changed

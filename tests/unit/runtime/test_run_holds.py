@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 from federation.core import wire
+from federation.core.holds import Change, Hold, Trigger
 from federation.core.keys import AgentId
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.clock import ExecClock
@@ -105,9 +106,9 @@ def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending:
     f.command("start", run_id="r1", duration=1.5)
     f.pose()
     f.step()
-    assert f.agent.run_state.mode == "running" and f.agent.hold_reason is None
+    assert f.agent.run_state.mode == "running" and f.agent.hold is None
     f.step(1.0)  # the leader's pose stops: stale hold
-    assert f.agent.hold_reason == "stale" and f.agent.platform.held
+    assert f.agent.hold == "stale" and f.agent.platform.held
     if ending == "done":
         f.step(1.0)  # the run's 1.5 s are over
     else:
@@ -116,7 +117,7 @@ def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending:
         f.command("reset")
         f.step()
     assert f.agent.run_state.mode in ("done", "waiting", "armed"), f.agent.run_state.mode
-    assert f.agent.hold_reason in ("done", "reset")
+    assert f.agent.hold in ("done", "reset")
     assert f.agent.platform.held
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and ready.platform_detail == "held (stale)"
@@ -125,14 +126,14 @@ def test_a_new_run_does_not_release_a_follower_whose_pose_is_still_stale(ending:
         f.sync()  # the leader still answers sync; only its pose has stopped
         f.step(0.5)
         assert f.agent.platform.held, f.agent.run_state.mode
-        assert f.agent.hold_reason == "stale"
+        assert f.agent.hold == "stale"
     # The pose flows again and a sync completes since: the link watch releases it.
     f.pose()
     f.step()
     f.sync()
     f.pose()
     f.step()
-    assert f.agent.hold_reason is None and not f.agent.platform.held
+    assert f.agent.hold is None and not f.agent.platform.held
 
 
 def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
@@ -145,7 +146,7 @@ def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
     f.agent._on_control(_RawSample(deep))  # type: ignore[arg-type]
     assert f.agent.platform.held
     f.step()
-    assert f.agent.run_state.mode == "aborted" and f.agent.hold_reason == "aborted"
+    assert f.agent.run_state.mode == "aborted" and f.agent.hold == "aborted"
     assert f.agent.counters["control_malformed"] == 1
 
 
@@ -189,7 +190,7 @@ def test_a_workspace_hold_outlasts_the_runs_end_and_the_next_start(ending: str) 
     f.agent.scenario = scenario  # type: ignore[assignment]
     f.pose()
     f.step()
-    assert f.agent.hold_reason == "workspace" and f.agent.platform.held
+    assert f.agent.hold == "workspace" and f.agent.platform.held
     if ending == "done":
         f.pose()
         f.step(1.0)
@@ -198,14 +199,14 @@ def test_a_workspace_hold_outlasts_the_runs_end_and_the_next_start(ending: str) 
         f.step()
         f.command("reset")
         f.step()
-    assert f.agent.hold_reason == "workspace"
+    assert f.agent.hold == "workspace"
     f.command("start", run_id="r2")
     for _ in range(3):
         f.sync()
         f.pose()
         f.step(0.1)
     assert scenario.runs >= 1  # the new run's guidance starts afresh
-    assert f.agent.hold_reason == "workspace" and f.agent.platform.held
+    assert f.agent.hold == "workspace" and f.agent.platform.held
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and ready.platform_detail == "held (workspace)"
     assert f.agent.status().hold == "workspace"
@@ -241,29 +242,31 @@ def _stale_then_flowing() -> Follower:
     f = Follower()
     f.in_a_run()
     f.step(1.0)  # stale hold
-    assert f.agent.hold_reason == "stale"
+    assert f.agent.hold == "stale"
     f.pose()
     f.sync()
     return f
 
 
 def test_an_abort_handled_while_a_step_releases_a_link_hold_wins() -> None:
-    # The step judged the link resumed; before it released, the abort ran in full on
-    # Zenoh's thread (hold, aborted). The release then undid the abort's hold.
+    # The step judged the link resumed; before its trigger reached the supervisor, the
+    # abort ran in full on Zenoh's thread (valves closed, run aborted). The link's
+    # release then lifts the stale hold alone: the abort's stands.
     f = _stale_then_flowing()
-    real = f.agent._let_go
+    real = f.agent.safety.apply
 
-    def abort_meanwhile(cause: str) -> bool:
-        assert f.agent.link_watch.holding is False  # judged resumed
-        f.command("abort")  # on "Zenoh's thread", between the judgement and the release
-        return real(cause)
+    def abort_meanwhile(trigger: Trigger) -> Change:
+        if trigger is Trigger.LINK_RESUMED:
+            assert f.agent.link_watch.holding is False  # judged resumed
+            f.command("abort")  # on "Zenoh's thread", between the judgement and the release
+        return real(trigger)
 
-    f.agent._let_go = abort_meanwhile  # type: ignore[method-assign]
+    f.agent.safety.apply = abort_meanwhile  # type: ignore[method-assign]
     f.pose()
     f.step()
     assert f.agent.run_state.mode == "aborted"
     assert f.agent.platform.held
-    assert f.agent.hold_reason == "aborted"  # the release saw the abort: held, said why
+    assert f.agent.hold == "aborted"  # the release saw the abort: held, said why
 
 
 def test_no_release_judged_before_an_abort_follows_its_hold() -> None:
@@ -301,31 +304,29 @@ def test_no_release_judged_before_an_abort_follows_its_hold() -> None:
     assert held_at_step == [True], held_at_step  # no step after the abort's hold ran free
     f.step()
     assert f.agent.run_state.mode == "aborted" and platform.held
-    assert f.agent.hold_reason == "aborted"
+    assert f.agent.hold == "aborted"
 
 
 def _late_start_meanwhile(f: Follower, meanwhile: Callable[[], None]) -> None:
-    """A start just after its instant, applied on "Zenoh's thread", which reads the link
-    watch as it decides to release and is descheduled there; ``meanwhile`` runs on the
-    loop's thread in that pause."""
+    """A start just after its instant, applied on "Zenoh's thread", which is descheduled
+    as it tells the supervisor the run started; ``meanwhile`` runs on the loop's thread
+    in that pause."""
     import threading
 
-    agent, real = f.agent, f.agent.link_watch
+    agent = f.agent
+    real = agent.safety.apply_locked
     deciding = threading.Event()
 
-    class Watch:
-        def __getattr__(self, name: str) -> Any:
-            return getattr(real, name)
+    def slow(trigger: Trigger) -> Change:
+        if (
+            trigger is Trigger.RUN_STARTED
+            and threading.current_thread() is not threading.main_thread()
+        ):
+            deciding.set()
+            threading.Event().wait(0.3)  # descheduled before the decision
+        return real(trigger)
 
-        @property
-        def holding(self) -> bool:
-            value = real.holding
-            if threading.current_thread() is not threading.main_thread():
-                deciding.set()
-                threading.Event().wait(0.3)  # descheduled after the read
-            return value
-
-    agent.link_watch = Watch()  # type: ignore[assignment]
+    agent.safety.apply_locked = slow  # type: ignore[method-assign]
     t_sim = agent.sim_time(f.clock.now())
     assert t_sim is not None
     start = threading.Thread(
@@ -337,13 +338,13 @@ def _late_start_meanwhile(f: Follower, meanwhile: Callable[[], None]) -> None:
         meanwhile()
     finally:
         start.join(5.0)
-        agent.link_watch = real  # type: ignore[assignment]
+        agent.safety.apply_locked = real  # type: ignore[method-assign]
 
 
 def test_a_start_released_on_zenohs_thread_does_not_undo_a_stale_hold_meanwhile() -> None:
-    # A start arriving just after its instant starts the run on Zenoh's thread, whose
-    # _let_go read the link as fresh; the loop's step then held for a stale pose; the
-    # release went on and left the platform free with the link still judged stale.
+    # A start arriving just after its instant starts the run on Zenoh's thread; the
+    # loop's step meanwhile judges the leader's pose stale. Whichever the supervisor
+    # hears first, the platform stays held for the stale link.
     f = Follower(wait_start=True)
     f.synced()
     f.pose()
@@ -351,7 +352,7 @@ def test_a_start_released_on_zenohs_thread_does_not_undo_a_stale_hold_meanwhile(
     _late_start_meanwhile(f, lambda: f.step(1.0))  # the leader's pose 1 s old meanwhile
     agent = f.agent
     assert agent.run_state.mode == "running"
-    assert agent.link_watch.holding and agent.platform.held and agent.hold_reason == "stale"
+    assert agent.link_watch.holding and agent.platform.held and agent.hold == "stale"
 
 
 def test_a_step_never_runs_free_while_a_cause_of_hold_stands() -> None:
@@ -360,10 +361,10 @@ def test_a_step_never_runs_free_while_a_cause_of_hold_stands() -> None:
     f = Follower()
     f.in_a_run()
     f.step(1.0)  # stale hold
-    assert f.agent.hold_reason == "stale"
+    assert f.agent.hold == "stale"
     f.agent.platform.release()
     f.step(0.01)
-    assert f.agent.platform.held and f.agent.hold_reason == "stale"
+    assert f.agent.platform.held and f.agent.hold == "stale"
     assert f.agent.counters["holds_restored"] == 1
 
 
@@ -389,7 +390,7 @@ def test_a_command_for_other_participants_is_ignored() -> None:
 
 def test_a_follower_held_for_a_contested_leader_is_not_ready() -> None:
     f = Follower()
-    f.agent.hold_reason = "contested"
+    f.agent.safety.apply(Trigger.CONTESTED)
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and ready.platform_detail == "held (contested)"
 
@@ -430,7 +431,7 @@ def test_the_reference_restarted_mid_run_aborts_the_run_here() -> None:
     _rejoins(f)
     assert _heard(f, "bbbb")  # a new session for the leader
     assert f.agent.platform.held  # at once, on the thread that heard it
-    assert f.agent.run_state.mode == "aborted" and f.agent.hold_reason == "aborted"
+    assert f.agent.run_state.mode == "aborted" and f.agent.hold == "aborted"
     assert f.agent.counters["reference_restarted"] == 1
     f.step()
     assert f.agent.platform.held
@@ -522,7 +523,7 @@ def test_an_own_pose_that_is_not_finite_is_not_sent_and_holds() -> None:
     f.agent.pose = wire.Pose(heading=math.nan)
     f.agent.publish_pose()  # no publisher needed: nothing is sent
     assert f.agent.counters["pose_not_finite"] == 1 and f.agent.platform.held
-    assert f.agent.hold_reason == "nonfinite"  # said, and nothing releases it
+    assert f.agent.hold == "nonfinite"  # said, and nothing releases it
     ready = f.agent.readiness(f.clock.now())
     assert not ready.platform and ready.platform_detail == "held (nonfinite)"
 
@@ -547,7 +548,7 @@ def test_at_its_end_the_platform_is_held_before_the_last_status() -> None:
     f.agent._status_pub = type("Sink", (), {"put": lambda *a, **k: order.append("status")})()
     f.agent.end()
     assert order == ["hold", "status"] and f.agent.platform.held
-    assert f.agent.hold_reason == "ended"
+    assert f.agent.hold == "ended"
 
 
 def test_a_platform_waits_for_its_run_held() -> None:
@@ -565,7 +566,7 @@ def test_a_platform_waits_for_its_run_held() -> None:
         now[0] += 0.01
         agent.control_step()
         opened += sum(agent.platform.valves)  # type: ignore[attr-defined]
-    assert agent.platform.held and agent.hold_reason == "waiting" and opened == 0
+    assert agent.platform.held and agent.hold == "waiting" and opened == 0
     ready = agent.readiness(clock.now())
     assert ready.platform  # waiting is not a fault: preflight passes
     command = {"command": "start", "seq": 1, "issuer": "op", "at": clock.now() + 0.5,
@@ -579,7 +580,7 @@ def test_a_platform_waits_for_its_run_held() -> None:
         now[0] += 0.01
         agent.control_step()
     assert agent.run_state.mode == "running" and not agent.platform.held
-    assert agent.hold_reason is None
+    assert agent.hold is None
 
 
 def test_the_platforms_counters_reach_status() -> None:
@@ -615,7 +616,7 @@ def test_a_release_for_one_cause_does_not_undo_a_hold_for_another() -> None:
     f.pose()
     f.step()
     agent = f.agent
-    assert agent.hold_reason == "waiting"
+    assert agent.hold == "waiting"
 
     def nonfinite() -> None:
         agent.pose = wire.Pose(x=float("nan"))
@@ -623,7 +624,7 @@ def test_a_release_for_one_cause_does_not_undo_a_hold_for_another() -> None:
 
     _late_start_meanwhile(f, nonfinite)
     assert agent.run_state.mode == "running"
-    assert agent.platform.held and agent.hold_reason == "nonfinite"
+    assert agent.platform.held and agent.hold == "nonfinite"
 
 
 @pytest.mark.parametrize(
@@ -653,7 +654,7 @@ def test_a_held_platform_is_judged_by_what_would_close_it_unheld() -> None:
     assert ready.platform_detail == "metrology fixes being acquired (1 of 3 agree)"
     chain._restarted = True
     f.step()
-    assert f.agent.hold_reason == "fix_restart"  # seen while waiting, not at the start
+    assert f.agent.hold == "fix_restart"  # seen while waiting, not at the start
 
 
 class _Run:
@@ -726,14 +727,44 @@ def test_an_estimate_restarted_from_outliers_holds_until_ctl_reset() -> None:
     f.agent.platform.chain._restarted = True  # type: ignore[attr-defined]
     f.step()  # the chain closes every valve (fix_restart); the agent sees it next step
     f.step()
-    assert f.agent.hold_reason == "fix_restart" and f.agent.platform.held
+    assert f.agent.hold == "fix_restart" and f.agent.platform.held
     assert f.agent.run_state.mode == "aborted"  # the ctl run ended here
     assert f.agent.counters["fix_restart_holds"] == 1
     assert "fix_restart" in f.agent.readiness(f.clock.now()).platform_detail
     f.command("reset")
     f.step()
     assert not f.agent.platform.chain._restarted  # type: ignore[attr-defined]
-    assert f.agent.hold_reason == "reset"
+    assert f.agent.hold == "reset"
+
+
+@pytest.mark.parametrize("mode", ["waiting", "done", "aborted", "reset"])
+def test_a_confirmed_reset_lifts_a_restarted_estimate_in_every_mode(mode: str) -> None:
+    # An idle leader held for fix_restart while already waiting: ctl reset was confirmed
+    # ("applied") and the hold stayed, since a reset while waiting changes no mode.
+    f = Follower(platform="pinocchio", wait_start=True)
+    f.synced()
+    if mode == "done":
+        f.command("start", run_id="r1", duration=0.05)
+        f.pose()
+        f.step()
+        f.step(0.1)
+    elif mode == "aborted":
+        f.command("abort")
+    elif mode == "reset":
+        f.command("abort")
+        f.command("reset")
+    f.step()
+    assert f.agent.run_state.mode == ("waiting" if mode == "reset" else mode)
+    f.agent.platform.chain._restarted = True  # type: ignore[attr-defined]
+    f.step()
+    assert f.agent.safety.holds(Hold.FIX_RESTART) and f.agent.platform.held
+    f.command("reset")
+    (outcome,) = [c for c in f.agent.command_log if c.command == "reset"][-1:]
+    assert outcome.outcome == "applied", outcome
+    f.step()
+    assert not f.agent.safety.standing & {Hold.FIX_RESTART, Hold.ABORTED, Hold.DONE}
+    assert f.agent.hold == "reset" and f.agent.platform.held  # until the next start
+    assert f.agent.readiness(f.clock.now()).platform_detail != "held (fix_restart)"
 
 
 def test_a_closing_agent_takes_no_start_while_its_recording_finishes() -> None:
