@@ -43,8 +43,8 @@ that is not finite or beyond the sensor's range (``imu.gyro_range``,
 - not finite;
 - outside where a fix can be (``fix_outside``): the table and the cameras' coverage
   overlap, grown by ``vision.fix_margin`` (:attr:`~schemas.platform.PlatformConfig.fix_area`);
-  one POSE at x = 5 m off KNATTE's 3 m table, with a valid checksum, opened valves in
-  436 of the next 1000 steps; at 3e38 m, in every one;
+  taken, one POSE at x = 5 m off KNATTE's 3 m table, with a valid checksum, opens valves
+  in 436 of the next 1000 steps; at 3e38 m, in every one;
 - an outlier (``fix_outlier``): more than ``navigation.fix_gate`` sigmas of the filter's
   innovation covariance from the estimate (x, y and heading together; the first fix of
   an estimate is not gated, there is nothing to gate it on).
@@ -56,12 +56,13 @@ alone, the estimate anywhere the drift took it), start a trial copy of the estim
 and so do the fixes after it until the trial is taken or dropped (none is gated
 against the dead-reckoned estimate, so none is an outlier), and the estimate takes it only once
 ``navigation.fixes_to_start`` fixes in a row agree with it (each within the gate of
-the trial so far): a glitch right after a gap had been taken, and flown on. The
+the trial so far): taken alone, a glitch right after a gap would be flown on. The
 estimate then takes the fixes that follow as usual, gated, and the valves stay closed
 (``settling``) until its velocity is known to ``navigation.start_velocity_sigma``: from
-a standing start, three fixes left it 0.06 m/s unsure, and the valves opened on a
-velocity 0.05 to 0.15 m/s wrong (or on a glitch as the third fix); waited for in the
-trial instead, a glitch now and then began it again each time, and it never finished.
+a standing start, three fixes leave it 0.06 m/s unsure, and valves opened then would act
+on a velocity 0.05 to 0.15 m/s wrong (or on a glitch as the third fix). The velocity is
+waited for after the trial, not in it: there, a glitch now and then would begin the
+trial again each time, and it might never finish.
 Until then the valves stay closed (``no_fix``, ``stale_fix``; ``fix_acquiring`` counts the
 fixes held back).
 
@@ -69,9 +70,9 @@ A fix describes the platform when the metrology saw it, which may be some time b
 it reaches the chain (``fix_age``: a camera pipeline's latency, known from the
 device's clock): the filter sets it against the estimate as it was then, by the
 motion the IMU has shown since and the velocity's and gyro bias's part in it
-(:mod:`agents.navigation`), and its staleness counts from when it was taken. As a
-turn began, a lag the gate did not know of had made good fixes outliers that agreed
-with one another, and restarted the estimate. A fix older than the estimate's known
+(:mod:`agents.navigation`), and its staleness counts from when it was taken: as a
+turn begins, a lag the gate does not know of would make good fixes outliers that agree
+with one another, and restart the estimate. A fix older than the estimate's known
 motion (just restarted) is held back (``fix_uncarried``); one older than
 ``vision.latency_max`` is rejected (``fix_late``): no metrology is that late, a
 device time is wrong.
@@ -210,9 +211,9 @@ class GncChain:
         self._target_set = target is not None
         self._explicit_target = target is not None
         # Where position hold holds is re-taken from the estimate when a track ends and
-        # when a hold is released: holding the first fix's point instead sent a platform
-        # released between runs back across the table. (Not after a camera's gap: the
-        # point it held is still the one to hold.)
+        # when a hold is released: the first fix's point may be across the table from a
+        # platform released between runs, and holding it would send the platform back
+        # there. (Not after a camera's gap: the point it held is still the one to hold.)
         self._hold_here = False
         self._force_scale = 1.0 / config.pair_force
         self._torque_scale = 1.0 / config.pair_torque
@@ -330,6 +331,19 @@ class GncChain:
         """
         if not math.isfinite(now):  # no time to judge anything by: closed, nothing kept
             return self._close("nonfinite")
+        self._navigate(now, imu, fix, fix_age)
+        self.cause = self._closed_reason(now, closed_for, held=False)
+        reason = "held" if self._held else self.cause
+        if reason is not None:
+            return self._close(reason)
+        return self._control(now, heading_ref, rate_ref, track)
+
+    def _navigate(
+        self, now: float, imu: ImuSample | None, fix: Pose | None, fix_age: float
+    ) -> None:
+        """Navigation: the estimate, its shadow and its trial predicted to ``now`` on the
+        latest plausible IMU sample, then corrected with ``fix`` (or not, see
+        :meth:`_take_fix`). Time that went back starts the estimate afresh."""
         if self._last_now is not None and now < self._last_now:
             self.counters["clock_steps_back"] += 1
             self._restart_estimate()
@@ -339,17 +353,17 @@ class GncChain:
                 self._imu, self._imu_at = imu, now
             else:
                 self.counters["imu_rejected"] += 1
-        self.filter.predict(now, self._imu)
-        if self._shadow is not None:
-            self._shadow.predict(now, self._imu)
-        if self._trial is not None:
-            self._trial.predict(now, self._imu)
+        for filt in (self.filter, self._shadow, self._trial):
+            if filt is not None:
+                filt.predict(now, self._imu)
         if fix is not None:
             self._take_fix(now, fix, fix_age)
-        self.cause = self._closed_reason(now, closed_for, held=False)
-        reason = "held" if self._held else self.cause
-        if reason is not None:
-            return self._close(reason)
+
+    def _control(
+        self, now: float, heading_ref: float, rate_ref: float, track: Track | None
+    ) -> tuple[bool, ...]:
+        """Control and actuation on the estimate, once nothing holds the valves closed:
+        torque and force demands, pulses, valve states."""
         est = self.filter.estimate
         if not all(map(math.isfinite, est)):
             self._restart_estimate()  # a NaN in the filter stays there: start afresh
@@ -364,21 +378,27 @@ class GncChain:
             self.pwm.reset()
         self.reason = None
         torque = self.pid.update(now, est.heading, est.omega, heading_ref, rate_ref)
-        fx = fy = 0.0
-        if track is not None:
-            fx, fy = self.position.update(est, track)
-            self._hold_here = True  # when the track ends, hold where it left the platform
-        elif self.position_hold is not None:
-            if self._hold_here and not self._explicit_target:
-                self.position_hold.target = (est.x, est.y)
-            self._hold_here = False
-            fx, fy = self.position_hold.update(est)
+        fx, fy = self._force(est, track)
         demands = (fx * self._force_scale, fy * self._force_scale, torque * self._torque_scale)
         if not all(map(math.isfinite, demands)):  # a track's NaN, an overflow
             return self._close("nonfinite")
         signs = self.pwm.update(now, demands)
         self._valves = allocate(*signs)
         return self._valves
+
+    def _force(self, est: Pose, track: Track | None) -> tuple[float, float]:
+        """The position controller's force demand (N, body frame): following ``track``,
+        else holding a point if position hold is on, else none."""
+        if track is not None:
+            force = self.position.update(est, track)
+            self._hold_here = True  # when the track ends, hold where it left the platform
+            return force
+        if self.position_hold is None:
+            return 0.0, 0.0
+        if self._hold_here and not self._explicit_target:
+            self.position_hold.target = (est.x, est.y)
+        self._hold_here = False
+        return self.position_hold.update(est)
 
     def _take_fix(self, now: float, fix: Pose, age: float) -> None:
         """Correct the filter with ``fix`` (taken ``age`` s ago), or hold it back until
@@ -399,8 +419,8 @@ class GncChain:
         age = max(0.0, age)  # a POSE newer than the IMU: taken as of now
         if not self.filter.reaches(age):
             # Older than the estimate's motion is known (it has just started again): set
-            # against it uncarried, the first fixes after a restart in a turn agreed with
-            # one another on a heading 0.1 rad behind. Held back.
+            # against it uncarried, the first fixes after a restart in a turn would agree
+            # with one another on a heading 0.1 rad behind. Held back.
             self.counters["fix_uncarried"] += 1
             return
         filt = self.filter
@@ -412,8 +432,8 @@ class GncChain:
             # fix_timeout (out of the cameras' view), so the estimate is dead reckoning
             # and a fix that disagrees with it is where the platform went, not an
             # outlier for an operator to acknowledge. It is acquired, with those that
-            # follow it: taken once ``fixes_to_start`` in a row agree. Fixes that kept
-            # coming and were rejected are no gap: those go on as outliers.
+            # follow it: taken once ``fixes_to_start`` in a row agree. Fixes that keep
+            # coming and are rejected are no gap: those go on as outliers.
             self._shadow, self._agreeing = None, 0
             if not self._acquired(now, fix, age):
                 return
@@ -472,8 +492,8 @@ class GncChain:
             shadow = self._shadow = self._new_filter()  # a first, or one that disagrees
             shadow.predict(now, self._imu)
             # The IMU's record of the motion, not the estimate: late fixes are set against
-            # the shadow as they are against the estimate (taken as current, they had
-            # lagged by the turn since, and the shadow never completed or went wrong).
+            # the shadow as they are against the estimate (taken as current, they would lag
+            # by the turn since, and the shadow would never complete, or go wrong).
             shadow.follow_motion_of(self.filter)
             self._agreeing = 0
         shadow.correct(now, fix, age)  # uncarried while its own history is short
@@ -485,8 +505,8 @@ class GncChain:
             self.counters["fix_restarts"] += 1
             # Closed until an operator acknowledges it (acknowledge_restart): agreeing
             # fixes are where the platform is only if the metrology is right, and a
-            # frozen or glitching one repeats the same wrong value (five of them had
-            # taken over the estimate and flown the platform by it).
+            # frozen or glitching one repeats the same wrong value (five of them would
+            # take over the estimate and fly the platform by it).
             self._restarted = True
             if self.position_hold is not None and not self._explicit_target:
                 self._hold_at_estimate()
