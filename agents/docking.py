@@ -139,7 +139,8 @@ class TargetFilter:
         """How far (m) measurement ``m`` may lie from the target's predicted position
         before it is a jump: ``TARGET_JUMP``, or five standard deviations of the
         difference where the sensor's noise (growing with range) and the estimate's own
-        spread make more (at 3.9 m a fixed 0.1 m was 3 sigma: noise alone restarted)."""
+        spread make more (at 3.9 m a fixed 0.1 m is 3 sigma: noise alone would be
+        taken for a jump)."""
         spread = position_variance(sensor, m) + self.x.variance_at(m.t) + self.y.variance_at(m.t)
         return max(TARGET_JUMP, 5.0 * math.sqrt(spread))
 
@@ -256,7 +257,7 @@ class DockingGuidance:
         last = self._last_measurement
         if last is not None and t - last > self.config.lost_after:
             # Lost: where it was last seen, not where its last rates would carry it (a
-            # target that stopped out of view was chased at its old drift for minutes).
+            # target that stops out of view would be chased at its old drift for minutes).
             tgt = self.target.at(last)._replace(vx=0.0, vy=0.0, omega=0.0)
         else:
             tgt = self.target.at(t)
@@ -267,48 +268,69 @@ class DockingGuidance:
         return self._track(tgt)
 
     def _advance(self, t: float, dt: float, here: ContactState) -> None:
+        """Move the reference point and the phase on by ``dt`` s, the chaser at ``here``."""
         c = self.config
-        hold_s = c.contact_distance + c.hold_distance
         if self._carrot is None:
             self._carrot = (here.axial, here.lateral)
             self.events.append((t, self.phase))
         lost = self._last_measurement is None or t - self._last_measurement > c.lost_after
-        s, lat = self._carrot
-        if self.phase == CONTACT:
-            return
         if self.phase == FINAL:
-            corridor = max(0.0, here.axial - c.contact_distance) * math.tan(
-                math.radians(c.corridor_deg)
-            )
-            if lost or abs(here.lateral) > corridor + c.hold_tolerance:
-                self.counters["backoffs_lost" if lost else "backoffs_corridor"] += 1
-                self._settled_since = None
-                self._go(t, APPROACH)
-            elif here.axial <= c.contact_distance:
-                self._carrot = (c.contact_distance, 0.0)
-                self._go(t, CONTACT)
-                return
-            else:
-                self._carrot = (max(c.contact_distance - OVERSHOOT, s - c.final_speed * dt), 0.0)
-                return
+            self._final(t, dt, here, lost)  # a back-off flies the approach in this step
         if self.phase == APPROACH:
-            ds, dl = hold_s - s, -lat
-            dist = math.hypot(ds, dl)
-            step = c.approach_speed * dt
-            if dist <= step:
-                self._carrot = (hold_s, 0.0)
-                self._go(t, HOLD)
-            else:
-                self._carrot = (s + ds * step / dist, lat + dl * step / dist)
-            return
-        # HOLD
-        err = math.hypot(here.axial - hold_s, here.lateral)
+            self._approach(t, dt)
+        elif self.phase == HOLD:
+            self._hold(t, here, lost)
+
+    @property
+    def _hold_axial(self) -> float:
+        """s (m) of the hold point."""
+        return self.config.contact_distance + self.config.hold_distance
+
+    def _approach(self, t: float, dt: float) -> None:
+        """The point moves at ``approach_speed`` to the hold point; there, hold."""
+        assert self._carrot is not None
+        s, lat = self._carrot
+        hold_s = self._hold_axial
+        ds, dl = hold_s - s, -lat
+        dist = math.hypot(ds, dl)
+        step = self.config.approach_speed * dt
+        if dist <= step:
+            self._carrot = (hold_s, 0.0)
+            self._go(t, HOLD)
+        else:
+            self._carrot = (s + ds * step / dist, lat + dl * step / dist)
+
+    def _hold(self, t: float, here: ContactState, lost: bool) -> None:
+        """The point stays; the final approach begins once the chaser has been within
+        ``hold_tolerance`` of it, nearly still and measuring, for ``hold_time`` s."""
+        c = self.config
+        err = math.hypot(here.axial - self._hold_axial, here.lateral)
         if lost or err > c.hold_tolerance or abs(here.closing_speed) > 0.005:
             self._settled_since = None
         elif self._settled_since is None:
             self._settled_since = t
         elif t - self._settled_since >= c.hold_time:
             self._go(t, FINAL)
+
+    def _final(self, t: float, dt: float, here: ContactState, lost: bool) -> None:
+        """The point moves in along the axis at ``final_speed``; contact once the chaser
+        is within ``contact_distance``; back to the approach (to the hold point) when the
+        chaser leaves the corridor or its measurements stop."""
+        c = self.config
+        assert self._carrot is not None
+        s, _ = self._carrot
+        corridor = max(0.0, here.axial - c.contact_distance) * math.tan(
+            math.radians(c.corridor_deg)
+        )
+        if lost or abs(here.lateral) > corridor + c.hold_tolerance:
+            self.counters["backoffs_lost" if lost else "backoffs_corridor"] += 1
+            self._settled_since = None
+            self._go(t, APPROACH)
+        elif here.axial <= c.contact_distance:
+            self._carrot = (c.contact_distance, 0.0)
+            self._go(t, CONTACT)
+        else:
+            self._carrot = (max(c.contact_distance - OVERSHOOT, s - c.final_speed * dt), 0.0)
 
     def _track(self, tgt: Pose, still: bool = False) -> Reference:
         c = self.config
