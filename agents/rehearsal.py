@@ -95,22 +95,33 @@ def _run(
         t = k * tick
         run_time = t - START if t >= START else None
         for m in members:
-            others = {}
-            for other in members:
-                if other is m:
-                    continue
-                got = m.links[other.name].receive(t)
-                if got is not None:
-                    others[other.name] = (got.t, got.pose)
-            ref = m.guidance(t, run_time, others, m.estimate)
+            ref = m.guidance(t, run_time, _received(m, members, t), m.estimate)
             m.estimate = m.platform.step(t, ref.heading, ref.rate, ref.track)
         if k % pose_every == 0:
-            for m in members:
-                for other in members:
-                    if other is not m:
-                        other.links[m.name].send(t, PoseSample(t, m.estimate))
+            _send_estimates(members, t)
         if run_time is not None and k % record_steps == 0:
             observe(t, run_time, by_name)
+
+
+def _received(member: _Member, members: list[_Member], t: float) -> dict[str, tuple[float, Pose]]:
+    """What ``member``'s links have delivered by ``t``: every other member's latest
+    pose and its stamp, by name (none yet from a member nothing has come from)."""
+    others = {}
+    for other in members:
+        if other is member:
+            continue
+        got = member.links[other.name].receive(t)
+        if got is not None:
+            others[other.name] = (got.t, got.pose)
+    return others
+
+
+def _send_estimates(members: list[_Member], t: float) -> None:
+    """Every member's estimate, stamped ``t``, onto its link to every other member."""
+    for m in members:
+        for other in members:
+            if other is not m:
+                other.links[m.name].send(t, PoseSample(t, m.estimate))
 
 
 def _links(members: list[_Member], delay: float, jitter: float, seed: int) -> None:
