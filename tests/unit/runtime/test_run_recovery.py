@@ -32,6 +32,7 @@ from federation.core.keys import AgentId
 from federation.fleet.launch import wait_for
 from federation.runtime import collect as collect_module
 from federation.runtime import recorder as recorder_module
+from federation.runtime import runfolder as runfolder_module
 from federation.runtime.collect import (
     RecordingServer,
     collect,
@@ -285,14 +286,14 @@ def test_a_run_that_cannot_be_recovered_is_counted_and_the_others_are(
     content = finished.read_bytes()[: _chunks(finished)[1].end]
     for run in ("a", "b", "c"):
         _unfinished(runs, run, content)
-    real = collect_module.salvage
+    real = runfolder_module.salvage
 
     def failing(damaged: Path, out: Path, *args, **kwargs):  # type: ignore[no-untyped-def]
         if damaged.parent.name == "b":
             raise OSError(5, "Input/output error")
         return real(damaged, out, *args, **kwargs)
 
-    monkeypatch.setattr(collect_module, "salvage", failing)
+    monkeypatch.setattr(runfolder_module, "salvage", failing)
     result = recover_runs(runs, AGENT)
     assert set(result.recovered) == {"a", "c"}
     assert list(result.failed) == ["b"] and "Input/output error" in result.failed["b"]
@@ -407,8 +408,8 @@ def _closed_not_finalized(runs: Path, max_mb: int | None) -> RunRecording:
 def test_a_finished_recording_without_its_manifest_is_only_finalized(
     tmp_path: Path, case: str
 ) -> None:
-    """It had been renamed .partial, copied and said 'recovered after its agent stopped
-    mid-run', its truncation details lost and its disk use doubled."""
+    """Not renamed .partial, copied and said 'recovered after its agent stopped
+    mid-run': that would lose its truncation details and double its disk use."""
     runs = tmp_path / "runs"
     run = _closed_not_finalized(runs, None if case == "whole" else 1)
     report = run.recorder.report()
@@ -462,7 +463,7 @@ def test_a_recovery_waits_for_the_space_its_copy_takes(
     folder = _unfinished(runs, "r1", content)
     floor = 10  # MiB: record_min_free_mb
     free = len(content) + floor * (1 << 20) - 1
-    monkeypatch.setattr(collect_module, "free_bytes", lambda path: free)
+    monkeypatch.setattr(runfolder_module, "free_bytes", lambda path: free)
     result = recover_runs(runs, AGENT, min_free_mb=floor)
     assert list(result.short_of_space) == ["r1"] and not result.recovered
     assert "record_min_free_mb (10 MiB)" in result.short_of_space["r1"]
@@ -476,14 +477,15 @@ def test_a_recovery_waits_for_the_space_its_copy_takes(
 def test_a_copy_that_fails_or_stops_leaves_no_half_written_file(
     finished: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
 ) -> None:
-    """A .recovering left behind took its room until the next start, and again then."""
+    """A .recovering left behind would take its room until the next start, and again
+    then."""
     runs = tmp_path / "runs"
     content = finished.read_bytes()[: _chunks(finished)[3].end]
     folder = _unfinished(runs, "r1", content)
     recovering = folder / f"{STEM}.mcap.recovering"
     stop = None
     if how == "disk full":
-        real = collect_module.salvage
+        real = runfolder_module.salvage
 
         def full(damaged: Path, out: Path, note: object, stopped: object) -> object:
             def fails() -> bool:
@@ -493,7 +495,7 @@ def test_a_copy_that_fails_or_stops_leaves_no_half_written_file(
 
             return real(damaged, out, note, fails)  # type: ignore[arg-type]
 
-        monkeypatch.setattr(collect_module, "salvage", full)
+        monkeypatch.setattr(runfolder_module, "salvage", full)
         result = recover_runs(runs, AGENT)
         assert list(result.failed) == ["r1"] and "No space" in result.failed["r1"]
     else:
@@ -557,7 +559,7 @@ def test_a_live_recording_on_nfs_is_left_alone(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """NFS emulates flock with a write lock: on a read-only descriptor it fails (EBADF),
-    which had been taken for 'no locks here', and the live file renamed."""
+    which is not 'no locks here': the live file must not be renamed."""
     real = fcntl.flock
 
     def nfs(fd: int, operation: int) -> None:
