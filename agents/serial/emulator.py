@@ -97,6 +97,23 @@ def device_config(
     if not (math.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise must be a factor >= 0, not {noise!r}")
     data = base.model_dump()
+    _override_body(data, mass=mass, inertia=inertia, thrust=thrust, torque_pair=torque_pair)
+    _override_rates(data, imu_rate=imu_rate, pose_rate=pose_rate)
+    if noise != 1.0:
+        _scale_noise(data, noise)
+    return validate(PlatformConfig, data, f"emulated {base.name}")
+
+
+def _override_body(
+    data: dict[str, Any],
+    *,
+    mass: float | None,
+    inertia: float | None,
+    thrust: float | None,
+    torque_pair: float | None,
+) -> None:
+    """The body and its thrusters in a preset's ``data``: each value given replaces
+    the preset's, and a limit rises to a thrust or torque above it."""
     if mass is not None:
         data["mass"] = mass
     if inertia is not None:
@@ -107,6 +124,12 @@ def device_config(
     if torque_pair is not None:
         data["torque"] = torque_pair / 2.0
         data["max_torque"] = max(data["max_torque"], data["torque"])
+
+
+def _override_rates(
+    data: dict[str, Any], *, imu_rate: float | None, pose_rate: float | None
+) -> None:
+    """The IMU's and the metrology's rates in a preset's ``data``."""
     if imu_rate is not None:
         data["imu"]["rate"] = imu_rate
     if pose_rate is not None:
@@ -116,14 +139,16 @@ def device_config(
         control["fix_timeout"] = max(
             control["fix_timeout"], 2.0 / pose_rate + data["vision"]["latency_max"] + 0.1
         )
-    if noise != 1.0:
-        imu, vision = data["imu"], data["vision"]
-        for key in ("gyro_noise", "gyro_bias", "accel_noise"):
-            imu[key] *= noise
-        imu["accel_bias"] = tuple(noise * b for b in imu["accel_bias"])
-        for key in ("position_noise", "heading_noise"):
-            vision[key] *= noise
-    return validate(PlatformConfig, data, f"emulated {base.name}")
+
+
+def _scale_noise(data: dict[str, Any], noise: float) -> None:
+    """Every sensor noise and bias in a preset's ``data`` times ``noise``."""
+    imu, vision = data["imu"], data["vision"]
+    for key in ("gyro_noise", "gyro_bias", "accel_noise"):
+        imu[key] *= noise
+    imu["accel_bias"] = tuple(noise * b for b in imu["accel_bias"])
+    for key in ("position_noise", "heading_noise"):
+        vision[key] *= noise
 
 
 _JUNK = bytes(b for b in range(256) if b != 0xA5)
