@@ -59,8 +59,9 @@ class Exchange:
     offset is SNTP's; without it, receive and send are one instant (the paper's).
 
     What they give is computed once, when the exchange is made: each is read
-    several times per reply (clock-step check, delay median, clock filter), and a
-    chain of properties cost a follower's reply path a tenth of its time (issue 17).
+    several times per reply (clock-step check, delay median, clock filter), and
+    computed at each read (as properties) they would cost a follower's reply path a
+    tenth of its time.
     """
 
     __slots__ = ("delay", "error_bound", "offset", "rtt", "t1", "t2", "t2s", "t3", "t_mid",
@@ -238,6 +239,30 @@ MAX_OFFSET = 1e10
 the Unix epoch are 1.8e9 s from one that starts at 0."""
 
 
+def _send_time(t2s: float | None, t2: float, t1: float, t3: float) -> float | None:
+    """The server's send time ``t2s`` if the exchange can have had it (finite, not before
+    ``t2``, the turnaround not longer than the client's wait ``t3 - t1``); else None:
+    the exchange uses three timestamps."""
+    if t2s is not None and not (math.isfinite(t2s) and 0.0 <= t2s - t2 <= t3 - t1):
+        return None
+    return t2s
+
+
+def _unusable(exchange: Exchange) -> str | None:
+    """Why a matched exchange gives nothing to estimate from, or None."""
+    if exchange.t3 < exchange.t1:  # our own clock went back while the request was out
+        return "clock_step"
+    if not (math.isfinite(exchange.offset) and math.isfinite(exchange.delay)):
+        # Finite timestamps whose differences overflow (a t2 near the float's limit):
+        # nothing to estimate from, and nothing the delay window could order.
+        return "malformed"
+    if abs(exchange.offset) > MAX_OFFSET:
+        # No two clocks of a federation are centuries apart; such a t2 would only
+        # overflow the estimator's sums (every pose stamped with an offset of inf).
+        return "implausible"
+    return None
+
+
 class SyncClient:
     """Client side of the exchange with one server.
 
@@ -321,45 +346,16 @@ class SyncClient:
         except wire.DecodeError:
             self._reject("malformed")
             return None
-        t1 = reply.t1
-        if t1 in self._pending:
-            if now - t1 > self.timeout:  # expired, though expire() has not run yet
-                del self._pending[t1]
-                _remember(self._expired, t1)
-                self.timeouts += 1
-                self._reject("late")
-                return None
-            del self._pending[t1]
-        elif t1 in self._answered:
-            self._reject("duplicate")
+        unmatched = self._match(reply.t1, now)
+        if unmatched is not None:
+            self._reject(unmatched)
             return None
-        elif t1 in self._expired:
-            self._reject("late")
+        exchange = Exchange(reply.t1, reply.t2, now, _send_time(t2s, reply.t2, reply.t1, now))
+        unusable = _unusable(exchange)
+        if unusable is not None:
+            self._reject(unusable)
             return None
-        else:
-            self._reject("unmatched")
-            return None
-        _remember(self._answered, t1)
-        if now < t1:  # our own clock went back while the request was out
-            self._reject("clock_step")
-            return None
-        if t2s is not None and not (math.isfinite(t2s) and 0.0 <= t2s - reply.t2 <= now - t1):
-            t2s = None  # a send time the exchange cannot have had: use three timestamps
-        exchange = Exchange(t1, reply.t2, now, t2s)
-        if not (math.isfinite(exchange.offset) and math.isfinite(exchange.delay)):
-            # Finite timestamps whose differences overflow (a t2 near the float's limit):
-            # nothing to estimate from, and nothing the delay window could order.
-            self._reject("malformed")
-            return None
-        if abs(exchange.offset) > MAX_OFFSET:
-            # No two clocks of a federation are centuries apart; such a t2 would only
-            # overflow the estimator's sums (an offset of inf stamped every pose).
-            self._reject("implausible")
-            return None
-        if len(self._recent) < 3:
-            verdict = self._warm_up(exchange)
-        else:
-            verdict = "feed" if self._consistent(exchange) else "reject"
+        verdict = self._verdict(exchange)
         if verdict == "reject":
             return None
         self.last_fed = verdict == "feed"
@@ -369,6 +365,32 @@ class SyncClient:
         if verdict == "feed":
             self.estimator.add(exchange)
         return reply
+
+    def _match(self, t1: float, now: float) -> str | None:
+        """Match a reply read at ``now``, echoing ``t1``, to a request of ours: None once
+        matched (the request is answered now), else why not: ``late`` (expired, or past
+        ``timeout`` though :meth:`expire` has not run yet), ``duplicate`` or
+        ``unmatched``."""
+        if t1 in self._pending:
+            del self._pending[t1]
+            if now - t1 > self.timeout:
+                _remember(self._expired, t1)
+                self.timeouts += 1
+                return "late"
+            _remember(self._answered, t1)
+            return None
+        if t1 in self._answered:
+            return "duplicate"
+        if t1 in self._expired:
+            return "late"
+        return "unmatched"
+
+    def _verdict(self, exchange: Exchange) -> Literal["feed", "held", "reject"]:
+        """Whether a usable exchange feeds the estimate, is held back by the warm-up, or
+        is rejected as inconsistent with the recent ones (or starts a clock step)."""
+        if len(self._recent) < 3:
+            return self._warm_up(exchange)
+        return "feed" if self._consistent(exchange) else "reject"
 
     def _consistent(self, exchange: Exchange) -> bool:
         """Clock-step detection, independent of the estimator. An exchange's offset is
@@ -400,8 +422,8 @@ class SyncClient:
         :meth:`_consistent` judges): the first two are held back (``held``), and at the
         third the one that disagrees with the other two is dropped as ``inconsistent``
         and the rest fed. One wild reply first (a ``t2`` ten seconds off) thus never
-        reaches the estimate, where the paper's window would have held it for good and
-        the clock filter weighed it for its whole horizon. A third that disagrees is
+        reaches the estimate, where the paper's window would hold it for good and the
+        clock filter weigh it for its whole horizon. A third that disagrees is
         rejected, and ``STEP_CONFIRM`` of them in a row are a clock step during the
         warm-up: they replace the first two (else two exchanges from before a step
         would outvote every one after it for good)."""
@@ -497,12 +519,11 @@ class _Median:
     """The median of the last ``window`` values, kept up to date as each is added.
 
     A follower reads its delay median for every pose it receives. Sorting the window
-    (``statistics.median``, at the first read after each exchange) walked every value,
-    each a float object of its own, cold in the cache by the time the pose arrived
-    (issue 17). The window is kept sorted beside its arrival order instead: an add
-    touches a handful of values, and a read is one attribute (safe from another thread
-    while an add runs). Values must be finite (NaN cannot be ordered); ``window`` at
-    least 1."""
+    at a read (``statistics.median``) would walk every value, each a float object of
+    its own, cold in the cache by the time the pose arrives. The window is kept sorted
+    beside its arrival order instead: an add touches a handful of values, and a read is
+    one attribute (safe from another thread while an add runs). Values must be finite
+    (NaN cannot be ordered); ``window`` at least 1."""
 
     __slots__ = ("_order", "_sorted", "median")
 
