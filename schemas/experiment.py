@@ -80,6 +80,19 @@ class ExperimentConfig(_Model):
     @model_validator(mode="after")
     def _consistent(self) -> ExperimentConfig:
         names = [p.agent for p in self.participants]
+        self._check_roles(names)
+        self._check_frames()
+        if self.kind == "formation":
+            self._check_formation(names)
+        elif self.kind == "docking":
+            self._check_docking()
+        else:
+            self._check_attitude_tracking()
+        return self
+
+    def _check_roles(self, names: list[str]) -> None:
+        """Each agent takes part once; one leads; a follower follows one who takes part;
+        only a follower schedules its gains."""
         if len(set(names)) != len(names):
             raise ValueError("an agent takes part twice")
         leaders = [p.agent for p in self.participants if p.role == "leader"]
@@ -92,19 +105,18 @@ class ExperimentConfig(_Model):
                 raise ValueError(f"{p.agent} follows {p.follow}, who does not take part")
             if p.adaptive_gains and p.role != "follower":
                 raise ValueError(f"{p.agent}: adaptive_gains applies to a follower only")
+
+    def _check_frames(self) -> None:
+        """A frame is given only for a lab that takes part."""
         labs = {p.agent.split("/")[0] for p in self.participants}
         for lab in self.frames:
             if lab not in labs:
                 raise ValueError(f"frames.{lab}: no participant in lab {lab!r}")
-        if self.kind == "formation":
-            self._check_formation(names)
-        elif self.kind == "docking":
-            self._check_docking()
-        else:
-            members = [p.agent for p in self.participants if p.role == "member"]
-            if members:
-                raise ValueError(f"attitude-tracking has no members: {', '.join(members)}")
-        return self
+
+    def _check_attitude_tracking(self) -> None:
+        members = [p.agent for p in self.participants if p.role == "member"]
+        if members:
+            raise ValueError(f"attitude-tracking has no members: {', '.join(members)}")
 
     def _check_formation(self, names: list[str]) -> None:
         f = self.formation
@@ -144,7 +156,7 @@ class ExperimentConfig(_Model):
 
     def part(self, agent: AgentId) -> ScenarioPart | None:
         """``agent``'s part of the scenario (None for attitude tracking without adaptive
-        gains: the runtime then runs as before)."""
+        gains, which needs no scenario guidance)."""
         p = self.participant(agent)
         if p is None:
             return None
