@@ -159,6 +159,15 @@ _OWN_FIELDS = _TABLE | {"federation", "lab", "name"}
 file): ``settings`` may not override them (a hosted agent's platform is checked here)."""
 
 
+def _check_operators(lab: str, entry: LabEntry) -> None:
+    """A lab's operators are named once each, and no operator has an agent's name."""
+    clash = sorted(set(entry.agents) & set(entry.operators))
+    if clash:
+        raise _field_error(f"labs.{lab}.operators", f"{', '.join(clash)}: already an agent's name")
+    if len(set(entry.operators)) != len(entry.operators):
+        raise _field_error(f"labs.{lab}.operators", "a name is listed twice")
+
+
 def _check_hosted(lab: str, entry: LabEntry) -> None:
     """A hosted process has a name of its own and runs agents of its lab, each on one
     host only, none with a real platform, no two writing one status or recording file."""
@@ -166,36 +175,56 @@ def _check_hosted(lab: str, entry: LabEntry) -> None:
     files: dict[tuple[str, str, str], str] = {}
     for host, names in entry.hosted.items():
         where = f"labs.{lab}.hosted.{host}"
-        if host in entry.agents or host in entry.operators:
-            kind = "an agent's" if host in entry.agents else "an operator's"
-            raise _field_error(where, f"{host!r} is already {kind} name: one identity each")
-        if not names:
-            raise _field_error(where, "runs no agent: list the agents it runs")
+        _check_host(entry, host, names, where)
         for i, name in enumerate(names):
-            if name not in entry.agents:
-                raise _field_error(f"{where}.{i}", f"{name!r} is not an agent of lab {lab}")
-            if name in owner:
-                raise _field_error(
-                    f"{where}.{i}",
-                    f"{name!r} is already run by {owner[name]!r}: one host per agent",
-                )
+            _check_hosted_agent(lab, entry, name, f"{where}.{i}", owner)
             owner[name] = host
-            for field in ("status_json", "record"):
-                path = entry.agents[name].settings.get(field)
-                if path is not None and (host, field, str(path)) in files:
-                    other = files[(host, field, str(path))]
-                    raise _field_error(
-                        f"labs.{lab}.agents.{name}.settings.{field}",
-                        f"{path} is also {other}'s, in one process ({host}): one file each",
-                    )
-                if path is not None:
-                    files[(host, field, str(path))] = name
+            _claim_files(lab, entry, host, name, files)
             platform = entry.agents[name].platform
             if platform.startswith("serial:"):
                 raise _field_error(
                     f"{where}.{i}",
                     f"{name!r} flies a real platform ({platform}): it runs as its own fedlab agent",
                 )
+
+
+def _check_host(entry: LabEntry, host: str, names: list[str], where: str) -> None:
+    """A hosted process's name is its identity: no agent or operator has it; it runs
+    at least one agent."""
+    if host in entry.agents or host in entry.operators:
+        kind = "an agent's" if host in entry.agents else "an operator's"
+        raise _field_error(where, f"{host!r} is already {kind} name: one identity each")
+    if not names:
+        raise _field_error(where, "runs no agent: list the agents it runs")
+
+
+def _check_hosted_agent(
+    lab: str, entry: LabEntry, name: str, where: str, owner: dict[str, str]
+) -> None:
+    """A hosted agent is one of the lab's, and not run by another host (``owner``: the
+    host of each agent so far)."""
+    if name not in entry.agents:
+        raise _field_error(where, f"{name!r} is not an agent of lab {lab}")
+    if name in owner:
+        raise _field_error(where, f"{name!r} is already run by {owner[name]!r}: one host per agent")
+
+
+def _claim_files(
+    lab: str, entry: LabEntry, host: str, name: str, files: dict[tuple[str, str, str], str]
+) -> None:
+    """Record the status and recording files hosted agent ``name`` writes in ``files``
+    ((host, field, path) to the agent); two agents of one process may not write one."""
+    for field in ("status_json", "record"):
+        path = entry.agents[name].settings.get(field)
+        if path is None:
+            continue
+        key = (host, field, str(path))
+        if key in files:
+            raise _field_error(
+                f"labs.{lab}.agents.{name}.settings.{field}",
+                f"{path} is also {files[key]}'s, in one process ({host}): one file each",
+            )
+        files[key] = name
 
 
 class FederationFile(base.Model):
@@ -212,6 +241,25 @@ class FederationFile(base.Model):
 
     @model_validator(mode="after")
     def _topology(self) -> FederationFile:
+        self._check_lab_names()
+        for lab, entry in self.labs.items():
+            self._check_dials(lab, entry)
+            _check_operators(lab, entry)
+            _check_hosted(lab, entry)
+            for name, agent in entry.agents.items():
+                self._check_agent(lab, name, agent)
+        self._check_certificate_names()
+        unreachable = sorted(set(self.labs) - self.reachable(next(iter(self.labs))))
+        if unreachable:
+            raise _field_error(
+                "labs",
+                f"{', '.join(unreachable)} linked to no other lab: give each lab a dial "
+                "entry or have another lab dial it",
+            )
+        return self
+
+    def _check_lab_names(self) -> None:
+        """No lab is named as the CA's folder or as a reserved lab."""
         if "ca" in self.labs:
             raise _field_error(
                 "labs.ca", "'ca' is the CA's folder (DIR/ca): name the lab otherwise"
@@ -222,58 +270,59 @@ class FederationFile(base.Model):
                 f"{reserved!r} is reserved: a lab of that name would be let publish the "
                 f"federation's control key ({keys.control_key(self.federation)})",
             )
-        for lab, entry in self.labs.items():
-            for i, other in enumerate(entry.dial):
-                if other not in self.labs:
-                    raise _field_error(f"labs.{lab}.dial.{i}", f"lab {other!r} is not in labs")
-                if other == lab:
-                    raise _field_error(f"labs.{lab}.dial.{i}", "a lab cannot dial itself")
-                target = self.labs[other]
-                if target.endpoint is None:
-                    raise _field_error(
-                        f"labs.{other}.endpoint",
-                        f"missing: {lab} dials {other}, so give the address it dials",
-                    )
-                if target.auth == "password":
-                    raise _field_error(
-                        f"labs.{other}.auth",
-                        f"'password' on a lab other routers dial ({lab} dials it): a password "
-                        "dictionary applies to every session, the dialling router's too; use "
-                        "'certificate'",
-                    )
-                if lab in target.dial:
-                    raise _field_error(
-                        f"labs.{lab}.dial.{i}", f"{other} dials {lab} already: one link per pair"
-                    )
-            clash = sorted(set(entry.agents) & set(entry.operators))
-            if clash:
+
+    def _check_dials(self, lab: str, entry: LabEntry) -> None:
+        """Each lab ``lab`` dials is another lab of the file, has an endpoint to dial,
+        authenticates by certificate, and does not dial ``lab`` too."""
+        for i, other in enumerate(entry.dial):
+            if other not in self.labs:
+                raise _field_error(f"labs.{lab}.dial.{i}", f"lab {other!r} is not in labs")
+            if other == lab:
+                raise _field_error(f"labs.{lab}.dial.{i}", "a lab cannot dial itself")
+            target = self.labs[other]
+            if target.endpoint is None:
                 raise _field_error(
-                    f"labs.{lab}.operators", f"{', '.join(clash)}: already an agent's name"
+                    f"labs.{other}.endpoint",
+                    f"missing: {lab} dials {other}, so give the address it dials",
                 )
-            if len(set(entry.operators)) != len(entry.operators):
-                raise _field_error(f"labs.{lab}.operators", "a name is listed twice")
-            _check_hosted(lab, entry)
-            for name, agent in entry.agents.items():
-                own = sorted(_OWN_FIELDS & set(agent.settings))
-                if own:
-                    key = own[0]
-                    raise _field_error(
-                        f"labs.{lab}.agents.{name}.settings.{key}",
-                        f"set by the entry itself ({'its table' if key in _TABLE else 'the file'}),"
-                        " not in settings",
-                    )
-                data = {**agent.settings, "federation": self.federation, "lab": lab, "name": name}
-                data |= {"role": agent.role, "follow": agent.follow, "platform": agent.platform}
-                try:
-                    AgentConfig.model_validate(data)
-                except ValidationError as error:
-                    raise _field_error(
-                        f"labs.{lab}.agents.{name}", base.format_validation_error("agent", error)
-                    ) from None
-                if agent.follow is not None and not self.has_agent(agent.follow):
-                    raise _field_error(
-                        f"labs.{lab}.agents.{name}.follow", f"{agent.follow} is not an agent here"
-                    )
+            if target.auth == "password":
+                raise _field_error(
+                    f"labs.{other}.auth",
+                    f"'password' on a lab other routers dial ({lab} dials it): a password "
+                    "dictionary applies to every session, the dialling router's too; use "
+                    "'certificate'",
+                )
+            if lab in target.dial:
+                raise _field_error(
+                    f"labs.{lab}.dial.{i}", f"{other} dials {lab} already: one link per pair"
+                )
+
+    def _check_agent(self, lab: str, name: str, agent: AgentEntry) -> None:
+        """An agent's entry makes a valid agent config, its settings leave the fields its
+        entry sets alone, and it follows an agent of the file."""
+        own = sorted(_OWN_FIELDS & set(agent.settings))
+        if own:
+            key = own[0]
+            raise _field_error(
+                f"labs.{lab}.agents.{name}.settings.{key}",
+                f"set by the entry itself ({'its table' if key in _TABLE else 'the file'}),"
+                " not in settings",
+            )
+        data = {**agent.settings, "federation": self.federation, "lab": lab, "name": name}
+        data |= {"role": agent.role, "follow": agent.follow, "platform": agent.platform}
+        try:
+            AgentConfig.model_validate(data)
+        except ValidationError as error:
+            raise _field_error(
+                f"labs.{lab}.agents.{name}", base.format_validation_error("agent", error)
+            ) from None
+        if agent.follow is not None and not self.has_agent(agent.follow):
+            raise _field_error(
+                f"labs.{lab}.agents.{name}.follow", f"{agent.follow} is not an agent here"
+            )
+
+    def _check_certificate_names(self) -> None:
+        """No two labs' router certificates share a name (loopback names aside)."""
         named: dict[str, str] = {}
         for lab, entry in self.labs.items():
             for host in entry.cert_hosts():
@@ -288,14 +337,6 @@ class FederationFile(base.Model):
                         "each lab's router needs names of its own",
                     )
                 named[host] = lab
-        unreachable = sorted(set(self.labs) - self.reachable(next(iter(self.labs))))
-        if unreachable:
-            raise _field_error(
-                "labs",
-                f"{', '.join(unreachable)} linked to no other lab: give each lab a dial "
-                "entry or have another lab dial it",
-            )
-        return self
 
     def has_agent(self, address: str) -> bool:
         lab, _, name = address.partition("/")
