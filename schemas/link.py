@@ -100,35 +100,48 @@ def parse_endpoint(text: str) -> LinkEndpoint:
         With the reason, for anything else (other protocols, Zenoh's ``#`` or ``?``
         options, missing or out-of-range port, IPv6 without brackets).
     """
-    example = "expected tcp/HOST:PORT or udp/HOST:PORT, e.g. tcp/127.0.0.1:7447"
-    protocol: LinkProtocol | None = None
-    rest = text
-    if "/" in text:
-        proto, _, rest = text.partition("/")
-        if proto not in ("tcp", "udp"):
-            raise ValueError(f"{text!r}: protocol {proto!r} not supported, {example}")
-        protocol = "tcp" if proto == "tcp" else "udp"
+    protocol, rest = _split_protocol(text)
     if "#" in rest or "?" in rest:
-        raise ValueError(f"{text!r}: endpoint options (# or ?) are not supported, {example}")
+        raise ValueError(f"{text!r}: endpoint options (# or ?) are not supported, {_EXAMPLE}")
+    host, port_text = _split_address(text, rest)
+    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+        raise ValueError(f"{text!r}: port must be a number 0-65535, not {port_text!r}")
+    return LinkEndpoint(protocol, host, int(port_text))
+
+
+_EXAMPLE = "expected tcp/HOST:PORT or udp/HOST:PORT, e.g. tcp/127.0.0.1:7447"
+
+
+def _split_protocol(text: str) -> tuple[LinkProtocol | None, str]:
+    """The endpoint ``text``'s protocol (None if it names none) and the rest of it."""
+    if "/" not in text:
+        return None, text
+    proto, _, rest = text.partition("/")
+    if proto not in ("tcp", "udp"):
+        raise ValueError(f"{text!r}: protocol {proto!r} not supported, {_EXAMPLE}")
+    return ("tcp" if proto == "tcp" else "udp"), rest
+
+
+def _split_address(text: str, rest: str) -> tuple[str, str]:
+    """The host and the port's text of ``rest``, the address part of endpoint ``text``:
+    ``[IPV6]:PORT``, or ``HOST:PORT`` with a host name or an IPv4 address."""
     if rest.startswith("["):
         host, sep, port_text = rest[1:].partition("]:")
         if not sep:
-            raise ValueError(f"{text!r}: {example}")
+            raise ValueError(f"{text!r}: {_EXAMPLE}")
         try:
             ipaddress.IPv6Address(host)
         except ValueError:
             raise ValueError(f"{text!r}: {host!r} is not an IPv6 address") from None
-    else:
-        host, sep, port_text = rest.rpartition(":")
-        if not sep or not host:
-            raise ValueError(f"{text!r}: {example}")
-        if ":" in host:
-            raise ValueError(f"{text!r}: an IPv6 address needs brackets, e.g. tcp/[::1]:7447")
-        if not _HOSTNAME.match(host):
-            raise ValueError(f"{text!r}: {host!r} is not a host name or address")
-    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
-        raise ValueError(f"{text!r}: port must be a number 0-65535, not {port_text!r}")
-    return LinkEndpoint(protocol, host, int(port_text))
+        return host, port_text
+    host, sep, port_text = rest.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"{text!r}: {_EXAMPLE}")
+    if ":" in host:
+        raise ValueError(f"{text!r}: an IPv6 address needs brackets, e.g. tcp/[::1]:7447")
+    if not _HOSTNAME.match(host):
+        raise ValueError(f"{text!r}: {host!r} is not a host name or address")
+    return host, port_text
 
 
 def _endpoint(text: str) -> str:
