@@ -494,16 +494,16 @@ class RunStateToRos:
         self._lock = threading.Lock()
         self._closed = False
 
-    def publish(self, mode: str, hold_reason: str | None) -> None:
+    def publish(self, mode: str, hold: str | None) -> None:
         """Write the hold (:func:`~federation.bridge.ros2_core.must_hold`) and ``mode``
         if changed or due again; nothing once closed."""
         now = self.clock()
-        hold = conv.must_hold(mode, hold_reason)
+        hold_it = conv.must_hold(mode, hold)
         with self._lock:
             if self._closed:
                 return
-            if self._hold_news.due(hold, now):
-                self._hold.write(Bool(hold))
+            if self._hold_news.due(hold_it, now):
+                self._hold.write(Bool(hold_it))
                 self.counters["ros_hold_written"] += 1
             if self._run_news.due(mode, now):
                 self._run.write(String(mode))

@@ -136,10 +136,10 @@ def agent_topic(agent: AgentId, leaf: str) -> str:
     return f"/fedlab/{agent.lab}/{agent.name}/{leaf}"
 
 
-def must_hold(mode: str, hold_reason: str | None) -> bool:
+def must_hold(mode: str, hold: str | None) -> bool:
     """Whether a joined ROS 2 platform must not move: unless its run is running (waiting,
-    armed, frozen, done, aborted) or while the agent holds it (``hold_reason``)."""
-    return mode != "running" or hold_reason is not None
+    armed, frozen, done, aborted) or while the agent holds it (``hold``)."""
+    return mode != "running" or hold is not None
 
 
 class Repeated:

@@ -32,6 +32,7 @@ from pathlib import Path
 import zenoh
 
 from federation.core import keys
+from federation.core.holds import Trigger
 from federation.runtime.agent import AgentRuntime, NameTaken
 from federation.runtime.clock import ExecClock
 from federation.runtime.fanout import Fanout
@@ -199,7 +200,7 @@ def close_all(runtimes: Sequence[AgentRuntime], wait: bool = True) -> None:
     others still are."""
     for runtime in runtimes:
         try:
-            runtime.platform.hold()
+            runtime.safety.apply(Trigger.ENDED)  # every valve closed, for good
         except Exception:
             log.exception("%s: holding the platform failed", runtime.me)
     for runtime in runtimes:

@@ -10,7 +10,7 @@ that one clock and the reference's. A :class:`SyncLinks` registry gives them one
 reads. The first agent on the link that queries the peer sends the requests (the
 link's ``sender``), and another takes over if it leaves or its loop ends first;
 each reply is admitted, counted, recorded and logged by every agent on the link
-(:meth:`AgentRuntime._on_sync_reply`).
+(:func:`on_link_reply`, through the narrow :class:`LinkUser` calls).
 
 A link is shared only by agents that would query the peer alike: the same clock
 object, the same cadence (``sync_period`` or ``sync_others_period``) and the same
@@ -23,22 +23,31 @@ admits each sample once for all of them (its size, who published it, its age on
 arrival by the link's estimate) and measures the link once (one
 :class:`~federation.core.linkwatch.LinkWatch` observing the arrivals); each agent
 then only stores the pose, counts and records it, and keeps its own safe hold,
-judged by the feed's measured threshold (:meth:`AgentRuntime._on_feed_pose`).
+judged by the feed's measured threshold
+(:func:`federation.runtime.agent.intake.on_feed_pose`).
 """
 
 from __future__ import annotations
 
+import logging
 import threading
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
+import zenoh
+
+from federation.core import wire
+from federation.core.channels import Channel
 from federation.core.contest import ContestWatch
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch
-from federation.core.sync import SyncClient
+from federation.core.sync import SyncClient, read_send_time
+from federation.runtime.recorder import Message, Shared
 
-__all__ = ["PoseFeed", "SyncLink", "SyncLinks"]
+__all__ = ["LinkUser", "PoseFeed", "SyncLink", "SyncLinks", "on_link_reply"]
+
+log = logging.getLogger("fedlab.agent")
 
 
 @dataclass(eq=False)
@@ -53,6 +62,7 @@ class SyncLink:
     querier: Any = None  # zenoh.Querier on the peer's sync key, declared on first use
     on_reply: Any = None  # its reply handler, made once
     next_sync: float = 0.0  # host monotonic time of its next request
+    four_timestamps: bool = False  # the replier's send time (t2s) is read and used
     # Held while the client changes (a request, a reply, a reset): its agents' threads
     # and Zenoh's callback threads all reach it.
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -170,3 +180,117 @@ class SyncLinks:
 
     def __len__(self) -> int:
         return len(self._links)
+
+
+class LinkUser(Protocol):
+    """What a sync link's reply fan-out asks of each agent on the link."""
+
+    @property
+    def me(self) -> AgentId: ...
+
+    @property
+    def feed(self) -> PoseFeed | None: ...
+
+    @property
+    def clock(self) -> Any: ...
+
+    def count(self, name: str) -> None: ...
+
+    def admit_reply(
+        self, link: SyncLink, source: str | None, size: int, host: float, feed: PoseFeed | None
+    ) -> bool: ...
+
+    def sync_answered(self, agent: AgentId) -> None: ...
+
+    def clock_stepped(self, agent: AgentId, jump: float, t3: float, host: float) -> None: ...
+
+    def recording(self, topic: Channel) -> bool: ...
+
+    def record(self, topic: Channel, message: Message) -> None: ...
+
+    def reject(self, kind: str, message: str) -> None: ...
+
+
+def on_link_reply(link: SyncLink, reply: zenoh.Reply) -> None:
+    """A sync reply on ``link``, for every agent on it (the first first): each admits it
+    (one that finds the replier contested drops it, and resets the estimate they share,
+    so every one of them holds), the client takes it once, and each counts, logs and
+    records what came of it."""
+    users: Sequence[LinkUser] = link.agents
+    if not users:
+        return
+    t3, host = users[0].clock.read()  # read on arrival: the paper's t3
+    try:
+        ok = reply.ok  # each read of it builds a new sample: read once
+        if ok is None:
+            for user in users:
+                user.count("sync_reply_errors")
+            return
+        replier = reply.replier_id  # a new object at each read: read once for all
+        source = None if replier is None else str(replier.zid)
+        if not _admitted(link, users, source, len(ok.payload), host):
+            return
+        for user in users:
+            user.sync_answered(link.agent)
+        _take(link, users, ok, t3, host)
+    except Exception:
+        log.exception("sync reply from %s failed", link.key)
+
+
+def _admitted(
+    link: SyncLink, users: Sequence[LinkUser], source: str | None, size: int, host: float
+) -> bool:
+    """Each agent judges a reply by its own contest watch, except that the followers on
+    one pose feed judge their followed agent once, by the feed's (every one of them
+    looks: no short cut)."""
+    admitted = True
+    judged: list[PoseFeed] = []
+    for user in users:
+        feed = user.feed
+        if feed is None or feed.agent != link.agent:
+            admitted &= user.admit_reply(link, source, size, host, None)
+        elif all(feed is not seen for seen in judged):
+            judged.append(feed)
+            admitted &= user.admit_reply(link, source, size, host, feed)
+    return admitted
+
+
+def _take(link: SyncLink, users: Sequence[LinkUser], ok: Any, t3: float, host: float) -> None:
+    """The client takes an admitted reply; a clock step and the exchange are told to
+    every agent on the link."""
+    t2s = None
+    attachment = ok.attachment if link.four_timestamps else None
+    if attachment is not None:
+        try:
+            t2s = read_send_time(attachment.to_bytes())
+        except wire.DecodeError:
+            users[0].count("sync_attachment_malformed")
+    recorders = [user for user in users if user.recording(Channel.SYNC_EXCHANGE)]
+    client = link.client
+    with link.lock:
+        steps = client.steps
+        accepted = client.receive(ok.payload.to_bytes(), t3, t2s)
+        reason = client.last_rejection
+        exchange = client.last
+        estimate = client.offset_at(t3) if recorders else None
+        stepped = client.steps > steps
+    if stepped:
+        jump = client.last_step or 0.0
+        log.warning(
+            "clock step of %+.3f s between %s and %s: estimate reset",
+            jump, ", ".join(str(user.me) for user in users), link.agent,
+        )  # fmt: skip
+        for user in users:
+            user.clock_stepped(link.agent, jump, t3, host)
+    if accepted is None or exchange is None:
+        users[0].reject(f"sync reply ({reason})", f"from {link.key}")
+        return
+    if not recorders:
+        return
+    message = Shared({  # encoded once for every agent on the link
+        "peer": str(link.agent), "t1": exchange.t1, "t2": exchange.t2, "t3": exchange.t3,
+        "t2s": exchange.t2s, "offset": exchange.offset, "delay": exchange.delay,
+        "estimate": estimate, "host_monotonic": host,
+    })  # fmt: skip
+    for user in recorders:
+        user.record(Channel.SYNC_EXCHANGE, message)

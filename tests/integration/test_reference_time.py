@@ -55,7 +55,7 @@ def test_a_third_agent_places_everyones_pose_on_reference_time_without_pairwise_
         deadline = time.monotonic() + 3.0
         while time.monotonic() < deadline:
             for agent, kept in stamps.items():
-                latest = runtime.latest_ref.get(agent)
+                latest = runtime.peer_table.latest_ref.get(agent)
                 if latest is not None:
                     kept.add(latest)
             time.sleep(0.02)
@@ -63,7 +63,10 @@ def test_a_third_agent_places_everyones_pose_on_reference_time_without_pairwise_
         # It never queried the follower, nor scheduled it for pairwise sync.
         peer = runtime.peers.get(follower_id)
         assert peer is not None and peer.link is None, peer  # nor has a link to it
-        assert follower_id not in runtime.pairwise and leader_id not in runtime.pairwise
+        assert (
+            follower_id not in runtime.peer_table.pairwise
+            and leader_id not in runtime.peer_table.pairwise
+        )
         assert runtime.counter_snapshot().get("pose_stamp_malformed", 0) == 0
 
     a_l, b_l = clock_line(leader.lines())
@@ -102,10 +105,13 @@ def test_unstamped_and_malformed_stamps_from_third_parties(labs: Labs) -> None:
                 session.put(f"fedlab/default/{legacy}/pose", pose)
                 time.sleep(0.1)
                 counters = runtime.counter_snapshot()
-                if counters.get("pose_stamp_malformed", 0) and legacy in runtime.pairwise:
+                if (
+                    counters.get("pose_stamp_malformed", 0)
+                    and legacy in runtime.peer_table.pairwise
+                ):
                     break
         counters = runtime.counter_snapshot()
         assert counters.get("pose_stamp_malformed", 0) >= 1, counters
         assert rogue not in runtime.latest_poses  # dropped, never used
-        assert legacy in runtime.pairwise and rogue not in runtime.pairwise
+        assert legacy in runtime.peer_table.pairwise and rogue not in runtime.peer_table.pairwise
         assert LEADER in third.others()  # still working

@@ -16,8 +16,9 @@ from cohosted import LEAD, cohosted, follower_config, leader_config, reply, run_
 
 from federation.core import wire
 from federation.core.sync import serve
-from federation.runtime import agent as agent_module
+from federation.runtime import links as links_module
 from federation.runtime.agent import AgentRuntime
+from federation.runtime.agent import intake as intake_module
 from federation.runtime.clock import ExecClock
 from federation.runtime.fanout import Fanout
 from federation.runtime.links import PoseFeed, SyncLinks
@@ -29,13 +30,13 @@ def test_followers_on_one_link_take_each_pose_once(
     """Two followers on one clock: one feed, whose handler runs once per pose for
     both; each stores, counts and places every pose; one watch measures the link."""
     calls = []
-    handler = AgentRuntime._on_feed_pose
+    handler = intake_module._admit_on_feed
 
-    def counted(self: AgentRuntime, feed: PoseFeed, sample: Any) -> None:
-        calls.append(self)
-        handler(self, feed, sample)
+    def counted(feed: PoseFeed, sample: Any, users: Any, host: float, t_recv: float) -> Any:
+        calls.append(users[0])
+        return handler(feed, sample, users, host, t_recv)
 
-    monkeypatch.setattr(AgentRuntime, "_on_feed_pose", counted)
+    monkeypatch.setattr(intake_module, "_admit_on_feed", counted)
     configs = (leader_config(), follower_config("f1"), follower_config("f2"))
     with cohosted(session, *configs) as (fanout, links, (lead, f1, f2)):
         run_for([lead, f1, f2], 3.5)  # the link is measured from its 41st pose on
@@ -44,7 +45,7 @@ def test_followers_on_one_link_take_each_pose_once(
         assert lead.feed is None  # a leader follows no one
         for follower in (f1, f2):
             assert follower.counters["pose_received"] >= 50  # 20 a second
-            assert LEAD in follower.latest_poses and LEAD in follower.latest_ref
+            assert LEAD in follower.latest_poses and LEAD in follower.peer_table.latest_ref
             assert follower.status().pose_age is not None
         assert f1.counters["pose_received"] == f2.counters["pose_received"] == len(calls)
         assert {id(c) for c in calls} == {id(f1)}  # the first on the feed, for both
@@ -105,21 +106,21 @@ def _feed_of_two(session: zenoh.Session) -> Iterator[tuple[AgentRuntime, AgentRu
 def test_a_contested_leader_holds_every_follower_on_the_feed(session: zenoh.Session) -> None:
     with _feed_of_two(session) as (f1, f2, feed):
         now = f1.clock.now()
-        agent_module._on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
         assert LEAD in f1.latest_poses and LEAD in f2.latest_poses
         # A second session publishes the leader's pose: contested for both followers,
         # the pose dropped, what came before forgotten, the shared estimate reset.
-        agent_module._on_feed_pose(feed, _Sample(now + 0.05, "bbbb"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(now + 0.05, "bbbb"))  # type: ignore[arg-type]
         for follower in (f1, f2):
             assert follower.counters["contested"] == 1
             assert follower.counters["pose_received"] == 1
             assert LEAD not in follower.latest_poses
             assert str(LEAD) in follower.contested()
             t_exec, host = follower.clock.read()
-            assert follower._contest_hold(t_exec, host)  # held: valves closed
+            assert follower.watches.watch_contest(t_exec, host)  # held: valves closed
             assert follower.hold == "contested"
         # Nothing more from it is used while contested, from either source.
-        agent_module._on_feed_pose(feed, _Sample(now + 0.1, "aaaa"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(now + 0.1, "aaaa"))  # type: ignore[arg-type]
         assert f1.counters["contested_dropped"] == f2.counters["contested_dropped"] == 2
         assert LEAD not in f1.latest_poses and LEAD not in f2.latest_poses
         # The leader rejoins (a new session): its record starts clean for both.
@@ -137,13 +138,13 @@ def test_each_follower_holds_by_the_threshold_the_feed_measured(
         for follower in (f1, f2):
             follower.pose_received_at[LEAD] = t_exec - 0.3  # the last pose 0.3 s ago
         feed.watch.threshold = 0.5  # as measured on a jittery link
-        f1._watch_link(t_exec, host)
+        f1.watches.watch_link(t_exec, host)
         assert f1.hold == "waiting"  # not stale: 0.3 s is within it (floor 0.15 s)
         feed.watch.threshold = 0.25
-        f1._watch_link(t_exec, host)
+        f1.watches.watch_link(t_exec, host)
         assert f1.hold == "stale" and f1.platform.held  # type: ignore[attr-defined]
         assert f2.hold == "waiting"  # each hold its own: f2 has not looked yet
-        f2._watch_link(t_exec, host)
+        f2.watches.watch_link(t_exec, host)
         assert f2.hold == "stale"
 
 
@@ -157,7 +158,7 @@ def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
             _Sample(now, "aaaa", payload=b"\x00" * 4096),  # far larger than one
         ]
         for sample in bad:
-            agent_module._on_feed_pose(feed, sample)  # type: ignore[arg-type]
+            intake_module.on_feed_pose(feed, sample)  # type: ignore[arg-type]
         for follower in (f1, f2):
             assert follower.counters["pose_malformed"] == 1
             assert follower.counters["pose_oversized"] == 1
@@ -170,7 +171,7 @@ def test_malformed_oversized_and_late_poses_are_dropped_and_counted_for_each(
                 served = serve(link.client.request(t1), t1 + 0.001, wire.Pose(), t1 + 0.001)
                 link.client.receive(served.payload, t1 + 0.002)
         assert f1.reference_offset(f1.clock.now()) is not None
-        agent_module._on_feed_pose(feed, _Sample(f1.clock.now() - 2.0, "aaaa"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(f1.clock.now() - 2.0, "aaaa"))  # type: ignore[arg-type]
         for follower in (f1, f2):
             assert follower.counters["pose_stale_dropped"] == 1
             assert LEAD not in follower.latest_poses  # never reaches a controller
@@ -182,7 +183,7 @@ def test_a_reordered_pose_never_replaces_a_newer_one(session: zenoh.Session) -> 
     with _feed_of_two(session) as (f1, f2, feed):
         now = f1.clock.now()
         for t in (now, now + 0.05, now + 0.02, now + 0.05):
-            agent_module._on_feed_pose(feed, _Sample(t, "aaaa"))  # type: ignore[arg-type]
+            intake_module.on_feed_pose(feed, _Sample(t, "aaaa"))  # type: ignore[arg-type]
         for follower in (f1, f2):
             assert follower.counters["pose_out_of_order"] == 2
             assert follower.latest_poses[LEAD].t == now + 0.05
@@ -190,7 +191,7 @@ def test_a_reordered_pose_never_replaces_a_newer_one(session: zenoh.Session) -> 
         for follower in (f1, f2):
             follower.peer_seen(LEAD, False)
             follower.peer_seen(LEAD, True)
-        agent_module._on_feed_pose(feed, _Sample(now - 5.0, "aaaa"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(now - 5.0, "aaaa"))  # type: ignore[arg-type]
         assert f1.latest_poses[LEAD].t == now - 5.0
 
 
@@ -201,7 +202,7 @@ def test_an_agent_on_its_own_drops_a_reordered_pose(session: zenoh.Session) -> N
         assert f1.feed is None
         now = f1.clock.now()
         for t in (now + 0.05, now):
-            f1._on_pose(_Sample(t, "aaaa"))  # type: ignore[arg-type]
+            f1.intake.on_pose(_Sample(t, "aaaa"))  # type: ignore[arg-type]
         assert f1.counters["pose_out_of_order"] == 1
         assert f1.latest_poses[LEAD].t == now + 0.05
 
@@ -223,16 +224,16 @@ def test_an_agent_that_joins_the_feed_late_still_sees_the_reference_restart(
         f1.peer_seen(LEAD, True)
         feed = f1.feed
         assert feed is not None
-        agent_module._on_feed_pose(feed, _Sample(clock.now(), "aaaa"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(clock.now(), "aaaa"))  # type: ignore[arg-type]
         f2.start()  # joins the feed now
         f2.peer_seen(LEAD, True)
-        assert f2.feed is feed and f2._reference_zid == "aaaa"
+        assert f2.feed is feed and f2.intake.reference_zid == "aaaa"
         for follower in (f1, f2):  # a ctl run on both
-            with follower._lock:
+            with follower.commands.lock:
                 follower.run_state.mode, follower.run_state.run_id = "running", "r1"
             follower.peer_seen(LEAD, False)
             follower.peer_seen(LEAD, True)
-        agent_module._on_feed_pose(feed, _Sample(clock.now(), "bbbb"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(clock.now(), "bbbb"))  # type: ignore[arg-type]
         for follower in (f1, f2):
             assert follower.run_state.mode == "aborted", follower.me
             assert follower.counters["reference_restarted"] == 1
@@ -248,9 +249,9 @@ def test_a_clock_step_of_the_followed_agent_forgets_its_pose_order(
     as out of order until its clock passed the old one, 30 s."""
     with _feed_of_two(session) as (f1, f2, feed):
         now = f1.clock.now()
-        agent_module._on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
-        f1._clock_stepped_at(LEAD, -30.0, time.monotonic())
-        agent_module._on_feed_pose(feed, _Sample(now - 30.0, "aaaa"))  # type: ignore[arg-type]
+        intake_module.on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
+        f1.clock_stepped(LEAD, -30.0, f1.clock.now(), time.monotonic())
+        intake_module.on_feed_pose(feed, _Sample(now - 30.0, "aaaa"))  # type: ignore[arg-type]
         assert f1.counters["pose_out_of_order"] == 0
         assert f2.latest_poses[LEAD].t == now - 30.0
 
@@ -266,12 +267,12 @@ def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
             now = f1.clock.now()
             if first == "sync":
                 for replier in ("aaaa", "bbbb"):  # another session answers for it
-                    f1._on_sync_reply(link, reply(link, f1.clock.now(), replier))  # type: ignore[arg-type]
-                agent_module._on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
+                    links_module.on_link_reply(link, reply(link, f1.clock.now(), replier))  # type: ignore[arg-type]
+                intake_module.on_feed_pose(feed, _Sample(now, "aaaa"))  # type: ignore[arg-type]
             else:
                 for source in ("aaaa", "bbbb"):  # another session publishes its pose
-                    agent_module._on_feed_pose(feed, _Sample(now, source))  # type: ignore[arg-type]
-                f1._on_sync_reply(link, reply(link, f1.clock.now(), "aaaa"))  # type: ignore[arg-type]
+                    intake_module.on_feed_pose(feed, _Sample(now, source))  # type: ignore[arg-type]
+                links_module.on_link_reply(link, reply(link, f1.clock.now(), "aaaa"))  # type: ignore[arg-type]
             assert link.client.accepted == (1 if first == "sync" else 0)
             for follower in (f1, f2):
                 assert follower.counters["contested"] == 1, first
@@ -279,7 +280,7 @@ def test_a_contest_on_either_channel_drops_what_comes_on_the_other(
                 assert LEAD not in follower.latest_poses
                 assert follower.reference_offset(follower.clock.now()) is None  # reset
                 t_exec, host = follower.clock.read()
-                assert follower._contest_hold(t_exec, host) and follower.hold == "contested"
+                assert follower.watches.watch_contest(t_exec, host) and follower.hold == "contested"
 
 
 def test_when_the_first_follower_leaves_the_feed_serves_the_rest(session: zenoh.Session) -> None:

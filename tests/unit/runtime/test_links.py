@@ -11,6 +11,7 @@ import zenoh
 from cohosted import LEAD, cohosted, follower_config, leader_config, reply, run_for
 
 from federation.core.keys import AgentId
+from federation.runtime import links as links_module
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.clock import ExecClock
 from federation.runtime.fanout import Fanout
@@ -125,19 +126,19 @@ def test_a_reply_is_taken_once_for_all_and_a_contested_reference_holds_them_all(
     link = f1.peers[LEAD].link
     assert f2.peers[LEAD].link is link
     for _ in range(3):  # the estimate comes with the third exchange that agrees
-        f1._on_sync_reply(link, reply(link, clock.now(), "aaaa"))  # type: ignore[arg-type]
+        links_module.on_link_reply(link, reply(link, clock.now(), "aaaa"))  # type: ignore[arg-type]
     assert link.client.accepted == 3
     assert f1.reference_offset(clock.now()) == f2.reference_offset(clock.now()) is not None
 
     # Another session answers for the leader: every agent on the link finds it
     # contested, the reply is dropped and the estimate they share is gone.
-    f1._on_sync_reply(link, reply(link, clock.now(), "bbbb"))  # type: ignore[arg-type]
+    links_module.on_link_reply(link, reply(link, clock.now(), "bbbb"))  # type: ignore[arg-type]
     assert link.client.accepted == 3
     for agent in (f1, f2):
         assert agent.counters["contested"] == 1
         assert agent.reference_offset(clock.now()) is None
         t_exec, host = clock.read()
-        assert agent._contest_hold(t_exec, host)  # held: valves closed
+        assert agent.watches.watch_contest(t_exec, host)  # held: valves closed
         assert agent.hold == "contested"
 
 
@@ -173,19 +174,19 @@ def test_only_the_agents_queried_get_a_link(session: zenoh.Session) -> None:
     assert f0.timebase.offset(others[0], clock.now()) is None
     assert others[0] not in f0.due_for_sync(time.monotonic() + 100.0)
     # A pose without a reference stamp: queried pairwise, on a link of its own.
-    f0._place(others[0], 1.0, None)
+    f0.peer_table.place(others[0], 1.0, None)
     assert f0.peers[others[0]].link is not None
     assert f0.peers[others[1]].link is None
     assert others[0] in f0.due_for_sync(time.monotonic() + 100.0)
     # Senders that turn pairwise together keep the phases of when they were seen:
     # they are not all queried on one tick.
-    f0._place(others[4], 1.0, None)
-    f0._place(others[5], 1.0, None)
+    f0.peer_table.place(others[4], 1.0, None)
+    f0.peer_table.place(others[5], 1.0, None)
     phases = [f0.peers[o].link.next_sync for o in (others[4], others[5])]  # type: ignore[union-attr]
     assert abs(phases[0] - phases[1]) > 0.05 * f0.config.sync_others_period, phases
     # One not seen yet: linked when its liveliness comes.
     late = AgentId("lab3", "late")
-    f0._place(late, 1.0, None)
+    f0.peer_table.place(late, 1.0, None)
     f0.peer_seen(late, True)
     assert f0.peers[late].link is not None
     # Gone and back: a peer not queried stays without a link.

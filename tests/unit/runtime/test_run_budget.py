@@ -208,7 +208,7 @@ def test_an_armed_run_records_within_the_configured_limit(tmp_path: Path) -> Non
     )
     f.synced()
     f.command("start", run_id="r1", duration=10.0)
-    run = f.agent.run_recording
+    run = f.agent.recordings.run
     assert run is not None and run.max_bytes == 3 * MIB
     assert run.recorder.max_bytes == 3 * MIB
     # What the budget leaves out shows in status as it happens, not only in the file.
@@ -217,7 +217,7 @@ def test_an_armed_run_records_within_the_configured_limit(tmp_path: Path) -> Non
         run.recorder.flush()  # as the writer thread does
     counters = f.agent.status().counters
     assert counters["recording_dropped_over_budget"] > 0, counters
-    f.agent._end_run_recording(wait=True)
+    f.agent.recordings.end_run(wait=True)
 
 
 def test_a_start_reusing_a_run_being_recovered_is_refused(tmp_path: Path) -> None:
@@ -357,15 +357,20 @@ def test_a_record_file_has_a_budget_too(tmp_path: Path, monkeypatch: pytest.Monk
     capped = Follower(record=tmp_path / "a.mcap", record_max_mb=100)
     roomy = Follower(record=tmp_path / "b.mcap", record_max_mb=2048)
     try:
-        assert capped.agent.recorder is not None and roomy.agent.recorder is not None
-        assert capped.agent.recorder.max_bytes == 100 * MIB
-        assert roomy.agent.recorder.max_bytes == 250 * MIB  # half of 600 less the 100 promised
+        assert (
+            capped.agent.recordings.recorder is not None
+            and roomy.agent.recordings.recorder is not None
+        )
+        assert capped.agent.recordings.recorder.max_bytes == 100 * MIB
+        assert (
+            roomy.agent.recordings.recorder.max_bytes == 250 * MIB
+        )  # half of 600 less the 100 promised
     finally:
         capped.agent.close()
         roomy.agent.close()
     again = Follower(record=tmp_path / "c.mcap", record_max_mb=2048)
     again.agent.close()
-    assert again.agent.recorder is None
+    assert again.agent.recordings.recorder is None
     assert runs_module.PROMISES.promised(tmp_path) == 0  # every promise given back
 
 
@@ -442,8 +447,10 @@ def test_a_symlinked_record_file_is_budgeted_on_its_target_disk(
         monkeypatch.setattr(runs_module, "free_bytes", lambda path: free[Path(path).stat().st_dev])
         follower = Follower(record=link, record_max_mb=2048)
         try:
-            assert follower.agent.recorder is not None
-            assert follower.agent.recorder.max_bytes == 300 * MIB  # half of the target's 600
+            assert follower.agent.recordings.recorder is not None
+            assert (
+                follower.agent.recordings.recorder.max_bytes == 300 * MIB
+            )  # half of the target's 600
         finally:
             follower.agent.close()
         assert target.stat().st_size > 0 and link.is_symlink()

@@ -14,6 +14,7 @@ import pytest
 from federation.core import wire
 from federation.core.holds import Change, Hold, Trigger
 from federation.core.keys import AgentId
+from federation.runtime import links as links_module
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.clock import ExecClock
 from schemas.config import AgentConfig
@@ -57,7 +58,7 @@ class Follower:
         config = AgentConfig(lab="kiruna", name="f", role="follower", follow=str(LEAD), **settings)
         self.agent = AgentRuntime(config, session=None, clock=self.clock)  # type: ignore[arg-type]
         self.statuses: list[str] = []
-        self.agent._status_pub = _Sink(self.statuses)
+        self.agent.reporter.publisher = _Sink(self.statuses)
         self.agent.peer_seen(LEAD, True)
         self.seq = 0
 
@@ -85,7 +86,7 @@ class Follower:
         if name == "start":
             fields = {"duration": 100.0} | fields  # a run must end
         command = {"command": name, "seq": self.seq, "issuer": "op"} | fields
-        self.agent._on_control(_Sample(command))  # type: ignore[arg-type]
+        self.agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
 
     def step(self, dt: float = 0.01) -> None:
         self.now += dt
@@ -143,7 +144,7 @@ def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
     f.in_a_run()
     assert f.agent.run_state.mode == "running" and not f.agent.platform.held
     deep = b'{"command": "abort", "a": ' + b"[" * 200_000 + b"]" * 200_000 + b"}"
-    f.agent._on_control(_RawSample(deep))  # type: ignore[arg-type]
+    f.agent.commands.on_control(_RawSample(deep))  # type: ignore[arg-type]
     assert f.agent.platform.held
     f.step()
     assert f.agent.run_state.mode == "aborted" and f.agent.hold == "aborted"
@@ -409,7 +410,7 @@ def test_an_applied_command_is_reported_at_the_next_step_not_a_second_later() ->
 
 def _heard(f: Follower, source: str) -> bool:
     """A pose of the leader from session ``source`` reaches the follower."""
-    return f.agent._contest_verdict(LEAD, "pose", source, f.now)
+    return f.agent.intake.contest_verdict(LEAD, "pose", source, f.now)
 
 
 def _rejoins(f: Follower) -> None:
@@ -461,7 +462,7 @@ def test_a_cut_longer_than_the_lease_is_not_a_restart() -> None:
 def test_a_new_reference_session_outside_a_ctl_run_aborts_nothing(when: str) -> None:
     f = Follower()
     if when == "no ctl run":  # an agent started on its own runs from reference time 0
-        f.agent.run_state = type(f.agent.run_state)(autostart=True)
+        f.agent.commands.run_state = type(f.agent.run_state)(autostart=True)
     f.synced()
     assert _heard(f, "aaaa")
     _rejoins(f)
@@ -483,7 +484,7 @@ def test_the_reference_clock_stepping_mid_run_aborts_the_run_here() -> None:
         t1 = wire.decode_request(link.client.request(f.clock.now()))
         f.now += 0.01
         reply = wire.encode_reply(t1, t1 + 2.010, wire.Pose())
-        f.agent._on_sync_reply(link, _Reply(reply))  # type: ignore[arg-type]
+        links_module.on_link_reply(link, _Reply(reply))  # type: ignore[arg-type]
         f.now += 0.09
     assert f.agent.counters["clock_steps"] == 1
     assert f.agent.run_state.mode == "aborted" and f.agent.platform.held
@@ -508,13 +509,13 @@ def test_a_start_for_a_run_recorded_here_already_is_refused(tmp_path: Path) -> N
     old.write_bytes(b"the first run's recording")
     f.synced()
     f.command("start", run_id="r1", duration=10.0)
-    assert f.agent.run_state.run_id is None and f.agent.run_recording is None
+    assert f.agent.run_state.run_id is None and f.agent.recordings.run is None
     outcome = f.agent.command_log[-1]
     assert outcome.outcome == "ignored" and "recorded here already" in outcome.detail
     assert old.read_bytes() == b"the first run's recording"
     f.command("start", run_id="r2", duration=10.0)
-    assert f.agent.run_state.run_id == "r2" and f.agent.run_recording is not None
-    f.agent._end_run_recording(wait=True)
+    assert f.agent.run_state.run_id == "r2" and f.agent.recordings.run is not None
+    f.agent.recordings.end_run(wait=True)
 
 
 def test_an_own_pose_that_is_not_finite_is_not_sent_and_holds() -> None:
@@ -545,7 +546,7 @@ def test_at_its_end_the_platform_is_held_before_the_last_status() -> None:
     order: list[str] = []
     hold = f.agent.platform.hold
     f.agent.platform.hold = lambda: (order.append("hold"), hold())[1]  # type: ignore[method-assign]
-    f.agent._status_pub = type("Sink", (), {"put": lambda *a, **k: order.append("status")})()
+    f.agent.reporter.publisher = type("Sink", (), {"put": lambda *a, **k: order.append("status")})()
     f.agent.end()
     assert order == ["hold", "status"] and f.agent.platform.held
     assert f.agent.hold == "ended"
@@ -560,7 +561,7 @@ def test_a_platform_waits_for_its_run_held() -> None:
         lab="kiruna", name="knatte", role="leader", platform="knatte", wait_start=True
     )
     agent = AgentRuntime(config, session=None, clock=clock)  # type: ignore[arg-type]
-    agent._status_pub = _Sink([])
+    agent.reporter.publisher = _Sink([])
     opened = 0
     for _ in range(1000):  # 10 s waiting, its first fix included
         now[0] += 0.01
@@ -571,7 +572,7 @@ def test_a_platform_waits_for_its_run_held() -> None:
     assert ready.platform  # waiting is not a fault: preflight passes
     command = {"command": "start", "seq": 1, "issuer": "op", "at": clock.now() + 0.5,
                "run_id": "r1", "duration": 30.0}  # fmt: skip
-    agent._on_control(_Sample(command))  # type: ignore[arg-type]
+    agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
     for _ in range(40):  # armed: still held
         now[0] += 0.01
         agent.control_step()
@@ -598,11 +599,11 @@ def test_a_malformed_command_naming_its_issuer_is_reported_as_such() -> None:
     # status: ctl said "command not seen", not why.
     f = Follower()
     command = {"command": "start", "seq": 7, "issuer": "op", "run_id": "r1", "colour": "red"}
-    f.agent._on_control(_Sample(command))  # type: ignore[arg-type]
+    f.agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
     (outcome,) = [c for c in f.agent.command_log if c.seq == 7]
     assert (outcome.command, outcome.issuer, outcome.outcome) == ("start", "op", "malformed")
     assert "colour" in outcome.detail
-    f.agent._on_control(_Sample({"nonsense": True}))  # type: ignore[arg-type]
+    f.agent.commands.on_control(_Sample({"nonsense": True}))  # type: ignore[arg-type]
     assert len(f.agent.command_log) == 1  # nothing to report it under
     assert f.agent.counters["control_malformed"] == 2
 
@@ -691,7 +692,7 @@ def test_a_closing_agent_finishes_its_run_while_its_name_is_its_own() -> None:
     # Its token went first: a process started under the name at once found the run
     # unfinished and recovered it beside the finish.
     f, order = Follower(), []
-    f.agent.run_recording = _Run(order, 0.1)  # type: ignore[assignment]
+    f.agent.recordings.run = _Run(order, 0.1)  # type: ignore[assignment]
     f.agent._declared = [_Entity(order)]
     f.agent.close()
     assert order == ["finished", "undeclared"]
@@ -703,7 +704,7 @@ def test_a_hosted_agent_closing_waits_for_no_disk() -> None:
     import time
 
     f, order = Follower(), []
-    f.agent.run_recording = _Run(order, 1.0)  # type: ignore[assignment]
+    f.agent.recordings.run = _Run(order, 1.0)  # type: ignore[assignment]
     f.agent._declared = [_Entity(order)]
     t0 = time.monotonic()
     f.agent.close(wait=False)
@@ -782,7 +783,7 @@ def test_a_closing_agent_takes_no_start_while_its_recording_finishes() -> None:
             f.command("start", run_id="r2", at=(t_sim or 0.0) - 0.1)  # arrives meanwhile
             return super().finish(wait)
 
-    f.agent.run_recording = Slow(order, 0.05)  # type: ignore[assignment]
+    f.agent.recordings.run = Slow(order, 0.05)  # type: ignore[assignment]
     closer = threading.Thread(target=f.agent.close)
     closer.start()
     closer.join(5.0)

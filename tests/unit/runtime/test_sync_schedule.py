@@ -115,7 +115,7 @@ def test_a_sender_without_a_reference_stamp_is_synced_pairwise() -> None:
     follower.peer_seen(leader, alive=True)
     follower.peer_seen(legacy, alive=True)
     assert not any(legacy in tick for tick in ticks(follower, 2.0))
-    follower._place(legacy, 1.0, None)  # its pose came without an attachment
+    follower.peer_table.place(legacy, 1.0, None)  # its pose came without an attachment
     queried = ticks(follower, 5.0, start=2.0)
     assert all(leader in tick for tick in queried)
     assert sum(legacy in tick for tick in queried) in (4, 5, 6)
@@ -136,11 +136,11 @@ def test_others_uses_the_senders_stamp_without_an_offset_estimate() -> None:
         (other, 105.0, wire.RefStamp(member.ref_id, 5.25, 0.0004)),
         (legacy, 7.0, None),
     ):
-        member._place(agent, t, stamp)
+        member.peer_table.place(agent, t, stamp)
         member.latest_poses[agent] = wire.PoseSample(t, pose)
     # Placed from their stamps; the legacy agent's waits for a pairwise estimate.
     assert member.others() == {"lab0/leader": (5.0, pose), "lab1/b": (5.25, pose)}
-    assert member.pairwise == {legacy}
+    assert member.peer_table.pairwise == {legacy}
     # A newer pose without a stamp is not placed with the old stamp.
     member.latest_poses[other] = wire.PoseSample(106.0, pose)
     assert "lab1/b" not in member.others()
