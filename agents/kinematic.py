@@ -9,17 +9,37 @@ fly real dynamics.
 from __future__ import annotations
 
 from agents.guidance import Track
+from agents.interface import WithoutChain
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
 __all__ = ["KinematicPlatform"]
 
 
-class KinematicPlatform:
-    """``rate``: steps per second; with no dynamics, the pose rate is enough."""
+class KinematicPlatform(WithoutChain):
+    """``rate``: steps per second; with no dynamics, the pose rate is enough. Its pose is
+    the command, so it is always a fix (:class:`~agents.interface.WithoutChain`)."""
+
+    kind = "kinematic"
+    """Its name in an agent's ``platform`` spec (:data:`schemas.platform.PLATFORMS`)."""
+    argument = None
+    hardware = False
 
     config: PlatformConfig | None = None
     """No physical description: nothing to analyse."""
+
+    @classmethod
+    def check_spec(cls, argument: str | None) -> None:
+        """``kinematic`` takes no argument."""
+        if argument is not None:
+            raise ValueError(f"the kinematic platform takes no argument, not {argument!r}")
+
+    @classmethod
+    def from_spec(
+        cls, argument: str | None, *, seed: int, rate: float, preset: str | None
+    ) -> KinematicPlatform:
+        """A kinematic platform stepping at ``rate`` Hz (no noise: ``seed`` unused)."""
+        return cls(rate=rate)
 
     def __init__(self, x: float = 0.0, y: float = 0.0, rate: float = 20.0):
         if not rate > 0:

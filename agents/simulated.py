@@ -28,10 +28,11 @@ import numpy.typing as npt
 from agents.dynamics import THRUSTERS, BodyParams, SlopeField, step, wrench
 from agents.gnc import CLOSED, GncChain
 from agents.guidance import Track
+from agents.interface import WithChain
 from agents.navigation import NavigationFilter
 from agents.sensors import Coverage, Imu, ImuSample, Vision
 from federation.core.wire import Pose
-from schemas.platform import PlatformConfig
+from schemas.platform import PlatformConfig, load_platform
 
 __all__ = ["Plant", "SimulatedPlatform"]
 
@@ -130,9 +131,10 @@ class Plant:
         return self.vision_sensor.measure(x, y, heading)
 
 
-class SimulatedPlatform:
+class SimulatedPlatform(WithChain):
     """A physically simulated platform under the GNC chain: a :class:`Plant` and a
-    :class:`~agents.gnc.GncChain`.
+    :class:`~agents.gnc.GncChain` (whose fix, restart and causes it reports:
+    :class:`~agents.interface.WithChain`).
 
     Parameters
     ----------
@@ -147,6 +149,31 @@ class SimulatedPlatform:
     x, y, heading : float
         Starting pose, m and rad (the filter learns it from the first vision fix).
     """
+
+    kind = "simulated"
+    """Its name in an agent's ``platform`` spec; a spec naming no kind is its argument
+    (``knatte``, ``deploy/platforms/knatte.toml``)."""
+    argument = "PRESET"
+    hardware = False
+
+    @classmethod
+    def check_spec(cls, argument: str | None) -> None:
+        """A preset or platform file that loads (ConfigError naming its file and field)."""
+        if not argument:
+            raise ValueError(
+                "a simulated platform needs a preset name or a platform file, e.g. knatte"
+            )
+        load_platform(argument)
+
+    @classmethod
+    def from_spec(
+        cls, argument: str | None, *, seed: int, rate: float, preset: str | None
+    ) -> SimulatedPlatform:
+        """The preset or file ``argument`` flown with sensor noise of ``seed`` (at its
+        own ``control.rate``: ``rate`` is a kinematic platform's)."""
+        cls.check_spec(argument)
+        assert argument is not None
+        return cls(load_platform(argument), seed=seed)
 
     def __init__(
         self,
@@ -211,6 +238,9 @@ class SimulatedPlatform:
     @property
     def held(self) -> bool:
         return self.chain.held
+
+    valves_confirmed: bool | None = None
+    """No device to confirm the valve commands: the plant takes them as they are."""
 
     @property
     def truth(self) -> Pose:

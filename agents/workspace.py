@@ -26,13 +26,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
+from agents.control import HeadingPid
 from agents.guidance import Track
-from agents.interface import Platform
+from agents.interface import ClosedCause, Platform, WithChain
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 from schemas.scenario import LabFrame
+
+if TYPE_CHECKING:
+    from agents.gnc import GncChain
 
 __all__ = ["Area", "Frame", "FramedPlatform"]
 
@@ -142,7 +146,9 @@ class FramedPlatform:
         config = inner.config
         self.area = area if area is not None else (Area.of(config) if config else None)
         self.workspace_held = False
-        self.hold_reason: str | None = None
+        self.area_detail: str | None = None
+        """Where the platform left its area (free text for the log and the run's
+        events) while :attr:`workspace_held`; None otherwise."""
         self.workspace_counters: dict[str, int] = {"workspace_clamped": 0, "workspace_holds": 0}
         self.table_pose = Pose()
         """The last estimate, table frame."""
@@ -185,7 +191,7 @@ class FramedPlatform:
             and not self.area.contains(pose.x, pose.y)
         ):
             self.workspace_held = True
-            self.hold_reason = f"left the area at ({pose.x:.3f}, {pose.y:.3f}) m, table frame"
+            self.area_detail = f"left the area at ({pose.x:.3f}, {pose.y:.3f}) m, table frame"
             self.workspace_counters["workspace_holds"] += 1
             self.inner.hold()
         return self.frame.to_common(pose)
@@ -217,12 +223,6 @@ class FramedPlatform:
             return track, False
         return track._replace(x=x, y=y, vx=vx, vy=vy, ax=ax, ay=ay), True
 
-    @property
-    def has_fix(self) -> bool:
-        """Whether the estimate means anything yet (a filter's prior is not a position)."""
-        chain = getattr(self.inner, "chain", None)
-        return chain is None or chain.fix_time is not None
-
     def hold(self) -> None:
         self.inner.hold()
 
@@ -234,31 +234,62 @@ class FramedPlatform:
     def clear_workspace_hold(self) -> None:
         """An operator brought the platform back: control may resume."""
         self.workspace_held = False
-        self.hold_reason = None
+        self.area_detail = None
         self.inner.release()
 
     def close(self) -> None:
         self.inner.close()
 
-    # -- what the runtime and the report read ------------------------------------------
+    # -- what the runtime and the report read: the inner platform's, in the common frame
     @property
-    def truth(self) -> Pose | None:
-        """A simulated platform's true pose, common frame (None for a real one)."""
-        truth: Pose | None = getattr(self.inner, "truth", None)
-        return None if truth is None else self.frame.to_common(truth)
+    def has_fix(self) -> bool:
+        """Whether the estimate means anything yet (a filter's prior is not a position)."""
+        return self.inner.has_fix
+
+    @property
+    def restarted(self) -> bool:
+        return self.inner.restarted
+
+    def acknowledge_restart(self) -> None:
+        self.inner.acknowledge_restart()
+
+    @property
+    def cause(self) -> ClosedCause | None:
+        return self.inner.cause
+
+    @property
+    def acquiring(self) -> tuple[int, int] | None:
+        return self.inner.acquiring
+
+    @property
+    def last_rejection(self) -> str | None:
+        return self.inner.last_rejection
 
     @property
     def valves(self) -> tuple[bool, ...]:
-        valves: tuple[bool, ...] = getattr(self.inner, "valves", ())
-        return valves
+        return self.inner.valves
+
+    @property
+    def valves_confirmed(self) -> bool | None:
+        return self.inner.valves_confirmed
+
+    @property
+    def truth(self) -> Pose | None:
+        """A simulated platform's true pose, common frame (None for a real one)."""
+        truth = self.inner.truth
+        return None if truth is None else self.frame.to_common(truth)
 
     @property
     def counters(self) -> dict[str, int]:
-        inner: dict[str, int] = dict(getattr(self.inner, "counters", {}) or {})
-        return inner | self.workspace_counters
+        """The inner platform's counters and the workspace's."""
+        return dict(self.inner.counters) | self.workspace_counters
 
-    def __getattr__(self, name: str) -> Any:
-        # chain, plant, filter, estimate ...: the inner platform's (read-only use)
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
+    @property
+    def heading_pid(self) -> HeadingPid | None:
+        return self.inner.heading_pid
+
+    @property
+    def chain(self) -> GncChain | None:
+        """The inner platform's GNC chain, if it is flown by one (None: kinematic): for
+        code that reads the chain itself rather than the capabilities above."""
+        return self.inner.chain if isinstance(self.inner, WithChain) else None

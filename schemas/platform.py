@@ -25,24 +25,29 @@ pure force (+/-x or +/-y, body frame, ``2 * thrust``) or a pure torque
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Protocol, runtime_checkable
 
 from pydantic import Field, model_validator
 
 from schemas.base import ConfigError, load_model
 from schemas.base import Model as _Model
 from schemas.base import name as _name
+from schemas.registry import Registry, RegistryError
 
 __all__ = [
+    "DEFAULT_KIND",
+    "PLATFORMS",
     "PLATFORMS_DIR",
     "ControlConfig",
     "DisturbanceConfig",
     "ImuConfig",
     "NavigationConfig",
     "PlatformConfig",
+    "PlatformKind",
     "TableConfig",
     "VisionConfig",
     "load_platform",
+    "platform_kind",
     "validate_platform_spec",
 ]
 
@@ -371,24 +376,123 @@ def load_platform(name_or_path: str | Path) -> PlatformConfig:
     return load_model(PlatformConfig, path)
 
 
+@runtime_checkable
+class PlatformKind(Protocol):
+    """What configuration reads of a registered platform kind (a platform class: its
+    own module's :class:`~agents.interface.Platform`, as
+    :class:`~agents.kinematic.KinematicPlatform`).
+
+    An agent's ``platform`` spec names a kind as ``KIND`` or ``KIND:ARGUMENT``
+    (``kinematic``, ``serial:/dev/ttyUSB0``); a spec that names no registered kind is
+    a preset or a platform file, the argument of the ``simulated`` kind.
+    """
+
+    @property
+    def kind(self) -> str:
+        """The kind's name, as specs give it."""
+        ...
+
+    @property
+    def argument(self) -> str | None:
+        """What follows ``KIND:`` in a spec, for help and messages (``PORT``); None: the
+        kind takes no argument."""
+        ...
+
+    @property
+    def hardware(self) -> bool:
+        """Whether it drives a real platform's valves: it flies only runs an operator
+        starts (``wait_start``), in a process of its own, and takes a GNC preset
+        (``platform_preset``)."""
+        ...
+
+    def check_spec(self, argument: str | None) -> None:
+        """Check a spec's argument at config load (a port given, a preset that loads);
+        ValueError saying what is wrong."""
+        ...
+
+    def from_spec(
+        self, argument: str | None, *, seed: int, rate: float, preset: str | None
+    ) -> object:
+        """The platform a spec names: ``seed`` of a simulated one's noise, ``rate`` of a
+        kinematic one's steps (Hz), ``preset`` the GNC preset of a hardware one."""
+        ...
+
+
+def _accept_kind(name: str, obj: object) -> PlatformKind:
+    if not isinstance(obj, type) or not isinstance(obj, PlatformKind):
+        raise TypeError(
+            f"{obj!r} is not a platform class with kind, argument, hardware, check_spec "
+            "and from_spec"
+        )
+    if obj.kind != name:
+        raise TypeError(f"{obj.__qualname__} says its kind is {obj.kind!r}")
+    return obj
+
+
+PLATFORMS: Registry[PlatformKind] = Registry(
+    "platform kind",
+    "fedlab.platforms",
+    {
+        "kinematic": "agents.kinematic:KinematicPlatform",
+        "simulated": "agents.simulated:SimulatedPlatform",
+        "serial": "agents.serial.platform:SerialPlatform",
+    },
+    _accept_kind,
+)
+"""Platform kinds by name: the built-ins and any a plug-in registers
+(:func:`agents.registry.register_platform`, or the ``fedlab.platforms`` entry points)."""
+
+DEFAULT_KIND = "simulated"
+"""The kind of a spec that names none: a preset name or a platform file."""
+
+
+def platform_kind(spec: str) -> tuple[PlatformKind, str | None]:
+    """The kind ``spec`` names and its argument (``KIND``, ``KIND:ARGUMENT``, else a
+    preset or file for :data:`DEFAULT_KIND`).
+
+    Raises
+    ------
+    schemas.registry.RegistryError
+        The kind's code does not load, or two distributions claim its name.
+    """
+    name, sep, argument = spec.partition(":")
+    if sep and name in PLATFORMS:
+        return PLATFORMS.get(name), argument
+    if not sep and spec in PLATFORMS:
+        return PLATFORMS.get(spec), None
+    return PLATFORMS.get(DEFAULT_KIND), spec
+
+
+def _other_choices() -> str:
+    out = []
+    for name in PLATFORMS.names():
+        if name == DEFAULT_KIND:
+            continue
+        try:
+            argument = PLATFORMS.get(name).argument
+        except RegistryError:  # said when a spec names it; here only listed
+            argument = None
+        out.append(name if argument is None else f"{name}:{argument}")
+    return ", ".join(out)
+
+
 def validate_platform_spec(spec: str) -> str:
-    """Check an agent's pose source at config load: ``kinematic``, ``serial:PORT``, a
-    preset name or a platform file (a missing preset or port fails here).
+    """Check an agent's pose source at config load: a registered kind (``kinematic``,
+    ``serial:PORT``, a plug-in's) or a preset name or platform file (a missing preset,
+    a missing port, a plug-in that does not load fail here).
 
     Raises
     ------
     ValueError
-        No port after ``serial:``, or a preset that :func:`load_platform` cannot load
-        (the message names the file and the field, and the other choices).
+        What the kind finds wrong with its argument (no port after ``serial:``; a preset
+        that :func:`load_platform` cannot load, naming the file and the field, and the
+        other choices), or a :class:`~schemas.registry.RegistryError`.
     """
-    if spec == "kinematic":
-        return spec
-    if spec.startswith("serial:"):
-        if not spec[len("serial:") :]:
-            raise ValueError("serial platform needs a port: serial:/dev/ttyUSB0")
-        return spec
+    kind, argument = platform_kind(spec)
     try:
-        load_platform(spec)  # a ConfigError (a ValueError) naming the file and the field
+        kind.check_spec(argument)
     except ValueError as error:
-        raise ValueError(f"{error} (other choices: kinematic, serial:PORT)") from None
+        if kind.kind != DEFAULT_KIND or argument is None:
+            raise
+        raise ValueError(f"{error} (other choices: {_other_choices()})") from None
     return spec

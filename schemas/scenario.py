@@ -1,40 +1,109 @@
 """Scenario settings beyond attitude: lab frames, formation, docking, the relative sensor
-and adaptive gains (issue 14).
+and adaptive gains, and the registry of scenarios by name.
 
 An experiment file (:mod:`schemas.experiment`) holds them; each agent gets its own part,
 a :class:`ScenarioPart`, in its :class:`~schemas.config.AgentConfig`
 (``fedlab agent --experiment FILE`` fills it in). Units are in every field's description.
 
+Scenarios are found by name in :data:`SCENARIOS`: the built-ins (``attitude-tracking``,
+``formation``, ``docking``) and any a plug-in registers
+(:func:`agents.registry.register_scenario`, or a ``fedlab.scenarios`` entry point). A
+part's ``kind`` must name one, and its ``settings`` are validated by that scenario's
+config model at load: a bad value fails with the file and the field.
+
 Frames: every lab's table has its own frame (x, y on the table, heading from its x
 axis); a lab declares where that frame sits in the federation's common frame
 (:class:`LabFrame`). Poses on the wire are in the common frame.
 
-Rule: imports :mod:`schemas.base` only, so :mod:`schemas.config` and
-:mod:`schemas.experiment` can both build on it.
+Rule: imports :mod:`schemas.base` and :mod:`schemas.registry` only, so
+:mod:`schemas.config` and :mod:`schemas.experiment` can both build on it.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Any, Protocol, runtime_checkable
 
-from pydantic import Field, model_validator
+from pydantic import (
+    AfterValidator,
+    Field,
+    SerializeAsAny,
+    ValidationInfo,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
 
 from schemas.base import Model
+from schemas.registry import Registry
 
 __all__ = [
+    "SCENARIOS",
     "AdaptiveConfig",
     "ContactCriteria",
     "DockingConfig",
     "FormationConfig",
     "LabFrame",
     "RelativeSensorConfig",
+    "ScenarioEntry",
     "ScenarioKind",
     "ScenarioPart",
 ]
 
-ScenarioKind = Literal["attitude-tracking", "formation", "docking"]
-"""What an experiment rehearses."""
+
+@runtime_checkable
+class ScenarioEntry(Protocol):
+    """What configuration reads of a registered scenario (a subclass of
+    :class:`agents.scenarios.Scenario`)."""
+
+    @property
+    def name(self) -> str:
+        """The scenario's name, as ``kind`` gives it."""
+        ...
+
+    @property
+    def settings(self) -> type[Model] | None:
+        """The config model of a part's ``settings``; None: the scenario takes none."""
+        ...
+
+    def check_part(self, part: ScenarioPart) -> None:
+        """What a part of this scenario needs beyond its settings (a built-in's table);
+        ValueError saying what is missing."""
+        ...
+
+
+def _accept_scenario(name: str, obj: object) -> ScenarioEntry:
+    if not isinstance(obj, type) or not isinstance(obj, ScenarioEntry):
+        raise TypeError(f"{obj!r} is not a scenario class with name, settings and check_part")
+    if obj.name != name:
+        raise TypeError(f"{obj.__qualname__} says its name is {obj.name!r}")
+    settings = obj.settings
+    if settings is not None and not (isinstance(settings, type) and issubclass(settings, Model)):
+        raise TypeError(f"its settings {settings!r} are not a config model (schemas.base.Model)")
+    return obj
+
+
+SCENARIOS: Registry[ScenarioEntry] = Registry(
+    "scenario",
+    "fedlab.scenarios",
+    {
+        "attitude-tracking": "agents.scenarios.attitude:AttitudeTracking",
+        "formation": "agents.scenarios.formation:Formation",
+        "docking": "agents.scenarios.docking:Docking",
+    },
+    _accept_scenario,
+)
+"""Scenarios by name: the built-ins and any a plug-in registers."""
+
+
+def _registered(kind: str) -> str:
+    SCENARIOS.get(kind)  # a RegistryError (a ValueError) names what is wrong
+    return kind
+
+
+ScenarioKind = Annotated[str, AfterValidator(_registered)]
+"""What an experiment rehearses: the name of a registered scenario
+(``attitude-tracking``, ``formation``, ``docking`` or a plug-in's)."""
 
 Vec2 = tuple[float, float]
 
@@ -221,7 +290,10 @@ class AdaptiveConfig(Model):
 class ScenarioPart(Model):
     """One agent's part of a scenario (filled in from the experiment file)."""
 
-    kind: ScenarioKind = "attitude-tracking"
+    kind: ScenarioKind = Field(
+        "attitude-tracking",
+        description="the scenario: attitude-tracking, formation, docking or a plug-in's",
+    )
     frame: LabFrame = Field(default_factory=LabFrame, description="this lab's table frame")
     formation: FormationConfig | None = None
     docking: DockingConfig | None = None
@@ -229,11 +301,37 @@ class ScenarioPart(Model):
     adaptive: AdaptiveConfig | None = Field(
         None, description="schedule the heading gains from the leader's dynamic range"
     )
+    settings: (
+        Annotated[
+            SerializeAsAny[Model],
+            WithJsonSchema({"type": "object", "description": "fields of the scenario's model"}),
+        ]
+        | None
+    ) = Field(
+        None,
+        validate_default=True,
+        description="the scenario's own settings, validated by its config model (a "
+        "plug-in's); none for the built-ins, whose settings are the tables above",
+    )
+
+    @field_validator("settings", mode="before")
+    @classmethod
+    def _settings(cls, value: Any, info: ValidationInfo) -> Any:
+        kind = info.data.get("kind")
+        if kind is None:  # the kind did not validate: its error says why
+            return value
+        model = SCENARIOS.get(kind).settings
+        if model is None:
+            if value is not None:
+                raise ValueError(f"scenario {kind!r} takes no settings")
+            return None
+        if isinstance(value, model):
+            return value
+        if isinstance(value, Model):
+            value = value.model_dump()
+        return model.model_validate({} if value is None else value)
 
     @model_validator(mode="after")
     def _kind(self) -> ScenarioPart:
-        if self.kind == "formation" and self.formation is None:
-            raise ValueError("a formation part needs 'formation'")
-        if self.kind == "docking" and self.docking is None:
-            raise ValueError("a docking part needs 'docking'")
+        SCENARIOS.get(self.kind).check_part(self)
         return self

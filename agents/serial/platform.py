@@ -54,7 +54,8 @@ import serial
 
 from agents.gnc import CLOSED, GncChain, PlatformReason
 from agents.guidance import Track
-from agents.interface import PlatformError
+from agents.interface import PlatformError, WithChain
+from agents.platform import DEFAULT_SERIAL_PRESET
 from agents.sensors import ImuSample
 from agents.serial.protocol import (
     DEVICE_TO_HOST,
@@ -96,9 +97,10 @@ def _rate_limited(count: int) -> bool:
     return count in (1, 10, 100) or count % 1000 == 0
 
 
-class SerialPlatform:
+class SerialPlatform(WithChain):
     """A platform whose avionics are on a serial port, under the GNC chain; a
-    :class:`~agents.platform.Platform` for the agent runtime.
+    :class:`~agents.platform.Platform` for the agent runtime (its chain's fix, restart
+    and causes: :class:`~agents.interface.WithChain`).
 
     Parameters
     ----------
@@ -129,6 +131,28 @@ class SerialPlatform:
     PlatformError
         If the port cannot be opened.
     """
+
+    kind = "serial"
+    """Its name in an agent's ``platform`` spec: ``serial:PORT``."""
+    argument = "PORT"
+    hardware = True
+
+    @classmethod
+    def check_spec(cls, argument: str | None) -> None:
+        """A port is given (whether it opens is known when the agent starts)."""
+        if not argument:
+            raise ValueError("serial platform needs a port: serial:/dev/ttyUSB0")
+
+    @classmethod
+    def from_spec(
+        cls, argument: str | None, *, seed: int, rate: float, preset: str | None
+    ) -> SerialPlatform:
+        """The avionics on port ``argument`` under the GNC chain of ``preset`` (a name or
+        a file; None: :data:`~agents.platform.DEFAULT_SERIAL_PRESET`). PlatformError if
+        the port does not open."""
+        cls.check_spec(argument)
+        assert argument is not None
+        return cls(argument, load_platform(preset or DEFAULT_SERIAL_PRESET))
 
     def __init__(
         self,
@@ -161,7 +185,7 @@ class SerialPlatform:
         # between the chain's open valves and their frame would be overwritten by them.
         self._lock = threading.RLock()
         self._valves = CLOSED
-        self.valves_confirmed = True
+        self.valves_confirmed: bool = True
         """False after a write that timed out or stopped short, until one goes out whole:
         :attr:`valves` is then what was commanded (all closed), not known to be applied."""
         self._seq = 0
@@ -260,6 +284,9 @@ class SerialPlatform:
     @property
     def held(self) -> bool:
         return self.chain.held
+
+    truth: Pose | None = None
+    """A real platform's true pose is not known: its estimate is all there is."""
 
     @property
     def pose(self) -> Pose:

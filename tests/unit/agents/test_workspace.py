@@ -66,7 +66,7 @@ def test_a_platform_pushed_out_by_the_slope_goes_to_safe_hold() -> None:
     assert plat.workspace_held and plat.held
     assert plat.workspace_counters["workspace_holds"] == 1
     assert plat.valves == CLOSED
-    assert plat.hold_reason is not None and "left the area" in plat.hold_reason
+    assert plat.area_detail is not None and "left the area" in plat.area_detail
     truth = plat.truth  # common frame: the table is only shifted along y
     assert truth is not None and truth.x > 1.35  # it really is out
     plat.release()  # a link resuming does not release it
