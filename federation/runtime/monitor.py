@@ -29,8 +29,8 @@ rejected        rejected sync replies (all peers) + every counter ending ``_malf
 late p99        control loop lateness, 99th percentile (``status.loop.late_p99_ms``)
 run             ``status.run_id``: the run started last
 run time        ``status.run_time`` / ``status.duration`` (progress, %)
-hold            ``status.hold``: why every valve is closed (stale, contested, aborted,
-                done, reset, workspace, name_taken); a fault's in red
+hold            ``status.hold``: why every valve is closed (docs/holds.md); in red
+                one that stops a start, in yellow the run's own (waiting, done, reset)
 silent          an alarm, in red: the peers it reports alive but silent (answering
                 no sync request for 2 s, ``peers.<agent>.silent``) and for how long;
                 never left out on a narrow terminal
@@ -61,6 +61,7 @@ from rich.table import Table
 from rich.text import Text
 
 from federation.core import keys
+from federation.core.holds import BY_HOLD, Hold
 from federation.core.keys import AgentId
 from federation.core.preflight import named_silent
 from federation.runtime.session import undeclare_all
@@ -346,10 +347,14 @@ def _run_time(row: Row) -> str:
     return f"{row.run_time_s:.1f}/{row.duration_s:g} ({100 * row.run_time_s / row.duration_s:.0f}%)"
 
 
+_HOLDS = frozenset(hold.value for hold in Hold)
+
+
 def _hold(row: Row) -> Text:
     if row.hold is None:
         return Text(_DASH)
-    fault = row.hold in ("stale", "contested", "aborted", "name_taken", "workspace")
+    rule = BY_HOLD.get(Hold(row.hold)) if row.hold in _HOLDS else None
+    fault = rule is None or rule.preflight  # the run's own holds are no fault
     return Text(row.hold, style="red" if fault else "yellow")
 
 
