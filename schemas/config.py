@@ -21,7 +21,7 @@ from schemas.base import ConfigError as ConfigError
 from schemas.base import format_validation_error as format_validation_error
 from schemas.base import load_model as load_model
 from schemas.base import validate as validate
-from schemas.platform import load_platform, validate_platform_spec
+from schemas.platform import DEFAULT_KIND, load_platform, platform_kind, validate_platform_spec
 from schemas.scenario import ScenarioPart
 
 __all__ = [
@@ -153,7 +153,7 @@ class AgentConfig(_Model):
     platform: str = Field(
         "kinematic",
         description="pose source: kinematic, a preset (knatte, pinocchio), a platform TOML "
-        "file, or serial:PORT",
+        "file, serial:PORT, or a plug-in's platform kind (KIND or KIND:ARGUMENT)",
     )
     platform_preset: str | None = Field(
         None,
@@ -224,7 +224,7 @@ class AgentConfig(_Model):
     def _platform_preset(cls, value: str | None) -> str | None:
         if value is None:
             return None
-        if value == "kinematic" or value.startswith("serial:"):
+        if platform_kind(value)[0].kind != DEFAULT_KIND:  # kinematic, serial:PORT, ...
             raise ValueError(f"{value!r} is not a preset: give a preset name or a platform file")
         load_platform(value)  # a ConfigError (a ValueError) naming the file and the field
         return value
@@ -241,15 +241,16 @@ class AgentConfig(_Model):
                 "sync_with and sync_all together: sync_with names the agents queried, "
                 "sync_all every agent alive; give one (sync_all had been dropped silently)"
             )
-        if self.platform.startswith("serial:") and not self.wait_start:
+        hardware = self.hardware
+        if hardware and not self.wait_start:
             raise ValueError(
                 f"platform {self.platform}: a real platform flies only runs an operator "
                 "starts (fedlab ctl start): set wait_start = true (--wait-start, or run it "
                 "with --experiment)"
             )
-        if self.platform_preset is not None and not self.platform.startswith("serial:"):
+        if self.platform_preset is not None and not hardware:
             raise ValueError(
-                "platform_preset applies to a serial:PORT platform only; a simulated "
+                "platform_preset applies to a real platform (serial:PORT) only; a simulated "
                 f"platform's preset is its platform ({self.platform!r})"
             )
         return self
@@ -257,6 +258,12 @@ class AgentConfig(_Model):
     @property
     def agent(self) -> AgentId:
         return AgentId(self.lab, self.name)
+
+    @property
+    def hardware(self) -> bool:
+        """Whether :attr:`platform` is a real platform (``serial:PORT``, or a plug-in kind
+        that says so): it flies only runs an operator starts, in a process of its own."""
+        return platform_kind(self.platform)[0].hardware
 
 
 class RouterConfig(_Model):

@@ -319,7 +319,7 @@ class ScenarioPart(Model):
     def _settings(cls, value: Any, info: ValidationInfo) -> Any:
         kind = info.data.get("kind")
         if kind is None:  # the kind did not validate: its error says why
-            return value
+            return None
         model = SCENARIOS.get(kind).settings
         if model is None:
             if value is not None:

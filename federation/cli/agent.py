@@ -107,7 +107,8 @@ def add(sub: Subparsers) -> None:
     p.add_argument(
         "--platform",
         metavar="SPEC",
-        help="pose source: kinematic (default), knatte, pinocchio, a platform TOML, serial:PORT",
+        help="pose source: kinematic (default), knatte, pinocchio, a platform TOML, serial:PORT, "
+        "or a plug-in's KIND[:ARGUMENT]",
     )
     p.add_argument(
         "--platform-preset",
@@ -230,15 +231,15 @@ def _overlay(
     """An agent file's settings with its part in an experiment over them: the experiment
     gives what its participants share (role, follow, maneuver, ...), the file what is
     its host's, and the experiment no longer overrides it: where its runs are recorded
-    (``runs_dir``, ``record``), and its real platform (``serial:PORT``, which flies the
-    experiment's platform as its preset; they had been replaced, the real table left
-    idle while a simulated one flew). A preset that is not the experiment's is refused
-    (ConfigError naming both files)."""
+    (``runs_dir``, ``record``), and its real platform (``serial:PORT`` or another
+    hardware kind, which flies the experiment's platform as its preset: the real table
+    flies, not a simulated one in its place). A preset that is not the experiment's is
+    refused (ConfigError naming both files)."""
     part = dict(part)
     if "runs_dir" in own:
         part.pop("runs_dir", None)
     mine = own.get("platform")
-    if isinstance(mine, str) and mine.startswith("serial:"):
+    if isinstance(mine, str) and _is_hardware(mine):
         preset = own.get("platform_preset")
         theirs = part.pop("platform")
         if platform_given and theirs != "kinematic":
@@ -291,17 +292,32 @@ def _experiment_part(
 
 
 def _scenario_part(experiment: Any, me: Any) -> dict[str, Any]:
-    """Issue 14: a formation, docking or adaptive-gain part (none for plain attitude
-    tracking): formation members watch every pose; a participant's seed, if given."""
+    """A formation, docking or adaptive-gain part, or a plug-in scenario's (none for plain
+    attitude tracking): an agent whose scenario reads every other agent's pose watches
+    them all; a participant's seed, if given."""
+    from agents.registry import scenario_class
+
     scenario = experiment.part(me)
     if scenario is None:
         return {}
     part = experiment.participant(me)
     return {
         "scenario": scenario.model_dump(),
-        **({"watch_all": True} if experiment.kind == "formation" else {}),
+        **({"watch_all": True} if scenario_class(experiment.kind).watch_all else {}),
         **({"seed": part.seed} if part.seed is not None else {}),
     }
+
+
+def _is_hardware(spec: str) -> bool:
+    """Whether ``spec`` names a real platform (``serial:PORT``; an unknown kind is not:
+    the agent's settings say why when they are checked)."""
+    from schemas.platform import platform_kind
+    from schemas.registry import RegistryError
+
+    try:
+        return platform_kind(spec)[0].hardware
+    except RegistryError:
+        return False
 
 
 def _clock_step(text: str) -> tuple[float, float]:

@@ -1,4 +1,5 @@
-"""Formation and docking runs: their figures in ``summary.json`` and their plots.
+"""Runs of a framed scenario (formation, docking, a plug-in's): their figures in
+``summary.json`` and their plots.
 
 The experiment comes from the run's ``run.json`` (``experiment``, as the demo writes
 it) or ``experiment.json`` beside the recordings. Every simulated agent records its
@@ -15,13 +16,17 @@ Keys added to the summary:
   ``heading_error_deg``, ``time_s`` (run time of the first contact on the truth),
   the chaser's phases;
 - ``workspace``: per platform, ``violations`` (times its true centre left the usable
-  area), ``clamped`` and ``holds`` (its counters).
+  area), ``clamped`` and ``holds`` (its counters), for every framed scenario.
+
+A scenario's own figures are found by its name in :data:`SCENARIO_FIGURES`; a framed
+scenario without an entry there gets its workspace and trajectories only.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +34,7 @@ import numpy as np
 
 from agents.docking import contact_state
 from agents.formation import CirclePath, slot_errors
+from agents.registry import scenario_class
 from agents.workspace import Area, Frame
 from federation.core.channels import Channel
 from federation.core.wire import Pose
@@ -38,7 +44,13 @@ from schemas.experiment import ExperimentConfig
 from schemas.platform import load_platform
 from schemas.scenario import LabFrame
 
-__all__ = ["experiment_of", "markdown_section", "scenario_summary", "write_scenario_figures"]
+__all__ = [
+    "SCENARIO_FIGURES",
+    "experiment_of",
+    "markdown_section",
+    "scenario_summary",
+    "write_scenario_figures",
+]
 
 Array = np.ndarray[Any, np.dtype[np.float64]]
 GRID_S = 0.1  # s between formation samples
@@ -116,17 +128,27 @@ def _frames(experiment: ExperimentConfig) -> dict[str, tuple[Frame, Area | None]
     return out
 
 
+def _framed(experiment: ExperimentConfig | None) -> bool:
+    """Whether the experiment's scenario flies in the common frame, each platform kept in
+    its area: its truths, areas and trajectories make figures (attitude tracking's don't)."""
+    return experiment is not None and scenario_class(experiment.kind).framed
+
+
 def scenario_summary(run: Run) -> dict[str, Any]:
-    """``formation``, ``docking`` and ``workspace`` figures (empty for attitude tracking)."""
+    """``workspace`` figures of a framed scenario and its own (``formation``,
+    ``docking``: :data:`SCENARIO_FIGURES`); empty for attitude tracking."""
     experiment, why = _experiment_or_note(run)
     if why is not None:
         return {"notes": [why]}
-    if experiment is None or experiment.kind == "attitude-tracking":
+    if experiment is None or not _framed(experiment):
         return {}
     origin = _run_time_origin(run, experiment)
     truths = {p.agent: _truth(run, p.agent) for p in experiment.participants}
     out: dict[str, Any] = {"scenario": experiment.kind}
     out["workspace"] = _workspace(run, experiment, truths)
+    own = SCENARIO_FIGURES.get(experiment.kind)
+    if own is None:  # a scenario with no figures of its own: its workspace only
+        return out
     if origin is None or any(v is None for v in truths.values()):
         out["notes"] = ["no run time or no truth for every platform: no scenario figures"]
         return out
@@ -138,20 +160,21 @@ def scenario_summary(run: Run) -> dict[str, Any]:
         out["notes"] = ["the platforms' truths do not overlap after the start"]
         return out
     link = (run.meta or {}).get("link") or {}
-    formation = experiment.kind == "formation"
-    host = np.arange(start, end, GRID_S if formation else CONTACT_GRID_S)
+    grid, figures_of = own
+    host = np.arange(start, end, grid)
     at = {a: _at(v, host) for a, v in present.items()}
-    if formation:
-        figures = _formation(experiment, at, host, origin)
-    else:
-        figures = _docking(run, experiment, at, host, origin)
+    figures = figures_of(run, experiment, at, host, origin)
     figures["delay_ms"] = link.get("delay_ms")
-    out["formation" if formation else "docking"] = figures
+    out[experiment.kind] = figures
     return out
 
 
 def _formation(
-    experiment: ExperimentConfig, at: dict[str, dict[str, Array]], host: Array, origin: float
+    run: Run,
+    experiment: ExperimentConfig,
+    at: dict[str, dict[str, Array]],
+    host: Array,
+    origin: float,
 ) -> dict[str, Any]:
     """Formation figures from the truths ``at`` the host times ``host``."""
     f = experiment.formation
@@ -237,6 +260,19 @@ def _docking(
     return out
 
 
+Figures = Callable[
+    [Run, ExperimentConfig, dict[str, dict[str, Array]], Array, float], dict[str, Any]
+]
+"""A scenario's figures from the run, its experiment, the truths at the host times of
+its grid, those times and host_monotonic at run time 0."""
+
+SCENARIO_FIGURES: dict[str, tuple[float, Figures]] = {
+    "formation": (GRID_S, _formation),
+    "docking": (CONTACT_GRID_S, _docking),
+}
+"""Scenario -> (s between samples, its figures): the summary's key is the scenario's name."""
+
+
 def _workspace(
     run: Run, experiment: ExperimentConfig, truths: dict[str, dict[str, Array] | None]
 ) -> dict[str, Any]:
@@ -269,7 +305,7 @@ def write_scenario_figures(run: Run, summary: dict[str, Any], out: Path) -> dict
     """``trajectories.png`` (common frame and each table), ``formation_error.png`` or
     ``relative_range.png``."""
     experiment, _ = _experiment_or_note(run)  # why not: in the summary's notes
-    if experiment is None or experiment.kind == "attitude-tracking":
+    if experiment is None or not _framed(experiment):
         return {}
     import matplotlib
 

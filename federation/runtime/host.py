@@ -85,7 +85,7 @@ def check_hosted(hosted: Sequence[Hosted]) -> None:
                     f"into one file"
                 )
             files[Path(path).resolve()] = f"{source} ({field})"
-        if config.platform.startswith("serial:"):
+        if config.hardware:
             raise ConfigError(
                 f"{source}: platform: {config.platform} is a real platform: run it as its "
                 f"own `fedlab agent`, so that its control steps never wait behind other "

@@ -27,7 +27,7 @@ def _registry() -> Registry[float]:
 
 def _distribution(site: Path, name: str, points: dict[str, str], group: str = GROUP) -> None:
     """An installed distribution in ``site`` (a dist-info folder) declaring ``points``."""
-    info = site / f"{name}-0.1.dist-info"
+    info = site / f"{name.replace('-', '_')}-0.1.dist-info"  # as a wheel names it
     info.mkdir(parents=True)
     (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1\n")
     lines = "".join(f"{k} = {v}\n" for k, v in points.items())
