@@ -200,23 +200,48 @@ class WithoutChain:
     """The capabilities of a platform with no GNC chain: its pose is always a fix, it
     has no valves, nothing restarts and nothing is rejected.
 
-    Class attributes, so a subclass may keep its own as instance attributes (an
-    odometry platform keeps its counters and its last refused sample).
+    :attr:`last_rejection` and :attr:`counters` are class attributes, so a subclass may
+    keep its own as instance attributes (an odometry platform keeps its counters and its
+    last refused sample); the others are properties a subclass may override.
     """
 
-    has_fix: bool = True
-    restarted: bool = False
-    cause: ClosedCause | None = None
-    acquiring: tuple[int, int] | None = None
-    valves: tuple[bool, ...] = ()
-    valves_confirmed: bool | None = None
-    truth: Pose | None = None
-    heading_pid: HeadingPid | None = None
     last_rejection: str | None = None
     counters: Mapping[str, int] = MappingProxyType({})
 
+    @property
+    def has_fix(self) -> bool:
+        return True
+
+    @property
+    def restarted(self) -> bool:
+        return False
+
     def acknowledge_restart(self) -> None:
         """Nothing restarts: nothing to acknowledge."""
+
+    @property
+    def cause(self) -> ClosedCause | None:
+        return None
+
+    @property
+    def acquiring(self) -> tuple[int, int] | None:
+        return None
+
+    @property
+    def valves(self) -> tuple[bool, ...]:
+        return ()
+
+    @property
+    def valves_confirmed(self) -> bool | None:
+        return None
+
+    @property
+    def truth(self) -> Pose | None:
+        return None
+
+    @property
+    def heading_pid(self) -> HeadingPid | None:
+        return None
 
 
 class WithChain:

@@ -403,6 +403,12 @@ class OdometryPlatform(KinematicPlatform):
     def stale(self) -> bool:
         return self.received_at is None or self.clock() - self.received_at > self.timeout
 
+    @property
+    def has_fix(self) -> bool:
+        """Whether a valid odometry sample has been taken: before, the pose is no
+        measurement (once taken, it stays one; :attr:`stale` says when it grows old)."""
+        return self.received_at is not None
+
     def _refuse(self, kind: str, why: str) -> None:
         self.counters[kind] += 1
         self.last_rejection = why

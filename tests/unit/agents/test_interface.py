@@ -38,14 +38,16 @@ def pty_path() -> Iterator[str]:
         os.close(slave)
 
 
-def _odometry() -> Platform:
+def _odometry() -> Any:
     from federation.bridge.ros2 import OdometryPlatform
 
     class _Reader:
         def take(self, N: int) -> list[Any]:
             return []
 
-    return OdometryPlatform(_Reader(), timeout=0.5)  # type: ignore[arg-type]
+    platform = OdometryPlatform(_Reader(), timeout=0.5)  # type: ignore[arg-type]
+    platform.received_at = 0.0  # as if a valid odometry sample had been taken
+    return platform
 
 
 def _sdk_source() -> Platform:
@@ -84,6 +86,12 @@ def test_a_platform_without_a_chain_states_its_capabilities(build: Any) -> None:
         assert platform.counters == {"workspace_clamped": 0, "workspace_holds": 0}
         platform.workspace_counters.clear()
     _without_chain(platform)
+
+
+def test_a_ros2_platform_has_no_fix_before_its_first_odometry() -> None:
+    platform = _odometry()
+    platform.received_at = None
+    assert isinstance(platform, Platform) and platform.has_fix is False
 
 
 def test_a_simulated_platform_reports_its_chain_before_and_after_its_first_fix() -> None:
