@@ -29,7 +29,7 @@ over the last half of ``stale_after`` as it ages,
 which is the mean above once every :math:`a_j = 1`, and continuous in each: for a
 member :math:`e` off its slot, the track moves at most :math:`(1 - w_0)\\,e / T_{join}`
 as it joins (0.7 × 0.1 m / 2 s = 3.5 cm/s) and :math:`2 (1 - w_0)\\,e / t_{stale}` as
-it leaves (0.14 m/s), where it had stepped by :math:`(1 - w_0)\\,e` at once. A pose's
+it leaves (0.14 m/s), rather than stepping by :math:`(1 - w_0)\\,e` at once. A pose's
 normal age (the one-way delay and up to a pose period) must stay below half of
 ``stale_after`` (1 s by default; the relay case's 250 ms delay leaves room), else a
 healthy member is taken at less than its full weight.
@@ -67,7 +67,7 @@ MEMBER_OFF_MAX = 0.5
 """m: a member further than this from its slot around the path, or moving faster than
 MAX_PATH_SPEED against the path, is left out of the consensus (counted): its shared pose
 would move every other member's reference by ``consensus_weight`` of that at once (a
-pose 3 m off, or a velocity of 1 m/s, had driven a platform across its table)."""
+pose 3 m off, or a velocity of 1 m/s, would drive a platform across its table)."""
 
 
 class PathPoint(NamedTuple):
@@ -207,7 +207,7 @@ class FormationGuidance:
                 del since[agent]
                 continue
             # Let go gradually near either bound: dropped at once, a member drifting
-            # past it had stepped the others' reference by 0.35 m in one step.
+            # past it would step the others' reference by 0.35 m in one step.
             a = min(
                 a,
                 (MEMBER_OFF_MAX - math.hypot(ex, ey)) / MEMBER_FADE,

@@ -122,7 +122,7 @@ class NavigationFilter:
         self._q_bg = gyro_bias_walk**2
         self._q_ba = accel_bias_walk**2
         # Imported here: filterpy brings scipy, 60 MiB and half a second at start that a
-        # process of kinematic agents (a bench worker, a gateway) never uses (issue 17).
+        # process of kinematic agents (a bench worker, a gateway) never uses.
         from filterpy.kalman import KalmanFilter
 
         kf: KalmanFilter = KalmanFilter(dim_x=8, dim_z=3, dim_u=3)

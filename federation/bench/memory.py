@@ -8,8 +8,8 @@ session). It then adds N followers of the leader, as ``fedlab bench scale``'s
 workers host them (one shared pose subscription, one clock, shared sync links,
 each with a recorder open on its status and received poses), waits until every agent has seen
 every other one alive, and reads the memory again. Agents seen but not queried
-are where memory grew with N (issue 17: each agent kept a sync client for every
-agent it saw), so the figure per agent is taken at two or more N. The agents are
+are where memory would grow with N (were a sync client kept for every agent
+seen), so the figure per agent is taken at two or more N. The agents are
 started, not run: the figure is what each keeps, before its windows fill (the
 recorders' chunks, the sync history); ``fedlab bench scale`` reads the workers'
 memory over a run.

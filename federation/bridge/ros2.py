@@ -327,8 +327,8 @@ class FederationToRos:
                 odometry = conv.odometry_fields(agent, sample.pose, stamp)
                 transform = conv.transform_fields(agent, sample.pose, stamp)
             except ValueError as error:  # no ROS time, or a twist not finite once turned
-                # One agent's bad sample: skipped, the others' written (it had stopped
-                # the bridge, and every joined platform with it).
+                # One agent's bad sample: skipped, the others' written (raised, it would
+                # stop the bridge, and every joined platform with it).
                 self.counters["odom_unwritable"] += 1
                 self.rejects("pose", f"{agent}: {error}")
                 continue

@@ -56,8 +56,8 @@ else:  # not subscriptable at run time
     Subparsers = argparse._SubParsersAction
 """What ``add_subparsers()`` returns: each command module's ``add(sub)`` adds to it."""
 
-# SIGHUP too: an agent started from a terminal or an SSH session that drops had died
-# without closing its platform's valves (the device's failsafe was all that closed them).
+# SIGHUP too: an agent started from a terminal or an SSH session that drops must close
+# its platform's valves, not leave them to the device's failsafe.
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 # A clean stop takes well under this; a process still stopping after it writes every
 # thread's stack to stderr, so a stop that hangs says where (and a supervisor's

@@ -37,7 +37,7 @@ __all__ = [
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,199}")
 MAX_OFFSET = 2**53
 """The largest offset a request may give (bytes): exact as a JSON number, far beyond
-any recording; a larger one had raised in seek() (a traceback logged per query)."""
+any recording; a larger one would raise in seek() (a traceback logged per query)."""
 MAX_LENGTH = 48 << 10
 """The largest chunk a request may ask for (bytes): a reply must fit one Zenoh batch
 (64 KiB) with its key and attachment, since the low-latency transport cannot fragment."""

@@ -153,7 +153,7 @@ class ClockFilter:
         x, offset, rtt = data[:, 0] - t_ref, data[:, 1], data[:, 2]
         excess = rtt - rtt.min()
         # Weighted sums as dot products: one call each, no temporary array (a refit
-        # runs on a cold cache between messages, where each numpy call costs, issue 17).
+        # runs on a cold cache between messages, where each numpy call costs).
         w = _weights(excess, OFFSET_FLOOR_COUNT)
         total = float(w.sum())
         bound = float(w @ excess) / total / 2.0
@@ -219,8 +219,8 @@ def _weights(excess: np.ndarray, count: int) -> np.ndarray:
 
 class _Rows:
     """The window's exchanges as rows of one float array, oldest first: 24 bytes an
-    exchange (a tuple of three floats cost about 150) and no conversion at each fit
-    (issue 17). New rows wait in a short list and join the array when it is read or
+    exchange (a tuple of three floats cost about 150) and no conversion at each fit.
+    New rows wait in a short list and join the array when it is read or
     when its oldest row expires (a row written into the array cost each reply more
     than the rest of the filter); the live rows move back to the start when the
     array's end is reached, and the array doubles when they fill more than half

@@ -72,9 +72,9 @@ class AgentId:
 
     def __new__(cls, lab: str, name: str) -> AgentId:
         # One object per agent while any is in use: dicts keyed by agents then find
-        # theirs by identity, without calling __eq__ (issue 17's profile: the peers
-        # table, the time base and the contest watch compared equal copies tens of
-        # thousands of times a minute). Weak: made-up names leave nothing behind.
+        # theirs by identity, without calling __eq__ (the peers table, the time
+        # base and the contest watch would compare equal copies tens of thousands of
+        # times a minute). Weak: made-up names leave nothing behind.
         known = _INTERNED.get((lab, name))
         return known if known is not None else super().__new__(cls)
 
@@ -83,8 +83,8 @@ class AgentId:
         validate_name(self.name, "agent name")
         _INTERNED[(self.lab, self.name)] = self
         # Looked up in a dict at every time-base read (several per control step): the
-        # generated hash built a tuple each time (issue 17's profile: 4 % of a lab
-        # process's Python time).
+        # generated hash would build a tuple each time (4 % of a lab process's Python
+        # time, profiled).
         object.__setattr__(self, "_hash", hash((self.lab, self.name)))
         object.__setattr__(self, "_text", f"{self.lab}/{self.name}")
 

@@ -156,7 +156,7 @@ class LinkWatch:
         self._last: tuple[float, float] | None = None  # (arrived, sent) of the last pose
         self._gaps: deque[tuple[float, float]] = deque(maxlen=WINDOW)  # (send, arrival) gaps
         self._fresh = 0
-        # The window's statistics, kept as gaps come and go (issue 17: a lean agent):
+        # The window's statistics, kept as gaps come and go (a lean agent):
         # the send gaps sorted (their median is the period) and the sums of the
         # jitter less a shift near its mean (no cancellation), summed afresh every
         # WINDOW gaps so that rounding does not accumulate.

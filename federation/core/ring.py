@@ -3,7 +3,7 @@
 An agent keeps the lateness of its last 2000 control ticks and reports their
 order statistics each second (status ``loop``). In a deque, 2000 floats are 2000
 objects strewn over the heap; reading them once a second, cold in the cache,
-cost a co-hosted agent's status a few hundred microseconds (issue 17). Here they
+cost a co-hosted agent's status a few hundred microseconds. Here they
 are 16 kB of one array, which numpy reads without a copy per value.
 """
 

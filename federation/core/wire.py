@@ -38,7 +38,7 @@ bound      16      f64       error bound of ``t_ref`` (s, >= 0): the sender's
 =========  ======  ========  ==============================================
 
 The sample's Zenoh source info (session id, sequence number) names its publisher
-(issue 13's contest watch); it is Zenoh metadata, not part of the attachment.
+(the contest watch); it is Zenoh metadata, not part of the attachment.
 """
 
 from __future__ import annotations

@@ -265,7 +265,7 @@ def paper_table(summary: dict[str, Any]) -> Table:
     return table
 
 
-# -- scenarios beyond attitude (issue 14) --------------------------------------------------
+# -- scenarios beyond attitude ------------------------------------------------------------
 SCENARIOS = ("attitude", "formation", "docking")
 """``fedlab demo --scenario``: attitude is the paper's experiment above."""
 

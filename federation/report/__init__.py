@@ -56,7 +56,7 @@ def write_report(
     out = Path(out if out is not None else run.directory)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(run, sync_phase)
-    scenario = scenario_summary(run)  # formation, docking, workspace (issue 14)
+    scenario = scenario_summary(run)  # formation, docking, workspace
     notes = summary["notes"] + scenario.pop("notes", [])  # the run's notes stay
     summary |= scenario
     summary["notes"] = notes

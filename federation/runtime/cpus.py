@@ -5,10 +5,9 @@ On a small host that runs a lab's router beside its agents, a pose waits for a
 core more than for anything else: the agents' Python runs in stretches of up to
 a few milliseconds (a status, a pose handed to every co-hosted follower, the
 recorder's write), and a router thread woken meanwhile on the same core waits
-for the stretch to end (issue 17, docs/scale.md "A late pose waits for a
-core"). A core of the router's own, and the others for the agents, removes that
-wait. Linux only: elsewhere pinning is refused with a clear error, never
-silently skipped.
+for the stretch to end (docs/scale.md "A late pose waits for a core"). A core of
+the router's own, and the others for the agents, removes that wait. Linux only:
+elsewhere pinning is refused with a clear error, never silently skipped.
 """
 
 from __future__ import annotations

@@ -178,7 +178,7 @@ def run_row(status: Status, alive: bool = True) -> dict[str, Any]:
 
 MAX_SYNC_CHANNELS = 1024
 """Sync plot channels at most (one per agent and peer): statuses listing thousands of
-made-up peers had made a channel each, 15 MiB a status."""
+made-up peers would make a channel each, 15 MiB a status."""
 
 
 def _is_agent(name: str) -> bool:
@@ -202,8 +202,8 @@ def footprint(platform: str) -> float:
     """Side of the square drawn for a platform (m): twice its preset's moment arm, or
     :data:`DEFAULT_FOOTPRINT` for a pose source with no preset. Only a preset's name is
     looked up (deploy/platforms/NAME.toml), never a path: the name comes from any
-    agent's status, and a path there had this host open what it names (a FIFO hung
-    the view, /dev/zero filled its memory)."""
+    agent's status, and a path there would have this host open what it names (a FIFO
+    hangs the view, /dev/zero fills its memory)."""
     if platform == "kinematic" or not _PRESET.fullmatch(platform):
         return DEFAULT_FOOTPRINT
     try:

@@ -16,7 +16,7 @@ A link is shared only by agents that would query the peer alike: the same clock
 object, the same cadence (``sync_period`` or ``sync_others_period``) and the same
 estimator, window, timeout and timestamps. Anything else (a clock of an agent's
 own, a clock-step rehearsal, a peer an agent does not query) gets a link of its
-own, as every agent had before links were shared.
+own.
 
 The same agents that follow one peer share its poses too: a :class:`PoseFeed`
 admits each sample once for all of them (its size, who published it, its age on
@@ -83,7 +83,7 @@ class SyncLink:
 class PoseFeed:
     """The poses of ``agent`` (the peer followed), admitted once for the agents that
     follow it on one sync link: ``watch`` measures the link from their arrivals,
-    ``contest`` records who speaks for the peer (issue 13: its poses, and its replies
+    ``contest`` records who speaks for the peer (its poses, and its replies
     to these agents' sync queries)."""
 
     agent: AgentId

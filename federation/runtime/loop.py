@@ -138,7 +138,7 @@ def run_together(
     ``group`` (in order), the groups' first ticks staggered evenly over ``spread``
     seconds: a group's agents run back to back on one wake-up, and the groups do
     not all wake at once. Each wake-up costs far more than the agents' own work on
-    a busy host (a cold cache, a handover of the interpreter lock: issue 17,
+    a busy host (a cold cache, a handover of the interpreter lock:
     docs/scale.md), so fewer, fuller wake-ups save CPU; one group of all the agents
     would hold the interpreter longest and delay the poses arriving meanwhile.
     Within a group each agent sends its sync queries on a control tick of its own
@@ -158,8 +158,8 @@ def run_together(
         wait = at - time.monotonic()
         if wait > 0:
             # A plain sleep, bounded so that ``stop`` is seen within STOP_POLL: waiting on
-            # the event builds a condition and a lock at every wake-up (issue 17's
-            # profile: an eighth of a lab process's Python time at 64 agents).
+            # the event builds a condition and a lock at every wake-up (an eighth of a
+            # lab process's Python time at 64 agents, profiled).
             time.sleep(min(wait, STOP_POLL))
             continue
         following = schedule.tick(time.monotonic())

@@ -331,7 +331,7 @@ def _offset(row: Row) -> Text:
 
 
 def _mode(row: Row) -> str | Text:
-    """The run mode; and, in red, the peers this agent finds contested (issue 13)."""
+    """The run mode; and, in red, the peers this agent finds contested."""
     if not row.contested:
         return row.mode or _DASH
     peers = ", ".join(f"{peer} ({why})" for peer, why in row.contested.items())
@@ -448,13 +448,13 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 def printable(text: str) -> str:
     """``text`` without control characters: what any agent's status says is shown, never
-    run by the terminal (an escape sequence had repainted other agents' rows)."""
+    run by the terminal (an escape sequence would repaint other agents' rows)."""
     return _CONTROL.sub("\N{REPLACEMENT CHARACTER}", text)
 
 
 def _safe(cell: str | Text) -> Text:
     """A cell as plain text: a string is never read as rich markup (a status whose mode
-    was ``[/]`` had stopped the monitor), and neither carries control characters."""
+    is ``[/]`` would stop the monitor), and neither carries control characters."""
     if isinstance(cell, Text):
         return Text(printable(cell.plain), style=cell.style)
     return Text(printable(cell))

@@ -13,8 +13,8 @@ at half the space its filesystem had free when the run was armed, whichever is
 less (then it is finished as usual, marked truncated: ``<lab>-<name>.incomplete.json``
 beside it). What was already promised to the recordings still open on that filesystem,
 by this process or any other of the host's (:class:`_Promises`' ledger), counts as
-taken: agents hosted together (``fedlab host``), or each in a process of its own, had
-each been given half of the same free space. A filesystem with less than
+taken: agents hosted together (``fedlab host``), or each in a process of its own, are
+not each given half of the same free space. A filesystem with less than
 ``record_min_free_mb`` free fails preflight (:func:`low_space`: ``ready.recording``
 false, so ``fedlab ctl start`` starts nothing unless ``--force``); a run armed all the
 same is recorded, with an error logged and ``low_space`` in its metadata: a run flown
@@ -389,7 +389,7 @@ class RunRecording:
 
     def status_line(self, line: str) -> bool:
         """Append a status line; False if it could not be written (a full disk: counted,
-        never raised into the agent's loop, where co-hosted agents had all stopped)."""
+        never raised into the agent's loop, where it would stop every co-hosted agent)."""
         with self._status_lock:  # finish() closes the file on another thread
             status_file = self._status_file
             if status_file is None:

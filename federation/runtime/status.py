@@ -60,7 +60,7 @@ def loop_stats(rate: float, lateness: Iterable[float] | memoryview) -> dict[str,
     stats = {"rate_hz": rate, "ticks": float(n)}
     if n:
         # Three order statistics by partition, not a sort of the whole window: an
-        # agent reports every second over its last 2000 ticks (issue 17).
+        # agent reports every second over its last 2000 ticks.
         p50, p99 = n // 2, min(n - 1, int(0.99 * n))
         part = np.partition(late, sorted({p50, p99, n - 1}))
         stats |= {
