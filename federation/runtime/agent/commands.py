@@ -213,7 +213,7 @@ class RunControl:
                     owner.maneuver = maneuver_of(command.maneuver)
             self._tell_safety(events)
             if command.command == "reset" and not any(e.kind == "ignored" for e in events):
-                owner.acknowledge_restart()
+                owner.platform.acknowledge_restart()
                 owner.safety.apply_locked(Trigger.OPERATOR_RESET)
         return events
 

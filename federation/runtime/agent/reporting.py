@@ -7,7 +7,6 @@ from __future__ import annotations
 import logging
 import threading
 from collections import Counter
-from collections.abc import Mapping
 from typing import IO, TYPE_CHECKING, Any
 
 import zenoh
@@ -98,9 +97,7 @@ class Reporter:
             counters |= owner.scenario.counters
         # The platform's own: a serial link's bad checksums, write timeouts, the device's
         # failsafe reports and restarts, the chain's closed steps.
-        platform = getattr(owner.platform, "counters", None)
-        if isinstance(platform, Mapping):
-            counters |= platform
+        counters |= owner.platform.counters
         return counters | owner.recordings.counters()
 
     def loop_stats(self) -> dict[str, float]:
@@ -125,7 +122,7 @@ class Reporter:
             duration=state.duration, ready=self.readiness(t_exec),
             commands=list(owner.commands.log), platform=owner.config.platform,
             follow=None if follow is None else str(follow), hold=owner.safety.hold,
-            pose_age=pose_age, valves_confirmed=getattr(owner.platform, "valves_confirmed", None),
+            pose_age=pose_age, valves_confirmed=owner.platform.valves_confirmed,
             pose=list(owner.pose), peers=owner.peer_table.views(t_exec, host),
             counters=self.snapshot(), contested=owner.intake.contested(host),
             workspace=None if owner.scenario is None else owner.scenario.workspace(),
@@ -167,14 +164,12 @@ class Reporter:
         if blocking is not None:
             return f"held ({blocking})"
         platform = owner.platform
-        if getattr(platform, "valves_confirmed", True) is False:
+        if platform.valves_confirmed is False:
             return "valve command not confirmed (a write to the device was cut off)"
-        chain = getattr(platform, "chain", None)
-        reason = getattr(chain, "cause", getattr(chain, "reason", None))
-        acquiring = getattr(chain, "acquiring", None)
+        reason, acquiring = platform.cause, platform.acquiring
         if acquiring is not None and reason in ("no_fix", "stale_fix"):
             return f"metrology fixes being acquired ({acquiring[0]} of {acquiring[1]} agree)"
-        rejected = getattr(chain, "last_rejection", None) or "off the table or outliers"
+        rejected = platform.last_rejection or "off the table or outliers"
         return _CHAIN_DETAIL.get(reason or "", "").format(rejected=rejected)
 
     # -- publishing ------------------------------------------------------------------

@@ -233,27 +233,6 @@ class AgentRuntime:
             },
         )  # fmt: skip
 
-    # -- what the platform can say ---------------------------------------------------
-    def has_fix(self) -> bool:
-        """Whether the platform's estimate rests on a metrology fix (a platform with no
-        filter, as a kinematic one, always does): before its first fix a filter's
-        estimate is only its prior."""
-        platform = self.platform
-        if hasattr(platform, "has_fix"):
-            return bool(platform.has_fix)
-        chain = getattr(platform, "chain", None)
-        return chain is None or not hasattr(chain, "fix_time") or chain.fix_time is not None
-
-    def estimate_restarted(self) -> bool:
-        """Whether the platform's estimate restarted from outlier fixes, unacknowledged."""
-        return bool(getattr(getattr(self.platform, "chain", None), "restarted", False))
-
-    def acknowledge_restart(self) -> None:
-        """An operator's reset acknowledges an estimate restarted from outlier fixes."""
-        acknowledge = getattr(getattr(self.platform, "chain", None), "acknowledge_restart", None)
-        if acknowledge is not None:
-            acknowledge()
-
     # -- lifecycle -------------------------------------------------------------------
     def start(self) -> None:
         """Declare everything; refuse (NameTaken) if the name is already in the federation.
@@ -475,7 +454,7 @@ class AgentRuntime:
     def publish_pose(self) -> None:
         """Publish the platform's estimate with its reference stamp; record what is
         recorded. A pose before the first fix or not finite is never sent."""
-        if not self.has_fix():
+        if not self.platform.has_fix:
             # Its prior is not a pose: a follower would steer by it, a formation pull
             # towards it.
             self.count("pose_withheld_no_fix")
@@ -511,11 +490,11 @@ class AgentRuntime:
                     "t_exec": g_exec, "host_monotonic": g_host, "t_sim": g_sim,
                     "run_time": g_run, "heading_ref": self.guidance[0],
                     "rate_ref": self.guidance[1], "mode": self.run_state.mode,
-                    "valves_open": sum(getattr(self.platform, "valves", ())),
+                    "valves_open": sum(self.platform.valves),
                 }
                 | ({} if self.scenario is None else self.scenario.fields()),
             )  # fmt: skip
-        truth = getattr(self.platform, "truth", None) if Channel.TRUTH in recorded else None
+        truth = self.platform.truth if Channel.TRUTH in recorded else None
         if truth is not None:
             self.record(Channel.TRUTH, stamp | truth._asdict())
 

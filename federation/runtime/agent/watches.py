@@ -201,7 +201,7 @@ class Watches:
         only by ``fedlab ctl reset``, which acknowledges it. Read from the platform's
         own flag, not the chain's reason (held, its reason is ``held``)."""
         owner = self.owner
-        if not owner.estimate_restarted() or owner.safety.holds(Hold.FIX_RESTART):
+        if not owner.platform.restarted or owner.safety.holds(Hold.FIX_RESTART):
             return
         detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
         owner.commands.end_run_here("fix_restart", detail, host)
@@ -218,6 +218,6 @@ class Watches:
             return
         self.left_area = True
         self.owner.safety.apply(Trigger.AREA_LEFT)
-        detail = scenario.hold_reason or ""
+        detail = scenario.area_detail or ""
         log.warning("safe hold: %s", detail)
         self.owner.event("workspace_hold", t_exec, host, detail)

@@ -85,7 +85,7 @@ class _LeftItsArea:
     """A scenario whose platform has just left its area (what control_step reads)."""
 
     workspace_held = True
-    hold_reason = "left its area"
+    area_detail = "left its area"
 
     def reference(self, *args: object) -> None:
         return None

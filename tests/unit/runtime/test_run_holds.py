@@ -161,7 +161,7 @@ class _LeftItsArea:
     """A scenario whose platform has left its area (what control_step reads)."""
 
     workspace_held = True
-    hold_reason = "left its area"
+    area_detail = "left its area"
 
     def __init__(self) -> None:
         self.runs = 0
