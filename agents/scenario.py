@@ -119,11 +119,6 @@ class ScenarioGuidance:
         """Where the platform left its area, while :attr:`workspace_held` (free text)."""
         return self.platform.area_detail if isinstance(self.platform, FramedPlatform) else None
 
-    @property
-    def hold_reason(self) -> str | None:
-        """:attr:`area_detail`, under the name the agent runtime reads."""
-        return self.area_detail
-
     def workspace(self) -> Workspace | None:
         """The lab's frame and the area the platform is kept in, as the status publishes
         them (None: no area is kept)."""

@@ -38,7 +38,8 @@ from schemas.messages import (
 if TYPE_CHECKING:
     import zenoh
 
-    from federation.runtime.agent.runtime import AgentRuntime
+    from federation.runtime.agent.recordings import Recordings
+    from federation.runtime.agent.services import AgentServices
 
 __all__ = ["ACTIVE", "RunControl", "maneuver_of"]
 
@@ -64,10 +65,12 @@ def maneuver_of(m: ManeuverConfig) -> ReferenceManeuver:
 
 
 class RunControl:
-    """The run of ``owner`` (an agent) and the commands that drive it."""
+    """The run of ``owner`` (an agent) and the commands that drive it; ``recordings``
+    record each run."""
 
-    def __init__(self, owner: AgentRuntime):
+    def __init__(self, owner: AgentServices, recordings: Recordings):
         self.owner = owner
+        self.recordings = recordings
         cfg = owner.config
         self.run_state = RunState(autostart=not cfg.wait_start, duration=cfg.run_duration)
         self.lock = threading.Lock()  # the run state; taken after the safety lock
@@ -160,7 +163,7 @@ class RunControl:
             return None
         refused = self._not_mine(command)
         if refused is None and command.command == "start":
-            refused = self.owner.recordings.recorded_before(command.run_id)
+            refused = self.recordings.recorded_before(command.run_id)
         if refused is not None:  # refused before the run state sees it
             return [Event("ignored", self.owner.sim_time(t_exec), refused)]
         return self._run(command, t_exec)
@@ -277,7 +280,7 @@ class RunControl:
                 },
             )  # fmt: skip
             if event.kind in ("aborted", "done"):
-                owner.recordings.end_run()
+                self.recordings.end_run()
 
     def _armed(self) -> None:
         owner, state = self.owner, self.run_state
@@ -286,7 +289,7 @@ class RunControl:
             self._scenario_run = run  # nothing of the last run's guidance carries over
             self.scenario_new_run = True
         cfg = owner.config
-        owner.recordings.begin_run(
+        self.recordings.begin_run(
             state.run_id,
             {
                 "role": cfg.role, "follow": cfg.follow,

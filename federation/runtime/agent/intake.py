@@ -31,7 +31,9 @@ from federation.runtime.recorder import Shared
 if TYPE_CHECKING:
     import zenoh
 
-    from federation.runtime.agent.runtime import AgentRuntime
+    from federation.runtime.agent.commands import RunControl
+    from federation.runtime.agent.peers import PeerTable
+    from federation.runtime.agent.services import AgentServices
 
 __all__ = ["MAX_SMALL_PAYLOAD", "PoseIntake", "on_feed_pose"]
 
@@ -43,10 +45,13 @@ this on those keys is junk, dropped and counted before it is copied."""
 
 
 class PoseIntake:
-    """What ``owner`` (an agent) has received of its peers' poses."""
+    """What ``owner`` (an agent) has received of its peers' poses; ``peer_table`` places
+    them on reference time, ``commands`` ends a run the reference no longer counts."""
 
-    def __init__(self, owner: AgentRuntime):
+    def __init__(self, owner: AgentServices, peer_table: PeerTable, commands: RunControl):
         self.owner = owner
+        self.peer_table = peer_table
+        self.commands = commands
         self.latest_poses: dict[AgentId, wire.PoseSample] = {}
         self.pose_received_at: dict[AgentId, float] = {}  # own clock at arrival
         # Each peer's last pose taken: (its source, its t). One from that source no newer
@@ -84,7 +89,7 @@ class PoseIntake:
             parsed = self._pose_key(sample.key)
             if not self._admit_pose(sample, parsed, host):
                 return
-            read = self.read_pose(sample, (owner,))
+            read = self.read_pose(sample, (self,))
             if read is None:
                 return
             decoded, stamp = read
@@ -126,7 +131,7 @@ class PoseIntake:
         if not fresh:
             self.owner.count("pose_out_of_order")
             return False
-        self.owner.peer_table.place(agent, decoded.t, stamp)
+        self.peer_table.place(agent, decoded.t, stamp)
         return True
 
     def store(self, agent: AgentId, decoded: wire.PoseSample, t_recv: float) -> None:
@@ -140,7 +145,7 @@ class PoseIntake:
         measures the link on ``watch`` for the stale threshold."""
         follow = self.owner.follow
         assert follow is not None
-        client = self.owner.peer_table.client_of(follow)  # the time base's estimate
+        client = self.peer_table.client_of(follow)  # the time base's estimate
         if client is not None:
             offset = client.estimator.offset_at(t_recv)  # the sender's clock: t_recv + offset
             if offset is not None and watch.too_old(t_recv + offset - sent, client.delay):
@@ -159,7 +164,7 @@ class PoseIntake:
         return cache[key]
 
     def read_pose(
-        self, sample: Received, users: Iterable[AgentRuntime]
+        self, sample: Received, users: Iterable[PoseIntake]
     ) -> tuple[wire.PoseSample, wire.RefStamp | None] | None:
         """A pose sample's pose and reference stamp (None without one, or on another
         reference: counted by each of ``users``); None if either is malformed, counted
@@ -215,8 +220,7 @@ class PoseIntake:
         ``feed``, whose record of the agent they follow covers its poses and its
         replies alike (a contest on one drops what comes on the other too)."""
         if size > MAX_SMALL_PAYLOAD:
-            users = (self.owner,) if feed is None else (feed.agents or (self.owner,))
-            _count_all(users, "sync_replies_oversized")
+            _count_all(_members(feed, self), "sync_replies_oversized")
             return False
         return self.contest_verdict(link.agent, "sync", source, host, feed)
 
@@ -235,7 +239,7 @@ class PoseIntake:
         watch, lock = (
             (self.contest, self._contest_lock) if feed is None else (feed.contest, feed.lock)
         )
-        users = (self.owner,) if feed is None else (feed.agents or (self.owner,))
+        users = _members(feed, self)
         with lock:
             outcome = watch.observe(name, channel, source, host)
             reason = watch.reason(name, host) if outcome == "contested" else None
@@ -243,13 +247,13 @@ class PoseIntake:
         if outcome == "ok":
             if spoke:  # first heard, or a new session for it
                 for user in users:
-                    if user.reference == agent:
-                        user.intake.reference_session(source, host)
+                    if user.owner.reference == agent:
+                        user.reference_session(source, host)
             return True
         _count_all(users, "contested_dropped")
         if outcome == "contested":
             for user in users:
-                user.intake.drop_contested(agent)
+                user.drop_contested(agent)
             log.error("%s is contested: %s; nothing from it is used", agent, reason)
         return False
 
@@ -258,7 +262,7 @@ class PoseIntake:
         every agent on its link is reset (all of them hold)."""
         self.owner.count("contested")
         self.latest_poses.pop(agent, None)
-        peer = self.owner.peers.get(agent)
+        peer = self.peer_table.peers.get(agent)
         link = None if peer is None else peer.link
         if link is not None:
             link.reset()
@@ -274,7 +278,7 @@ class PoseIntake:
         if before is not None and before != source:
             owner = self.owner
             detail = f"{owner.reference} restarted (session {before[:8]} now {source!s:.8})"
-            owner.commands.end_run_here("reference_restarted", detail, host)
+            self.commands.end_run_here("reference_restarted", detail, host)
 
     def contest_reason(self, name: str, host: float) -> str | None:
         """Why ``name`` is contested now, by this agent's watch or its feed's."""
@@ -363,7 +367,7 @@ class PoseIntake:
         agent's offset estimates (Eq. 5)."""
         owner = self.owner
         out = {}
-        latest_ref = owner.peer_table.latest_ref
+        latest_ref = self.peer_table.latest_ref
         for agent, sample in list(self.latest_poses.items()):
             if agent == owner.me:  # watching every pose, its own comes back too
                 continue
@@ -377,15 +381,21 @@ class PoseIntake:
         return out
 
 
+def _members(feed: PoseFeed | None, alone: PoseIntake) -> list[PoseIntake]:
+    """The intakes of the agents on ``feed`` (``alone``'s only, without one)."""
+    if feed is None or not feed.agents:
+        return [alone]
+    return [agent.intake for agent in feed.agents]
+
+
 def on_feed_pose(feed: PoseFeed, sample: Received) -> None:
     """A pose of the followed agent on ``feed``, for every agent on it (the first
     first): admitted once (its size, its source, its age on arrival by the estimate they
     share), the link measured once; each agent stores, counts and records it."""
-    users = feed.agents
-    if not users:
+    if not feed.agents:
         return
-    first: AgentRuntime = users[0]
-    clock = first.clock
+    users = [agent.intake for agent in feed.agents]
+    clock = users[0].owner.clock
     host = sample.arrived if clock.source is time.monotonic else clock.source()
     t_recv = clock.at(host)
     agent = feed.agent
@@ -398,7 +408,7 @@ def on_feed_pose(feed: PoseFeed, sample: Received) -> None:
             fresh = in_order(feed.order, agent, sample.source(), decoded.t)
             if fresh:
                 for user in users:
-                    user.intake.store(agent, decoded, t_recv)
+                    user.store(agent, decoded, t_recv)
         if not fresh:
             _count_all(users, "pose_received")
             _count_all(users, "pose_out_of_order")  # never overwrites a newer one
@@ -410,22 +420,22 @@ def on_feed_pose(feed: PoseFeed, sample: Received) -> None:
 
 
 def _admit_on_feed(
-    feed: PoseFeed, sample: Received, users: tuple[AgentRuntime, ...], host: float, t_recv: float
+    feed: PoseFeed, sample: Received, users: list[PoseIntake], host: float, t_recv: float
 ) -> tuple[wire.PoseSample, wire.RefStamp | None] | None:
     """A feed's sample admitted and read once for all its agents; None if dropped."""
     first, agent = users[0], feed.agent
     if sample.size > MAX_SMALL_PAYLOAD:
         _count_all(users, "pose_oversized")
         return None
-    if not first.intake.contest_verdict(agent, "pose", sample.source(), host, feed):
+    if not first.contest_verdict(agent, "pose", sample.source(), host, feed):
         return None
-    read = first.intake.read_pose(sample, users)
+    read = first.read_pose(sample, users)
     if read is None:
         return None
     # Dated by the estimate of the link they share: read through the first of them that
     # has seen the agent (liveliness may reach one before another).
-    judge = first if agent in first.peers else next((u for u in users if agent in u.peers), first)
-    if judge.intake.stale_on_arrival(read[0].t, t_recv, feed.watch):
+    judge = next((u for u in users if agent in u.peer_table.peers), first)
+    if judge.stale_on_arrival(read[0].t, t_recv, feed.watch):
         _count_all(users, "pose_received")
         _count_all(users, "pose_stale_dropped")  # never reaches a controller
         return None
@@ -435,7 +445,7 @@ def _admit_on_feed(
 def _deliver(
     feed: PoseFeed,
     sample: Received,
-    users: tuple[AgentRuntime, ...],
+    users: list[PoseIntake],
     decoded: wire.PoseSample,
     stamp: wire.RefStamp | None,
     host: float,
@@ -446,20 +456,21 @@ def _deliver(
     agent = feed.agent
     message: Shared | None = None
     for user in users:
+        owner = user.owner
         try:
-            user.count("pose_received")
+            owner.count("pose_received")
             user.peer_table.place(agent, decoded.t, stamp)
-            if user.recording(Channel.POSE_RECEIVED):
+            if owner.recording(Channel.POSE_RECEIVED):
                 if message is None:  # built and encoded once, queued by each recorder
                     message = Shared({
                         "agent": str(agent), "t": decoded.t, "t_recv": t_recv,
                         "host_monotonic": host, **decoded.pose._asdict(),
                     })  # fmt: skip
-                user.record(Channel.POSE_RECEIVED, message)
+                owner.record(Channel.POSE_RECEIVED, message)
         except Exception:
-            log.exception("pose sample on %s failed for %s", sample.key, user.me)
+            log.exception("pose sample on %s failed for %s", sample.key, owner.me)
 
 
-def _count_all(users: Iterable[AgentRuntime], name: str) -> None:
+def _count_all(users: Iterable[PoseIntake], name: str) -> None:
     for user in users:
-        user.count(name)
+        user.owner.count(name)

@@ -33,7 +33,7 @@ from schemas.config import AgentConfig
 from schemas.messages import PeerStatus, Status
 
 if TYPE_CHECKING:
-    from federation.runtime.agent.runtime import AgentRuntime
+    from federation.runtime.agent.services import AgentServices
 
 __all__ = ["Peer", "PeerTable"]
 
@@ -78,7 +78,7 @@ class Peer:
 class PeerTable:
     """The peers of ``owner`` (an agent), their links and the sync schedule."""
 
-    def __init__(self, owner: AgentRuntime):
+    def __init__(self, owner: AgentServices):
         self.owner = owner
         cfg = owner.config
         self.peers: dict[AgentId, Peer] = {}

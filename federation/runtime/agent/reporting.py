@@ -20,7 +20,11 @@ from schemas.messages import Readiness, Status
 if TYPE_CHECKING:
     from agents.analysis import Margins  # imports python-control: only for a physical platform
     from agents.interface import Platform
-    from federation.runtime.agent.runtime import AgentRuntime
+    from federation.runtime.agent.commands import RunControl
+    from federation.runtime.agent.intake import PoseIntake
+    from federation.runtime.agent.peers import PeerTable
+    from federation.runtime.agent.recordings import Recordings
+    from federation.runtime.agent.services import AgentServices
 
 __all__ = ["RateLimitedLog", "Reporter"]
 
@@ -70,10 +74,21 @@ def _margins(platform: Platform) -> Margins | None:
 
 
 class Reporter:
-    """The counters and status of ``owner`` (an agent)."""
+    """The counters and status of ``owner`` (an agent), from what its parts hold."""
 
-    def __init__(self, owner: AgentRuntime):
+    def __init__(
+        self,
+        owner: AgentServices,
+        intake: PoseIntake,
+        peer_table: PeerTable,
+        commands: RunControl,
+        recordings: Recordings,
+    ):
         self.owner = owner
+        self.intake = intake
+        self.peer_table = peer_table
+        self.commands = commands
+        self.recordings = recordings
         self.counters: Counter[str] = Counter()
         self._count_lock = threading.Lock()
         self.lateness = FloatRing(2000)  # control ticks' lateness (s)
@@ -98,7 +113,7 @@ class Reporter:
         # The platform's own: a serial link's bad checksums, write timeouts, the device's
         # failsafe reports and restarts, the chain's closed steps.
         counters |= owner.platform.counters
-        return counters | owner.recordings.counters()
+        return counters | self.recordings.counters()
 
     def loop_stats(self) -> dict[str, float]:
         """Control loop timing: rate and lateness of the recent ticks (ms)."""
@@ -110,21 +125,21 @@ class Reporter:
         t_exec, host = owner.clock.read()
         t_sim = owner.sim_time(t_exec)
         follow = owner.follow
-        received = owner.intake.latest_poses.get(follow) if follow else None
+        received = self.intake.latest_poses.get(follow) if follow else None
         # Its samples are stamped on its clock: their age is measured on it.
         follow_now = owner.timebase.peer_time(follow, t_exec) if follow else None
         pose_age = None if received is None or follow_now is None else follow_now - received.t
-        state = owner.run_state
+        state = self.commands.run_state
         return Status(
             agent=str(owner.me), federation=owner.config.federation, role=owner.config.role,
             reference=str(owner.reference), t_exec=t_exec, host_monotonic=host, t_sim=t_sim,
             mode=state.mode, run_time=state.run_time(t_sim), run_id=state.run_id,
             duration=state.duration, ready=self.readiness(t_exec),
-            commands=list(owner.commands.log), platform=owner.config.platform,
+            commands=list(self.commands.log), platform=owner.config.platform,
             follow=None if follow is None else str(follow), hold=owner.safety.hold,
             pose_age=pose_age, valves_confirmed=owner.platform.valves_confirmed,
-            pose=list(owner.pose), peers=owner.peer_table.views(t_exec, host),
-            counters=self.snapshot(), contested=owner.intake.contested(host),
+            pose=list(owner.pose), peers=self.peer_table.views(t_exec, host),
+            counters=self.snapshot(), contested=self.intake.contested(host),
             workspace=None if owner.scenario is None else owner.scenario.workspace(),
             loop=self.loop_stats(),
         )  # fmt: skip
@@ -134,14 +149,14 @@ class Reporter:
         owner = self.owner
         locked, bound = True, 0.0 if owner.reference == owner.me else None
         if owner.reference != owner.me:
-            peer = owner.peers.get(owner.reference)
-            with owner.peer_table.lock:
+            peer = self.peer_table.peers.get(owner.reference)
+            with self.peer_table.lock:
                 client = None if peer is None else peer.client
                 estimator = None if client is None else client.estimator
                 locked = estimator is not None and estimator.locked
                 bound = None if estimator is None else estimator.bound
         cfg = owner.config
-        recording = owner.recordings.recorder is not None
+        recording = self.recordings.recorder is not None
         target = cfg.record if recording else cfg.runs_dir
         low = low_space(cfg) if not recording else None
         detail = self.platform_detail()
@@ -179,7 +194,7 @@ class Reporter:
         owner = self.owner
         status = self.status()
         self._check_delay_margin(status)
-        owner.peer_table.warn_silent(status)
+        self.peer_table.warn_silent(status)
         line = status.model_dump_json()
         self.publisher.put(line, encoding=zenoh.Encoding.APPLICATION_JSON)
         if self.status_file is not None:
@@ -189,7 +204,7 @@ class Reporter:
             except (OSError, ValueError) as error:  # a full disk: the agent flies on
                 self.count("status_write_errors")
                 self.rejects("status line", f"{owner.config.status_json}: {error}")
-        if not owner.recordings.status_line(line):
+        if not self.recordings.status_line(line):
             self.count("status_write_errors")
         if owner.recording(Channel.STATUS):
             owner.record(Channel.STATUS, line.encode())  # the line published: encoded once

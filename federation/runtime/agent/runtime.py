@@ -130,11 +130,11 @@ class AgentRuntime:
         self.peer_table = PeerTable(self)
         # Own clock <-> reference time <-> a peer's clock, through the peers' estimates.
         self.timebase = TimeBase(self.me, self.reference, self.peer_table.peers)
-        self.intake = PoseIntake(self)
-        self.reporter = Reporter(self)
         self.recordings = Recordings(config, str(self.me))
-        self.commands = RunControl(self)
-        self.watches = Watches(self)
+        self.commands = RunControl(self, self.recordings)
+        self.intake = PoseIntake(self, self.peer_table, self.commands)
+        self.watches = Watches(self, self.intake, self.peer_table, self.commands)
+        self.reporter = Reporter(self, self.intake, self.peer_table, self.commands, self.recordings)
         self.recording_server: RecordingServer | None = None
         self._clock_stepped = False
         self._pose_sn = 0  # sequence number in the pose samples' source info

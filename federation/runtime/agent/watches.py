@@ -22,7 +22,10 @@ from federation.core.holds import Hold, Trigger
 from federation.runtime.names import NAME_CHECKS_AFTER, clash_message, look_again
 
 if TYPE_CHECKING:
-    from federation.runtime.agent.runtime import AgentRuntime
+    from federation.runtime.agent.commands import RunControl
+    from federation.runtime.agent.intake import PoseIntake
+    from federation.runtime.agent.peers import PeerTable
+    from federation.runtime.agent.services import AgentServices
 
 __all__ = ["NO_ROUTER_HOLD", "ROUTER_CHECK_PERIOD", "Watches"]
 
@@ -41,8 +44,13 @@ def _held_or_released(hold: Hold | None) -> str:
 class Watches:
     """The watches of ``owner`` (an agent) and what each last saw."""
 
-    def __init__(self, owner: AgentRuntime):
+    def __init__(
+        self, owner: AgentServices, intake: PoseIntake, peer_table: PeerTable, commands: RunControl
+    ):
         self.owner = owner
+        self.intake = intake
+        self.peer_table = peer_table
+        self.commands = commands
         self._contest_cleared: float | None = None  # own time a followed contest cleared
         # The session's router: had one, lost since (host monotonic), next look.
         self._had_router = False
@@ -104,9 +112,9 @@ class Watches:
         owner = self.owner
         if owner.follow is None or self.watch_contest(t_exec, host):
             return
-        intake = owner.intake
+        intake = self.intake
         received = intake.pose_received_at.get(owner.follow)
-        client = owner.peer_table.client_of(owner.follow)
+        client = self.peer_table.client_of(owner.follow)
         last = None if client is None else client.last
         # On a shared feed the link is measured once for all its agents; the hold is each one's.
         threshold = None if intake.feed is None else intake.feed.watch.threshold
@@ -135,7 +143,7 @@ class Watches:
         owner = self.owner
         follow = owner.follow
         assert follow is not None
-        reason = owner.intake.contest_reason(str(follow), host)
+        reason = self.intake.contest_reason(str(follow), host)
         safety = owner.safety
         if reason is not None:
             self._contest_cleared = None
@@ -149,8 +157,8 @@ class Watches:
             return False
         if self._contest_cleared is None:
             self._contest_cleared = t_exec
-        received = owner.intake.pose_received_at.get(follow)
-        client = owner.peer_table.client_of(follow)
+        received = self.intake.pose_received_at.get(follow)
+        client = self.peer_table.client_of(follow)
         last = None if client is None else client.last
         cleared = self._contest_cleared
         if received is None or received <= cleared or last is None or last.t3 <= cleared:
@@ -188,7 +196,7 @@ class Watches:
         if host - self._router_lost < NO_ROUTER_HOLD or safety.holds(Hold.NO_ROUTER):
             return
         detail = f"no router for {host - self._router_lost:.1f} s"
-        owner.commands.end_run_here("router_lost", detail, host)
+        self.commands.end_run_here("router_lost", detail, host)
         safety.apply(Trigger.ROUTER_LOST)
         owner.count("no_router_holds")
         log.error("%s: safe hold until it is back", detail)
@@ -204,7 +212,7 @@ class Watches:
         if not owner.platform.restarted or owner.safety.holds(Hold.FIX_RESTART):
             return
         detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
-        owner.commands.end_run_here("fix_restart", detail, host)
+        self.commands.end_run_here("fix_restart", detail, host)
         owner.safety.apply(Trigger.FIX_RESTARTED)
         owner.count("fix_restart_holds")
         log.error("%s: safe hold until fedlab ctl reset", detail)

@@ -33,7 +33,7 @@ def test_followers_on_one_link_take_each_pose_once(
     handler = intake_module._admit_on_feed
 
     def counted(feed: PoseFeed, sample: Any, users: Any, host: float, t_recv: float) -> Any:
-        calls.append(users[0])
+        calls.append(users[0].owner)
         return handler(feed, sample, users, host, t_recv)
 
     monkeypatch.setattr(intake_module, "_admit_on_feed", counted)
