@@ -376,31 +376,34 @@ class SerialPlatform(WithChain):
             self._new_fix = None
 
     def _read_frames(self, now: float) -> None:
+        """Read what the device sent (at most ``_MAX_READS`` chunks a step) and take each
+        frame that lies on the device's timeline."""
         for _ in range(_MAX_READS):
             data = self._serial.read(_READ_CHUNK)
             if not data:
                 return
             for message in self._decoder.feed(data):
-                if isinstance(message, DevicePose):
-                    if not self._on_timeline("pose", message.t, now):
-                        continue
-                    self.device_pose = message.pose
-                    self.pose_time = message.t
-                    self._new_fix = message.pose
-                elif isinstance(message, Imu):
-                    if not self._on_timeline("imu", message.t, now):
-                        continue
-                    self.imu = message
-                    self._new_imu = ImuSample(message.gyro, message.ax, message.ay)
-                elif isinstance(message, Status):
-                    fresh = not message.flags & FLAG_HEARTBEAT_SEEN
-                    if not self._on_timeline("status", message.t, now, fresh=fresh):
-                        continue
-                    self.status = message
-                    if message.failsafe:
-                        self._host["device_failsafe_reports"] += 1
+                self._take(message, now)
             if len(data) < _READ_CHUNK:
                 return
+
+    def _take(self, message: object, now: float) -> None:
+        """One decoded frame: a pose, an IMU sample or a status, if on the timeline."""
+        if isinstance(message, DevicePose):
+            if self._on_timeline("pose", message.t, now):
+                self.device_pose = message.pose
+                self.pose_time = message.t
+                self._new_fix = message.pose
+        elif isinstance(message, Imu):
+            if self._on_timeline("imu", message.t, now):
+                self.imu = message
+                self._new_imu = ImuSample(message.gyro, message.ax, message.ay)
+        elif isinstance(message, Status):
+            fresh = not message.flags & FLAG_HEARTBEAT_SEEN
+            if self._on_timeline("status", message.t, now, fresh=fresh):
+                self.status = message
+                if message.failsafe:
+                    self._host["device_failsafe_reports"] += 1
 
     def _on_timeline(self, kind: Kind, t: float, now: float, fresh: bool = False) -> bool:
         """Whether to take a frame of ``kind`` at device time ``t``; counts the others."""

@@ -92,6 +92,33 @@ def _place(tf: Any, x: float, y: float) -> tuple[float, float]:
     return tf.translation.x + c * x - s * y, tf.translation.y + s * x + c * y
 
 
+def _draw_area(ax: Any, entity: Any) -> None:
+    """A work area: its outline and its label, in the common frame."""
+    for line in entity.lines:
+        xs = [p.x for p in line.points] + [line.points[0].x]
+        ys = [p.y for p in line.points] + [line.points[0].y]
+        ax.plot(xs, ys, color="#4dd966", linewidth=1.6)
+    for text in entity.texts:
+        ax.text(text.pose.position.x, text.pose.position.y, " " + text.text,
+                color="#4dd966", fontsize=9, va="bottom")  # fmt: skip
+
+
+def _draw_platform(ax: Any, entity: Any, tf: Any) -> None:
+    """A platform's footprint and nose (cubes in its own frame), placed by its transform."""
+    if tf is None:
+        return
+    for cube in entity.cubes:
+        cx, cy = cube.pose.position.x, cube.pose.position.y
+        hx, hy = cube.size.x / 2, cube.size.y / 2
+        corners = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy),
+                   (cx - hx, cy + hy)]  # fmt: skip
+        placed = [_place(tf, x, y) for x, y in corners]
+        colour = (cube.color.r, cube.color.g, cube.color.b)
+        ax.fill([p[0] for p in placed], [p[1] for p in placed], color=colour, alpha=0.9)
+    x, y = tf.translation.x, tf.translation.y
+    ax.text(x, y + 0.25, entity.frame_id, color="white", ha="center", fontsize=9)
+
+
 def draw(seen: dict[str, Any], out: Path) -> None:
     fig = plt.figure(figsize=(13.5, 6.6))
     ax = fig.add_axes((0.04, 0.08, 0.5, 0.8))
@@ -100,28 +127,10 @@ def draw(seen: dict[str, Any], out: Path) -> None:
     ax.set_aspect("equal")
     ax.set_title("/tf + /scene in frame fedlab_common (top view, m)")
     for entity in seen["entities"].values():
-        if entity.frame_id == "fedlab_common":  # work areas
-            for line in entity.lines:
-                xs = [p.x for p in line.points] + [line.points[0].x]
-                ys = [p.y for p in line.points] + [line.points[0].y]
-                ax.plot(xs, ys, color="#4dd966", linewidth=1.6)
-            for text in entity.texts:
-                ax.text(text.pose.position.x, text.pose.position.y, " " + text.text,
-                        color="#4dd966", fontsize=9, va="bottom")  # fmt: skip
-            continue
-        tf = seen["transforms"].get(entity.frame_id)
-        if tf is None:
-            continue
-        for cube in entity.cubes:  # footprint and nose, in the platform's frame
-            cx, cy = cube.pose.position.x, cube.pose.position.y
-            hx, hy = cube.size.x / 2, cube.size.y / 2
-            corners = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy),
-                       (cx - hx, cy + hy)]  # fmt: skip
-            placed = [_place(tf, x, y) for x, y in corners]
-            colour = (cube.color.r, cube.color.g, cube.color.b)
-            ax.fill([p[0] for p in placed], [p[1] for p in placed], color=colour, alpha=0.9)
-        x, y = tf.translation.x, tf.translation.y
-        ax.text(x, y + 0.25, entity.frame_id, color="white", ha="center", fontsize=9)
+        if entity.frame_id == "fedlab_common":
+            _draw_area(ax, entity)
+        else:
+            _draw_platform(ax, entity, seen["transforms"].get(entity.frame_id))
     xs = [p.x for e in seen["entities"].values() for line in e.lines for p in line.points]
     ys = [p.y for e in seen["entities"].values() for line in e.lines for p in line.points]
     xs += [t.translation.x for t in seen["transforms"].values()]
