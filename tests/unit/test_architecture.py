@@ -79,3 +79,21 @@ def test_the_cycle_finder_finds_a_cycle() -> None:
     graph.add_import(importer="c", imported="a")
     graph.add_import(importer="c", imported="d")
     assert _cycles(graph) == [["a", "b", "c"]]
+
+
+MAX_MODULE_LINES = 800
+
+
+def test_no_module_of_the_library_is_over_800_lines() -> None:
+    # A module that grows past this holds more than one state's worth of code: split it
+    # by the state each part owns.
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    long = {
+        path.relative_to(root).as_posix(): n
+        for package in PACKAGES
+        for path in (root / package).rglob("*.py")
+        if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES
+    }
+    assert long == {}
