@@ -55,6 +55,7 @@ from federation.core.preflight import (
 from federation.core.sync import SyncClient
 from federation.runtime.clock import ExecClock
 from federation.runtime.session import ConnectError
+from federation.runtime.syncglue import Answer, SyncQuerier
 from schemas.config import ConfigError
 from schemas.experiment import ExperimentConfig
 from schemas.messages import Command
@@ -227,36 +228,30 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
     Raises :class:`~federation.runtime.session.ConnectError` when it does not answer
     (:data:`REFERENCE_UNANSWERED` queries in a row: a few seconds, not twenty).
     """
-    import zenoh
-
     client = SyncClient(ClockFilter(), timeout=1.0)
     key = keys.agent_key(federation, reference, "sync")
     done = threading.Event()
-
     answered = [False]
 
-    def on_reply(reply: Any) -> None:
-        t3 = clock.now()
-        if reply.ok is not None and client.receive(reply.ok.payload.to_bytes(), t3) is not None:
+    def on_answer(answer: Answer) -> None:
+        if answer.ok and client.receive(answer.payload(), answer.t3) is not None:
             answered[0] = True
         done.set()
 
+    querier = SyncQuerier(session, key, 1.0, clock.read, on_answer)
     unanswered = 0
-    for _ in range(20):
-        if unanswered >= REFERENCE_UNANSWERED:
-            break
-        answered[0] = False
-        done.clear()
-        session.get(
-            key,
-            zenoh.handlers.Callback(on_reply, indirect=False),
-            payload=client.request(clock.now()),
-            timeout=1.0,
-            consolidation=zenoh.ConsolidationMode.NONE,
-        )
-        done.wait(1.0)
-        unanswered = 0 if answered[0] else unanswered + 1
-        time.sleep(0.02)
+    try:
+        for _ in range(20):
+            if unanswered >= REFERENCE_UNANSWERED:
+                break
+            answered[0] = False
+            done.clear()
+            querier.request(client.request(clock.now()))
+            done.wait(1.0)
+            unanswered = 0 if answered[0] else unanswered + 1
+            time.sleep(0.02)
+    finally:
+        querier.close()
     t = clock.now()
     offset = client.offset_at(t)
     if offset is None:

@@ -650,8 +650,19 @@ def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
 
 def test_a_silent_reference_is_given_up_after_a_few_queries_not_twenty() -> None:
     class Silent(_Recorder):
-        def get(self, *args: Any, **kwargs: Any) -> None:
-            self.queries = getattr(self, "queries", 0) + 1  # no queryable: no reply
+        queries = 0
+
+        def declare_querier(self, *args: Any, **kwargs: Any) -> Any:
+            session = self
+
+            class Querier:
+                def get(self, *args: Any, **kwargs: Any) -> None:
+                    session.queries += 1  # no queryable: no reply
+
+                def undeclare(self) -> None:
+                    pass
+
+            return Querier()
 
     session = Silent()
     t0 = time.monotonic()
