@@ -38,6 +38,7 @@ from typing import NamedTuple
 from agents.guidance import Reference, Track
 from agents.relative import RelativeMeasurement, RelativeSensor, to_common
 from federation.core.angles import wrap_angle
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import DockingConfig, RelativeSensorConfig
 
@@ -190,7 +191,7 @@ class DockingGuidance:
         self.target = TargetFilter()
         self.phase = APPROACH
         self.events: list[tuple[float, str]] = []
-        self.counters = {"backoffs_corridor": 0, "backoffs_lost": 0, "target_jumps": 0}
+        self.counters = {Count.BACKOFFS_CORRIDOR: 0, Count.BACKOFFS_LOST: 0, Count.TARGET_JUMPS: 0}
         self._carrot: tuple[float, float] | None = None  # (s, l) of the reference point
         self._t: float | None = None
         self._settled_since: float | None = None
@@ -240,7 +241,7 @@ class DockingGuidance:
             if math.hypot(x - pred.x, y - pred.y) > self.target.jump_gate(m, self.sensor_config):
                 # The target is not where it was: no approach goes on toward a point
                 # that moved under it. Begin again from where the chaser is.
-                self.counters["target_jumps"] += 1
+                self.counters[Count.TARGET_JUMPS] += 1
                 self.target = TargetFilter()
                 self._carrot = None
                 self._settled_since = None
@@ -323,7 +324,7 @@ class DockingGuidance:
             math.radians(c.corridor_deg)
         )
         if lost or abs(here.lateral) > corridor + c.hold_tolerance:
-            self.counters["backoffs_lost" if lost else "backoffs_corridor"] += 1
+            self.counters[Count.BACKOFFS_LOST if lost else Count.BACKOFFS_CORRIDOR] += 1
             self._settled_since = None
             self._go(t, APPROACH)
         elif here.axial <= c.contact_distance:

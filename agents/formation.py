@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 from agents.guidance import Reference, Track
 from agents.relative import dead_reckon
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import MAX_PATH_SPEED, FormationConfig
 
@@ -146,7 +147,7 @@ class FormationGuidance:
         self.heading = math.radians(config.heading_deg)
         self.used = 0
         """How many others the last reference used."""
-        self.counters = {"members_off_slot": 0, "members_too_fast": 0}
+        self.counters = {Count.MEMBERS_OFF_SLOT: 0, Count.MEMBERS_TOO_FAST: 0}
         """References that left a member out for lying too far from its slot, or moving
         too fast against the path (:data:`MEMBER_OFF_MAX`)."""
         self._since: dict[str, float] = {}  # reference time each used member appeared
@@ -199,11 +200,11 @@ class FormationGuidance:
             ex, ey = pose.x - slot[0] - c.x, pose.y - slot[1] - c.y
             evx, evy = pose.vx - c.vx, pose.vy - c.vy
             if not math.hypot(ex, ey) <= MEMBER_OFF_MAX:
-                self.counters["members_off_slot"] += 1
+                self.counters[Count.MEMBERS_OFF_SLOT] += 1
                 del since[agent]  # taken in afresh, over join_ramp, once back
                 continue
             if not math.hypot(evx, evy) <= MAX_PATH_SPEED:
-                self.counters["members_too_fast"] += 1
+                self.counters[Count.MEMBERS_TOO_FAST] += 1
                 del since[agent]
                 continue
             # Let go gradually near either bound: dropped at once, a member drifting

@@ -97,17 +97,18 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Literal, get_args
+from typing import Literal
 
 from agents.control import HeadingPid, PositionHold, PulseWidthModulator, allocate
 from agents.dynamics import THRUSTERS
 from agents.guidance import Track
 from agents.navigation import NavigationFilter
 from agents.sensors import ImuSample
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
-__all__ = ["CLOSED", "GncChain", "PlatformReason", "Reason"]
+__all__ = ["CLOSED", "CLOSED_COUNT", "GncChain", "PlatformReason", "Reason"]
 
 CLOSED: tuple[bool, ...] = (False,) * len(THRUSTERS)
 """Every valve closed."""
@@ -127,6 +128,19 @@ Reason = Literal[
 
 PlatformReason = Literal["device_restart"]
 """A reason the platform gives the chain to keep every valve closed (``closed_for``)."""
+
+CLOSED_COUNT: dict[Reason, Count] = {
+    "held": Count.CLOSED_HELD,
+    "no_fix": Count.CLOSED_NO_FIX,
+    "device_restart": Count.CLOSED_DEVICE_RESTART,
+    "fix_restart": Count.CLOSED_FIX_RESTART,
+    "fix_rejected": Count.CLOSED_FIX_REJECTED,
+    "stale_fix": Count.CLOSED_STALE_FIX,
+    "stale_imu": Count.CLOSED_STALE_IMU,
+    "settling": Count.CLOSED_SETTLING,
+    "nonfinite": Count.CLOSED_NONFINITE,
+}
+"""The counter of the control steps closed for each :data:`Reason`."""
 
 
 class GncChain:
@@ -232,19 +246,19 @@ class GncChain:
         says ``held`` then): what preflight tells of a platform waiting for its run."""
         self.last_rejection: str | None = None
         """The kind of the latest fix rejected (``fix_outside``, ``fix_late``, ...)."""
-        self.counters: dict[str, int] = {
-            **{f"closed_{reason}": 0 for reason in get_args(Reason)},
-            "imu_rejected": 0,
-            "fix_rejected": 0,
-            "fix_outside": 0,
-            "fix_outlier": 0,
-            "fix_late": 0,
-            "fix_acquiring": 0,
-            "fix_acquire_restarts": 0,
-            "fix_uncarried": 0,
-            "fix_restarts": 0,
-            "clock_steps_back": 0,
-            "restarts": 0,
+        self.counters: dict[Count, int] = {
+            **dict.fromkeys(CLOSED_COUNT.values(), 0),
+            Count.IMU_REJECTED: 0,
+            Count.FIX_REJECTED: 0,
+            Count.FIX_OUTSIDE: 0,
+            Count.FIX_OUTLIER: 0,
+            Count.FIX_LATE: 0,
+            Count.FIX_ACQUIRING: 0,
+            Count.FIX_ACQUIRE_RESTARTS: 0,
+            Count.FIX_UNCARRIED: 0,
+            Count.FIX_RESTARTS: 0,
+            Count.CLOCK_STEPS_BACK: 0,
+            Count.RESTARTS: 0,
         }
         """Control steps closed, per reason; sensor data dropped (``fix_rejected``: every
         fix dropped, of which ``fix_outside``, ``fix_late`` and ``fix_outlier``); fixes
@@ -289,7 +303,7 @@ class GncChain:
         IMU sample, and position hold holds where that fix puts the platform (a target
         given to the chain stays). For a platform whose sensors restarted (a serial
         device's reset): nothing measured before it describes the platform now."""
-        self.counters["restarts"] += 1
+        self.counters[Count.RESTARTS] += 1
         self._restart_estimate()
         if not self._explicit_target:
             self._target_set = False
@@ -345,14 +359,14 @@ class GncChain:
         latest plausible IMU sample, then corrected with ``fix`` (or not, see
         :meth:`_take_fix`). Time that went back starts the estimate afresh."""
         if self._last_now is not None and now < self._last_now:
-            self.counters["clock_steps_back"] += 1
+            self.counters[Count.CLOCK_STEPS_BACK] += 1
             self._restart_estimate()
         self._last_now = now
         if imu is not None:
             if self._plausible_imu(imu):
                 self._imu, self._imu_at = imu, now
             else:
-                self.counters["imu_rejected"] += 1
+                self.counters[Count.IMU_REJECTED] += 1
         for filt in (self.filter, self._shadow, self._trial):
             if filt is not None:
                 filt.predict(now, self._imu)
@@ -411,17 +425,17 @@ class GncChain:
             return
         x0, x1, y0, y1 = self.fix_area
         if not (x0 <= x <= x1 and y0 <= y <= y1):  # where the metrology saw it
-            self._reject("fix_outside")
+            self._reject(Count.FIX_OUTSIDE)
             return
         if age > self.latency_max + 1e-9:  # no metrology is that late: a device time wrong
-            self._reject("fix_late")
+            self._reject(Count.FIX_LATE)
             return
         age = max(0.0, age)  # a POSE newer than the IMU: taken as of now
         if not self.filter.reaches(age):
             # Older than the estimate's motion is known (it has just started again): set
             # against it uncarried, the first fixes after a restart in a turn would agree
             # with one another on a heading 0.1 rad behind. Held back.
-            self.counters["fix_uncarried"] += 1
+            self.counters[Count.FIX_UNCARRIED] += 1
             return
         filt = self.filter
         seen, self._seen_at = self._seen_at, now
@@ -439,7 +453,7 @@ class GncChain:
                 return
         elif filt.fixes and not filt.innovation_distance(fix, age) <= self.fix_gate:
             if not self._outlier(now, fix, age):
-                self._reject("fix_outlier")
+                self._reject(Count.FIX_OUTLIER)
             return
         else:
             self._shadow, self._agreeing = None, 0  # within the gate: outliers not in a row
@@ -459,14 +473,14 @@ class GncChain:
             or not trial.innovation_distance(fix, age) <= self.fix_gate
         ):
             if trial is not None:
-                self.counters["fix_acquire_restarts"] += 1
+                self.counters[Count.FIX_ACQUIRE_RESTARTS] += 1
             trial = self._trial = copy.deepcopy(self.filter)  # from the estimate as it is now
             self._trial_fixes = 0
         trial.correct(now, fix, age)
         self._trial_fixes += 1
         self._trial_at = now
         if self._trial_fixes < self._fixes_to_start:
-            self.counters["fix_acquiring"] += 1
+            self.counters[Count.FIX_ACQUIRING] += 1
             self._rejecting = False  # not rejected: closed for want of a fix, as before it
             return False
         self.filter, self._trial, self._trial_fixes = trial, None, 0
@@ -476,8 +490,8 @@ class GncChain:
         self._settling = True
         return True
 
-    def _reject(self, kind: str | None) -> None:
-        self.counters["fix_rejected"] += 1
+    def _reject(self, kind: Count | None) -> None:
+        self.counters[Count.FIX_REJECTED] += 1
         if kind is not None:
             self.counters[kind] += 1
         self.last_rejection = kind or "fix_nonfinite"
@@ -502,7 +516,7 @@ class GncChain:
             self.filter = shadow
             self._fix_at = now - age
             self._shadow, self._agreeing, self._rejecting = None, 0, False
-            self.counters["fix_restarts"] += 1
+            self.counters[Count.FIX_RESTARTS] += 1
             # Closed until an operator acknowledges it (acknowledge_restart): agreeing
             # fixes are where the platform is only if the metrology is right, and a
             # frozen or glitching one repeats the same wrong value (five of them would
@@ -520,7 +534,7 @@ class GncChain:
         self._target_set = True
 
     def _close(self, reason: Reason) -> tuple[bool, ...]:
-        self.counters[f"closed_{reason}"] += 1
+        self.counters[CLOSED_COUNT[reason]] += 1
         self.reason = reason
         self._closed = True
         self._valves = CLOSED

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 from agents.control import HeadingPid
 from agents.guidance import Track
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 
@@ -184,7 +185,7 @@ class Platform(Protocol):
         ...
 
     @property
-    def counters(self) -> Mapping[str, int]:
+    def counters(self) -> Mapping[Count, int]:
         """The platform's own counters (steps closed per cause, fixes rejected, a serial
         link's bad frames, ...), merged into the agent's status and recordings."""
         ...
@@ -206,7 +207,7 @@ class WithoutChain:
     """
 
     last_rejection: str | None = None
-    counters: Mapping[str, int] = MappingProxyType({})
+    counters: Mapping[Count, int] = MappingProxyType({})
 
     @property
     def has_fix(self) -> bool:

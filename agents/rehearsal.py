@@ -34,6 +34,7 @@ from agents.scenario import ScenarioGuidance
 from agents.scenarios.docking import Docking
 from agents.simulated import SimulatedPlatform
 from federation.core.angles import wrap_angle
+from federation.core.counters import Count
 from federation.core.wire import Pose, PoseSample
 from schemas.experiment import ExperimentConfig
 from schemas.platform import load_platform
@@ -247,10 +248,10 @@ class DockingOutcome:
     time_s: float | None  # run time of the contact
     contact: ContactState | None  # at the contact
     phases: list[tuple[float, str]]
-    counters: dict[str, int]
+    counters: dict[Count, int]
     velocity_error_rms_mps: float  # chaser's Kalman velocity estimate vs truth
     velocity_error_max_mps: float
-    workspace: dict[str, dict[str, int]]
+    workspace: dict[str, dict[Count, int]]
 
     def summary(self) -> dict[str, Any]:
         c = self.contact

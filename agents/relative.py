@@ -37,6 +37,7 @@ from typing import NamedTuple
 import numpy as np
 
 from federation.core.angles import wrap_angle
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import RelativeSensorConfig
 
@@ -79,8 +80,9 @@ def to_common(own: Pose, m: RelativeMeasurement) -> tuple[float, float, float]:
 class RelativeSensor:
     """The emulated relative sensor of one platform looking at one other.
 
-    ``counters``: measurements ``given``, ``out_of_view`` (field of view or range),
-    ``dropped`` (dropouts) and ``no_pose`` (nothing shared yet).
+    ``counters``: measurements given (``relative_given``), and none: out of the field
+    of view or range (``relative_out_of_view``), a dropout (``relative_dropped``),
+    nothing shared yet (``relative_no_pose``) or only too old (``relative_stale_pose``).
     """
 
     def __init__(self, config: RelativeSensorConfig):
@@ -88,7 +90,16 @@ class RelativeSensor:
         self.rng = np.random.default_rng(config.seed)
         self._period = 1.0 / config.rate
         self._next: float | None = None
-        self.counters = {"given": 0, "out_of_view": 0, "dropped": 0, "no_pose": 0, "stale_pose": 0}
+        self.counters = dict.fromkeys(
+            (
+                Count.RELATIVE_GIVEN,
+                Count.RELATIVE_OUT_OF_VIEW,
+                Count.RELATIVE_DROPPED,
+                Count.RELATIVE_NO_POSE,
+                Count.RELATIVE_STALE_POSE,
+            ),
+            0,
+        )
 
     def due(self, now: float) -> bool:
         """Whether a measurement is due at ``now`` (s); schedules the next one."""
@@ -116,28 +127,28 @@ class RelativeSensor:
         if not self.due(now):
             return None
         if other is None:
-            self.counters["no_pose"] += 1
+            self.counters[Count.RELATIVE_NO_POSE] += 1
             return None
         c = self.config
         if not -c.horizon <= now - other[0] <= c.horizon:
             # Older than the dead reckoning's horizon: the other has gone silent, and a
             # measurement made from its last pose would say it is still there (or its
             # stamp lies ahead by more: its sender's clock estimate is wrong).
-            self.counters["stale_pose"] += 1
+            self.counters[Count.RELATIVE_STALE_POSE] += 1
             return None
         rel = self.true_relative(now, other, own)
         rng = math.hypot(rel.x, rel.y)
         bearing = math.atan2(rel.y, rel.x)
         if rng > c.max_range or abs(bearing) > math.radians(c.fov_deg) / 2:
-            self.counters["out_of_view"] += 1
+            self.counters[Count.RELATIVE_OUT_OF_VIEW] += 1
             return None
         draw = self.rng.standard_normal(3)
         if self.rng.random() < c.dropout:
-            self.counters["dropped"] += 1
+            self.counters[Count.RELATIVE_DROPPED] += 1
             return None
         sigma_r = c.range_noise + c.range_noise_per_m * rng
         sigma_b = math.radians(c.bearing_noise_deg + c.bearing_noise_per_m_deg * rng)
-        self.counters["given"] += 1
+        self.counters[Count.RELATIVE_GIVEN] += 1
         return RelativeMeasurement(
             now,
             max(0.0, rng + sigma_r * float(draw[0])),

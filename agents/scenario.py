@@ -27,6 +27,7 @@ from agents.interface import Platform
 from agents.registry import scenario_class
 from agents.scenarios.base import Others, Scenario
 from agents.workspace import Frame, FramedPlatform
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.messages import Workspace
 from schemas.scenario import ScenarioPart
@@ -143,9 +144,9 @@ class ScenarioGuidance:
         return out
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """Workspace counters and the scenario's (relative sensing, docking, formation)."""
-        out: dict[str, int] = {}
+        out: dict[Count, int] = {}
         if isinstance(self.platform, FramedPlatform):
             out |= self.platform.workspace_counters
         return out | self.scenario.counters

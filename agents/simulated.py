@@ -31,6 +31,7 @@ from agents.guidance import Track
 from agents.interface import WithChain
 from agents.navigation import NavigationFilter
 from agents.sensors import Coverage, Imu, ImuSample, Vision
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig, load_platform
 
@@ -263,7 +264,7 @@ class SimulatedPlatform(WithChain):
         return self.chain.valves
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """The chain's: steps closed and why, IMU samples and fixes rejected."""
         return dict(self.chain.counters)
 

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 from agents.control import HeadingPid
 from agents.guidance import Track
 from agents.interface import ClosedCause, Platform, WithChain
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig
 from schemas.scenario import LabFrame
@@ -149,7 +150,10 @@ class FramedPlatform:
         self.area_detail: str | None = None
         """Where the platform left its area (free text for the log and the run's
         events) while :attr:`workspace_held`; None otherwise."""
-        self.workspace_counters: dict[str, int] = {"workspace_clamped": 0, "workspace_holds": 0}
+        self.workspace_counters: dict[Count, int] = {
+            Count.WORKSPACE_CLAMPED: 0,
+            Count.WORKSPACE_HOLDS: 0,
+        }
         self.table_pose = Pose()
         """The last estimate, table frame."""
         # Half a pair's acceleration: what the platform can surely brake with.
@@ -181,7 +185,7 @@ class FramedPlatform:
                     table_track, slowed = self._stoppable(table_track)
                     clamped = clamped or slowed
                 if clamped:
-                    self.workspace_counters["workspace_clamped"] += 1
+                    self.workspace_counters[Count.WORKSPACE_CLAMPED] += 1
         pose = self.inner.step(t, heading_ref - self.frame.rotation, rate_ref, table_track)
         self.table_pose = pose
         if (
@@ -192,7 +196,7 @@ class FramedPlatform:
         ):
             self.workspace_held = True
             self.area_detail = f"left the area at ({pose.x:.3f}, {pose.y:.3f}) m, table frame"
-            self.workspace_counters["workspace_holds"] += 1
+            self.workspace_counters[Count.WORKSPACE_HOLDS] += 1
             self.inner.hold()
         return self.frame.to_common(pose)
 
@@ -280,7 +284,7 @@ class FramedPlatform:
         return None if truth is None else self.frame.to_common(truth)
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """The inner platform's counters and the workspace's."""
         return dict(self.inner.counters) | self.workspace_counters
 

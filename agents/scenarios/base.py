@@ -25,6 +25,7 @@ from typing import ClassVar
 
 from agents.guidance import Reference
 from agents.interface import Platform
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.base import Model
 from schemas.scenario import ScenarioPart
@@ -92,7 +93,7 @@ class Scenario(ABC):
         return None
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """Counters for the agent's status and recordings (none here)."""
         return {}
 

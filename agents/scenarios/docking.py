@@ -9,6 +9,7 @@ from agents.docking import DockingGuidance, TargetGuidance
 from agents.guidance import Reference
 from agents.interface import Platform
 from agents.scenarios.base import Others, Scenario
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import ScenarioPart
 
@@ -68,12 +69,11 @@ class Docking(Scenario):
         return self.target.reference(run_time, own, frozen)
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """The chaser's relative sensor's (``relative_*``) and its guidance's."""
         if self.chaser is None:
             return {}
-        sensor = {f"relative_{k}": v for k, v in self.chaser.sensor.counters.items()}
-        return sensor | self.chaser.counters
+        return self.chaser.sensor.counters | self.chaser.counters
 
     def fields(self) -> dict[str, float | str | None]:
         """The chaser's phase."""

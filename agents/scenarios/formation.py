@@ -8,6 +8,7 @@ from agents.formation import FormationGuidance
 from agents.guidance import Reference
 from agents.interface import Platform
 from agents.scenarios.base import Others, Scenario
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import ScenarioPart
 
@@ -47,5 +48,5 @@ class Formation(Scenario):
         return self.guidance.reference(t, run_time, others, frozen)
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         return dict(self.guidance.counters)

@@ -55,6 +55,7 @@ from agents.serial.protocol import (
 )
 from agents.simulated import Plant
 from federation.core.angles import wrap_angle
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.base import validate
 from schemas.platform import PlatformConfig
@@ -152,6 +153,19 @@ def _scale_noise(data: dict[str, Any], noise: float) -> None:
 
 
 _JUNK = bytes(b for b in range(256) if b != 0xA5)
+
+_RX: dict[Count, Count] = {
+    Count.FRAMES_OK: Count.RX_FRAMES_OK,
+    Count.BAD_CHECKSUM: Count.RX_BAD_CHECKSUM,
+    Count.GARBAGE_BYTES: Count.RX_GARBAGE_BYTES,
+    Count.OVERSIZE: Count.RX_OVERSIZE,
+    Count.UNKNOWN_TYPE: Count.RX_UNKNOWN_TYPE,
+    Count.BAD_LENGTH: Count.RX_BAD_LENGTH,
+    Count.BAD_VALUE: Count.RX_BAD_VALUE,
+    Count.FRAME_BYTES: Count.RX_FRAME_BYTES,
+    Count.BYTES_IN: Count.RX_BYTES_IN,
+}
+"""The device's counter of the host's frames for each of its decoder's."""
 
 
 class EmulatedDevice:
@@ -315,16 +329,16 @@ class EmulatedDevice:
         )
 
     @property
-    def counters(self) -> dict[str, int]:
-        """Receive counters of host frames plus the device's own."""
+    def counters(self) -> dict[Count, int]:
+        """Receive counters of host frames (``rx_*``) plus the device's own."""
         return {
-            **{f"rx_{k}": v for k, v in self.decoder.counters.items()},
-            "frames_sent": self.frames_sent,
-            "failsafe_trips": self.failsafe_trips,
-            "valves_ignored": self.valves_ignored,
-            "fixes_unseen": self.fixes_unseen,
-            "injected_garbage_bytes": self.injected_garbage_bytes,
-            "injected_bad_crc": self.injected_bad_crc,
+            **{_RX[k]: v for k, v in self.decoder.counters.items()},
+            Count.FRAMES_SENT: self.frames_sent,
+            Count.FAILSAFE_TRIPS: self.failsafe_trips,
+            Count.VALVES_IGNORED: self.valves_ignored,
+            Count.FIXES_UNSEEN: self.fixes_unseen,
+            Count.INJECTED_GARBAGE_BYTES: self.injected_garbage_bytes,
+            Count.INJECTED_BAD_CRC: self.injected_bad_crc,
         }
 
     # -- internals -------------------------------------------------------------

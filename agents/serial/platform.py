@@ -71,6 +71,7 @@ from agents.serial.protocol import (
     encode_valves,
 )
 from agents.serial.timeline import DeviceTimeline, Kind
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.platform import PlatformConfig, load_platform
 
@@ -202,14 +203,14 @@ class SerialPlatform(WithChain):
         self.imu: Imu | None = None
         self.status: Status | None = None
         self._host = {
-            "frames_sent": 0,
-            "write_timeouts": 0,
-            "device_failsafe_reports": 0,
-            "device_frames_not_newer": 0,
-            "device_frames_off_timeline": 0,
-            "device_pose_stale": 0,
-            "device_restarts": 0,
-            "write_short": 0,
+            Count.FRAMES_SENT: 0,
+            Count.WRITE_TIMEOUTS: 0,
+            Count.DEVICE_FAILSAFE_REPORTS: 0,
+            Count.DEVICE_FRAMES_NOT_NEWER: 0,
+            Count.DEVICE_FRAMES_OFF_TIMELINE: 0,
+            Count.DEVICE_POSE_STALE: 0,
+            Count.DEVICE_RESTARTS: 0,
+            Count.WRITE_SHORT: 0,
         }
 
     # -- Platform ----------------------------------------------------------------
@@ -300,7 +301,7 @@ class SerialPlatform(WithChain):
         return self._valves
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """Decoder counters (frames_ok, bad_checksum, garbage_bytes, ...), the host's own
         (device_frames_off_timeline, device_restarts, write_timeouts, write_short, ...)
         and the chain's (closed steps per reason, fix_rejected, ...)."""
@@ -372,7 +373,7 @@ class SerialPlatform(WithChain):
             and self.pose_time is not None
             and self.imu.t - self.pose_time > self.chain.fix_timeout
         ):
-            self._host["device_pose_stale"] += 1  # older than the fix timeout: not a fix of now
+            self._host[Count.DEVICE_POSE_STALE] += 1  # older than the fix timeout: not a fix of now
             self._new_fix = None
 
     def _read_frames(self, now: float) -> None:
@@ -403,16 +404,16 @@ class SerialPlatform(WithChain):
             if self._on_timeline("status", message.t, now, fresh=fresh):
                 self.status = message
                 if message.failsafe:
-                    self._host["device_failsafe_reports"] += 1
+                    self._host[Count.DEVICE_FAILSAFE_REPORTS] += 1
 
     def _on_timeline(self, kind: Kind, t: float, now: float, fresh: bool = False) -> bool:
         """Whether to take a frame of ``kind`` at device time ``t``; counts the others."""
         verdict = self._timeline.judge(kind, t, now, fresh=fresh)
         if verdict == "not_newer":
-            self._host["device_frames_not_newer"] += 1  # replayed or reordered
+            self._host[Count.DEVICE_FRAMES_NOT_NEWER] += 1  # replayed or reordered
             return False
         if verdict == "off_timeline":
-            self._host["device_frames_off_timeline"] += 1  # an old frame, or a restart
+            self._host[Count.DEVICE_FRAMES_OFF_TIMELINE] += 1  # an old frame, or a restart
             return False
         if verdict == "restarted":
             self._device_restarted(t)
@@ -422,12 +423,12 @@ class SerialPlatform(WithChain):
         """The device's clock began again (a reset, a brownout), confirmed: nothing it
         measured before describes the platform now. The chain starts afresh (no fix until
         a POSE of the new timeline; position hold re-takes its point)."""
-        self._host["device_restarts"] += 1
-        if _rate_limited(self._host["device_restarts"]):
+        self._host[Count.DEVICE_RESTARTS] += 1
+        if _rate_limited(self._host[Count.DEVICE_RESTARTS]):
             log.warning(
                 "serial device on %s restarted (its clock is at %.3f s; %d restarts so far): "
                 "the estimate restarts, valves closed until its next POSE",
-                self.port, t, self._host["device_restarts"],
+                self.port, t, self._host[Count.DEVICE_RESTARTS],
             )  # fmt: skip
         self.chain.restart()
         self.device_pose = self.pose_time = None
@@ -438,7 +439,7 @@ class SerialPlatform(WithChain):
     def _send(self, frames: bytes, count: int, valves: tuple[bool, ...]) -> None:
         """Write a step's (or a hold's) frames; after a write cut off, close the valves."""
         if self._write(frames):
-            self._host["frames_sent"] += count
+            self._host[Count.FRAMES_SENT] += count
             self._valves = valves
             self.valves_confirmed = True
             return
@@ -451,7 +452,7 @@ class SerialPlatform(WithChain):
         self._discard_output()
         resent = self._write(_FILLER + encode_valves(self._next_seq(), 0))
         if resent:
-            self._host["frames_sent"] += 1
+            self._host[Count.FRAMES_SENT] += 1
         else:
             self._discard_output()
         self._cut_offs += 1
@@ -468,12 +469,12 @@ class SerialPlatform(WithChain):
         try:
             written = self._serial.write(data)
         except serial.SerialTimeoutException:  # raised after part, or even all, went out
-            self._host["write_timeouts"] += 1
+            self._host[Count.WRITE_TIMEOUTS] += 1
             return False
         except (serial.SerialException, OSError) as error:
             self._vanished(error)
         if written is not None and written < len(data):  # an aborted write returns short
-            self._host["write_short"] += 1
+            self._host[Count.WRITE_SHORT] += 1
             return False
         return True
 

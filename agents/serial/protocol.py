@@ -40,6 +40,7 @@ import struct
 from collections.abc import Callable, Iterable, Sequence
 from typing import NamedTuple
 
+from federation.core.counters import Count
 from federation.core.wire import Pose
 
 __all__ = [
@@ -361,16 +362,17 @@ class FrameDecoder:
     """
 
     COUNTERS = (
-        "frames_ok",
-        "bad_checksum",
-        "garbage_bytes",
-        "oversize",
-        "unknown_type",
-        "bad_length",
-        "bad_value",
-        "frame_bytes",
-        "bytes_in",
+        Count.FRAMES_OK,
+        Count.BAD_CHECKSUM,
+        Count.GARBAGE_BYTES,
+        Count.OVERSIZE,
+        Count.UNKNOWN_TYPE,
+        Count.BAD_LENGTH,
+        Count.BAD_VALUE,
+        Count.FRAME_BYTES,
+        Count.BYTES_IN,
     )
+    """Every counter, each an attribute of its own name."""
 
     def __init__(self, accept: Iterable[int] = ALL_TYPES):
         self.accept = frozenset(accept)
@@ -391,9 +393,9 @@ class FrameDecoder:
         return len(self._buf)
 
     @property
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """A snapshot of every counter by name."""
-        return {name: getattr(self, name) for name in self.COUNTERS}
+        return {count: getattr(self, count.value) for count in self.COUNTERS}
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Message]:
         """Add received bytes; return the messages completed by them, in order. Never raises."""

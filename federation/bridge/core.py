@@ -92,6 +92,7 @@ from pydantic import ValidationError
 from federation.core import keys, wire
 from federation.core.commands import CommandGate
 from federation.core.contest import ContestWatch, in_order
+from federation.core.counters import Count
 from federation.core.estimators import make_estimator
 from federation.core.holds import Hold
 from federation.core.keys import AgentId
@@ -187,7 +188,7 @@ class BridgeCore:
         self.reference = _Link(self._client())
         self.legacy_pose: wire.PoseSample | None = None  # stamped on the legacy agent's clock
         self.followed_pose: wire.PoseSample | None = None  # stamped on the followed agent's
-        self.counters: Counter[str] = Counter()
+        self.counters: Counter[Count] = Counter()
         self._leaders: set[AgentId] = set()  # agents whose status says role "leader"
         self._alive: set[AgentId] = set()  # agents whose liveliness token is present
         self._seen_gone: set[AgentId] = set()  # agents whose token went away
@@ -208,7 +209,7 @@ class BridgeCore:
         if self.name_clash is not None:
             return False
         self.name_clash = detail
-        self.counters["name_taken_holds"] += 1
+        self.counters[Count.NAME_TAKEN_HOLDS] += 1
         return True
 
     def name_alive_elsewhere(self) -> bool:
@@ -232,7 +233,7 @@ class BridgeCore:
         cfg = self.config
         return SyncClient(make_estimator(cfg.estimator, cfg.sync_window), cfg.sync_timeout)
 
-    def count(self, name: str) -> None:
+    def count(self, name: Count) -> None:
         """Count an event the caller saw (a send error, a foreign datagram, ...)."""
         self.counters[name] += 1
 
@@ -252,7 +253,7 @@ class BridgeCore:
     # -- the legacy side (UDP) ---------------------------------------------------------
     def legacy_request(self, now: float) -> bytes:
         """The bridge's own 8-byte request to the legacy agent, sent at ``now``."""
-        self.counters["udp_requests_sent"] += 1
+        self.counters[Count.UDP_REQUESTS_SENT] += 1
         return self.legacy.client.request(now)
 
     def on_datagram(self, data: bytes, source: tuple[str, int], now: float) -> Outcome:
@@ -260,23 +261,23 @@ class BridgeCore:
         request (8 bytes) or its reply to ours (64 bytes)."""
         host, port = source
         if host != self.peer[0]:
-            self.counters["udp_foreign"] += 1
+            self.counters[Count.UDP_FOREIGN] += 1
             return Outcome(
                 rejected=f"not the legacy agent's host (--peer {self._peer_text})", kind="foreign"
             )
         if self.name_clash is not None:
-            self.counters["udp_held_for_name"] += 1
+            self.counters[Count.UDP_HELD_FOR_NAME] += 1
             return Outcome(rejected=f"not speaking for {self.me}: {self.name_clash}", kind="held")
         if len(data) == wire.REQUEST_SIZE:
             pinned = self.config.request_port
             if pinned is not None and port != pinned:
-                self.counters["udp_requests_foreign_port"] += 1
+                self.counters[Count.UDP_REQUESTS_FOREIGN_PORT] += 1
                 said = f"a request from port {port}: taken from --request-port {pinned} only"
                 return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_request(data, now)
         if len(data) == wire.REPLY_SIZE:
             if port != self._reply_port:
-                self.counters["udp_replies_foreign_port"] += 1
+                self.counters[Count.UDP_REPLIES_FOREIGN_PORT] += 1
                 said = f"a reply from port {port}: taken from " + (
                     f"--reply-port {self.config.reply_port} only"
                     if self.config.reply_port
@@ -284,7 +285,7 @@ class BridgeCore:
                 )
                 return Outcome(rejected=said, kind="foreign")
             return self._on_legacy_reply(data, now)
-        self.counters["udp_malformed"] += 1
+        self.counters[Count.UDP_MALFORMED] += 1
         sizes = f"{wire.REQUEST_SIZE} or {wire.REPLY_SIZE}"
         return Outcome(rejected=f"expected {sizes} bytes, got {len(data)}", kind="malformed")
 
@@ -292,25 +293,25 @@ class BridgeCore:
         try:
             t1 = wire.decode_request(data)
         except wire.DecodeError as error:
-            self.counters["udp_malformed"] += 1
+            self.counters[Count.UDP_MALFORMED] += 1
             return Outcome(rejected=str(error), kind="malformed")
         if self.legacy.client.sent_here(t1):
-            self.counters["udp_self"] += 1
+            self.counters[Count.UDP_SELF] += 1
             return Outcome(rejected="the bridge's own request came back (--peer)", kind="self")
         if self.aborted:
-            self.counters["udp_requests_held"] += 1
+            self.counters[Count.UDP_REQUESTS_HELD] += 1
             return Outcome(rejected="aborted (fedlab ctl reset releases it)", kind="held")
         offset = self.reference_offset(now)
         if offset is None:
-            self.counters["udp_requests_unsynced"] += 1
+            self.counters[Count.UDP_REQUESTS_UNSYNCED] += 1
             return Outcome(rejected="no reference time yet", kind="unsynced")
         why = self._nothing_to_steer_by(now, offset)
         if why is not None:
-            self.counters[f"udp_requests_{why[0]}"] += 1
+            self.counters[why[0]] += 1
             return Outcome(rejected=why[1], kind="held")
         # Last: only a request that would be answered spends a token.
         if not self.requests.take(now):
-            self.counters["udp_rate_limited"] += 1
+            self.counters[Count.UDP_RATE_LIMITED] += 1
             cfg = self.config
             said = (
                 f"over --request-rate-limit {cfg.request_rate_limit:g}/s "
@@ -318,24 +319,24 @@ class BridgeCore:
             )
             return Outcome(rejected=said, kind="rate limited")
         pose = self.followed_pose.pose if self.followed_pose else wire.Pose()
-        self.counters["udp_requests_served"] += 1
+        self.counters[Count.UDP_REQUESTS_SERVED] += 1
         # t2 on the reference clock: the legacy agent's Eq. 4 then gives leader minus itself.
         return Outcome(reply=wire.encode_reply(t1, now + offset, pose))
 
-    def _nothing_to_steer_by(self, now: float, offset: float) -> tuple[str, str] | None:
-        """Why the followed pose must not reach the legacy agent now (a counter's suffix
-        and the reason), None if it may; a leader bridge that follows no one sends none."""
+    def _nothing_to_steer_by(self, now: float, offset: float) -> tuple[Count, str] | None:
+        """Why the followed pose must not reach the legacy agent now (its counter and the
+        reason), None if it may; a leader bridge that follows no one sends none."""
         target = self.followed_id
         if target is None:
             return None
         contested = self.contest.reason(str(target), now)
         if contested is not None:
-            return "contested", f"{target} is contested: {contested}"
+            return Count.UDP_REQUESTS_CONTESTED, f"{target} is contested: {contested}"
         if self.config.role == "follower" and not self.reference.alive:
-            return "reference_gone", f"{target} is not in the federation"
+            return Count.UDP_REQUESTS_REFERENCE_GONE, f"{target} is not in the federation"
         pose, limit = self.followed_pose, self.config.stale_after
         if pose is None or self.followed_at is None:
-            return "no_pose", f"no pose of {target} yet"
+            return Count.UDP_REQUESTS_NO_POSE, f"no pose of {target} yet"
         since = now - self.followed_at
         # On its clock (a follower's reference is synced): a pose old on arrival counts.
         # The paper's estimators (mean, median) stop at the end of their window while
@@ -343,7 +344,7 @@ class BridgeCore:
         on_its_clock = self.config.role == "follower" and self.config.estimator == "clockfilter"
         age = now + offset - pose.t if on_its_clock else since
         if max(age, since) > limit:
-            return "stale", f"{target}'s pose is {max(age, since):.3f} s old"
+            return Count.UDP_REQUESTS_STALE, f"{target}'s pose is {max(age, since):.3f} s old"
         return None
 
     def _on_legacy_reply(self, data: bytes, now: float) -> Outcome:
@@ -352,27 +353,27 @@ class BridgeCore:
         if reply is None:
             reason = link.client.last_rejection or "rejected"
             if reason == "malformed":
-                self.counters["udp_malformed"] += 1
+                self.counters[Count.UDP_MALFORMED] += 1
             kind = "malformed" if reason == "malformed" else "sync reply"
             return Outcome(rejected=f"sync reply ({reason})", kind=kind)
         if not link.alive:
             link.alive = True
-            self.counters["legacy_found"] += 1
+            self.counters[Count.LEGACY_FOUND] += 1
         link.last_seen = now
         if link.client.steps > self._legacy_steps:  # its clock jumped: it restarted
             self._legacy_steps = link.client.steps
             self.legacy_pose = None
-            self.counters["legacy_restarted"] += 1
+            self.counters[Count.LEGACY_RESTARTED] += 1
         link.client.offset_at(now)  # fit now, so a query's t2 costs no regression
         if not link.client.last_fed:
             # Held back by the warm-up until three agree: its t2 is not trusted yet.
-            self.counters["pose_unconfirmed"] += 1
+            self.counters[Count.POSE_UNCONFIRMED] += 1
             return Outcome(rejected="not yet confirmed by the estimate", kind="sync reply")
         if self.legacy_pose is not None and not reply.t2 > self.legacy_pose.t:
-            self.counters["pose_out_of_order"] += 1
+            self.counters[Count.POSE_OUT_OF_ORDER] += 1
             return Outcome(rejected="no newer than the last published", kind="sync reply")
         self.legacy_pose = wire.PoseSample(reply.t2, reply.pose)
-        self.counters["pose_published"] += 1
+        self.counters[Count.POSE_PUBLISHED] += 1
         return Outcome(pose=wire.encode_pose(reply.t2, reply.pose))
 
     def check_legacy(self, now: float) -> bool:
@@ -385,7 +386,7 @@ class BridgeCore:
             link.client = self._client()  # it may come back with a restarted clock
             self._legacy_steps = 0
             self.legacy_pose = None
-            self.counters["legacy_lost"] += 1
+            self.counters[Count.LEGACY_LOST] += 1
         return link.alive
 
     # -- the federation side (Zenoh) ---------------------------------------------------
@@ -395,19 +396,19 @@ class BridgeCore:
         the legacy clock), or None (no reply; none either once the name is taken
         elsewhere). Raises wire.DecodeError if malformed."""
         if self.name_clash is not None:
-            self.counters["sync_requests_held"] += 1
+            self.counters[Count.SYNC_REQUESTS_HELD] += 1
             return None
         try:
             t1 = wire.decode_request(payload)
         except wire.DecodeError:
-            self.counters["sync_requests_malformed"] += 1
+            self.counters[Count.SYNC_REQUESTS_MALFORMED] += 1
             raise
         offset = self.legacy_offset(now)
         if offset is None:
-            self.counters["sync_requests_unsynced"] += 1
+            self.counters[Count.SYNC_REQUESTS_UNSYNCED] += 1
             return None
         pose = self.legacy_pose.pose if self.legacy_pose else wire.Pose()
-        self.counters["sync_requests_served"] += 1
+        self.counters[Count.SYNC_REQUESTS_SERVED] += 1
         return wire.encode_reply(t1, now + offset, pose), offset
 
     def reference_request(self, now: float) -> bytes | None:
@@ -445,18 +446,18 @@ class BridgeCore:
         one source, and newer than the last. Raises wire.DecodeError if malformed."""
         target = self.followed_id
         if target is None or (agent is not None and agent != target):
-            self.counters["pose_other_agent"] += 1  # a former reference's, still arriving
+            self.counters[Count.POSE_OTHER_AGENT] += 1  # a former reference's, still arriving
             return
         try:
             sample = wire.decode_pose(payload)
         except wire.DecodeError:
-            self.counters["pose_malformed"] += 1
+            self.counters[Count.POSE_MALFORMED] += 1
             raise
-        self.counters["pose_received"] += 1
+        self.counters[Count.POSE_RECEIVED] += 1
         if not self._admitted(target, "pose", source, now):
             return
         if not in_order(self._order, target, source, sample.t):
-            self.counters["pose_out_of_order"] += 1
+            self.counters[Count.POSE_OUT_OF_ORDER] += 1
             return
         self.followed_pose, self.followed_at = sample, now
 
@@ -466,9 +467,9 @@ class BridgeCore:
         outcome = self.contest.observe(str(agent), channel, source, now)  # type: ignore[arg-type]
         if outcome == "ok":
             return True
-        self.counters["contested_dropped"] += 1
+        self.counters[Count.CONTESTED_DROPPED] += 1
         if outcome == "contested":
-            self.counters["contested"] += 1
+            self.counters[Count.CONTESTED] += 1
             self.followed_pose = self.followed_at = None
             if agent == self.reference_id and self.config.role == "follower":
                 self.reference = _Link(self._client(), self.reference.alive)
@@ -481,7 +482,7 @@ class BridgeCore:
         try:
             command = Command.model_validate_json(payload)
         except (ValidationError, ValueError) as error:
-            self.counters["control_malformed"] += 1
+            self.counters[Count.CONTROL_MALFORMED] += 1
             if not is_abort(payload):
                 why = validation_reason(error) if isinstance(error, ValidationError) else str(error)
                 reported = malformed_outcome(payload, why)
@@ -489,7 +490,7 @@ class BridgeCore:
                     self.commands.append(reported)
                 return None
             command = Command(command="abort", seq=-1, issuer="malformed")
-        self.counters["control_received"] += 1
+        self.counters[Count.CONTROL_RECEIVED] += 1
         verdict = self.gate.admit(command.command, command.issuer, command.seq)
         if not verdict.admitted:
             if verdict.outcome != "repeat":
@@ -526,12 +527,12 @@ class BridgeCore:
             status = json.loads(payload)
             said = AgentId.parse(str(status["agent"]))
             if agent is not None and said != agent:
-                self.counters["status_not_its_own"] += 1
+                self.counters[Count.STATUS_NOT_ITS_OWN] += 1
                 return
             if status.get("role") == "leader" and len(self._leaders) < _MAX_LEADERS:
                 self._leaders.add(said)
         except (ValueError, KeyError, TypeError, AttributeError, RecursionError):
-            self.counters["status_malformed"] += 1  # the monitor's business, counted
+            self.counters[Count.STATUS_MALFORMED] += 1  # the monitor's business, counted
 
     def on_liveliness(self, key: str, alive: bool) -> None:
         """An agent's liveliness token came (``alive``) or went; other keys are ignored."""

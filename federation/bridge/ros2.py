@@ -73,6 +73,7 @@ from federation.bridge.ros2_types import (
     tf_message,
 )
 from federation.core import keys, wire
+from federation.core.counters import Count
 from federation.core.estimators import make_estimator
 from federation.core.holds import Hold, Trigger
 from federation.core.keys import AgentId
@@ -164,7 +165,7 @@ class FederationToRos:
         self.participant = participant
         self.federation = keys.validate_name(federation, "federation name")
         self.monotonic, self.wall = monotonic, wall
-        self.counters: Counter[str] = Counter()
+        self.counters: Counter[Count] = Counter()
         self.rejects = RateLimitedLog(log)
         self.wake = threading.Event()  # set by a pose arriving
         self._lock = threading.Lock()
@@ -204,12 +205,12 @@ class FederationToRos:
         try:
             parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
             if parsed is None:
-                self.counters["pose_foreign_key"] += 1
+                self.counters[Count.POSE_FOREIGN_KEY] += 1
                 return
             try:
                 decoded = wire.decode_pose(sample.payload.to_bytes())
             except wire.DecodeError as error:
-                self.counters["pose_malformed"] += 1
+                self.counters[Count.POSE_MALFORMED] += 1
                 self.rejects("pose sample", f"{sample.key_expr}: {error}")
                 return
             with self._lock:
@@ -223,22 +224,22 @@ class FederationToRos:
             parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
             payload = sample.payload.to_bytes()
             if parsed is None or len(payload) > STATUS_MAX_BYTES:
-                self.counters["status_malformed"] += 1
+                self.counters[Count.STATUS_MALFORMED] += 1
                 return
             try:
                 status = Status.model_validate_json(payload)
                 reference = AgentId.parse(status.reference)
             except (ValidationError, ValueError) as error:
-                self.counters["status_malformed"] += 1
+                self.counters[Count.STATUS_MALFORMED] += 1
                 self.rejects("status", f"{sample.key_expr}: {error}")
                 return
             if status.agent != str(parsed[0]):
-                self.counters["status_malformed"] += 1
+                self.counters[Count.STATUS_MALFORMED] += 1
                 return
             offset = None if status.t_sim is None else status.t_sim - status.t_exec
             if offset is not None and not abs(offset) <= MAX_CLOCK_OFFSET:  # NaN too
                 # Its poses would be stamped at no time ROS can hold (a crash, once).
-                self.counters["status_malformed"] += 1
+                self.counters[Count.STATUS_MALFORMED] += 1
                 self.rejects("status", f"{sample.key_expr}: clock offset {offset!r} s")
                 return
             with self._lock:
@@ -254,7 +255,7 @@ class FederationToRos:
         t3 = self.monotonic()
         try:
             if reply.ok is None:
-                self.counters["sync_reply_errors"] += 1
+                self.counters[Count.SYNC_REPLY_ERRORS] += 1
                 return
             with self._lock:
                 if link is self.link:
@@ -320,7 +321,7 @@ class FederationToRos:
         for agent, sample in sorted(pending.items()):
             r = to_reference.get(agent)
             if theta is None or r is None:
-                self.counters["odom_unmapped"] += 1
+                self.counters[Count.ODOM_UNMAPPED] += 1
                 continue
             try:
                 stamp = conv.host_stamp(sample.t, r, theta, mono, wall)
@@ -329,7 +330,7 @@ class FederationToRos:
             except ValueError as error:  # no ROS time, or a twist not finite once turned
                 # One agent's bad sample: skipped, the others' written (raised, it would
                 # stop the bridge, and every joined platform with it).
-                self.counters["odom_unwritable"] += 1
+                self.counters[Count.ODOM_UNWRITABLE] += 1
                 self.rejects("pose", f"{agent}: {error}")
                 continue
             writer = self._writers.get(agent)
@@ -343,10 +344,10 @@ class FederationToRos:
                 log.info("%s on ROS 2 topic %s", agent, conv.odometry_topic(agent))
             writer.write(odometry_message(odometry))
             transforms.append(transform)
-            self.counters["odom_published"] += 1
+            self.counters[Count.ODOM_PUBLISHED] += 1
         if transforms and self._tf is not None:
             self._tf.write(tf_message(transforms))
-            self.counters["tf_published"] += 1
+            self.counters[Count.TF_PUBLISHED] += 1
         return len(transforms)
 
     def step(self, timeout: float) -> None:
@@ -396,7 +397,7 @@ class OdometryPlatform(KinematicPlatform):
         self.stamp: float | None = None  # the last taken sample's header stamp (s)
         self.last_rejection: str | None = None
         self._writers: dict[object, float] = {}  # writer -> clock time last heard
-        self.counters: Counter[str] = Counter()
+        self.counters: Counter[Count] = Counter()
         self.rejects = RateLimitedLog(log)
 
     @property
@@ -409,7 +410,7 @@ class OdometryPlatform(KinematicPlatform):
         measurement (once taken, it stays one; :attr:`stale` says when it grows old)."""
         return self.received_at is not None
 
-    def _refuse(self, kind: str, why: str) -> None:
+    def _refuse(self, kind: Count, why: str) -> None:
         self.counters[kind] += 1
         self.last_rejection = why
         self.rejects(kind, why)
@@ -429,12 +430,12 @@ class OdometryPlatform(KinematicPlatform):
             self._writers[getattr(info, "publication_handle", None)] = now
             self._writers = {w: at for w, at in self._writers.items() if now - at <= self.timeout}
             if len(self._writers) > 1:
-                self._refuse("odom_contested", f"{len(self._writers)} publishers on the topic")
+                self._refuse(Count.ODOM_CONTESTED, f"{len(self._writers)} publishers on the topic")
                 continue
             frames = (sample.header.frame_id, sample.child_frame_id)
             if self.frames is not None and frames != self.frames:
                 self._refuse(
-                    "odom_foreign_frame",
+                    Count.ODOM_FOREIGN_FRAME,
                     f"odometry of {frames[0]!r} -> {frames[1]!r}, not the "
                     f"{self.frames[0]!r} -> {self.frames[1]!r} first taken",
                 )
@@ -443,7 +444,7 @@ class OdometryPlatform(KinematicPlatform):
             off = stamp - self.wall()
             if not abs(off) <= ODOM_CLOCK_TOLERANCE:
                 self._refuse(
-                    "odom_clock", f"stamped {off:+.1f} s from this host's clock "
+                    Count.ODOM_CLOCK, f"stamped {off:+.1f} s from this host's clock "
                     f"(at most {ODOM_CLOCK_TOLERANCE} s): a replay, or clocks not synchronized",
                 )  # fmt: skip
                 continue
@@ -451,7 +452,7 @@ class OdometryPlatform(KinematicPlatform):
                 self.stamp = None  # the clocks were set back: the last stamp is no measure
             if self.stamp is not None and stamp <= self.stamp:
                 self._refuse(
-                    "odom_not_newer", f"stamped {stamp - self.stamp:+.3f} s after the last"
+                    Count.ODOM_NOT_NEWER, f"stamped {stamp - self.stamp:+.3f} s after the last"
                 )
                 continue
             p, v = sample.pose.pose, sample.twist.twist
@@ -463,12 +464,12 @@ class OdometryPlatform(KinematicPlatform):
                     (v.angular.x, v.angular.y, v.angular.z),
                 )
             except conv.OdometryError as error:
-                self._refuse("odom_malformed", str(error))
+                self._refuse(Count.ODOM_MALFORMED, str(error))
                 continue
             if self.frames is None:
                 self.frames = frames
                 log.info("odometry taken in frames %r -> %r", *frames)
-            self.counters["odom_received"] += 1
+            self.counters[Count.ODOM_RECEIVED] += 1
             self.pose, self.stamp = pose, stamp
             self.received_at = self.clock()
         return self.pose
@@ -496,7 +497,7 @@ class RunStateToRos:
         self._hold = DataWriter(participant, hold, state_writer_qos(BOOL))
         self._run = DataWriter(participant, run, state_writer_qos(STRING_MESSAGE))
         self._hold_news, self._run_news = conv.Repeated(), conv.Repeated()
-        self.counters: Counter[str] = Counter()
+        self.counters: Counter[Count] = Counter()
         self._lock = threading.Lock()
         self._closed = False
 
@@ -510,7 +511,7 @@ class RunStateToRos:
                 return
             if self._hold_news.due(hold_it, now):
                 self._hold.write(Bool(hold_it))
-                self.counters["ros_hold_written"] += 1
+                self.counters[Count.ROS_HOLD_WRITTEN] += 1
             if self._run_news.due(mode, now):
                 self._run.write(String(mode))
 
@@ -541,7 +542,7 @@ class Ros2Agent(AgentRuntime):
         stale = self.platform.stale
         if stale and not self.safety.holds(Hold.SOURCE_STALE):
             self.safety.apply(Trigger.SOURCE_STALE)  # held and said at once
-            self.count("odom_stale_holds")
+            self.count(Count.ODOM_STALE_HOLDS)
             why = self.platform.last_rejection
             log.warning(
                 "no valid odometry on %s for %.1f s%s: hold", self.odom_topic,
@@ -560,11 +561,11 @@ class Ros2Agent(AgentRuntime):
 
     def publish_pose(self) -> None:
         if self.platform.stale:
-            self.count("pose_withheld")  # fail closed: followers see the link go quiet
+            self.count(Count.POSE_WITHHELD)  # fail closed: followers see the link go quiet
             return
         super().publish_pose()
 
-    def counter_snapshot(self) -> dict[str, int]:
+    def counter_snapshot(self) -> dict[Count, int]:
         state = {} if self.state is None else dict(self.state.counters)
         return super().counter_snapshot() | dict(self.platform.counters) | state
 
@@ -581,7 +582,7 @@ def run_ros2_bridge(
     odom_topic: str | None = None,
     odom_timeout: float = 0.5,
     duration_s: float | None = None,
-) -> Counter[str]:
+) -> Counter[Count]:
     """Run the bridge until ``stop`` (or ``duration_s``); with ``join``, the ROS 2 platform
     reading ``odom_topic`` joins as that agent. Returns the forwarding counters."""
     participant = DomainParticipant(domain_id)
@@ -615,7 +616,7 @@ def run_ros2_bridge(
             forward.step(0.05)
             if time.monotonic() - last_note >= 10.0:
                 last_note = time.monotonic()
-                log.info("forwarded: %s", dict(forward.counters))
+                log.info("forwarded: %s", {k.value: v for k, v in forward.counters.items()})
         return forward.counters
     finally:
         if agent is not None and agent.state is not None:

@@ -85,6 +85,7 @@ import zenoh
 
 from federation.bridge.core import BridgeCore
 from federation.core import keys, wire
+from federation.core.counters import Count
 from federation.core.keys import AgentId
 from federation.core.schedule import next_tick
 from federation.runtime.agent import RateLimitedLog
@@ -159,7 +160,7 @@ class UdpBridge:
     def key(self, agent: AgentId, topic: str | None = None) -> str:
         return keys.agent_key(self.config.federation, agent, topic)
 
-    def _count(self, name: str) -> None:
+    def _count(self, name: Count) -> None:
         with self._lock:
             self.core.count(name)
 
@@ -269,7 +270,7 @@ class UdpBridge:
         try:
             self.sock.sendto(payload, self.peer_addr)
         except OSError as error:  # unreachable, no route: keep trying at the next tick
-            self._count("udp_send_errors")
+            self._count(Count.UDP_SEND_ERRORS)
             self.rejects("udp send", f"to {self.config.peer_text}: {error}")
 
     def _send_reference_request(self) -> None:
@@ -401,7 +402,7 @@ class UdpBridge:
             except OSError as error:  # e.g. an ICMP error reported on the socket
                 if stop.is_set():
                     break
-                self._count("udp_receive_errors")
+                self._count(Count.UDP_RECEIVE_ERRORS)
                 self.rejects("udp receive", str(error))
                 continue
             now = self.clock.now()  # read on arrival: t2 or t3
@@ -417,7 +418,7 @@ class UdpBridge:
             try:
                 self.sock.sendto(outcome.reply, addr)
             except OSError as error:
-                self._count("udp_send_errors")
+                self._count(Count.UDP_SEND_ERRORS)
                 self.rejects("udp send", f"to {format_address(addr[:2])}: {error}")
         if outcome.pose is not None:
             self._pose_pub.put(outcome.pose)
@@ -457,10 +458,10 @@ class UdpBridge:
         now = self.clock.now()  # read on arrival: the paper's t3
         try:
             if reply.ok is None:
-                self._count("sync_reply_errors")
+                self._count(Count.SYNC_REPLY_ERRORS)
                 return
             if len(reply.ok.payload) > _SMALL_MAX:
-                self._count("sync_reply_oversized")
+                self._count(Count.SYNC_REPLY_OVERSIZED)
                 return
             payload = reply.ok.payload.to_bytes()
             replier = reply.replier_id
@@ -478,7 +479,7 @@ class UdpBridge:
         now = self.clock.now()
         try:
             if len(sample.payload) > _SMALL_MAX:
-                self._count("pose_oversized")
+                self._count(Count.POSE_OVERSIZED)
                 return
             parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
             info = sample.source_info
@@ -496,7 +497,7 @@ class UdpBridge:
     def _on_status(self, sample: Any) -> None:
         try:
             if len(sample.payload) > _STATUS_MAX:
-                self._count("status_oversized")
+                self._count(Count.STATUS_OVERSIZED)
                 return
             parsed = keys.parse_agent_key(self.config.federation, str(sample.key_expr))
             if parsed is None:
@@ -510,7 +511,7 @@ class UdpBridge:
     def _on_control(self, sample: Any) -> None:
         try:
             if len(sample.payload) > _STATUS_MAX:
-                self._count("control_oversized")
+                self._count(Count.CONTROL_OVERSIZED)
                 return
             payload = sample.payload.to_bytes()
             with self._lock:

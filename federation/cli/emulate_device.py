@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         device = run_emulator(factory, stop, ready=ready, link=args.link, duration=args.duration)
         counters = device.counters
-        on_event({"t": round(device.t, 6), "event": "exit", **counters})
+        on_event({"t": round(device.t, 6), "event": "exit"} | counters)
         print(
             "fedlab emulate-device: stopped; " + ", ".join(f"{k}={v}" for k, v in counters.items()),
             flush=True,

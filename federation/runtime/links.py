@@ -40,6 +40,7 @@ import zenoh
 from federation.core import wire
 from federation.core.channels import Channel
 from federation.core.contest import ContestWatch
+from federation.core.counters import Count
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch
 from federation.core.sync import SyncClient, read_send_time
@@ -194,7 +195,7 @@ class LinkUser(Protocol):
     @property
     def clock(self) -> Any: ...
 
-    def count(self, name: str) -> None: ...
+    def count(self, name: Count) -> None: ...
 
     def admit_reply(
         self, link: SyncLink, source: str | None, size: int, host: float, feed: PoseFeed | None
@@ -224,7 +225,7 @@ def on_link_reply(link: SyncLink, reply: zenoh.Reply) -> None:
         ok = reply.ok  # each read of it builds a new sample: read once
         if ok is None:
             for user in users:
-                user.count("sync_reply_errors")
+                user.count(Count.SYNC_REPLY_ERRORS)
             return
         replier = reply.replier_id  # a new object at each read: read once for all
         source = None if replier is None else str(replier.zid)
@@ -264,7 +265,7 @@ def _take(link: SyncLink, users: Sequence[LinkUser], ok: Any, t3: float, host: f
         try:
             t2s = read_send_time(attachment.to_bytes())
         except wire.DecodeError:
-            users[0].count("sync_attachment_malformed")
+            users[0].count(Count.SYNC_ATTACHMENT_MALFORMED)
     recorders = [user for user in users if user.recording(Channel.SYNC_EXCHANGE)]
     client = link.client
     with link.lock:

@@ -15,6 +15,7 @@ import zlib
 from collections.abc import Callable, Sequence
 from typing import Protocol, TypeVar
 
+from federation.core.counters import Count
 from federation.core.keys import AgentId
 from federation.core.schedule import Timetable
 from schemas.config import AgentConfig
@@ -51,7 +52,7 @@ class Looped(Protocol):
     def lateness(self) -> _Appendable:
         """The recent control ticks' lateness (s); the loop appends to it."""
 
-    def count(self, name: str) -> None: ...
+    def count(self, name: Count) -> None: ...
 
     def start_due(self) -> float:
         """Host monotonic time at which an armed run starts (inf if none is armed)."""
@@ -105,7 +106,7 @@ class Schedule:
         if due.lateness is not None:
             agent.lateness.append(due.lateness)
         if due.overrun:
-            agent.count("loop_overruns")
+            agent.count(Count.LOOP_OVERRUNS)
         if due.control:
             agent.control_step()
         if due.pose:

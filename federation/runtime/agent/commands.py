@@ -24,6 +24,7 @@ from pydantic import ValidationError
 from agents.guidance import ReferenceManeuver
 from federation.core.channels import Channel
 from federation.core.commands import CommandGate, Verdict
+from federation.core.counters import Count
 from federation.core.holds import Trigger
 from federation.core.runstate import Event, RunState
 from schemas.config import ManeuverConfig
@@ -98,7 +99,7 @@ class RunControl:
             self._tell_safety(events)
         return events, run_time
 
-    def end_run_here(self, counter: str, detail: str, host: float) -> None:
+    def end_run_here(self, counter: Count, detail: str, host: float) -> None:
         """Abort a run started by ctl (armed, running or frozen) on this agent alone: the
         reference it counts time on is no longer the one the run began with (restarted,
         or its clock stepped), or it cannot fly safely (no router, the estimate
@@ -136,13 +137,13 @@ class RunControl:
             command = self._read(sample)
             if command is None:
                 return
-            owner.count("control_received")
+            owner.count(Count.CONTROL_RECEIVED)
             events = self._act(command, t_exec)
             if events is None:
                 return
             ignored = [e.detail for e in events if e.kind == "ignored"]
             if ignored:
-                owner.count("commands_ignored")
+                owner.count(Count.COMMANDS_IGNORED)
             self.outcome(command, "ignored" if ignored else "applied", "; ".join(ignored))
             self._record(command, t_exec, host)
             self.apply(events, t_exec, host)
@@ -176,7 +177,7 @@ class RunControl:
         try:
             return Command.model_validate_json(payload)
         except ValidationError as error:
-            self.owner.count("control_malformed")
+            self.owner.count(Count.CONTROL_MALFORMED)
             why = validation_reason(error)
             self.owner.reject("control command", f"{sample.key_expr}: {why}")
             if is_abort(payload):
@@ -192,9 +193,9 @@ class RunControl:
         if verdict.admitted:
             return True
         if verdict.outcome == "repeat":
-            self.owner.count("commands_repeated")
+            self.owner.count(Count.COMMANDS_REPEATED)
             return False
-        self.owner.count("commands_dropped")
+        self.owner.count(Count.COMMANDS_DROPPED)
         self.outcome(command, verdict.outcome, verdict.detail)
         log.warning(
             "dropped %s from %s: %s (%s)",

@@ -22,6 +22,7 @@ from federation.core import keys, wire
 from federation.core.channels import Channel
 from federation.core.contest import Channel as ContestChannel
 from federation.core.contest import ContestWatch, in_order
+from federation.core.counters import Count
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch
 from federation.runtime.fanout import Received
@@ -93,13 +94,13 @@ class PoseIntake:
             if read is None:
                 return
             decoded, stamp = read
-            owner.count("pose_received")
+            owner.count(Count.POSE_RECEIVED)
             if (
                 parsed is not None
                 and parsed[0] == owner.follow
                 and self.stale_on_arrival(decoded.t, t_recv, self.link_watch)
             ):
-                owner.count("pose_stale_dropped")  # never reaches the controller
+                owner.count(Count.POSE_STALE_DROPPED)  # never reaches the controller
                 return
             if parsed is not None and not self._take(parsed[0], sample, decoded, stamp, t_recv):
                 return
@@ -129,7 +130,7 @@ class PoseIntake:
             if fresh:
                 self.store(agent, decoded, t_recv)
         if not fresh:
-            self.owner.count("pose_out_of_order")
+            self.owner.count(Count.POSE_OUT_OF_ORDER)
             return False
         self.peer_table.place(agent, decoded.t, stamp)
         return True
@@ -172,17 +173,17 @@ class PoseIntake:
         try:
             decoded = sample.pose()
         except wire.DecodeError as error:
-            _count_all(users, "pose_malformed")
+            _count_all(users, Count.POSE_MALFORMED)
             self.owner.reject("pose sample", f"{sample.key}: {error}")
             return None
         try:
             stamp = sample.stamp()
         except wire.DecodeError as error:
-            _count_all(users, "pose_stamp_malformed")
+            _count_all(users, Count.POSE_STAMP_MALFORMED)
             self.owner.reject("pose stamp", f"{sample.key}: {error}")
             return None
         if stamp is not None and stamp.ref_id != self.owner.ref_id:
-            _count_all(users, "pose_other_reference")
+            _count_all(users, Count.POSE_OTHER_REFERENCE)
             stamp = None
         return decoded, stamp
 
@@ -192,7 +193,7 @@ class PoseIntake:
         return self._reference_zid
 
     # -- who speaks for a peer (federation.core.contest) -----------------------------
-    def oversized(self, size: int, counter: str) -> bool:
+    def oversized(self, size: int, counter: Count) -> bool:
         """Drop (and count) a payload of ``size`` bytes far larger than any pose or sync
         message, before it is copied or decoded."""
         if size <= MAX_SMALL_PAYLOAD:
@@ -205,7 +206,7 @@ class PoseIntake:
     ) -> bool:
         """Whether a pose sample may be used: not oversized, and its peer not contested
         (its source: the publisher's session id in the source info, None without one)."""
-        if self.oversized(sample.size, "pose_oversized"):
+        if self.oversized(sample.size, Count.POSE_OVERSIZED):
             return False
         if parsed is None:
             return True
@@ -220,7 +221,7 @@ class PoseIntake:
         ``feed``, whose record of the agent they follow covers its poses and its
         replies alike (a contest on one drops what comes on the other too)."""
         if size > MAX_SMALL_PAYLOAD:
-            _count_all(_members(feed, self), "sync_replies_oversized")
+            _count_all(_members(feed, self), Count.SYNC_REPLIES_OVERSIZED)
             return False
         return self.contest_verdict(link.agent, "sync", source, host, feed)
 
@@ -250,7 +251,7 @@ class PoseIntake:
                     if user.owner.reference == agent:
                         user.reference_session(source, host)
             return True
-        _count_all(users, "contested_dropped")
+        _count_all(users, Count.CONTESTED_DROPPED)
         if outcome == "contested":
             for user in users:
                 user.drop_contested(agent)
@@ -260,7 +261,7 @@ class PoseIntake:
     def drop_contested(self, agent: AgentId) -> None:
         """``agent`` is contested: what it sent so far is suspect, and the estimate of
         every agent on its link is reset (all of them hold)."""
-        self.owner.count("contested")
+        self.owner.count(Count.CONTESTED)
         self.latest_poses.pop(agent, None)
         peer = self.peer_table.peers.get(agent)
         link = None if peer is None else peer.link
@@ -278,7 +279,7 @@ class PoseIntake:
         if before is not None and before != source:
             owner = self.owner
             detail = f"{owner.reference} restarted (session {before[:8]} now {source!s:.8})"
-            self.commands.end_run_here("reference_restarted", detail, host)
+            self.commands.end_run_here(Count.REFERENCE_RESTARTED, detail, host)
 
     def contest_reason(self, name: str, host: float) -> str | None:
         """Why ``name`` is contested now, by this agent's watch or its feed's."""
@@ -410,8 +411,8 @@ def on_feed_pose(feed: PoseFeed, sample: Received) -> None:
                 for user in users:
                     user.store(agent, decoded, t_recv)
         if not fresh:
-            _count_all(users, "pose_received")
-            _count_all(users, "pose_out_of_order")  # never overwrites a newer one
+            _count_all(users, Count.POSE_RECEIVED)
+            _count_all(users, Count.POSE_OUT_OF_ORDER)  # never overwrites a newer one
             return
     except Exception:
         log.exception("pose sample on %s failed", sample.key)
@@ -425,7 +426,7 @@ def _admit_on_feed(
     """A feed's sample admitted and read once for all its agents; None if dropped."""
     first, agent = users[0], feed.agent
     if sample.size > MAX_SMALL_PAYLOAD:
-        _count_all(users, "pose_oversized")
+        _count_all(users, Count.POSE_OVERSIZED)
         return None
     if not first.contest_verdict(agent, "pose", sample.source(), host, feed):
         return None
@@ -436,8 +437,8 @@ def _admit_on_feed(
     # has seen the agent (liveliness may reach one before another).
     judge = next((u for u in users if agent in u.peer_table.peers), first)
     if judge.stale_on_arrival(read[0].t, t_recv, feed.watch):
-        _count_all(users, "pose_received")
-        _count_all(users, "pose_stale_dropped")  # never reaches a controller
+        _count_all(users, Count.POSE_RECEIVED)
+        _count_all(users, Count.POSE_STALE_DROPPED)  # never reaches a controller
         return None
     return read
 
@@ -458,7 +459,7 @@ def _deliver(
     for user in users:
         owner = user.owner
         try:
-            owner.count("pose_received")
+            owner.count(Count.POSE_RECEIVED)
             user.peer_table.place(agent, decoded.t, stamp)
             if owner.recording(Channel.POSE_RECEIVED):
                 if message is None:  # built and encoded once, queued by each recorder
@@ -471,6 +472,6 @@ def _deliver(
             log.exception("pose sample on %s failed for %s", sample.key, owner.me)
 
 
-def _count_all(users: Iterable[PoseIntake], name: str) -> None:
+def _count_all(users: Iterable[PoseIntake], name: Count) -> None:
     for user in users:
         user.owner.count(name)

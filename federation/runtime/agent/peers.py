@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from federation.core import wire
+from federation.core.counters import Count
 from federation.core.estimators import make_estimator
 from federation.core.keys import AgentId
 from federation.core.linkwatch import SilenceWatch
@@ -314,7 +315,7 @@ class PeerTable:
         for name, view in status.peers.items():
             if view.silent is not None and name not in self._silent_warned:
                 self._silent_warned.add(name)
-                self.owner.count("silent_peer_alarms")
+                self.owner.count(Count.SILENT_PEER_ALARMS)
                 log.warning("%s is alive but answered nothing for %.1f s", name, view.silent)
             elif view.silent is None and name in self._silent_warned:
                 self._silent_warned.discard(name)

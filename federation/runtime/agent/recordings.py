@@ -9,6 +9,7 @@ import threading
 from pathlib import Path
 
 from federation.core.channels import Channel
+from federation.core.counters import Count
 from federation.runtime.collect import manifest_name
 from federation.runtime.recorder import Message, Recorder
 from federation.runtime.runs import PROMISES, RunRecording, recording_budget
@@ -120,16 +121,16 @@ class Recordings:
             return f"run {run_id} is recorded here already ({folder}): start another run id"
         return None
 
-    def counters(self) -> dict[str, int]:
+    def counters(self) -> dict[Count, int]:
         """What this run's recording left out (its budget, a full queue, write errors)."""
         run = self.run
         if run is None:
             return {}
         report = run.recorder.report()
         return {
-            "recording_dropped_over_budget": report["dropped_over_budget"],
-            "recording_dropped_queue_full": report["dropped_queue_full"],
-            "recording_write_errors": report["write_errors"],
+            Count.RECORDING_DROPPED_OVER_BUDGET: report["dropped_over_budget"],
+            Count.RECORDING_DROPPED_QUEUE_FULL: report["dropped_queue_full"],
+            Count.RECORDING_WRITE_ERRORS: report["write_errors"],
         }
 
     def status_line(self, line: str) -> bool:

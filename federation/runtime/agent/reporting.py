@@ -12,6 +12,7 @@ from typing import IO, TYPE_CHECKING, Any
 import zenoh
 
 from federation.core.channels import Channel
+from federation.core.counters import Count
 from federation.core.ring import FloatRing
 from federation.runtime.runs import low_space
 from federation.runtime.status import loop_stats
@@ -89,7 +90,7 @@ class Reporter:
         self.peer_table = peer_table
         self.commands = commands
         self.recordings = recordings
-        self.counters: Counter[str] = Counter()
+        self.counters: Counter[Count] = Counter()
         self._count_lock = threading.Lock()
         self.lateness = FloatRing(2000)  # control ticks' lateness (s)
         self.rejects = RateLimitedLog(log)
@@ -98,12 +99,12 @@ class Reporter:
         self.status_file: IO[str] | None = None
         self.publisher: Any = None  # the status publisher, declared at start
 
-    def count(self, name: str) -> None:
+    def count(self, name: Count) -> None:
         """Bump a counter; callbacks may run on several Zenoh threads at once."""
         with self._count_lock:
             self.counters[name] += 1
 
-    def snapshot(self) -> dict[str, int]:
+    def snapshot(self) -> dict[Count, int]:
         """Every counter: the agent's, its scenario's, its platform's, its run recording's."""
         owner = self.owner
         with self._count_lock:
@@ -202,10 +203,10 @@ class Reporter:
                 self.status_file.write(line + "\n")
                 self.status_file.flush()
             except (OSError, ValueError) as error:  # a full disk: the agent flies on
-                self.count("status_write_errors")
+                self.count(Count.STATUS_WRITE_ERRORS)
                 self.rejects("status line", f"{owner.config.status_json}: {error}")
         if not self.recordings.status_line(line):
-            self.count("status_write_errors")
+            self.count(Count.STATUS_WRITE_ERRORS)
         if owner.recording(Channel.STATUS):
             owner.record(Channel.STATUS, line.encode())  # the line published: encoded once
 

@@ -50,6 +50,7 @@ from agents.platform import Platform, make_platform
 from agents.scenario import ScenarioGuidance, make_scenario
 from federation.core import keys, wire
 from federation.core.channels import Channel
+from federation.core.counters import Count
 from federation.core.holds import Hold, Trigger
 from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch
@@ -182,7 +183,7 @@ class AgentRuntime:
         return self.intake.feed
 
     @property
-    def counters(self) -> Counter[str]:
+    def counters(self) -> Counter[Count]:
         return self.reporter.counters
 
     @property
@@ -206,7 +207,7 @@ class AgentRuntime:
     def key(self, agent: AgentId, topic: str | None = None) -> str:
         return keys.agent_key(self.config.federation, agent, topic)
 
-    def count(self, name: str) -> None:
+    def count(self, name: Count) -> None:
         """Bump a counter; callbacks may run on several Zenoh threads at once."""
         self.reporter.count(name)
 
@@ -406,7 +407,7 @@ class AgentRuntime:
         self.watches.step(t_exec, host)
         restored = self.safety.enforce()  # a step never runs free while a hold stands
         if restored is not None:
-            self.count("holds_restored")
+            self.count(Count.HOLDS_RESTORED)
             log.warning(
                 "run %s: the platform was released; held again (%s)", self.run_state.mode, restored
             )
@@ -457,7 +458,7 @@ class AgentRuntime:
         if not self.platform.has_fix:
             # Its prior is not a pose: a follower would steer by it, a formation pull
             # towards it.
-            self.count("pose_withheld_no_fix")
+            self.count(Count.POSE_WITHHELD_NO_FIX)
             return
         t_exec, host = self.clock.read()
         try:
@@ -465,7 +466,7 @@ class AgentRuntime:
         except ValueError:
             # Not a pose (NaN or infinity): never sent, and the platform that made it
             # held (the GNC chain's own guard holds first; this covers any platform).
-            self.count("pose_not_finite")
+            self.count(Count.POSE_NOT_FINITE)
             if not self.safety.holds(Hold.NONFINITE):
                 self.safety.apply(Trigger.POSE_NONFINITE)  # for good: nothing lifts it
                 log.error("own pose not finite (%s): not sent, platform held", self.pose)
@@ -531,7 +532,7 @@ class AgentRuntime:
         """What preflight checks: platform, recording, the reference clock's estimate."""
         return self.reporter.readiness(t_exec)
 
-    def counter_snapshot(self) -> dict[str, int]:
+    def counter_snapshot(self) -> dict[Count, int]:
         return self.reporter.snapshot()
 
     def loop_stats(self) -> dict[str, float]:
@@ -553,18 +554,18 @@ class AgentRuntime:
         try:
             payload = query.payload
             if payload is not None and self.intake.oversized(
-                len(payload), "sync_requests_oversized"
+                len(payload), Count.SYNC_REQUESTS_OVERSIZED
             ):
                 return
             request = b"" if payload is None else payload.to_bytes()
             try:
                 served = serve(request, t2, self.pose, clock.now())
             except wire.DecodeError as error:
-                self.count("sync_requests_malformed")
+                self.count(Count.SYNC_REQUESTS_MALFORMED)
                 self.reject("sync request", f"{query.key_expr}: {error}")
                 return
             query.reply(query.key_expr, served.payload, attachment=served.attachment)
-            self.count("sync_requests_served")
+            self.count(Count.SYNC_REQUESTS_SERVED)
         except Exception:
             log.exception("sync query on %s failed", query.key_expr)
         finally:
@@ -601,9 +602,9 @@ class AgentRuntime:
         """``agent``'s clock stepped by ``jump`` s (or this agent's own did): its poses
         count time afresh, so their order is forgotten; the reference's ends a ctl run
         here (run time would jump by it)."""
-        self.count("clock_steps")
+        self.count(Count.CLOCK_STEPS)
         self.event("clock_step", t3, host, f"{agent}: {jump:+.6f} s")
         self.intake.forget_order(agent)
         if agent == self.reference:
             detail = f"{agent}'s clock stepped {jump:+.3f} s against this agent's"
-            self.commands.end_run_here("reference_clock_steps", detail, host)
+            self.commands.end_run_here(Count.REFERENCE_CLOCK_STEPS, detail, host)

@@ -16,6 +16,7 @@ if TYPE_CHECKING:
     from agents.scenario import ScenarioGuidance
     from federation.core import wire
     from federation.core.channels import Channel
+    from federation.core.counters import Count
     from federation.core.keys import AgentId
     from federation.core.timebase import TimeBase
     from federation.runtime.clock import ExecClock
@@ -51,7 +52,7 @@ class AgentServices(Protocol):
 
     def key(self, agent: AgentId, topic: str | None = None) -> str: ...
 
-    def count(self, name: str) -> None: ...
+    def count(self, name: Count) -> None: ...
 
     def reject(self, kind: str, message: str) -> None: ...
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
+from federation.core.counters import Count
 from federation.core.holds import Hold, Trigger
 from federation.runtime.names import NAME_CHECKS_AFTER, clash_message, look_again
 
@@ -100,7 +101,7 @@ class Watches:
     def _hold_for_name(self, t_exec: float, host: float) -> None:
         owner = self.owner
         owner.safety.apply(Trigger.NAME_TAKEN)
-        owner.count("name_taken_holds")
+        owner.count(Count.NAME_TAKEN_HOLDS)
         log.error("%s: safe hold for good; stop one of them and restart the other", self.name_clash)
         owner.event("name_taken_hold", t_exec, host, self.name_clash or "")
 
@@ -123,7 +124,7 @@ class Watches:
         )
         if action == "stale_hold" and received is not None:
             owner.safety.apply(Trigger.LINK_STALE)
-            owner.count("stale_holds")
+            owner.count(Count.STALE_HOLDS)
             log.warning(
                 "no pose from %s for %.0f ms: safe hold", owner.follow, (t_exec - received) * 1e3
             )
@@ -149,7 +150,7 @@ class Watches:
             self._contest_cleared = None
             if not safety.holds(Hold.CONTESTED):
                 safety.apply(Trigger.CONTESTED)
-                owner.count("contested_holds")
+                owner.count(Count.CONTESTED_HOLDS)
                 log.error("followed agent %s contested (%s): safe hold", follow, reason)
                 owner.event("contested_hold", t_exec, host, reason)
             return True
@@ -196,9 +197,9 @@ class Watches:
         if host - self._router_lost < NO_ROUTER_HOLD or safety.holds(Hold.NO_ROUTER):
             return
         detail = f"no router for {host - self._router_lost:.1f} s"
-        self.commands.end_run_here("router_lost", detail, host)
+        self.commands.end_run_here(Count.ROUTER_LOST, detail, host)
         safety.apply(Trigger.ROUTER_LOST)
-        owner.count("no_router_holds")
+        owner.count(Count.NO_ROUTER_HOLDS)
         log.error("%s: safe hold until it is back", detail)
 
     # -- the estimate ----------------------------------------------------------------
@@ -212,9 +213,9 @@ class Watches:
         if not owner.platform.restarted or owner.safety.holds(Hold.FIX_RESTART):
             return
         detail = "the estimate restarted from agreeing outlier fixes: check the metrology"
-        self.commands.end_run_here("fix_restart", detail, host)
+        self.commands.end_run_here(Count.FIX_RESTART, detail, host)
         owner.safety.apply(Trigger.FIX_RESTARTED)
-        owner.count("fix_restart_holds")
+        owner.count(Count.FIX_RESTART_HOLDS)
         log.error("%s: safe hold until fedlab ctl reset", detail)
 
     # -- the area --------------------------------------------------------------------

@@ -8,6 +8,7 @@ import pytest
 
 from agents.docking import DockingGuidance, TargetFilter, TargetGuidance, contact_state
 from agents.relative import RelativeMeasurement
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import DockingConfig, RelativeSensorConfig
 
@@ -160,14 +161,14 @@ def test_a_silent_target_is_lost_and_not_chased_at_its_old_drift() -> None:
         t = k * 0.05
         last = (t, Pose(0.01 * t, 0.0, 0.0, 0.01, 0.0))
         g.reference(t, t, last, own)
-    given = g.sensor.counters["given"]
+    given = g.sensor.counters[Count.RELATIVE_GIVEN]
     tracks = []
     for k in range(1, 2400):  # 120 s: its last pose is all that is shared
         t = 10.0 + k * 0.05
         ref = g.reference(t, t, last, own)
         tracks.append(ref.track)
-    assert g.sensor.counters["given"] <= given + round(QUIET.horizon * QUIET.rate) + 1
-    assert g.sensor.counters["stale_pose"] > 0
+    assert g.sensor.counters[Count.RELATIVE_GIVEN] <= given + round(QUIET.horizon * QUIET.rate) + 1
+    assert g.sensor.counters[Count.RELATIVE_STALE_POSE] > 0
     final = tracks[-1]
     assert final is not None and (final.vx, final.vy) == (0.0, 0.0)
     minute_before = tracks[-1200]

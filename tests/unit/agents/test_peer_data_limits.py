@@ -15,6 +15,7 @@ from agents.formation import FormationGuidance
 from agents.guidance import track_heading
 from agents.simulated import SimulatedPlatform
 from agents.workspace import Frame, FramedPlatform
+from federation.core.counters import Count
 from federation.core.wire import Pose, PoseSample
 from schemas.experiment import load_experiment
 from schemas.platform import load_platform
@@ -134,5 +135,5 @@ def test_sensor_noise_at_long_range_is_no_target_jump() -> None:
         for i in range(6000):  # 60 s at 100 Hz
             t = i * 0.01
             guidance.reference(t, t, (t, Pose(0.0, 0.0, 0.0)), own)
-        assert guidance.sensor.counters["given"] > 500
+        assert guidance.sensor.counters[Count.RELATIVE_GIVEN] > 500
         assert guidance.counters["target_jumps"] == 0, seed

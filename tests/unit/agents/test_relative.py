@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from agents.relative import RelativeSensor, dead_reckon, to_common
+from federation.core.counters import Count
 from federation.core.wire import Pose
 from schemas.scenario import RelativeSensorConfig
 
@@ -46,11 +47,11 @@ def test_field_of_view_range_and_rate() -> None:
     assert sensor.measure(0.2, (0.0, Pose(1.0, 0.1)), own) is not None
     assert sensor.measure(0.3, None, own) is None
     assert sensor.counters == {
-        "given": 1,
-        "out_of_view": 2,
-        "dropped": 0,
-        "no_pose": 1,
-        "stale_pose": 0,
+        Count.RELATIVE_GIVEN: 1,
+        Count.RELATIVE_OUT_OF_VIEW: 2,
+        Count.RELATIVE_DROPPED: 0,
+        Count.RELATIVE_NO_POSE: 1,
+        Count.RELATIVE_STALE_POSE: 0,
     }
 
 
@@ -76,7 +77,7 @@ def test_dropouts_at_the_configured_rate() -> None:
     sensor = RelativeSensor(RelativeSensorConfig(dropout=0.2, seed=1))
     for k in range(5000):
         sensor.measure(k * 0.1, (k * 0.1, Pose(1.0, 0.0)), Pose())
-    assert sensor.counters["dropped"] / 5000 == pytest.approx(0.2, abs=0.02)
+    assert sensor.counters[Count.RELATIVE_DROPPED] / 5000 == pytest.approx(0.2, abs=0.02)
 
 
 def test_a_shared_pose_older_or_further_ahead_than_the_horizon_gives_no_measurement() -> None:
@@ -86,4 +87,4 @@ def test_a_shared_pose_older_or_further_ahead_than_the_horizon_gives_no_measurem
     assert sensor.measure(10.0, (9.5, Pose()), own) is not None  # within the 1 s horizon
     assert sensor.measure(10.1, (8.5, Pose()), own) is None  # 1.6 s old
     assert sensor.measure(10.2, (100.0, Pose()), own) is None  # 90 s ahead
-    assert sensor.counters["stale_pose"] == 2
+    assert sensor.counters[Count.RELATIVE_STALE_POSE] == 2
