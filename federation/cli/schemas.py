@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from federation.cli.common import Formatter, Subparsers
+from federation.core.counters import counters_table_markdown
 from federation.core.holds import holds_table_markdown
 from schemas import export
 
@@ -27,7 +28,8 @@ def add(sub: Subparsers) -> None:
         ),
         epilog=(
             "Examples:\n  fedlab schemas\n  fedlab schemas --check\n"
-            "  fedlab schemas --holds > table.md   # docs/holds.md's table"
+            "  fedlab schemas --holds > table.md   # docs/holds.md's table\n"
+            "  fedlab schemas --counters > table.md   # docs/counters.md's table"
         ),
     )
     p.add_argument(
@@ -41,12 +43,20 @@ def add(sub: Subparsers) -> None:
         action="store_true",
         help="print the holds' table (docs/holds.md) from federation.core.holds and exit",
     )
+    p.add_argument(
+        "--counters",
+        action="store_true",
+        help="print the counters' table (docs/counters.md) from federation.core.counters and exit",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.holds:
         print(holds_table_markdown(), end="")
+        return 0
+    if args.counters:
+        print(counters_table_markdown(), end="")
         return 0
     if args.check:
         stale = export.check(args.out)
