@@ -80,6 +80,7 @@ from federation.core.keys import AgentId
 from federation.core.sync import SyncClient
 from federation.runtime.agent import AgentRuntime, RateLimitedLog
 from federation.runtime.session import undeclare_all
+from federation.runtime.syncglue import Answer, SyncQuerier
 from schemas.config import AgentConfig
 from schemas.messages import Status
 
@@ -174,7 +175,7 @@ class FederationToRos:
         self._reference_of: dict[AgentId, AgentId] = {}  # each agent's reference, by status
         self.reference: AgentId | None = None
         self.link: SyncClient | None = None  # this bridge's sync with the reference
-        self._querier: Any = None
+        self._querier: SyncQuerier | None = None
         self._next_sync = 0.0
         self._writers: dict[AgentId, DataWriter[Odometry]] = {}
         self._tf: DataWriter[TFMessage] | None = None
@@ -251,17 +252,18 @@ class FederationToRos:
         except Exception:
             log.exception("status sample on %s failed", sample.key_expr)
 
-    def _on_reply(self, link: SyncClient, reply: zenoh.Reply) -> None:
-        t3 = self.monotonic()
-        try:
-            if reply.ok is None:
-                self.counters[Count.SYNC_REPLY_ERRORS] += 1
-                return
-            with self._lock:
-                if link is self.link:
-                    link.receive(reply.ok.payload.to_bytes(), t3)
-        except Exception:
-            log.exception("sync reply failed")
+    def _on_answer(self, link: SyncClient, answer: Answer) -> None:
+        """A reply of the reference, taken by ``link`` if it is still the one in use."""
+        if not answer.ok:
+            self.counters[Count.SYNC_REPLY_ERRORS] += 1
+            return
+        with self._lock:
+            if link is self.link:
+                link.receive(answer.payload(), answer.t3)
+
+    def _read(self) -> tuple[float, float]:
+        now = self.monotonic()
+        return now, now
 
     # -- the bridge's loop -------------------------------------------------------------
     def sync(self, now: float) -> None:
@@ -282,25 +284,19 @@ class FederationToRos:
         self._next_sync = now + SYNC_PERIOD
         try:
             if self._querier is None:
-                self._querier = self.session.declare_querier(
-                    keys.agent_key(self.federation, self.reference, "sync"),
-                    consolidation=zenoh.ConsolidationMode.NONE,
-                    timeout=SYNC_TIMEOUT,
-                )
+                self._querier = SyncQuerier(
+                    self.session, keys.agent_key(self.federation, self.reference, "sync"),
+                    SYNC_TIMEOUT, self._read, functools.partial(self._on_answer, link),
+                )  # fmt: skip
             with self._lock:
                 payload = link.request(self.monotonic())
-            handler: zenoh.handlers.Callback[zenoh.Reply] = zenoh.handlers.Callback(
-                functools.partial(self._on_reply, link), indirect=False
-            )
-            self._querier.get(handler, payload=payload)
+            self._querier.request(payload)
         except Exception as error:  # session closing
             log.warning("sync request to %s failed: %s", self.reference, error)
 
     def _undeclare_querier(self) -> None:
-        try:
-            self._querier.undeclare()
-        except Exception as error:
-            log.debug("undeclare failed: %s", error)
+        if self._querier is not None:
+            self._querier.close()
         self._querier = None
 
     def reference_offset(self, now: float) -> float | None:

@@ -74,6 +74,7 @@ decided in :mod:`federation.bridge.core`, which takes ``now`` and bytes.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import socket
@@ -98,6 +99,7 @@ from federation.runtime.names import (
     look_again,
     name_alive,
 )
+from federation.runtime.syncglue import Answer, Served, SyncQuerier, serve_query
 from schemas.bridge import UdpBridgeConfig, format_address
 from schemas.config import ConfigError
 from schemas.messages import Status
@@ -143,8 +145,7 @@ class UdpBridge:
         self._token: Any = None
         self._pose_pub: Any = None
         self._status_pub: Any = None
-        self._querier: Any = None
-        self._on_reply: Any = None
+        self._querier: SyncQuerier | None = None  # the reference's sync key
         self._followed_sub: Any = None
         self._unsynced_noted = False
         self._receiver: threading.Thread | None = None
@@ -220,6 +221,8 @@ class UdpBridge:
         for entity in reversed(self._declared):
             _undeclare(entity)  # a session already closed by zenoh is fine
         self._declared.clear()
+        if self._querier is not None:
+            self._querier.close()
         self._stop.set()  # the receiver thread, if run() did not end normally
         if self._receiver is not None:
             self._receiver.join(2.0)
@@ -282,7 +285,7 @@ class UdpBridge:
         if payload is None:
             return
         try:
-            self._querier.get(self._on_reply, payload=payload)
+            self._querier.request(payload)
         except Exception as error:  # session closing, or zenoh refusing the query
             log.warning("sync request to %s failed: %s", reference, error)
 
@@ -303,15 +306,12 @@ class UdpBridge:
 
     def _use_reference(self, agent: AgentId) -> None:
         """Query ``agent``'s sync key and take its pose (the core already syncs afresh)."""
-        self._drop(self._querier)
-        self._querier = self.session.declare_querier(
-            self.key(agent, "sync"),
-            consolidation=zenoh.ConsolidationMode.NONE,
-            timeout=self.config.sync_timeout,
-            express=True,
-        )
-        self._declared.append(self._querier)
-        self._on_reply = zenoh.handlers.Callback(self._on_reference_reply, indirect=False)
+        if self._querier is not None:
+            self._querier.close()
+        self._querier = SyncQuerier(
+            self.session, self.key(agent, "sync"), self.config.sync_timeout, self.clock.read,
+            self._on_reference_answer,
+        )  # fmt: skip
         self._subscribe_pose(agent)
         log.info("reference time: %s's clock; legacy agent receives its pose", agent)
 
@@ -435,45 +435,38 @@ class UdpBridge:
     # -- Zenoh callbacks: quick, and never raise ---------------------------------------
     def _on_query(self, query: Any) -> None:
         now = self.clock.now()  # read on arrival: the paper's t2
-        try:
-            payload = query.payload
-            data = payload.to_bytes() if payload is not None else b""
-            try:
-                with self._lock:
-                    answer = self.core.on_sync_query(data, now)
-            except wire.DecodeError as error:
-                self.rejects("sync request", f"{query.key_expr}: {error}")
-                return
-            if answer is None:
-                return  # the legacy agent's clock is unknown: no reply, as for a lost packet
-            reply, offset = answer
-            t2s = wire.encode_request(self.clock.now() + offset)  # send time, legacy clock
-            query.reply(query.key_expr, reply, attachment=t2s)
-        except Exception:
-            log.exception("sync query on %s failed", query.key_expr)
-        finally:
-            query.drop()  # release now, or the querier waits for its timeout
+        serve_query(query, functools.partial(self._answer_query, now, query.key_expr))
 
-    def _on_reference_reply(self, reply: Any) -> None:
-        now = self.clock.now()  # read on arrival: the paper's t3
+    def _answer_query(self, now: float, key: object, payload: Any) -> Served | None:
+        """The reply to a sync request for the legacy agent, received at ``now`` (None: no
+        reply, as for a lost packet, while the legacy agent's clock is unknown)."""
+        data = payload.to_bytes() if payload is not None else b""
         try:
-            if reply.ok is None:
-                self._count(Count.SYNC_REPLY_ERRORS)
-                return
-            if len(reply.ok.payload) > _SMALL_MAX:
-                self._count(Count.SYNC_REPLY_OVERSIZED)
-                return
-            payload = reply.ok.payload.to_bytes()
-            replier = reply.replier_id
-            source = None if replier is None else str(replier.zid)
             with self._lock:
-                accepted = self.core.on_reference_reply(payload, now, replier=source)
-                reason = self.core.reference.client.last_rejection
-                reference = self.core.reference_id
-            if not accepted:
-                self.rejects(f"sync reply ({reason})", f"from {reference}")
-        except Exception:
-            log.exception("sync reply from %s failed", self.core.reference_id)
+                answer = self.core.on_sync_query(data, now)
+        except wire.DecodeError as error:
+            self.rejects("sync request", f"{key}: {error}")
+            return None
+        if answer is None:
+            return None
+        reply, offset = answer
+        return reply, wire.encode_request(self.clock.now() + offset)  # send time, legacy clock
+
+    def _on_reference_answer(self, answer: Answer) -> None:
+        if not answer.ok:
+            self._count(Count.SYNC_REPLY_ERRORS)
+            return
+        if answer.size > _SMALL_MAX:
+            self._count(Count.SYNC_REPLY_OVERSIZED)
+            return
+        with self._lock:
+            accepted = self.core.on_reference_reply(
+                answer.payload(), answer.t3, replier=answer.source
+            )
+            reason = self.core.reference.client.last_rejection
+            reference = self.core.reference_id
+        if not accepted:
+            self.rejects(f"sync reply ({reason})", f"from {reference}")
 
     def _on_pose(self, sample: Any) -> None:
         now = self.clock.now()

@@ -45,8 +45,9 @@ from federation.core.keys import AgentId
 from federation.core.linkwatch import LinkWatch
 from federation.core.sync import SyncClient, read_send_time
 from federation.runtime.recorder import Message, Shared
+from federation.runtime.syncglue import Answer, SyncQuerier
 
-__all__ = ["LinkUser", "PoseFeed", "SyncLink", "SyncLinks", "on_link_reply"]
+__all__ = ["LinkUser", "PoseFeed", "SyncLink", "SyncLinks", "on_link_answer", "on_link_reply"]
 
 log = logging.getLogger("fedlab.agent")
 
@@ -60,8 +61,7 @@ class SyncLink:
     client: SyncClient
     agents: tuple[Any, ...] = ()  # the agents that read its estimate (AgentRuntime)
     sender: Any = None  # the one of them that sends its requests
-    querier: Any = None  # zenoh.Querier on the peer's sync key, declared on first use
-    on_reply: Any = None  # its reply handler, made once
+    querier: SyncQuerier | None = None  # on the peer's sync key, made on first use
     next_sync: float = 0.0  # host monotonic time of its next request
     four_timestamps: bool = False  # the replier's send time (t2s) is read and used
     # Held while the client changes (a request, a reply, a reset): its agents' threads
@@ -213,6 +213,14 @@ class LinkUser(Protocol):
 
 
 def on_link_reply(link: SyncLink, reply: zenoh.Reply) -> None:
+    """A sync reply on ``link`` as Zenoh hands it over: read at once (``t3``, on the
+    clock its agents share), then :func:`on_link_answer`."""
+    users: Sequence[LinkUser] = link.agents
+    if users:
+        on_link_answer(link, Answer(reply, *users[0].clock.read()))
+
+
+def on_link_answer(link: SyncLink, answer: Answer) -> None:
     """A sync reply on ``link``, for every agent on it (the first first): each admits it
     (one that finds the replier contested drops it, and resets the estimate they share,
     so every one of them holds), the client takes it once, and each counts, logs and
@@ -220,20 +228,16 @@ def on_link_reply(link: SyncLink, reply: zenoh.Reply) -> None:
     users: Sequence[LinkUser] = link.agents
     if not users:
         return
-    t3, host = users[0].clock.read()  # read on arrival: the paper's t3
     try:
-        ok = reply.ok  # each read of it builds a new sample: read once
-        if ok is None:
+        if not answer.ok:
             for user in users:
                 user.count(Count.SYNC_REPLY_ERRORS)
             return
-        replier = reply.replier_id  # a new object at each read: read once for all
-        source = None if replier is None else str(replier.zid)
-        if not _admitted(link, users, source, len(ok.payload), host):
+        if not _admitted(link, users, answer.source, answer.size, answer.host):
             return
         for user in users:
             user.sync_answered(link.agent)
-        _take(link, users, ok, t3, host)
+        _take(link, users, answer)
     except Exception:
         log.exception("sync reply from %s failed", link.key)
 
@@ -256,21 +260,22 @@ def _admitted(
     return admitted
 
 
-def _take(link: SyncLink, users: Sequence[LinkUser], ok: Any, t3: float, host: float) -> None:
+def _take(link: SyncLink, users: Sequence[LinkUser], answer: Answer) -> None:
     """The client takes an admitted reply; a clock step and the exchange are told to
     every agent on the link."""
+    t3, host = answer.t3, answer.host
     t2s = None
-    attachment = ok.attachment if link.four_timestamps else None
+    attachment = answer.attachment() if link.four_timestamps else None
     if attachment is not None:
         try:
-            t2s = read_send_time(attachment.to_bytes())
+            t2s = read_send_time(attachment)
         except wire.DecodeError:
             users[0].count(Count.SYNC_ATTACHMENT_MALFORMED)
     recorders = [user for user in users if user.recording(Channel.SYNC_EXCHANGE)]
     client = link.client
     with link.lock:
         steps = client.steps
-        accepted = client.receive(ok.payload.to_bytes(), t3, t2s)
+        accepted = client.receive(answer.payload(), t3, t2s)
         reason = client.last_rejection
         exchange = client.last
         estimate = client.offset_at(t3) if recorders else None

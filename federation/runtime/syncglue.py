@@ -21,7 +21,7 @@ from typing import Any
 
 import zenoh
 
-__all__ = ["Answer", "SyncQuerier", "serve_query"]
+__all__ = ["Answer", "Served", "SyncQuerier", "serve_query"]
 
 log = logging.getLogger("fedlab.sync")
 
@@ -113,17 +113,23 @@ class SyncQuerier:
                 log.debug("undeclaring the querier on %s: %s", self.key, error)
 
 
-def serve_query(
-    query: zenoh.Query, answer: Callable[[Any], tuple[bytes, bytes | None] | None]
-) -> None:
+Served = tuple[bytes, bytes | None]
+"""A reply's payload and attachment."""
+
+
+def serve_query(query: zenoh.Query, answer: Callable[[Any], Served | None]) -> bool:
     """Reply to ``query`` with what ``answer`` makes of its payload (a zenoh payload or
     None: its size can be judged before anything is copied): a payload and an
-    attachment, or None for no reply. The query is released at once, whatever happens."""
+    attachment, or None for no reply. The query is released at once, whatever happens.
+    True if a reply was sent."""
     try:
         served = answer(query.payload)
-        if served is not None:
-            query.reply(query.key_expr, served[0], attachment=served[1])
+        if served is None:
+            return False
+        query.reply(query.key_expr, served[0], attachment=served[1])
+        return True
     except Exception:
         log.exception("sync query on %s failed", query.key_expr)
+        return False
     finally:
         query.drop()  # type: ignore[no-untyped-call]  # release now, or the querier waits

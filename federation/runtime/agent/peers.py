@@ -19,8 +19,6 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import zenoh
-
 from federation.core import wire
 from federation.core.counters import Count
 from federation.core.estimators import make_estimator
@@ -28,8 +26,9 @@ from federation.core.keys import AgentId
 from federation.core.linkwatch import SilenceWatch
 from federation.core.schedule import next_tick
 from federation.core.sync import SyncClient
-from federation.runtime.links import SyncLink, on_link_reply
+from federation.runtime.links import SyncLink, on_link_answer
 from federation.runtime.status import peer_status
+from federation.runtime.syncglue import SyncQuerier
 from schemas.config import AgentConfig
 from schemas.messages import PeerStatus, Status
 
@@ -222,20 +221,14 @@ class PeerTable:
             link = self.peers[agent].link
             assert link is not None  # due_for_sync gives only agents with a link
             try:
-                if link.querier is None:
-                    # One querier and one handler per link: a query costs a single call.
-                    link.querier = owner.session.declare_querier(
-                        link.key,
-                        consolidation=zenoh.ConsolidationMode.NONE,
-                        timeout=self.config.sync_timeout,
-                        express=True,
-                    )
-                    link.on_reply = zenoh.handlers.Callback(
-                        functools.partial(on_link_reply, link), indirect=False
-                    )
+                if link.querier is None:  # one per link: a query costs a single call
+                    link.querier = SyncQuerier(
+                        owner.session, link.key, self.config.sync_timeout, owner.clock.read,
+                        functools.partial(on_link_answer, link),
+                    )  # fmt: skip
                 with link.lock:
                     payload = link.client.request(owner.clock.now())
-                link.querier.get(link.on_reply, payload=payload)
+                link.querier.request(payload)
                 host = time.monotonic()
                 for user in link.agents:
                     user.sync_requested(agent, host)

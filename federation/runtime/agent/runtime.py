@@ -34,6 +34,7 @@ the sync exchange's two halves (:mod:`federation.core.sync`), the stale-link hol
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -73,6 +74,7 @@ from federation.runtime.recorder import Message
 from federation.runtime.runs import software_versions
 from federation.runtime.safety import Safety
 from federation.runtime.session import undeclare_all
+from federation.runtime.syncglue import Served, serve_query
 from schemas.config import AgentConfig
 from schemas.messages import CommandOutcome, Readiness, Status
 
@@ -322,7 +324,9 @@ class AgentRuntime:
         for feed in self.links.leave_feeds(self):  # the last agent on it unsubscribes
             undeclare_all([feed.subscription] if feed.subscription is not None else [])
         emptied, orphaned = self.links.leave(self)
-        undeclare_all([link.querier for link in emptied if link.querier is not None])
+        for link in emptied:
+            if link.querier is not None:
+                link.querier.close()
         for link in orphaned:  # the agents still on it look for a sender again
             for user in link.agents:
                 user.peer_table.look_again()
@@ -549,27 +553,24 @@ class AgentRuntime:
     def on_sync_query(self, query: zenoh.Query) -> None:
         """A sync request: ``t2`` read on arrival, the reply (the paper's 64 bytes, the
         send time in the attachment) sent at once."""
-        clock = self.clock
-        t2 = clock.now()  # read on arrival: the paper's t2
-        try:
-            payload = query.payload
-            if payload is not None and self.intake.oversized(
-                len(payload), Count.SYNC_REQUESTS_OVERSIZED
-            ):
-                return
-            request = b"" if payload is None else payload.to_bytes()
-            try:
-                served = serve(request, t2, self.pose, clock.now())
-            except wire.DecodeError as error:
-                self.count(Count.SYNC_REQUESTS_MALFORMED)
-                self.reject("sync request", f"{query.key_expr}: {error}")
-                return
-            query.reply(query.key_expr, served.payload, attachment=served.attachment)
+        t2 = self.clock.now()  # read on arrival: the paper's t2
+        if serve_query(query, functools.partial(self._answer_sync, t2, query.key_expr)):
             self.count(Count.SYNC_REQUESTS_SERVED)
-        except Exception:
-            log.exception("sync query on %s failed", query.key_expr)
-        finally:
-            query.drop()  # type: ignore[no-untyped-call]  # release now, or the querier waits
+
+    def _answer_sync(self, t2: float, key: object, payload: zenoh.ZBytes | None) -> Served | None:
+        """The reply to a sync request received at ``t2`` (None: dropped, counted)."""
+        if payload is not None and self.intake.oversized(
+            len(payload), Count.SYNC_REQUESTS_OVERSIZED
+        ):
+            return None
+        request = b"" if payload is None else payload.to_bytes()
+        try:
+            served = serve(request, t2, self.pose, self.clock.now())
+        except wire.DecodeError as error:
+            self.count(Count.SYNC_REQUESTS_MALFORMED)
+            self.reject("sync request", f"{key}: {error}")
+            return None
+        return served.payload, served.attachment
 
     def on_liveliness(self, sample: zenoh.Sample) -> None:
         try:
