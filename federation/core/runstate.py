@@ -26,8 +26,8 @@ first by :class:`federation.core.commands.CommandGate`):
    A start without a ``duration``, for a run state without a default one, is
    ``ignored``: a run must end.
 5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` (not
-   later than the present, not earlier than the run's start or the freeze) or the
-   present; a resume's ``at`` more than ``LATE_START`` past is ``ignored``, as a
+   later than the present, not earlier than the run's start, its last resume or the
+   freeze) or the present; a resume's ``at`` more than ``LATE_START`` past is ``ignored``, as a
    start's is, and a freeze's makes it freeze at the present; anything else is
    ``ignored``.
 6. A start or resume without ``at`` acts on receipt, unless its ``issued_at`` (the
@@ -250,6 +250,7 @@ class RunState:
         self.mode: Mode = "waiting"
         self.start_at: float | None = None
         self.frozen_at: float | None = None
+        self.resumed_at: float | None = None  # the reference time the run last resumed
         self.frozen_total = 0.0
         self.run_id: str | None = None
         self.duration: float | None = duration
@@ -282,15 +283,18 @@ class RunState:
         duration = getattr(cmd, "duration", None)
         self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
         self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
+        self.resumed_at = None
         self.run_id = getattr(cmd, "run_id", None)
         self.duration = self.default_duration if duration is None else duration
         return [Event("armed", self.start_at), *self.update(t_sim)]
 
     def _freeze(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
-        """Freeze a running run, at an instant of its own (not before its start)."""
+        """Freeze a running run, at an instant of its own: not before its start nor its
+        last resume (an instant before a resume would rewind the run's clock)."""
         at = _instant(cmd, t_sim)
-        if at is not None and self.start_at is not None:
-            at = max(at, self.start_at)
+        floor = max((t for t in (self.start_at, self.resumed_at) if t is not None), default=None)
+        if at is not None and floor is not None:
+            at = max(at, floor)
         if at is None:
             # No reference time now (its link contested, say): frozen at the last one
             # known, not left running while the others freeze.
@@ -308,7 +312,7 @@ class RunState:
         assert self.frozen_at is not None  # set by the freeze
         at = max(at, self.frozen_at)  # no run time is made up before the freeze
         self.frozen_total += max(0.0, at - self.frozen_at)
-        self.mode, self.frozen_at = "running", None
+        self.mode, self.frozen_at, self.resumed_at = "running", None, at
         return [Event("resumed", at)]
 
     def _abort(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:

@@ -500,3 +500,20 @@ def test_a_command_the_table_does_not_name_is_ignored(mode: Mode) -> None:
     events = in_mode(mode).command(Cmd("launch", 10, at=9.5), t_sim=9.5)
     detail = "launch after abort: fedlab ctl reset first" if mode == "aborted" else None
     assert events == [Event("ignored", 9.5, detail or f"launch while {mode}")]
+
+
+def test_a_late_freeze_never_rewinds_the_run_past_its_last_resume() -> None:
+    # Started at 0, frozen at 10, resumed at 20 (run time 10.0); a freeze stamped 19.5
+    # that arrives at 20.2 freezes at the resume, not before it: the run's clock (and
+    # the leader's maneuver on it) never steps back.
+    state = RunState()
+    state.command(Cmd("start", 0, at=0.0), t_sim=0.0)
+    state.update(0.0)
+    state.command(Cmd("freeze", 1, at=10.0), t_sim=10.0)
+    state.command(Cmd("resume", 2, at=20.0), t_sim=20.0)
+    assert state.run_time(20.0) == pytest.approx(10.0)
+    events = state.command(Cmd("freeze", 3, at=19.5), t_sim=20.2)
+    assert [e.kind for e in events] == ["frozen"] and events[0].t_sim == pytest.approx(20.0)
+    assert state.run_time(20.2) == pytest.approx(10.0)
+    state.command(Cmd("resume", 4, at=21.0), t_sim=21.0)
+    assert state.run_time(21.5) == pytest.approx(10.5)
