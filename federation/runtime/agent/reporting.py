@@ -140,7 +140,7 @@ class Reporter:
             follow=None if follow is None else str(follow), hold=owner.safety.hold,
             pose_age=pose_age, valves_confirmed=owner.platform.valves_confirmed,
             pose=list(owner.pose), peers=self.peer_table.views(t_exec, host),
-            counters=self.snapshot(), contested=self.intake.contested(host),
+            counters=owner.counter_snapshot(), contested=self.intake.contested(host),
             workspace=None if owner.scenario is None else owner.scenario.workspace(),
             loop=self.loop_stats(),
         )  # fmt: skip
@@ -193,7 +193,7 @@ class Reporter:
         """Build the status, publish it, append it to ``--status-json`` and the run's
         recording, record it; warn of what it shows."""
         owner = self.owner
-        status = self.status()
+        status = owner.status()  # the agent's, as a kind of agent may say more
         self._check_delay_margin(status)
         self.peer_table.warn_silent(status)
         line = status.model_dump_json()

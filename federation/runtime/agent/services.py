@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from federation.runtime.recorder import Message
     from federation.runtime.safety import Safety
     from schemas.config import AgentConfig
+    from schemas.messages import Status
 
 __all__ = ["AgentServices"]
 
@@ -63,3 +64,7 @@ class AgentServices(Protocol):
     def event(self, kind: str, t_exec: float, host: float, detail: str) -> None: ...
 
     def sim_time(self, t_exec: float) -> float | None: ...
+
+    def status(self) -> Status: ...
+
+    def counter_snapshot(self) -> dict[Count, int]: ...
