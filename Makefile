@@ -1,11 +1,13 @@
 # Two entry points: `make demo` (set up, run the main job) and `make test`
 # (set up, lint, check the import layers, type-check, run the test suite). Both create .venv on first use.
+# `make check` is the inner loop: the same checks and the unit tests on parallel workers, less
+# the few that assert real-time bounds (marked `timing`: they run in `make test`).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test lint typecheck clean
+.PHONY: setup demo test check lint typecheck clean
 
 setup: $(STAMP)
 
@@ -28,6 +30,9 @@ typecheck: $(STAMP)
 
 test: lint typecheck
 	$(BIN)/pytest
+
+check: lint typecheck
+	$(BIN)/pytest tests/unit -n auto -m "not timing" -q
 
 clean:
 	rm -rf $(VENV) runs .mypy_cache .ruff_cache .pytest_cache

@@ -358,6 +358,7 @@ def chase(plat: SerialPlatform) -> tuple[float, float]:
     return est.heading + AHEAD, est.omega
 
 
+@pytest.mark.timing  # the emulator paces itself on real time: a busy core delays its frames
 def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_path: Path) -> None:
     """The serial loop flies the simulated platform's GNC: over the pty, the emulated
     KNATTE answers a heading step as the simulated KNATTE does (same preset, same seed)."""
