@@ -189,18 +189,23 @@ class Change:
 class Supervisor:
     """The holds standing now, and the one decision: may the valves open.
 
-    Starts holding :attr:`Hold.WAITING` (a platform waits for its run, held).
+    Starts holding :attr:`Hold.WAITING` (a platform waits for its run, held). The
+    standing holds are one immutable set, replaced whole by :meth:`apply`: a reader on
+    another thread (a status being built while a command is applied) sees the holds as
+    they were before or after a trigger, never a set changing under it. Writers are
+    serialized by the caller (:class:`~federation.runtime.safety.Safety`'s lock).
     """
 
     def __init__(self, standing: Iterable[Hold] = (Hold.WAITING,)):
-        self._standing: set[Hold] = set(standing)
+        self._standing: frozenset[Hold] = frozenset(standing)
 
     def apply(self, trigger: Trigger) -> Change:
         """Apply ``trigger``: lift the holds it lifts, then set the one it sets."""
-        lifted = _LIFTS[trigger] & self._standing
-        self._standing -= lifted
-        added = _SETS[trigger] - self._standing
-        self._standing |= added
+        before = self._standing
+        lifted = _LIFTS[trigger] & before
+        kept = before - lifted
+        added = _SETS[trigger] - kept
+        self._standing = kept | added
         return Change(trigger, added, lifted)
 
     @property
@@ -216,7 +221,7 @@ class Supervisor:
     @property
     def standing(self) -> frozenset[Hold]:
         """Every hold standing now."""
-        return frozenset(self._standing)
+        return self._standing
 
     def holds(self, hold: Hold) -> bool:
         """Whether ``hold`` stands."""

@@ -251,3 +251,34 @@ def test_rank_order_is_total_and_stable() -> None:
     for a, b in itertools.combinations(ranks, 2):
         s = Supervisor((a, b))
         assert s.hold is a
+
+
+def test_readers_on_another_thread_never_see_the_holds_change_under_them() -> None:
+    # A status (preflight's blocking(), the shown hold) is built on the loop's thread
+    # while a command applies triggers on Zenoh's: iterating a set changed meanwhile had
+    # raised out of the status and ended the agent's loop.
+    import sys
+    import threading
+
+    supervisor = Supervisor({Hold.WAITING, Hold.STALE, Hold.CONTESTED, Hold.NO_ROUTER})
+    stop = threading.Event()
+
+    def commands() -> None:
+        for _ in range(200_000):  # bounded: a run done, then armed again, and again
+            if stop.is_set():
+                return
+            supervisor.apply(Trigger.RUN_DONE)
+            supervisor.apply(Trigger.RUN_ARMED)
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    writer = threading.Thread(target=commands)
+    writer.start()
+    try:
+        for _ in range(100_000):
+            assert supervisor.blocking() in (Hold.CONTESTED,)
+            assert supervisor.hold is not None
+    finally:
+        stop.set()
+        writer.join(10.0)
+        sys.setswitchinterval(interval)
