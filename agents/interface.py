@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Literal, Protocol, get_args, runtime_checkable
 
 from agents.control import HeadingPid
 from agents.guidance import Track
@@ -60,16 +60,7 @@ ClosedCause = Literal[
 - ``settling``: an estimate just acquired, its velocity not yet known well enough;
 - ``nonfinite``: a reference, the estimate or a demand is not a finite number."""
 
-CLOSED_CAUSES: tuple[ClosedCause, ...] = (
-    "no_fix",
-    "device_restart",
-    "fix_restart",
-    "fix_rejected",
-    "stale_fix",
-    "stale_imu",
-    "settling",
-    "nonfinite",
-)
+CLOSED_CAUSES: tuple[ClosedCause, ...] = get_args(ClosedCause)
 """Every :data:`ClosedCause`, in the chain's order of precedence."""
 
 

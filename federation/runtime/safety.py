@@ -64,7 +64,11 @@ class Safety:
         self._platform.hold()
 
     def enforce(self) -> Hold | None:
-        """Hold a platform found running free while a hold stands; the hold, if it did."""
+        """Hold a platform found running free while a hold stands; the hold, if it did.
+        Called at every control step: the common case (nothing stands, or the platform
+        is held) is read without the lock, the standing holds being one immutable set."""
+        if self._supervisor.may_open or self._platform.held:
+            return None
         with self.lock:
             hold = self._supervisor.hold
             if hold is None or self._platform.held:
