@@ -27,6 +27,7 @@ def ctl(*args: str) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
+@pytest.mark.timing
 def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None:
     pair = labs.pair()
     agents = {

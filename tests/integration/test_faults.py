@@ -24,6 +24,7 @@ def agent(labs: Labs, who: str, at: str | Router, *extra: str) -> Agent:
     return start(at, *extra, status_period=0.25, record=True)
 
 
+@pytest.mark.timing
 def test_lab_link_lost_safe_hold_within_200_ms_and_resume(labs: Labs) -> None:
     pair = labs.pair(link=True)
     assert pair.link is not None
@@ -56,6 +57,7 @@ def test_lab_link_lost_safe_hold_within_200_ms_and_resume(labs: Labs) -> None:
     assert held and all(r["valves_open"] == 0 for r in held)
 
 
+@pytest.mark.timing
 def test_sync_converges_over_a_lossy_link(labs: Labs) -> None:
     """20 % of segments lost and retransmitted 200 ms late (TCP between routers)."""
     pair = labs.pair(link=["--delay-ms", "20", "--jitter-ms", "2", "--loss", "0.2", "--seed", "4"])
@@ -93,6 +95,7 @@ def test_router_restart_sync_resumes_within_5_s(labs: Labs) -> None:
     assert follower.alive() and leader.alive()
 
 
+@pytest.mark.timing
 def test_clock_step_is_detected_and_estimates_reset(labs: Labs) -> None:
     router = labs.router("kiruna")
     leader = agent(labs, LEADER, router, "--clock-step", "6:0.5")

@@ -212,6 +212,7 @@ def quantile(values: list[float], q: float) -> float:
 
 
 # -- live: TCP -------------------------------------------------------------------
+@pytest.mark.timing
 def test_tcp_round_trip_is_twice_the_one_way_delay(
     start_link: Callable[..., LinkProcess],
 ) -> None:
@@ -226,6 +227,7 @@ def test_tcp_round_trip_is_twice_the_one_way_delay(
     assert stats["forward"]["bytes"] == stats["backward"]["delivered_bytes"] == 50 * 64
 
 
+@pytest.mark.timing
 def test_tcp_overhead_at_zero_delay_is_well_under_a_millisecond(
     start_link: Callable[..., LinkProcess],
 ) -> None:
@@ -342,6 +344,7 @@ def test_udp_loss_and_reordering_at_the_configured_rates(
 
 
 # -- live: Zenoh through the link ------------------------------------------------
+@pytest.mark.timing
 def test_zenoh_routers_linked_through_the_emulator(
     start_link: Callable[..., LinkProcess],
 ) -> None:
@@ -388,6 +391,7 @@ def test_zenoh_routers_linked_through_the_emulator(
     assert link.stats()["forward"]["bytes"] > 0
 
 
+@pytest.mark.timing
 def test_zenoh_routers_linked_over_udp_through_a_jittery_link(
     start_link: Callable[..., LinkProcess],
 ) -> None:

@@ -433,6 +433,7 @@ class StateReader:
 
 
 @pytest.mark.integration
+@pytest.mark.timing
 def test_a_joined_ros2_platform_is_told_to_hold_unless_its_run_runs(
     labs: Labs, dds: DomainParticipant
 ) -> None:
