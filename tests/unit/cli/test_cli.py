@@ -209,9 +209,10 @@ def test_router_config_without_lab_is_refused(tmp_path: Path) -> None:
         load_router_config(ZenohOptions(config=path), None)
 
 
-def signalled(args: list[str], sig: int, after: float) -> tuple[bool, int, str]:
-    """Run ``fedlab ARGS`` for ``after`` seconds, then send ``sig``: whether it was still
-    running then, its exit code and its output (killed if it outlives 10 s more)."""
+def signalled(args: list[str], sig: int, after: str) -> tuple[bool, int, str]:
+    """Run ``fedlab ARGS`` until it prints a line containing ``after`` (at most 30 s),
+    then send ``sig``: whether it was still running then, its exit code and its output
+    (killed if it outlives 10 s more)."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "federation", *args],
         stdout=subprocess.PIPE,
@@ -219,23 +220,36 @@ def signalled(args: list[str], sig: int, after: float) -> tuple[bool, int, str]:
         stdin=subprocess.DEVNULL,
         text=True,
     )
+    lines: list[str] = []
+    seen = threading.Event()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # ends when the process closes its output
+            lines.append(line)
+            if after in line:
+                seen.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     try:
-        time.sleep(after)
+        seen.wait(30.0)
         running = proc.poll() is None
         if running:
             os.kill(proc.pid, sig)
-        out, _ = proc.communicate(timeout=10)
+        proc.wait(10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
-    return running, proc.returncode, out
+        reader.join(10)
+    return running, proc.returncode, "".join(lines)
 
 
 def test_router_from_shipped_file_runs_and_stops_on_sigterm() -> None:
     path = ROOT / "deploy" / "routers" / "kiruna.json5"
     listen = f"tcp/127.0.0.1:{free_port()}"
-    running, code, out = signalled(["router", "-c", str(path), "-l", listen], signal.SIGTERM, 2.0)
+    running, code, out = signalled(["router", "-c", str(path), "-l", listen], signal.SIGTERM, "up")
     assert running, out
     assert code == 0, out
     assert "router kiruna up" in out and listen in out
@@ -246,8 +260,8 @@ def test_router_from_shipped_file_runs_and_stops_on_sigterm() -> None:
 def test_agent_waiting_for_its_router_stops_cleanly(sig: int) -> None:
     nowhere = f"tcp/127.0.0.1:{free_port()}"
     args = ["agent", "--role", "leader", "--lab", "kiruna", "--name", "knatte", "-e", nowhere]
-    # Start-up, then 2 s of waiting before the first note.
-    running, code, out = signalled(args, sig, 4.5)
+    # Signalled once it says it waits (its first note comes after 2 s of waiting).
+    running, code, out = signalled(args, sig, "waiting for the router")
     assert running, "an agent keeps waiting for its router"
     assert code == 0, out
     assert "waiting for the router" in out
