@@ -41,6 +41,8 @@ class Safety:
         self.lock = threading.Lock()
         """Taken for every decision; an abort takes it to close the valves and abort
         its run before any release can be decided (none judged before it follows)."""
+        if not self._supervisor.may_open:  # an agent begins held (waiting for its run)
+            platform.hold()
 
     def apply(self, trigger: Trigger) -> Change:
         """Apply ``trigger`` (takes :attr:`lock`)."""

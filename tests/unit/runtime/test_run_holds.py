@@ -369,6 +369,17 @@ def test_a_step_never_runs_free_while_a_cause_of_hold_stands() -> None:
     assert f.agent.counters["holds_restored"] == 1
 
 
+def test_an_agent_begins_held_and_its_first_step_restores_nothing() -> None:
+    # The supervisor begins with the agent waiting for its run: the platform is held
+    # from the start, so the first step finds nothing released to hold again.
+    for settings in ({}, {"wait_start": True}):
+        f = Follower(**settings)
+        assert f.agent.platform.held and f.agent.hold == "waiting"
+        f.step()
+        assert f.agent.platform.held
+        assert f.agent.counters.get("holds_restored", 0) == 0
+
+
 def test_a_command_for_other_participants_is_ignored() -> None:
     # A start for another lab's experiment had armed every waiting agent of the
     # federation, none preflighted or awaited, and released each at the start instant.
