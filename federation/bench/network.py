@@ -12,8 +12,10 @@ this host's monotonic clock):
 - **holds**: safe holds the follower entered (every one is spurious: the leader
   never stops) and the fraction of time held;
 - **pose latency**: leader's send to follower's arrival, host time;
+- **sender gap**: the leader's longest pause between two poses sent, host time: a
+  hold on a pose the leader itself sent late (its host busy) is no fault of the path;
 - **sync error**: |the follower's live offset estimate - truth| at each exchange
-  after the 10 s sync phase;
+  after the sync phase (10 s, the paper's; ``sync_phase`` of :func:`run_one`);
 - **heading error**: the follower's reference heading (what its controller is
   given, dead-reckoned) against the leader's actual heading at the same instant,
   outside holds;
@@ -201,8 +203,14 @@ def run_one(
     out: Path,
     seed: int = 1,
     cfg: Sequence[str] = (),
+    sync_phase: float = SYNC_PHASE,
 ) -> dict[str, Any]:
     """One scenario on one transport; the scores (see :func:`score`).
+
+    Scored from the follower's first sync exchange plus ``sync_phase`` seconds to
+    the first agent's end; the agents run ``sync_phase + seconds + 5`` seconds from
+    their own start (the 5 s cover their start-up), so about ``seconds + 5`` are
+    scored. A scenario's ``cut`` is timed from ``sync_phase`` after they are started.
 
     ``cfg`` (``KEY:VALUE`` Zenoh settings) is given to both routers and both agents,
     never to the outside subscriber, which keeps Zenoh's defaults as a third party's
@@ -223,7 +231,7 @@ def run_one(
     with Testbed(out, path, kiruna_ports=t["ports"], sysctls=sysctls, seed=seed) as bed:
         bed.fedlab("kiruna", "router-kiruna", _router_args("kiruna", transport, cfg))
         bed.fedlab("rome", "router-rome", _router_args("rome", transport, cfg))
-        run_for = seconds + SYNC_PHASE
+        run_for = seconds + sync_phase
         common = ["-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5"]
         common += ["--duration", f"{run_for + 5:g}", *_cfg_flags(cfg)]
         bed.fedlab(
@@ -248,7 +256,7 @@ def run_one(
         started = time.monotonic()
         if scenario.cut is not None:
             at, length = scenario.cut
-            time.sleep(max(0.0, SYNC_PHASE + at - (time.monotonic() - started)))
+            time.sleep(max(0.0, sync_phase + at - (time.monotonic() - started)))
             events["cut_at"] = bed.cut()
             time.sleep(length)
             events["restored_at"] = bed.restore()
@@ -261,7 +269,8 @@ def run_one(
         wait_for(lambda: not bed.alive("leader"), timeout=15, interval=0.2)
         events["stage"] = bed.stage_stats()
     sub = json.loads(subscriber.read_text()) if subscriber.exists() else {}
-    return {**_header(scenario, transport, cfg, seconds, seed), **score(follow, lead, events, sub)}
+    header = _header(scenario, transport, cfg, seconds, seed) | {"sync_phase": sync_phase}
+    return {**header, **score(follow, lead, events, sub, sync_phase)}
 
 
 def _header(
@@ -283,10 +292,15 @@ def _pct(values: list[float] | np.ndarray, q: float) -> float | None:
 
 
 def score(
-    follower: Path, leader: Path, events: dict[str, Any], subscriber: dict[str, Any]
+    follower: Path,
+    leader: Path,
+    events: dict[str, Any],
+    subscriber: dict[str, Any],
+    sync_phase: float = SYNC_PHASE,
 ) -> dict[str, Any]:
     """The figures of one run from the two recordings, the cut times and the
-    outside subscriber's counts."""
+    outside subscriber's counts, scored from ``sync_phase`` seconds after the
+    follower's first sync exchange."""
     from federation.report.status import clock_line
     from federation.runtime.recorder import read_messages
 
@@ -298,7 +312,7 @@ def score(
     def leader_host(t: float) -> float:
         return (t - a_l) / b_l
 
-    start = f["/sync/exchange"][0]["host_monotonic"] + SYNC_PHASE if f["/sync/exchange"] else 0.0
+    start = f["/sync/exchange"][0]["host_monotonic"] + sync_phase if f["/sync/exchange"] else 0.0
     # The run ends when either agent stops: a hold after the leader left is no fault.
     end = min(f["/status"][-1]["host_monotonic"], lmsg["/pose/sent"][-1]["host_monotonic"])
     poses = [p for p in f["/pose/received"] if start <= p["host_monotonic"] <= end]
@@ -316,6 +330,7 @@ def score(
     # Heading: the follower's reference against the leader's actual heading.
     sent = lmsg["/pose/sent"]
     lh = np.array([s["host_monotonic"] for s in sent])
+    scored_sends = lh[(lh >= start) & (lh <= end)]
     lhead = np.unwrap(np.array([s["heading"] for s in sent]))
     herr = []
     for r in f["/reference"]:
@@ -331,6 +346,9 @@ def score(
         "holds_per_min": len([h for h in holds if h["host_monotonic"] >= start]) / minutes,
         "held_fraction": held_time / max(end - start, 1e-9),
         "poses_received": len(poses),
+        "sender_gap_max_ms": _ms(float(np.diff(scored_sends).max()))
+        if scored_sends.size > 1
+        else None,
         "pose_latency_ms": {
             "p50": _ms(_pct(latency, 50)),
             "p99": _ms(_pct(latency, 99)),

@@ -3,10 +3,20 @@ masquerading gateway with a stateful firewall, Kiruna with its router's ports op
 the paper's path between them (40 ms one way, 3 ms jitter) through the packet stage.
 
 Short versions of the committed ``fedlab bench network`` runs
-(benchmarks/network-*.json): the same code, 20 s scored instead of 60, on the
-default router configs with the shipped host TCP settings (``tcp-tuned``). Needs root,
-nftables and /dev/net/tun; skips saying which is missing. Every test checks that
-its namespaces are gone afterwards.
+(benchmarks/network-*.json): the same code, with a 5 s sync phase instead of 10
+(the offset estimate is within 0.5 ms after 4 s on this path; the MTU black
+hole's test keeps 10, see there) and about 13 s
+scored instead of 65 (``SECONDS`` plus the agents' 5 s start-up margin, see
+``network.run_one``), on the default router configs with the shipped host TCP
+settings (``tcp-tuned``). Needs root, nftables and /dev/net/tun; skips saying which
+is missing. Every test checks that its namespaces are gone afterwards; each
+testbed's names carry the pid, so these run beside other tests on parallel workers.
+
+A hold on a clean path is a failure: the testbed runs its packet stage at
+real-time priority with its counters in memory (federation/testbed/bed.py), so a
+busy host does not stretch the path. A hold can still come from the federation's
+own processes starved on a heavily loaded host (the leader sending a pose late),
+as it would on a lab host that busy: the message says the leader's longest pause.
 """
 
 from __future__ import annotations
@@ -15,6 +25,7 @@ import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -36,7 +47,17 @@ pytestmark = [
 
 ONE_WAY = 0.040  # s, the paper's path
 POSE_PERIOD = 0.05  # s, 20 Hz
-SECONDS = 20.0  # scored per run (the benchmark: 60)
+SECONDS = 8.0  # run beyond the sync phase (the benchmark: 60); about 13 s are scored
+SYNC_PHASE = 5.0  # s (the benchmark: 10)
+
+
+def _why_held(result: dict[str, Any]) -> str:
+    """What a failed ``holds == 0`` says: the leader's longest pause between poses
+    (a late pose from the leader's own host, not the path), the latency and the stage."""
+    return (
+        f"{result['holds']} holds; leader's longest pause {result['sender_gap_max_ms']} ms, "
+        f"pose latency {result['pose_latency_ms']}, stage {result['stage']}"
+    )
 
 
 @pytest.fixture(autouse=True)
@@ -48,10 +69,12 @@ def no_leaks() -> Iterator[None]:
 
 
 def test_nat_lets_the_federation_through_and_nothing_in(tmp_path: Path) -> None:
-    result = network.run_one(network.SCENARIOS["clean"], "tcp-tuned", 8.0, tmp_path)
+    result = network.run_one(
+        network.SCENARIOS["clean"], "tcp-tuned", 4.0, tmp_path, sync_phase=SYNC_PHASE
+    )
     assert result["poses_received"] > 100
     assert result["sync_error_ms"]["n"] > 50
-    assert result["holds"] == 0
+    assert result["holds"] == 0, _why_held(result)
     # Direct connections from Kiruna into Rome's lab, and to its public address, fail.
     assert result["nat_probe"] == {"rome_host": "timeout", "rome_gateway": "timeout"}
     # A raw Zenoh client on Rome's router gets Kiruna's poses through the same NAT.
@@ -77,21 +100,26 @@ def test_the_stage_carries_tcp_with_the_path_delay(tmp_path: Path) -> None:
             return stats["forward"]["delivered"] >= 1 and stats["backward"]["delivered"] >= 1
 
         assert wait_for(both_ways, 3.0)
+        # The stage runs before every ordinary process: a busy host does not stretch the path.
+        assert bed.stage_scheduling in ("fifo", "nice")
+    assert (tmp_path / "stage.json").exists()  # its last counters, kept with the run
 
 
 @pytest.mark.scenario
 def test_five_percent_loss_on_tcp_no_stale_pose_and_sync_accurate(tmp_path: Path) -> None:
-    result = network.run_one(network.SCENARIOS["loss5"], "tcp-tuned", SECONDS, tmp_path)
+    result = network.run_one(
+        network.SCENARIOS["loss5"], "tcp-tuned", SECONDS, tmp_path, sync_phase=SYNC_PHASE
+    )
     # A pose held behind a lost segment is dropped on arrival once older than the
     # link's delay plus the stale threshold (at most 0.25 s): the controller never
     # steers by an older one.
     assert result["pose_latency_ms"]["max"] <= (ONE_WAY + 0.01 + MAX_STALE) * 1e3
     # The issue's 0.3 ms is the benchmark's (60 s scored: 0.09 and 0.11 ms, docs/deploy.md).
-    # Over this test's 20 s on the path's 3 ms jitter the estimate has less to average:
-    # four runs gave p95 0.04, 0.22, 0.29 and 0.43 ms, and one in CI 0.517 ms, which the
-    # clock filter before its floors changed gives too (0.513: replayed). That run's
-    # error was the path's own asymmetry on a loaded host, unseen by any timestamp
-    # method, so the bound here is 0.75 ms.
+    # A short score on the path's 3 ms jitter has less to average: with about 25 s
+    # scored, five runs gave p95 0.04, 0.22, 0.29, 0.43 and (in CI) 0.517 ms, the last
+    # the path's own asymmetry on a loaded host, unseen by any timestamp method. After
+    # 4 s of exchanges the error is no larger than later in a run (p95 0.1 to 0.4 ms,
+    # five clean runs), so the ~13 s scored here keep the bound of 0.75 ms.
     assert result["sync_error_ms"]["p95"] < 0.75
     # An outside raw Zenoh subscriber on Rome's router keeps receiving, as the agent does.
     sub = result["outside_subscriber"]
@@ -101,8 +129,9 @@ def test_five_percent_loss_on_tcp_no_stale_pose_and_sync_accurate(tmp_path: Path
 
 @pytest.mark.scenario
 def test_a_ten_second_cut_holds_fast_and_recovers_without_a_stale_burst(tmp_path: Path) -> None:
-    scenario = network.Scenario("cut10", cut=(5.0, 10.0))
-    result = network.run_one(scenario, "tcp-tuned", SECONDS, tmp_path)
+    # Cut 1 s after the sync phase, for 10 s; the agents run at least 6 s after the return.
+    scenario = network.Scenario("cut10", cut=(1.0, 10.0))
+    result = network.run_one(scenario, "tcp-tuned", 12.0, tmp_path, sync_phase=SYNC_PHASE)
     cut = result["cut"]
     assert cut["hold_after_cut_ms"] is not None and cut["hold_after_cut_ms"] <= 300
     # How fast pose and sync come back is a speed figure, measured and committed by
@@ -133,12 +162,15 @@ def test_a_ten_second_cut_holds_fast_and_recovers_without_a_stale_burst(tmp_path
 
 @pytest.mark.scenario
 def test_an_mtu_black_hole_does_not_stop_the_link(tmp_path: Path) -> None:
+    # The black hole stops the link for about 4 s after the first exchange, until TCP
+    # takes a smaller segment size (tcp_mtu_probing): one hold, then the link runs. The
+    # paper's 10 s sync phase leaves that start-up out of the score; a 5 s one does not.
     result = network.run_one(network.SCENARIOS["mtu576"], "tcp-tuned", SECONDS, tmp_path)
     assert (
         result["stage"]["backward"]["dropped"].get("mtu", 0)
         + result["stage"]["forward"]["dropped"].get("mtu", 0)
         > 0
     ), "nothing was too big: the test tested nothing"
-    assert result["holds"] == 0
+    assert result["holds"] == 0, _why_held(result)
     assert result["sync_error_ms"]["n"] >= 0.8 * SECONDS * 10  # exchanges kept completing
     assert result["outside_subscriber"]["status_samples"] > 0
