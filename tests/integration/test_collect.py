@@ -31,10 +31,14 @@ pytestmark = pytest.mark.integration
 MB = 1 << 20
 
 
-def summary(run: Path) -> dict[str, object]:
-    """The summary.json ``fedlab report`` writes for ``run`` (its report, in this process:
-    the command adds only the table it prints)."""
-    write_report(run, run / "report")
+def summary(run: Path, command: bool = False) -> dict[str, object]:
+    """The summary.json of ``run``'s report: with ``command`` as ``fedlab report`` writes it,
+    else written in this process (:func:`write_report`, what the command runs)."""
+    if command:
+        done, _ = fedlab("report", str(run), "--out", str(run / "report"))
+        assert done.returncode == 0, done.stdout + done.stderr
+    else:
+        write_report(run, run / "report")
     data: dict[str, object] = json.loads((run / "report" / "summary.json").read_text())
     assert data.pop("run_dir") == str(run)  # the one thing that may differ
     return data
@@ -86,7 +90,7 @@ def test_collect_gathers_a_two_lab_run_and_the_report_matches(
     assert set(result["files"]) == set(agents) and not result["missing"]
     for path in original.iterdir():
         assert sha256_file(out / path.name) == sha256_file(path), path.name
-    collected = summary(out)
+    collected = summary(out, command=True)
     assert collected == summary(original)
     assert collected["agents"] and collected["sync"]  # a report with something in it
 
