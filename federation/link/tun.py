@@ -9,7 +9,8 @@ attaches to it. Linux only (``/dev/net/tun``), and needs CAP_NET_ADMIN.
 
 Signals: SIGUSR1 cuts the path (every packet dropped), SIGUSR2 restores it,
 SIGTERM or SIGINT stops. The counters are written to ``stats_json`` every second
-and at exit, with the host monotonic times of the cuts.
+(on a thread of their own, so a slow disk never delays a packet) and at exit, with
+the host monotonic times of the cuts.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import os
 import select
 import signal
 import struct
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -53,6 +55,52 @@ def open_tun(name: str) -> int:
     return fd
 
 
+class _StatsWriter:
+    """Writes the latest counters it is offered to ``path`` on a thread of its own,
+    replacing the file whole so a reader never sees half of it. Offers made while a
+    write is under way collapse into the newest."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._latest: dict[str, Any] | None = None
+        self._closed = False
+        self._ready = threading.Condition()
+        self._thread = threading.Thread(target=self._run, name="stage-stats", daemon=True)
+        self._thread.start()
+
+    def offer(self, snapshot: dict[str, Any]) -> None:
+        with self._ready:
+            self._latest = snapshot
+            self._ready.notify()
+
+    def close(self, final: dict[str, Any]) -> None:
+        """Stop the thread and write ``final`` before returning."""
+        with self._ready:
+            self._closed = True
+            self._latest = None
+            self._ready.notify()
+        self._thread.join(10.0)
+        self._write(final)
+
+    def _run(self) -> None:
+        while True:
+            with self._ready:
+                while self._latest is None and not self._closed:
+                    self._ready.wait()
+                snapshot, self._latest = self._latest, None
+            if snapshot is None:  # closed
+                return
+            self._write(snapshot)
+
+    def _write(self, snapshot: dict[str, Any]) -> None:
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            tmp.write_text(json.dumps(snapshot, indent=2) + "\n", encoding="utf-8")
+            os.replace(tmp, self.path)
+        except OSError as error:
+            log.warning("cannot write %s: %s", self.path, error)
+
+
 class _StageLoop:
     """The stage on an open TUN descriptor: writes back what is due, offers what the
     kernel routes in, writes the counters every second; records the cuts it is
@@ -68,7 +116,7 @@ class _StageLoop:
         duration: float | None,
     ):
         self.stage, self.fd, self.device, self.wake_r = stage, fd, device, wake_r
-        self.stats_json = stats_json
+        self.writer = None if stats_json is None else _StatsWriter(stats_json)
         self.stop = False
         self.cuts: list[dict[str, Any]] = []
         self.started = time.monotonic()
@@ -90,16 +138,10 @@ class _StageLoop:
         }
 
     def write_stats(self) -> None:
-        """The counters to ``stats_json`` (if any), replaced whole so a reader never
-        sees half a file."""
-        if self.stats_json is None:
-            return
-        tmp = self.stats_json.with_name(self.stats_json.name + ".tmp")
-        try:
-            tmp.write_text(json.dumps(self.snapshot(), indent=2) + "\n", encoding="utf-8")
-            os.replace(tmp, self.stats_json)
-        except OSError as error:
-            log.warning("cannot write %s: %s", self.stats_json, error)
+        """Hand the counters to the writer (if any): the file is written on a thread of
+        its own, so a slow disk never holds back a packet."""
+        if self.writer is not None:
+            self.writer.offer(self.snapshot())
 
     def run(self) -> None:
         while not self.stop:
@@ -173,5 +215,6 @@ def run_stage(
         os.close(wake_r)
         os.close(wake_w)
         os.close(fd)
-        loop.write_stats()
+        if loop.writer is not None:
+            loop.writer.close(loop.snapshot())
     return loop.snapshot()
