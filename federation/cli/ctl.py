@@ -100,7 +100,11 @@ def add(sub: Subparsers) -> None:
         "--wait", type=nonnegative, default=5.0, metavar="S", help="confirmation timeout"
     )
     p.add_argument(
-        "--discover", type=nonnegative, default=1.5, metavar="S", help="seconds to collect statuses"
+        "--discover",
+        type=nonnegative,
+        default=1.5,
+        metavar="S",
+        help="at most S s to collect statuses (with --experiment: until each participant's is in)",
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     add_timeout_flag(p)

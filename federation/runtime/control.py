@@ -135,6 +135,7 @@ class Federation:
         self.received: dict[str, float] = {}  # agent -> time.monotonic() of its last status
         self.mismatched = 0  # statuses whose agent is not the one their key names: ignored
         self._lock = threading.Lock()
+        self._new_status = threading.Condition(self._lock)
         self._sub = session.declare_subscriber(
             keys.all_of(federation, "status"),
             zenoh.handlers.Callback(self._on_status, indirect=False),
@@ -153,8 +154,21 @@ class Federation:
             with self._lock:
                 self.status[status["agent"]] = status
                 self.received[status["agent"]] = time.monotonic()
+                self._new_status.notify_all()
         except (ValueError, KeyError, TypeError):
             pass  # a malformed status is the monitor's business, not ctl's
+
+    def discover(self, agents: frozenset[str] | None, timeout: float) -> None:
+        """Collect statuses (agents publish one a second) until each of ``agents`` has
+        one, for ``timeout`` s at most; with ``agents`` None (who is out there is what
+        ctl is looking for), for the whole ``timeout``."""
+        deadline = time.monotonic() + timeout
+        with self._lock:
+            while agents is None or not agents <= self.status.keys():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._new_status.wait(left)
 
     def snapshot(self) -> dict[str, dict[str, Any]]:
         with self._lock:
@@ -399,7 +413,7 @@ def status(
     own = fed is None
     fed = fed or Federation(session, federation)
     try:
-        time.sleep(discover)  # statuses arrive once a second
+        fed.discover(_participants(experiment), discover)
         seen = fed.snapshot()
         participants = [p.agent for p in experiment.participants] if experiment else list(seen)
         return preflight(participants, seen, fed.ages(), max_bound, stale_after)
@@ -543,7 +557,7 @@ def _issue_on_receipt(it: _Issuing, action: Action) -> ControlResult:
         else None,
     )
     sent = it.publish(command)
-    time.sleep(max(0.0, it.discover - (time.monotonic() - sent)))
+    it.fed.discover(_participants(experiment), it.discover - (time.monotonic() - sent))
     expected = _expected(experiment, it.fed.snapshot())
     if not expected:
         raise ConnectError(
@@ -589,8 +603,8 @@ def _issue_start(
     if a participant does not confirm it before it begins (unless ``force``)."""
     experiment = it.experiment
     start_in = _start_in(start_in, duration, experiment)
-    # Waits ``discover`` s for the statuses; the table is made again below, with the
-    # reference chosen from them.
+    # Waits for the participants' statuses (``discover`` s at most); the table is made
+    # again below, with the reference chosen from them.
     status(
         it.session, federation=it.federation, experiment=experiment, discover=it.discover,
         max_bound=max_bound, fed=it.fed,
@@ -699,6 +713,14 @@ def _fresh_run_id(
     return candidate
 
 
+def _participants(experiment: ExperimentConfig | None) -> frozenset[str] | None:
+    """Whom ctl waits to hear from: the experiment's participants (None: every agent
+    that answers within the discovery time)."""
+    if experiment is None:
+        return None
+    return frozenset(str(p.agent) for p in experiment.participants)
+
+
 def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> frozenset[str]:
     if experiment is not None:
         return frozenset(str(p.agent) for p in experiment.participants)
@@ -708,7 +730,7 @@ def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> froz
 def _issue_resume(it: _Issuing, reference: AgentId | None) -> ControlResult:
     """A resume at the reference time it is issued (see the module's notes)."""
     experiment = it.experiment
-    time.sleep(it.discover)  # statuses arrive once a second
+    it.fed.discover(_participants(experiment), it.discover)
     seen = it.fed.snapshot()
     expected = _expected(experiment, seen)
     if not expected:

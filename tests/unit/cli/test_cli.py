@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import json
 import os
 import signal
 import subprocess
@@ -13,6 +14,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -572,10 +574,53 @@ def _fake_federation(
         def ages(self) -> dict[str, float]:
             return {a: 0.1 for a in statuses}
 
+        def discover(self, agents: frozenset[str] | None, timeout: float) -> None:
+            pass  # every status is in
+
         def close(self) -> None:
             pass
 
     return Fed
+
+
+class _StatusFeed:
+    """A session whose status subscriber the test feeds by hand."""
+
+    def __init__(self) -> None:
+        self.deliver: Any = None
+
+    def declare_subscriber(self, key: str, handler: Any) -> Any:
+        self.deliver = handler.callback
+        return type("S", (), {"undeclare": lambda self: None})()
+
+    def status(self, agent: str, after: float) -> threading.Timer:
+        payload = json.dumps({"agent": agent}).encode()
+        sample = SimpleNamespace(
+            key_expr=f"fedlab/default/{agent}/status",
+            payload=SimpleNamespace(to_bytes=lambda: payload),
+        )
+        timer = threading.Timer(after, lambda: self.deliver(sample))
+        timer.start()
+        return timer
+
+
+def test_ctl_discovers_until_every_participant_has_spoken_and_no_longer() -> None:
+    feed = _StatusFeed()
+    fed = control.Federation(feed, "default")
+    try:
+        timer = feed.status("lab/a", 0.1)
+        began = time.monotonic()
+        fed.discover(frozenset({"lab/a"}), 10.0)  # the participant's status ends it
+        assert time.monotonic() - began < 5.0 and "lab/a" in fed.snapshot()
+        timer.join()
+        began = time.monotonic()
+        fed.discover(frozenset({"lab/a", "lab/b"}), 0.3)  # one missing: the whole time
+        assert time.monotonic() - began >= 0.3
+        began = time.monotonic()
+        fed.discover(None, 0.3)  # anyone out there: the whole time
+        assert time.monotonic() - began >= 0.3
+    finally:
+        fed.close()
 
 
 def test_ctl_sends_an_abort_urgently_and_again_until_confirmed(
