@@ -82,6 +82,22 @@ def legacy_samples_since(fleet: Fleet, instant: float, timeout: float = 5.0) -> 
     return int(printed()[0]["samples"])
 
 
+def more_held(
+    bridge: Agent, counters: tuple[str, ...], since: dict[str, Any], n: int
+) -> dict[str, Any]:
+    """Wait until ``counters`` (summed) in the bridge's status lines have grown by ``n``
+    since its line ``since``: ``n`` more requests of the legacy agent came in and got no
+    reply (bounded: they come at 10 Hz)."""
+
+    def total(line: dict[str, Any]) -> int:
+        return sum(int(line["counters"].get(name, 0)) for name in counters)
+
+    start = total(since)
+    return bridge.until(
+        lambda line: total(line) >= start + n, timeout=n * 0.1 + 10, what=f"{n} more {counters}"
+    )
+
+
 def gone(line: dict[str, Any]) -> bool:
     """The leader's status line shows the legacy agent gone (not yet seen: not gone)."""
     return not line["peers"].get(LEGACY, {"alive": True})["alive"]
@@ -258,7 +274,8 @@ def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_go
         before = legacy_samples_since(fleet, time.monotonic() + 0.2)
         while declared:  # the other one stops: the bridge stays held
             declared.pop().undeclare()
-        time.sleep(2.0)
+        # 20 more of the legacy agent's requests (2 s at 10 Hz) come in, each held.
+        more_held(bridge, ("udp_held_for_name",), since=bridge.latest(), n=20)
         assert legacy_samples_since(fleet, time.monotonic()) == before
         line = bridge.latest()
         assert line["hold"] == "name_taken" and line["counters"]["name_taken_holds"] == 1
@@ -291,12 +308,11 @@ def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
         "--request-port", str(legacy_port),  # its one socket: requests and replies
         "--follow", LEADER, "-e", router.endpoint, "--status-period", "0.5",
     )  # fmt: skip
-    leader.wait_status(timeout=10)
-    assert wait_for(lambda: legacy_samples(fleet) >= 20, timeout=20), legacy_lines(fleet)[-3:]
+    bridge.wait_status(timeout=20)  # its socket is bound: forged requests reach it
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as forger:
         forger.bind(("127.0.0.1", 0))
-        forger.settimeout(1.0)
+        forger.settimeout(1.0)  # no reply within 1 s: none comes
         for t1 in (1.0, 2.0, 3.0):
             forger.sendto(wire.encode_request(t1), ("127.0.0.1", bridge_port))
         with pytest.raises(TimeoutError):
@@ -304,6 +320,8 @@ def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
     bridge.until(
         lambda s: s["counters"].get("udp_requests_foreign_port", 0) == 3, 5, "3 forged requests"
     )
+    leader.wait_status(timeout=10)
+    assert wait_for(lambda: legacy_samples(fleet) >= 20, timeout=20), legacy_lines(fleet)[-3:]
 
     def ctl(command: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
@@ -311,24 +329,27 @@ def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
             capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
         )  # fmt: skip
 
-    def answered_for(seconds: float) -> int:
-        """Replies the legacy agent received over ``seconds`` (its lines are 1 s apart)."""
-        before = legacy_samples(fleet)
-        time.sleep(seconds)
-        return legacy_samples(fleet) - before
+    def unanswered(counters: tuple[str, ...]) -> None:
+        """The bridge holding (its ``counters`` growing): the legacy agent's replies as of
+        its first line once a reply in flight has landed (0.2 s) are all it has after
+        10 more of its requests (1 s at 10 Hz) got none."""
+        before = legacy_samples_since(fleet, time.monotonic() + 0.2)
+        more_held(bridge, counters, since=bridge.latest(), n=10)
+        assert legacy_samples_since(fleet, time.monotonic()) == before, legacy_lines(fleet)[-3:]
 
     aborted = ctl("abort")
     assert aborted.returncode == 0, aborted.stdout + aborted.stderr  # the bridge confirmed
     bridge.until(lambda s: s["mode"] == "aborted" and s["hold"] == "aborted", 5, "aborted")
-    time.sleep(1.5)  # the line in flight
-    assert answered_for(2.5) == 0
+    unanswered(("udp_requests_held",))
     reset = ctl("reset")
     assert reset.returncode == 0, reset.stdout + reset.stderr
-    assert wait_for(lambda: answered_for(1.2) > 5, timeout=10)
+    replied = legacy_samples(fleet)
+    assert wait_for(lambda: legacy_samples(fleet) > replied + 5, timeout=10), legacy_lines(fleet)
 
     assert leader.stop() == 0  # the pose it follows stops
-    time.sleep(1.5)
-    assert answered_for(2.5) == 0
+    stale_or_gone = ("udp_requests_stale", "udp_requests_reference_gone")
+    more_held(bridge, stale_or_gone, since=bridge.latest(), n=1)  # it holds from here on
+    unanswered(stale_or_gone)
     counters = bridge.latest()["counters"]
     assert counters["udp_requests_held"] > 0
     assert (
