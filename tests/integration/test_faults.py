@@ -12,6 +12,7 @@ import pytest
 import zenoh
 from loopback import FOLLOWER, LEADER, Agent, Labs, Router, client_config
 
+from federation.fleet.launch import wait_for
 from federation.report.status import true_offset
 from federation.runtime.recorder import read_messages
 
@@ -35,7 +36,7 @@ def test_lab_link_lost_safe_hold_within_200_ms_and_resume(labs: Labs) -> None:
     cut = time.monotonic()
     pair.link.kill()  # the lab link drops, as a cable pulled or a tunnel gone
     follower.until(lambda line: line.get("hold") == "stale", timeout=5, what="safe hold")
-    time.sleep(1.0)
+    time.sleep(1.0)  # the link stays down 1 s: the hold stands a while, not only begins
     restored = time.monotonic()
     pair.link.start()
     follower.until(lambda line: line.get("hold") is None, timeout=20, what="hold released")
@@ -84,7 +85,8 @@ def test_router_restart_sync_resumes_within_5_s(labs: Labs) -> None:
     follower = agent(labs, FOLLOWER, pair.rome)
     follower.wait_samples(LEADER, 5, timeout=20)
     pair.rome.kill()
-    time.sleep(1.0)
+    # The router comes back once the follower has lost it: the leader's pose stale, held.
+    follower.until(lambda line: line.get("hold") is not None, timeout=10, what="held")
     restarted = time.monotonic()
     pair.rome.start()
     before = follower.samples(LEADER)
@@ -101,12 +103,13 @@ def test_clock_step_is_detected_and_estimates_reset(labs: Labs) -> None:
     leader = agent(labs, LEADER, router, "--clock-step", "6:0.5")
     follower = agent(labs, FOLLOWER, router)
 
-    follower.until(
+    stepped = follower.until(
         lambda line: line["peers"].get(LEADER, {}).get("clock_steps", 0) >= 1,
         timeout=20,
         what="the leader's clock step detected",
     )
-    time.sleep(2.0)  # the estimate starts again from the exchanges after the step
+    # The estimate starts again from the exchanges after the step: 20 of them (2 s at 10 Hz).
+    follower.wait_samples(LEADER, stepped["peers"][LEADER]["samples"] + 20, timeout=15)
     view = follower.latest()["peers"][LEADER]
     truth = true_offset(leader.latest(), follower.latest())
     print(f"clock step detected; offset error after it {(view['offset'] - truth) * 1e3:+.3f} ms")
@@ -143,11 +146,12 @@ def test_garbage_on_every_key_an_agent_reads(labs: Labs) -> None:
             f"{base}/sync", zenoh.handlers.Callback(on_query, indirect=False)
         )
         token = session.liveliness().declare_token(base)
-        time.sleep(1.0)
+        # The follower has found the rogue: it queries its sync key (the routes are up).
+        assert wait_for(lambda: answered, timeout=10), "the follower never queried the rogue"
         for k in range(30):  # bounded
             session.put(f"{base}/pose", [b"\x01" * 7, struct.pack("<7d", *[math.inf] * 7)][k % 2])
             session.put("fedlab/default/control", [b"{not json", b'{"command": "explode"}'][k % 2])
-            time.sleep(0.05)
+            time.sleep(0.05)  # 20 Hz, a publisher's pace
 
         def counted(line: dict[str, Any]) -> bool:
             c, peer = line["counters"], line["peers"].get(LEADER, {})

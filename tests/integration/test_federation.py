@@ -104,7 +104,9 @@ def test_agent_waits_for_its_router_and_survives_router_restart(labs: Labs) -> N
     kiruna, rome = labs.endpoint(), labs.endpoint()
     # The follower starts before any router exists.
     follower = labs.follower(rome, "--clock-offset", "-3.5")
-    time.sleep(1.5)
+    # It says so after 2 s of waiting for its router, and waits on.
+    waiting = "waiting for the router"
+    assert wait_for(lambda: waiting in follower.log(), timeout=30), follower.log()[-2000:]
     assert follower.alive()
     labs.router("kiruna", listen=kiruna)
     leader = labs.leader(kiruna)
@@ -114,7 +116,7 @@ def test_agent_waits_for_its_router_and_survives_router_restart(labs: Labs) -> N
     # Kill the dialling router as a crash would, then bring it back on the same port.
     router_rome.kill()
     before = follower.samples(LEADER)
-    time.sleep(1.0)
+    time.sleep(1.0)  # a second without the router
     assert follower.samples(LEADER) <= before + 1  # nothing crosses without the router
     assert follower.alive() and leader.alive()
     restarted = time.monotonic()

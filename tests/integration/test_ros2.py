@@ -533,7 +533,8 @@ def test_a_second_publisher_on_a_joined_platforms_odometry_is_not_flown_on(
     assert platform.counters["odom_contested"] >= 20, platform.counters
     assert platform.last_rejection == "2 publishers on the topic"
     del other  # gone: the one writer's odometry is taken again
-    steps(15)
+    # Taken again once the other's last odometry is older than the timeout (0.5 s).
+    assert wait_for(lambda: steps(1) == [0.0] and not platform.stale, timeout=5, interval=0)
     assert not platform.stale and platform.pose.x == 0.0
 
 
@@ -573,6 +574,10 @@ def test_a_robots_odometry_node_killed_and_restarted_is_taken_again_at_once(
     def node() -> subprocess.Popen[bytes]:
         return subprocess.Popen([sys.executable, "-c", _ODOMETRY_NODE, domain])
 
+    def stale() -> bool:
+        platform.step(0, 0, 0)
+        return platform.stale
+
     def fresh(seconds: float) -> bool:
         end = time.monotonic() + seconds
         while time.monotonic() < end:  # bounded by seconds
@@ -587,9 +592,9 @@ def test_a_robots_odometry_node_killed_and_restarted_is_taken_again_at_once(
         assert fresh(20), platform.counters  # the first node up and heard
         nodes[0].kill()
         nodes[0].wait(10)
-        nodes.append(node())  # started again at once: a new writer
-        time.sleep(1.0)
-        platform.step(0, 0, 0)
+        # Its last odometry ages out (0.5 s): the platform stale, the dead writer matched.
+        assert wait_for(stale, timeout=5), platform.counters
+        nodes.append(node())  # started again: a new writer
         assert fresh(5.0), (platform.last_rejection, platform.counters)
         assert len(reader.get_matched_publications()) >= 1
     finally:

@@ -95,8 +95,9 @@ def test_a_second_process_under_its_name_at_start_holds_the_agent_for_good(
         assert "2 processes answer for kiruna/knatte in federation default" in leader.log()
         while tokens:  # the other one stops: this one stays held
             tokens.pop().undeclare()
-        time.sleep(3.0)
-        line = leader.latest()
+        left = time.monotonic()
+        # Its status 3 s after the other left: still held.
+        line = leader.until(lambda line: line["host_monotonic"] >= left + 3.0, 10, "3 s on")
         assert line["hold"] == "name_taken" and line["counters"]["name_taken_holds"] == 1, line
         assert leader.alive()
     finally:

@@ -20,7 +20,7 @@ def test_alone_on_its_name_an_agent_finds_no_clash(session: zenoh.Session) -> No
         for due in checks:
             lead.watches.check_name_again(due)
         assert lead.watches.name_checks == []  # each look once
-        time.sleep(1.5)  # the queries' 1 s timeout, and their end
+        time.sleep(1.5)  # the looks' queries end by their 1 s timeout: a clash is said by then
         assert lead.name_clash is None
         served = lead.counters["sync_requests_served"]
         assert served == 2, lead.counters  # its own two looks, answered by itself

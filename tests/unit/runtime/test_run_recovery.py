@@ -537,12 +537,19 @@ def test_the_recording_server_recovers_once_the_agents_run_is_over(
     runs = tmp_path / "runs"
     folder = _unfinished(runs, "r1", finished.read_bytes()[: _chunks(finished)[2].end])
     state = {"busy": "run r9 running"}
+    asked: list[float] = []  # when the server asked whether the run is over
+
+    def busy() -> str | None:
+        asked.append(time.monotonic())
+        return state["busy"]
+
     server = RecordingServer(
-        session, "default", AgentId("kiruna", "knatte"), runs,
-        busy=lambda: state["busy"], min_free_mb=0,
-    )  # fmt: skip
+        session, "default", AgentId("kiruna", "knatte"), runs, busy=busy, min_free_mb=0
+    )
     try:
-        time.sleep(2.5 * collect_module.RECOVERY_RETRY)
+        # It asks again every RECOVERY_RETRY: twice more, and still waits for the run.
+        retried = 2 * collect_module.RECOVERY_RETRY
+        assert wait_for(lambda: len(asked) > 1 and asked[-1] - asked[0] >= retried, timeout=10)
         assert server.recovery is None  # waiting for the run
         assert sorted(p.name for p in folder.iterdir()) == [f"{STEM}.jsonl", f"{STEM}.mcap"]
         state["busy"] = None  # type: ignore[assignment]
