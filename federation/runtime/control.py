@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import os
 import secrets
 import socket
@@ -55,6 +54,7 @@ from federation.core.preflight import (
 from federation.core.sync import SyncClient
 from federation.runtime.clock import ExecClock
 from federation.runtime.session import ConnectError
+from federation.runtime.statuses import Federation
 from federation.runtime.syncglue import Answer, SyncQuerier
 from schemas.config import ConfigError
 from schemas.experiment import ExperimentConfig
@@ -121,66 +121,6 @@ def make_run_id(experiment: str | None, now: datetime.datetime | None = None) ->
     """``<experiment>-<UTC time>``, e.g. ``attitude-tracking-20250101T120000Z``."""
     now = now or datetime.datetime.now(datetime.UTC)
     return f"{experiment or 'run'}-{now.strftime('%Y%m%dT%H%M%SZ')}"
-
-
-class Federation:
-    """What ctl sees of a federation: every agent's latest status and when it came."""
-
-    def __init__(self, session: Any, federation: str):
-        import zenoh
-
-        self.session = session
-        self.federation = federation
-        self.status: dict[str, dict[str, Any]] = {}
-        self.received: dict[str, float] = {}  # agent -> time.monotonic() of its last status
-        self.mismatched = 0  # statuses whose agent is not the one their key names: ignored
-        self._lock = threading.Lock()
-        self._new_status = threading.Condition(self._lock)
-        self._sub = session.declare_subscriber(
-            keys.all_of(federation, "status"),
-            zenoh.handlers.Callback(self._on_status, indirect=False),
-        )
-
-    def _on_status(self, sample: Any) -> None:
-        try:
-            status = json.loads(sample.payload.to_bytes())
-            # Filed under the key it came on, which only that agent may write: a status
-            # naming another agent (an insider's "kiruna/knatte: aborted") is not that
-            # agent's confirmation.
-            parsed = keys.parse_agent_key(self.federation, str(sample.key_expr))
-            if parsed is None or parsed[1] != "status" or status["agent"] != str(parsed[0]):
-                self.mismatched += 1
-                return
-            with self._lock:
-                self.status[status["agent"]] = status
-                self.received[status["agent"]] = time.monotonic()
-                self._new_status.notify_all()
-        except (ValueError, KeyError, TypeError):
-            pass  # a malformed status is the monitor's business, not ctl's
-
-    def discover(self, agents: frozenset[str] | None, timeout: float) -> None:
-        """Collect statuses (agents publish one a second) until each of ``agents`` has
-        one, for ``timeout`` s at most; with ``agents`` None (who is out there is what
-        ctl is looking for), for the whole ``timeout``."""
-        deadline = time.monotonic() + timeout
-        with self._lock:
-            while agents is None or not agents <= self.status.keys():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return
-                self._new_status.wait(left)
-
-    def snapshot(self) -> dict[str, dict[str, Any]]:
-        with self._lock:
-            return dict(self.status)
-
-    def ages(self) -> dict[str, float]:
-        now = time.monotonic()
-        with self._lock:
-            return {a: now - t for a, t in self.received.items()}
-
-    def close(self) -> None:
-        self._sub.undeclare()
 
 
 @dataclass(frozen=True)
