@@ -23,7 +23,14 @@ from agents.rehearsal import adaptive_run, docking_run, formation_run
 from schemas.experiment import load_experiment
 from schemas.scenario import AdaptiveConfig
 
-__all__ = ["ADAPTIVE_MANEUVERS", "DELAYS", "run"]
+__all__ = [
+    "ADAPTIVE_MANEUVERS",
+    "DELAYS",
+    "adaptive_rows",
+    "docking_outcomes",
+    "formation_rows",
+    "run",
+]
 
 DELAYS = (0.040, 0.250)
 """s one way: the paper's Kiruna-Rome delay and a relay satellite's."""
@@ -33,8 +40,16 @@ ADAPTIVE_MANEUVERS = ((30.0, 20.0), (60.0, 30.0), (90.0, 40.0))
 
 def run(experiments: Path, seeds: int = 3, docking_seeds: int = 10) -> dict[str, Any]:
     """Every comparison; ``experiments`` is the folder of formation.toml and docking.toml."""
-    formation = load_experiment(experiments / "formation.toml")
-    docking = load_experiment(experiments / "docking.toml")
+    return {
+        "formation": formation_rows(experiments / "formation.toml", seeds),
+        "docking": docking_outcomes(experiments / "docking.toml", docking_seeds),
+        "adaptive": adaptive_rows(),
+    }
+
+
+def formation_rows(experiment: Path, seeds: int) -> list[dict[str, Any]]:
+    """The formation's errors and area events at each delay, compensated or not."""
+    formation = load_experiment(experiment)
     rows = []
     for delay in DELAYS:
         for compensate in (True, False):
@@ -54,12 +69,29 @@ def run(experiments: Path, seeds: int = 3, docking_seeds: int = 10) -> dict[str,
                     ],
                 }
             )
-    docks = [docking_run(docking, DELAYS[0], seed=s).summary() for s in range(docking_seeds)]
+    return rows
+
+
+def docking_outcomes(experiment: Path, seeds: int) -> dict[str, Any]:
+    """The docking's outcome over ``seeds`` at the paper's delay, and its figures."""
+    docking = load_experiment(experiment)
+    docks = [docking_run(docking, DELAYS[0], seed=s).summary() for s in range(seeds)]
     keys = ("contact_speed_mps", "lateral_error_m", "heading_error_deg", "time_s")
-    docking_stats = {
+    stats = {
         k: {"median": statistics.median(d[k] for d in docks), "max": max(d[k] for d in docks)}
         for k in (*keys, "chaser_velocity_error_rms_mps")
     }
+    return {
+        "delay_s": DELAYS[0],
+        "seeds": seeds,
+        "successes": sum(bool(d["success"]) for d in docks),
+        "runs": docks,
+        "stats": stats,
+    }
+
+
+def adaptive_rows() -> list[dict[str, Any]]:
+    """A follower's heading error with fixed and scheduled gains, per maneuver."""
     adaptive = []
     for amplitude, seconds in ADAPTIVE_MANEUVERS:
         fixed = adaptive_run(amplitude, seconds, None)
@@ -83,14 +115,4 @@ def run(experiments: Path, seeds: int = 3, docking_seeds: int = 10) -> dict[str,
                 },
             }
         )
-    return {
-        "formation": rows,
-        "docking": {
-            "delay_s": DELAYS[0],
-            "seeds": docking_seeds,
-            "successes": sum(bool(d["success"]) for d in docks),
-            "runs": docks,
-            "stats": docking_stats,
-        },
-        "adaptive": adaptive,
-    }
+    return adaptive

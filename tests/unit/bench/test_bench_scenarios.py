@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -11,20 +12,38 @@ from federation import cli
 from federation.bench import scenarios
 
 ROOT = Path(__file__).resolve().parents[3]
+EXPERIMENTS = ROOT / "deploy" / "experiments"
 
 
-def test_small_run_has_every_comparison() -> None:
-    result = scenarios.run(ROOT / "deploy" / "experiments", seeds=1, docking_seeds=1)
-    rows = {(r["delay_s"], r["latency_compensation"]): r for r in result["formation"]}
+# The three parts of a run, one test each (the benchmark's parts run on separate workers).
+def test_a_formation_row_for_every_delay_with_and_without_compensation() -> None:
+    formation = scenarios.formation_rows(EXPERIMENTS / "formation.toml", seeds=1)
+    rows = {(r["delay_s"], r["latency_compensation"]): r for r in formation}
     assert set(rows) == {(d, c) for d in scenarios.DELAYS for c in (True, False)}
     # At a relay satellite's delay, compensation is what keeps the formation (issue 14).
     slow = max(scenarios.DELAYS)
     assert rows[(slow, True)]["error_rms_m"][0] * 2 < rows[(slow, False)]["error_rms_m"][0]
-    assert all(sum(r["workspace_events"]) == 0 for r in result["formation"])
-    assert result["docking"]["successes"] == 1
-    assert [a["amplitude_deg"] for a in result["adaptive"]] == [
+    assert all(sum(r["workspace_events"]) == 0 for r in formation)
+
+
+def test_a_docking_seed_succeeds() -> None:
+    assert scenarios.docking_outcomes(EXPERIMENTS / "docking.toml", seeds=1)["successes"] == 1
+
+
+def test_an_adaptive_row_for_every_maneuver() -> None:
+    assert [a["amplitude_deg"] for a in scenarios.adaptive_rows()] == [
         amplitude for amplitude, _ in scenarios.ADAPTIVE_MANEUVERS
     ]
+
+
+def test_a_run_has_every_comparison(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[tuple[str, Any]] = []
+    monkeypatch.setattr(scenarios, "formation_rows", lambda path, n: calls.append((path.name, n)))
+    monkeypatch.setattr(scenarios, "docking_outcomes", lambda path, n: calls.append((path.name, n)))
+    monkeypatch.setattr(scenarios, "adaptive_rows", lambda: calls.append(("adaptive", None)))
+    result = scenarios.run(EXPERIMENTS, seeds=2, docking_seeds=5)
+    assert set(result) == {"formation", "docking", "adaptive"}
+    assert calls == [("formation.toml", 2), ("docking.toml", 5), ("adaptive", None)]
 
 
 def test_command_line_refuses_zero_seeds(capsys: pytest.CaptureFixture[str]) -> None:
