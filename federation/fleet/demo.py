@@ -165,7 +165,7 @@ def run_demo(
                     ]
                     return all(line is not None and line["t_sim"] is not None for line in lines)
 
-                if not wait_for(synced, timeout=30, interval=0.5):
+                if not wait_for(synced, timeout=30, interval=0.1):
                     console.print(
                         f"[red]the followers never synchronized; see {out / 'logs'}[/red]"
                     )
@@ -177,7 +177,7 @@ def run_demo(
                     if not all(fleet.alive(recording_stem(a)) for a in agents):
                         console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
                         break
-                    time.sleep(0.5)
+                    time.sleep(min(0.5, total - elapsed))  # ends when the run does
         except KeyboardInterrupt:
             interrupted = True
             console.print("interrupted: stopping agents, link and routers")
