@@ -5,6 +5,7 @@ reply made by hand from a chosen replier."""
 
 from __future__ import annotations
 
+import json
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -65,7 +66,9 @@ def run_for(agents: list[AgentRuntime], seconds: float) -> None:
         timer.cancel()
 
 
-class _Bytes:
+class Payload:
+    """What the agent reads of a zenoh.ZBytes."""
+
     def __init__(self, data: bytes):
         self.data = data
 
@@ -76,11 +79,19 @@ class _Bytes:
         return len(self.data)
 
 
+class ControlSample:
+    """What the agent's control subscriber reads of a zenoh.Sample."""
+
+    def __init__(self, command: dict[str, Any]):
+        self.payload = Payload(json.dumps(command).encode())
+        self.key_expr = "fedlab/default/@control"
+
+
 class Reply:
     """What ``_on_sync_reply`` reads of a zenoh.Reply."""
 
     def __init__(self, payload: bytes, attachment: bytes, replier: str):
-        self.ok = type("Ok", (), {"payload": _Bytes(payload), "attachment": _Bytes(attachment)})
+        self.ok = type("Ok", (), {"payload": Payload(payload), "attachment": Payload(attachment)})
         self.replier_id = type("Replier", (), {"zid": replier})
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cohosted import ControlSample
 
 from federation.cli.agent import build_agent_config
 from federation.core.holds import RULES, Trigger
@@ -54,25 +55,6 @@ def write_experiment(path: Path) -> Path:
         encoding="utf-8",
     )
     return path
-
-
-class _Payload:
-    def __init__(self, data: bytes):
-        self.data = data
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-
-class _Sample:
-    """What the agent's control subscriber reads of a zenoh.Sample."""
-
-    def __init__(self, command: dict[str, Any]):
-        self.payload = _Payload(json.dumps(command).encode())
-        self.key_expr = "fedlab/default/@control"
 
 
 class _Lines:
@@ -121,7 +103,7 @@ class IdleLeader:
         """``ctl``'s command ``name`` as the agent's control subscriber receives it."""
         self.seq += 1
         command = {"command": name, "seq": self.seq, "issuer": "op"} | fields
-        self.agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
+        self.agent.commands.on_control(ControlSample(command))  # type: ignore[arg-type]
         return command
 
     def start(self, run_id: str) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cohosted import ControlSample, Payload
 
 from federation.core import wire
 from federation.core.holds import Change, Hold, Trigger
@@ -20,25 +21,6 @@ from federation.runtime.clock import ExecClock
 from schemas.config import AgentConfig
 
 LEAD = AgentId.parse("rome/l")
-
-
-class _Payload:
-    def __init__(self, data: bytes):
-        self.data = data
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-
-class _Sample:
-    """What ``_on_control`` reads of a zenoh.Sample."""
-
-    def __init__(self, command: dict[str, Any]):
-        self.payload = _Payload(json.dumps(command).encode())
-        self.key_expr = "fedlab/default/@control"
 
 
 class _Sink:
@@ -86,7 +68,7 @@ class Follower:
         if name == "start":
             fields = {"duration": 100.0} | fields  # a run must end
         command = {"command": name, "seq": self.seq, "issuer": "op"} | fields
-        self.agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
+        self.agent.commands.on_control(ControlSample(command))  # type: ignore[arg-type]
 
     def step(self, dt: float = 0.01) -> None:
         self.now += dt
@@ -153,7 +135,7 @@ def test_an_abort_nested_too_deep_to_read_is_still_honoured() -> None:
 
 class _RawSample:
     def __init__(self, data: bytes):
-        self.payload = _Payload(data)
+        self.payload = Payload(data)
         self.key_expr = "fedlab/default/@control"
 
 
@@ -506,7 +488,7 @@ class _Reply:
     """What ``_on_sync_reply`` reads of a zenoh.Reply (no replier id)."""
 
     def __init__(self, payload: bytes):
-        self.ok = type("Ok", (), {"payload": _Payload(payload), "attachment": None})
+        self.ok = type("Ok", (), {"payload": Payload(payload), "attachment": None})
         self.replier_id = None
 
 
@@ -583,7 +565,7 @@ def test_a_platform_waits_for_its_run_held() -> None:
     assert ready.platform  # waiting is not a fault: preflight passes
     command = {"command": "start", "seq": 1, "issuer": "op", "at": clock.now() + 0.5,
                "run_id": "r1", "duration": 30.0}  # fmt: skip
-    agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
+    agent.commands.on_control(ControlSample(command))  # type: ignore[arg-type]
     for _ in range(40):  # armed: still held
         now[0] += 0.01
         agent.control_step()
@@ -610,11 +592,11 @@ def test_a_malformed_command_naming_its_issuer_is_reported_as_such() -> None:
     # status: ctl said "command not seen", not why.
     f = Follower()
     command = {"command": "start", "seq": 7, "issuer": "op", "run_id": "r1", "colour": "red"}
-    f.agent.commands.on_control(_Sample(command))  # type: ignore[arg-type]
+    f.agent.commands.on_control(ControlSample(command))  # type: ignore[arg-type]
     (outcome,) = [c for c in f.agent.command_log if c.seq == 7]
     assert (outcome.command, outcome.issuer, outcome.outcome) == ("start", "op", "malformed")
     assert "colour" in outcome.detail
-    f.agent.commands.on_control(_Sample({"nonsense": True}))  # type: ignore[arg-type]
+    f.agent.commands.on_control(ControlSample({"nonsense": True}))  # type: ignore[arg-type]
     assert len(f.agent.command_log) == 1  # nothing to report it under
     assert f.agent.counters["control_malformed"] == 2
 
