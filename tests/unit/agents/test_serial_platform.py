@@ -69,6 +69,11 @@ ALPHA = KNATTE.pair_torque / KNATTE.inertia  # rad/s^2 of a torque couple: 0.4
 POSITIVE_TORQUE = tuple(i in PAIRS["+torque"] for i in range(8))  # valves 1, 2
 NEGATIVE_TORQUE = tuple(i in PAIRS["-torque"] for i in range(8))  # valves 0, 3
 AHEAD = 1.0  # rad: a reference this far from a platform at rest saturates +torque
+WRITE_TIMEOUT = 1.0
+"""s a write to the pty may take (the platform's default: 5 ms). A test host busy with
+parallel workers can deschedule this process for longer mid-write, and the platform
+then, as it must, treats the write as cut off and sends all-closed again: these tests'
+frames assume whole writes; the tests of cut-off writes make theirs cut off."""
 
 
 def main(args: list[str]) -> int:
@@ -125,7 +130,7 @@ def _valves_of(messages: list[Message]) -> list[int]:
 
 
 def test_no_valve_opens_before_the_first_pose(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         assert plat.step(0.0, AHEAD, 0.0) == Pose()  # the filter's prior: nothing known
         sent = pty_dev.received()
         assert sent == [Valves(0, 0), Heartbeat(0, 0.0)]
@@ -145,7 +150,7 @@ def test_valves_open_once_three_poses_agree_each_carried_by_its_age(pty_dev: Pty
     three = ONE_FIX.model_copy(
         update={"navigation": ONE_FIX.navigation.model_copy(update={"fixes_to_start": 3})}
     )  # three agreeing, the velocity's uncertainty not waited for (test_gnc.py)
-    with SerialPlatform(pty_dev.path, chain=Seen(three)) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, chain=Seen(three)) as plat:
         assert three.navigation.fixes_to_start == 3
         for k in range(5):  # the IMU alone first: the motion known 50 ms back
             t = 0.95 + 0.01 * k
@@ -189,7 +194,7 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
         + garbage
         + encode_status(Status(1.02, 0, 2, 200, 0, 0, 0, 0, 0, 0))
     )
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(stream)
         got = plat.step(5.0, 1.0, 0.0)
         assert plat.device_pose == pose and plat.pose_time == 1.01
@@ -210,7 +215,7 @@ def test_garbage_and_bad_checksums_are_dropped_and_counted(pty_dev: Pty) -> None
 
 
 def test_hold_sends_all_closed_at_once_and_until_release(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert _valves_of(pty_dev.received()) == [0b110]
@@ -228,7 +233,9 @@ def test_hold_sends_all_closed_at_once_and_until_release(pty_dev: Pty) -> None:
 
 
 def test_stale_pose_closes_the_valves(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, config=ONE_FIX, pose_timeout=0.5) as plat:
+    with SerialPlatform(
+        pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX, pose_timeout=0.5
+    ) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(10.0, AHEAD, 0.0)
         pty_dev.send(encode_imu(0.5, 0.0, 0.0, 0.0))  # the IMU goes on; the fixes stop
@@ -247,7 +254,7 @@ def test_a_failing_chain_closes_the_valves_before_raising(pty_dev: Pty) -> None:
                 raise ZeroDivisionError("gain schedule")
             return super().update(now, *args, **kwargs)
 
-    with SerialPlatform(pty_dev.path, chain=Broken(ONE_FIX)) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, chain=Broken(ONE_FIX)) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         with pytest.raises(ZeroDivisionError):
@@ -257,7 +264,7 @@ def test_a_failing_chain_closes_the_valves_before_raising(pty_dev: Pty) -> None:
 
 
 def test_close_sends_all_closed_then_refuses_to_step(pty_dev: Pty) -> None:
-    plat = SerialPlatform(pty_dev.path, config=ONE_FIX)
+    plat = SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX)
     pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
     plat.step(0.0, AHEAD, 0.0)
     plat.close()
@@ -270,7 +277,7 @@ def test_close_sends_all_closed_then_refuses_to_step(pty_dev: Pty) -> None:
 
 
 def test_vanished_port_stops_actuation_with_a_clear_error(pty_dev: Pty) -> None:
-    plat = SerialPlatform(pty_dev.path, config=ONE_FIX)
+    plat = SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX)
     try:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
@@ -302,15 +309,17 @@ def test_it_flies_the_gnc_chain_of_its_preset(pty_dev: Pty) -> None:
         assert plat.chain.fix_timeout == plat.config.control.fix_timeout
     finally:
         plat.close()
-    with SerialPlatform(pty_dev.path) as default:  # the default preset: knatte
+    with SerialPlatform(
+        pty_dev.path, write_timeout=WRITE_TIMEOUT
+    ) as default:  # the default preset: knatte
         assert default.config == KNATTE
     # The fix wraps next to the estimate and the error wraps (Eq. 1): from 179 to -179
     # degrees is +2 degrees, a positive torque.
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose(heading=3.124)))
         plat.step(0.0, -3.124, 0.0)
         assert plat.valves == POSITIVE_TORQUE
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, -AHEAD, 0.0)
         assert plat.valves == NEGATIVE_TORQUE
@@ -526,7 +535,7 @@ def test_emulate_device_rejects_bad_flags(capsys: pytest.CaptureFixture[str]) ->
 def test_scripted_frames_sent_by_the_host_are_the_documented_ones(pty_dev: Pty) -> None:
     # One step = VALVES then HEARTBEAT with the same seq: a write cut off between them
     # delivers no heartbeat that would keep the device's previous command alive.
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode(DevicePose(0.0, Pose())))
         plat.step(2.5, -AHEAD, 0.0)
         time.sleep(0.02)
@@ -548,7 +557,7 @@ def test_a_hold_from_another_thread_during_a_step_is_the_last_word(pty_dev: Pty)
                 decided.wait(0.05)  # the hold comes in meanwhile
             return valves
 
-    with SerialPlatform(pty_dev.path, chain=Slow(ONE_FIX)) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, chain=Slow(ONE_FIX)) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert _valves_of(pty_dev.received()) == [0b110]
@@ -569,7 +578,7 @@ def test_a_hold_from_another_thread_during_a_step_is_the_last_word(pty_dev: Pty)
 
 
 def test_device_frames_not_newer_and_a_stale_backlog_are_not_fixes(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(1.0, 0.0, 0.0, 0.0) + encode_pose(1.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
@@ -578,7 +587,7 @@ def test_device_frames_not_newer_and_a_stale_backlog_are_not_fixes(pty_dev: Pty)
         plat.step(0.01, AHEAD, 0.0)
         assert plat.counters["device_frames_not_newer"] == 2
         assert plat.device_pose == Pose()
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         # After a stall, a POSE 0.7 s older than the IMU before it (the device's clock):
         # not a fix of now, though it arrives now (on no timeline: dropped).
         pty_dev.send(encode_imu(5.0, 0.0, 0.0, 0.0) + encode_pose(4.3, Pose()))
@@ -593,7 +602,7 @@ def test_a_hold_whose_frame_times_out_is_not_confirmed(
 ) -> None:
     import serial
 
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
@@ -619,7 +628,7 @@ def test_a_hold_whose_frame_times_out_is_not_confirmed(
 def test_a_flood_of_junk_is_read_a_bounded_amount_a_step(pty_dev: Pty) -> None:
     # Junk that keeps the decoder searching costs 1.5 us a byte under the platform's
     # lock, which an abort's hold waits for: 64 reads a step had held it 385 ms.
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         reads: list[int] = []
 
         def talker(size: int = 1) -> bytes:  # a device that never stops sending junk
@@ -635,7 +644,7 @@ def test_a_flood_of_junk_is_read_a_bounded_amount_a_step(pty_dev: Pty) -> None:
 def test_a_backlog_in_the_devices_order_is_not_a_fix(pty_dev: Pty) -> None:
     # POSE(4.3) then the IMU samples that followed it, up to 5.0: read together after a
     # stall, the POSE was once judged against the IMU before it, and taken as a fix.
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         backlog = encode_imu(4.29, 0.0, 0.0, 0.0) + encode_pose(4.3, Pose())
         backlog += b"".join(encode_imu(4.3 + 0.01 * k, 0.0, 0.0, 0.0) for k in range(1, 71))
         pty_dev.send(backlog)
@@ -661,7 +670,7 @@ def test_an_old_pose_is_neither_a_restart_nor_a_fix(pty_dev: Pty) -> None:
     # Frames at device time 10.00 to 10.99, IMU(11.0), then a POSE of 8.99 (a replay, a
     # backlog): taken as a "device restart" and as a fix, it pulled the estimate to
     # x = 0.158 and opened valves 2 and 3 (position hold, KNATTE).
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         assert plat.chain.position_hold is not None
         host = 0.0
         for frames in _stream(10.0, 100):
@@ -691,7 +700,7 @@ def test_a_device_that_restarts_is_heard_again_once_confirmed(pty_dev: Pty) -> N
     # Its clock starts again from 0. Once every frame "not newer" kept the valves closed
     # for good; then the first old frame was a restart at once, and the chain kept its
     # estimate and fix time: valves opened on them before any POSE of the new clock.
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         assert plat.chain.position_hold is not None
         pty_dev.send(encode_imu(100.0, 0.0, 0.0, 0.0) + encode_pose(100.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
@@ -720,7 +729,7 @@ def test_a_device_that_restarts_is_heard_again_once_confirmed(pty_dev: Pty) -> N
 
 
 def test_a_status_from_a_device_just_powered_up_confirms_its_restart(pty_dev: Pty) -> None:
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         pty_dev.send(encode_imu(100.0, 0.0, 0.0, 0.0) + encode_pose(100.0, Pose()))
         plat.step(0.0, AHEAD, 0.0)
         assert plat.valves == POSITIVE_TORQUE
@@ -776,7 +785,7 @@ def test_a_write_cut_off_sends_no_heartbeat_and_closes_the_valves(
     # Cut 23 bytes into a step's frames: with HEARTBEAT (18 bytes) first, the device got
     # a heartbeat without its VALVES, feeding its failsafe on the previous command, and
     # the host reported that step's valves as applied.
-    with SerialPlatform(pty_dev.path, config=ONE_FIX) as plat:
+    with SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX) as plat:
         port = CutOff(plat._serial, keep=23, short=short)
         plat._serial = port  # type: ignore[assignment]
         pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
@@ -803,7 +812,7 @@ def test_a_write_cut_off_sends_no_heartbeat_and_closes_the_valves(
 def test_close_discards_the_output_queue_before_its_all_closed(pty_dev: Pty) -> None:
     # Frames queued in the port (a slow line) went out after close's all-closed frame
     # was written behind them; now they are discarded first.
-    plat = SerialPlatform(pty_dev.path, config=ONE_FIX)
+    plat = SerialPlatform(pty_dev.path, write_timeout=WRITE_TIMEOUT, config=ONE_FIX)
     port = CutOff(plat._serial, keep=0)
     plat._serial = port  # type: ignore[assignment]
     pty_dev.send(encode_imu(0.0, 0.0, 0.0, 0.0) + encode_pose(0.0, Pose()))
