@@ -83,6 +83,11 @@ class AgentEntry(base.Model):
     )
     follow: str | None = Field(None, description="LAB/NAME of the agent a follower tracks")
     platform: str = Field("kinematic", description="pose source (see AgentConfig.platform)")
+    runs_dir: str | None = Field(
+        None,
+        description="where the agent records each run for fedlab collect; default: runs/ in "
+        "the state folder of the service that runs it (/var/lib/fedlab/<name>/runs)",
+    )
     settings: dict[str, Any] = Field(
         default_factory=dict,
         description="any other AgentConfig field, written to the agent's TOML as is",
@@ -301,6 +306,11 @@ class FederationFile(base.Model):
         """An agent's entry makes a valid agent config, its settings leave the fields its
         entry sets alone, and it follows an agent of the file."""
         own = sorted(_OWN_FIELDS & set(agent.settings))
+        if agent.runs_dir is not None and "runs_dir" in agent.settings:
+            raise _field_error(
+                f"labs.{lab}.agents.{name}.settings.runs_dir",
+                "runs_dir is given in the entry already: give it once",
+            )
         if own:
             key = own[0]
             raise _field_error(
@@ -310,6 +320,8 @@ class FederationFile(base.Model):
             )
         data = {**agent.settings, "federation": self.federation, "lab": lab, "name": name}
         data |= {"role": agent.role, "follow": agent.follow, "platform": agent.platform}
+        if agent.runs_dir is not None:
+            data["runs_dir"] = agent.runs_dir
         try:
             AgentConfig.model_validate(data)
         except ValidationError as error:

@@ -31,7 +31,7 @@ def add(sub: Subparsers) -> None:
         ),
         epilog=(
             "Examples:\n"
-            "  fedlab deploy generate deploy/federation.example.toml --out federation/\n"
+            "  fedlab deploy generate deploy/federation.example.toml --out fed/\n"
             "  fedlab deploy generate federation.toml --out /tmp/fed --local   # one host\n"
             "  fedlab deploy check federation.toml"
         ),

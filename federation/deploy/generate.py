@@ -6,7 +6,8 @@ that lab installs as ``/etc/fedlab`` (the ``root``), and beside them the CA::
     DIR/ca/                      the federation CA and every certificate it signed:
                                  keep it offline, the CA key never goes to a lab
     DIR/<lab>/routers/<lab>.json5        the lab router (TLS, per-agent access control)
-    DIR/<lab>/agents/<name>.toml         an agent's settings (fedlab agent --agent-config)
+    DIR/<lab>/agents/<name>.toml         an agent's settings (fedlab agent --agent-config);
+                                         it records its runs in /var/lib/fedlab/<name>/runs
     DIR/<lab>/agents/<name>.json5        its Zenoh client config (certificate or password)
     DIR/<lab>/hosts/<host>.json5         a hosted process's Zenoh config (fedlab host -c ...)
     DIR/<lab>/hosts/<host>/<name>.toml   the settings of each agent it runs
@@ -58,6 +59,7 @@ from schemas.federation import FederationFile, LabEntry
 
 __all__ = [
     "DEFAULT_ROOT",
+    "STATE_ROOT",
     "SYSTEMD_DIR",
     "WRITES",
     "Generated",
@@ -70,6 +72,10 @@ __all__ = [
 ]
 
 DEFAULT_ROOT = Path("/etc/fedlab")
+STATE_ROOT = Path("/var/lib/fedlab")
+"""Where each service keeps its state (the units' ``StateDirectory=fedlab/<name>``): a
+generated agent records its runs in ``STATE_ROOT/<name>/runs`` (a hosted one in its
+host's), there for ``fedlab collect``."""
 SYSTEMD_DIR = Path(__file__).resolve().parents[2] / "deploy" / "systemd"
 """The unit templates copied into each lab's folder."""
 
@@ -280,13 +286,16 @@ def agent_zenoh(
     return doc
 
 
-def agent_settings(fed: FederationFile, lab: str, name: str) -> dict[str, Any]:
-    """Agent ``lab/name``'s settings file (AgentConfig fields)."""
+def agent_settings(fed: FederationFile, lab: str, name: str, state: Path) -> dict[str, Any]:
+    """Agent ``lab/name``'s settings file (AgentConfig fields); ``state`` is the state
+    folder of the service that runs it, under which it records its runs."""
     agent = fed.labs[lab].agents[name]
     data: dict[str, Any] = {"federation": fed.federation, "lab": lab, "name": name}
     # A deployed agent takes part in the federation's runs: it waits for ctl start
-    # (held) instead of flying from the moment its service starts.
+    # (held) instead of flying from the moment its service starts, and records each
+    # run where collect finds it (unless its entry or its settings say elsewhere).
     data |= {"role": agent.role, "platform": agent.platform, "wait_start": True}
+    data["runs_dir"] = agent.runs_dir or str(state / "runs")
     if agent.follow is not None:
         data["follow"] = agent.follow
     return data | agent.settings
@@ -309,6 +318,7 @@ def _write_hosts(
     lab: str,
     folder: Path,
     lab_root: Path,
+    state_root: Path,
     passwords: dict[str, str],
     header: str,
     out: Generated,
@@ -324,7 +334,8 @@ def _write_hosts(
         kept.append(conf)
         settings = [hosts / host / f"{name}.toml" for name in names]
         for name, path in zip(names, settings, strict=True):
-            _write(path, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
+            text = toml_text(agent_settings(fed, lab, name, state_root / host), header)
+            _write(path, text, 0o644, out)
         _prune(hosts / host, settings, (".toml",), out)
     _prune(hosts, kept, (".json5",), out)
     if hosts.is_dir():
@@ -637,6 +648,7 @@ def _write_agents(
     lab: str,
     folder: Path,
     lab_root: Path,
+    state_root: Path,
     passwords: dict[str, str],
     header: str,
     out: Generated,
@@ -651,7 +663,8 @@ def _write_agents(
         doc = agent_zenoh(fed, lab, name, lab_root, passwords.get(f"{lab}/{name}"))
         _write(conf, json5_text(doc, header), 0o600, out)
         settings = folder / "agents" / f"{name}.toml"
-        _write(settings, toml_text(agent_settings(fed, lab, name), header), 0o644, out)
+        text = toml_text(agent_settings(fed, lab, name, state_root / name), header)
+        _write(settings, text, 0o644, out)
         kept += [conf, settings]
     _prune(folder / "agents", kept, (".json5", ".toml"), out)
 
@@ -704,9 +717,15 @@ def _write_units(folder: Path, lab_root: Path, out: Generated) -> None:
 
 
 def _write_lab(
-    fed: FederationFile, lab: str, ca: Path, folder: Path, lab_root: Path, out: Generated
+    fed: FederationFile,
+    lab: str,
+    ca: Path,
+    folder: Path,
+    roots: tuple[Path, Path],
+    out: Generated,
 ) -> None:
-    """Lab ``lab``'s folder, installed at ``lab_root``."""
+    """Lab ``lab``'s folder; ``roots``: where it is installed, and its services' state."""
+    lab_root, state_root = roots
     entry = fed.labs[lab]
     header = _header(fed, lab)
     identities = _identities(lab, entry)
@@ -714,8 +733,8 @@ def _write_lab(
     router = folder / "routers" / f"{lab}.json5"
     _write(router, router_text(fed, lab, lab_root), 0o644, out)
     _prune(folder / "routers", [router], (".json5",), out)
-    _write_agents(fed, lab, folder, lab_root, passwords, header, out)
-    _write_hosts(fed, lab, folder, lab_root, passwords, header, out)
+    _write_agents(fed, lab, folder, lab_root, state_root, passwords, header, out)
+    _write_hosts(fed, lab, folder, lab_root, state_root, passwords, header, out)
     _write_operators(fed, lab, folder, lab_root, passwords, header, out)
     _copy_certificates(ca, lab, entry, identities, folder, out)
     _write_units(folder, lab_root, out)
@@ -727,7 +746,8 @@ def generate(
     """Write the federation's files into ``out_dir`` (see the module docstring).
 
     ``root`` is where each lab installs its folder; ``local`` makes it each lab's own
-    folder under ``out_dir`` (absolute), to run the federation on this host.
+    folder under ``out_dir`` (absolute), to run the federation on this host, its
+    services' state (each agent's runs) in the lab folder's ``state/``.
     """
     out = Generated()
     out_dir = out_dir.resolve()
@@ -735,5 +755,6 @@ def generate(
     _issue_certificates(fed, ca, out)
     for lab in fed.labs:
         folder = out_dir / lab
-        _write_lab(fed, lab, ca, folder, folder if local else root, out)
+        roots = (folder, folder / "state") if local else (root, STATE_ROOT)
+        _write_lab(fed, lab, ca, folder, roots, out)
     return out

@@ -355,3 +355,53 @@ def test_every_recording_unit_shares_one_promises_ledger(tmp_path: Path) -> None
         assert "Environment=FEDLAB_PROMISES=/var/lib/fedlab/promises\n" in unit, name
         states = next(line for line in unit.splitlines() if line.startswith("StateDirectory="))
         assert "fedlab/promises" in states.split("=", 1)[1].split(), name
+
+
+def _settings(folder: Path, lab: str, name: str, hosted: str | None = None) -> dict[str, Any]:
+    where = folder / lab / ("agents" if hosted is None else f"hosts/{hosted}")
+    return tomllib.loads((where / f"{name}.toml").read_text())
+
+
+def test_a_generated_agent_records_its_runs_where_collect_finds_them(tmp_path: Path) -> None:
+    # In its service's state folder (the unit's StateDirectory), a hosted agent in its
+    # host's; on one host (--local), in the lab folder's state/.
+    text = EXAMPLE.read_text() + '\n[labs.kiruna.hosted]\nsim = ["ghost"]\n'
+    text += '[labs.kiruna.agents.ghost]\nrole = "member"\nplatform = "kinematic"\n'
+    source = tmp_path / "federation.toml"
+    source.write_text(text)
+    fed = load_federation(source)
+    gen.generate(fed, tmp_path / "fed")
+    assert _settings(tmp_path / "fed", "kiruna", "knatte")["runs_dir"] == (
+        "/var/lib/fedlab/knatte/runs"
+    )
+    assert _settings(tmp_path / "fed", "rome", "pinocchio")["runs_dir"] == (
+        "/var/lib/fedlab/pinocchio/runs"
+    )
+    assert _settings(tmp_path / "fed", "kiruna", "ghost", hosted="sim")["runs_dir"] == (
+        "/var/lib/fedlab/sim/runs"
+    )
+    gen.generate(fed, tmp_path / "local", local=True)
+    settings = _settings(tmp_path / "local", "kiruna", "knatte")
+    runs = tmp_path / "local" / "kiruna" / "state" / "knatte" / "runs"
+    assert settings["runs_dir"] == str(runs)
+    # What the agent makes of it: a config that records (preflight's "recording").
+    config = AgentConfig.model_validate(settings)
+    assert config.runs_dir == runs
+    assert config.wait_start
+
+
+def test_runs_dir_is_taken_in_the_agents_entry_or_its_settings_but_once(tmp_path: Path) -> None:
+    entry = '[labs.kiruna.agents.knatte]\nrole = "leader"\nplatform = "knatte"\n'
+    base = EXAMPLE.read_text()
+    assert entry in base
+    source = tmp_path / "federation.toml"
+    source.write_text(base.replace(entry, entry + 'runs_dir = "/data/runs"\n'))
+    gen.generate(load_federation(source), tmp_path / "a")
+    assert _settings(tmp_path / "a", "kiruna", "knatte")["runs_dir"] == "/data/runs"
+    source.write_text(base.replace(entry, entry + 'settings = { runs_dir = "/data/other" }\n'))
+    gen.generate(load_federation(source), tmp_path / "b")
+    assert _settings(tmp_path / "b", "kiruna", "knatte")["runs_dir"] == "/data/other"
+    both = entry + 'runs_dir = "/data/runs"\nsettings = { runs_dir = "/data/other" }\n'
+    source.write_text(base.replace(entry, both))
+    with pytest.raises(ConfigError, match=r"labs\.kiruna\.agents\.knatte\.settings\.runs_dir"):
+        load_federation(source)
