@@ -102,6 +102,11 @@ def _heading_rms(recording: Path, start: float, end: float) -> tuple[float, int]
     return math.degrees(float(np.sqrt(np.mean(wrapped**2)))), len(error)
 
 
+# A closed loop on real time: the emulated device paces itself on the host's clock and
+# trips its failsafe when the agent's 100 Hz heartbeats come late, as the real device
+# would. On cores shared with parallel workers it tripped 3 times in one run, and the
+# serial follower's error came out 1.56 times the simulated one's (bound 1.5).
+@pytest.mark.timing
 def test_a_serial_follower_tracks_as_well_as_a_simulated_one(
     labs: Labs, fleet: Fleet, tmp_path: Path
 ) -> None:
