@@ -28,15 +28,17 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# The suite in two passes: everything on parallel workers (most integration tests wait on
-# real time, so more workers than cores), then the tests marked `timing`, which assert
-# wall-clock bounds on real processes, alone on the machine. Both passes always run.
+# The suite in three passes, each always run (either failing fails the target): the unit
+# tests on parallel workers (pure logic and short-lived processes), then the integration
+# tests one at a time (real routers and agents whose sync and timing claims assume the
+# cores are theirs), then the unit tests marked `timing` (a closed loop on real time).
 WORKERS ?= 4
 
 test: lint typecheck
-	$(BIN)/pytest -n $(WORKERS) --dist worksteal -m "not timing"; parallel=$$?; \
-	$(BIN)/pytest -m timing; timing=$$?; \
-	[ $$parallel = 0 ] && [ $$timing = 0 ]
+	$(BIN)/pytest tests/unit -n $(WORKERS) --dist worksteal -m "not timing"; unit=$$?; \
+	$(BIN)/pytest tests/integration; integration=$$?; \
+	$(BIN)/pytest tests/unit -m timing; timing=$$?; \
+	[ $$unit = 0 ] && [ $$integration = 0 ] && [ $$timing = 0 ]
 
 check: lint typecheck
 	$(BIN)/pytest tests/unit -n auto -m "not timing" -q
