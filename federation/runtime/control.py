@@ -662,9 +662,9 @@ def _participants(experiment: ExperimentConfig | None) -> frozenset[str] | None:
 
 
 def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> frozenset[str]:
-    if experiment is not None:
-        return frozenset(str(p.agent) for p in experiment.participants)
-    return frozenset(seen)
+    """Whom a command is for: the experiment's participants, or every agent seen."""
+    participants = _participants(experiment)
+    return frozenset(seen) if participants is None else participants
 
 
 def _issue_resume(it: _Issuing, reference: AgentId | None) -> ControlResult:

@@ -24,7 +24,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 import weakref
 from collections.abc import Mapping, Sequence
@@ -56,7 +55,6 @@ PREFIX = "fltb"
 """Every testbed namespace's name starts with this (then the pid and a counter)."""
 
 _counter = itertools.count()
-_MEMORY_DIR = "/dev/shm" if os.path.isdir("/dev/shm") else None  # tmpfs: no disk waits
 _STAGE = "stage"  # the packet stage's process name
 
 
@@ -93,11 +91,6 @@ def leftover_namespaces(prefix: str = PREFIX) -> list[str]:
 def _delete_namespaces(names: Sequence[str]) -> None:
     for name in names:
         subprocess.run(["ip", "netns", "del", name], capture_output=True)
-
-
-def _clean_up(names: Sequence[str], memory: Path) -> None:
-    _delete_namespaces(names)
-    shutil.rmtree(memory, ignore_errors=True)
 
 
 def _run(cmd: Sequence[str], stdin: str | None = None, timeout: float = 10.0) -> str:
@@ -172,14 +165,11 @@ class Testbed:
         tag = f"{PREFIX}{os.getpid()}x{next(_counter)}"
         self.ns = {role: f"{tag}-{role}" for role in roles(rome_hosts)}
         self.fleet = Fleet(self.out / "logs")
-        # The stage writes its counters to memory, copied to ``out`` on close: see
-        # start_stage.
-        self._memory = Path(tempfile.mkdtemp(prefix=f"{tag}-", dir=_MEMORY_DIR))
-        self.stats_path = self._memory / "stage.json"
+        self.stats_path = self.out / "stage.json"
         self._made: list[str] = []
         self.stage_scheduling = "normal"  # set by start_stage: see raise_priority
         # Namespaces go even if close() is never called (the test crashed hard).
-        self._finalizer = weakref.finalize(self, _clean_up, self._made, self._memory)
+        self._finalizer = weakref.finalize(self, _delete_namespaces, self._made)
 
     # -- lifecycle -------------------------------------------------------------------
     def __enter__(self) -> Testbed:
@@ -213,12 +203,9 @@ class Testbed:
         delay past what :attr:`path` says. On a loaded 2-core host a stage at
         normal priority held packets up to 310 ms (40 ms configured) and the
         follower rightly held the platform on the late poses.
-        :attr:`stage_scheduling` says which priority it got.
-
-        Its counters go to a file in memory (:attr:`stats_path`, under /dev/shm),
-        copied to ``out/stage.json`` on close: the stage writes them every second
-        in its forwarding loop, and on a busy disk one such write took 560 ms,
-        during which no packet crossed the WAN."""
+        :attr:`stage_scheduling` says which priority it got. Its counters
+        (:attr:`stats_path`) are written off its forwarding loop
+        (:mod:`federation.link.tun`), so a slow disk never holds a packet."""
         args = ["link", "--tun", TUN, "--forward-net", ADDR.kiruna_net, "--router", ADDR.wan_rome]
         args += ["--seed", str(self.seed), "--stats-json", str(self.stats_path)]
         args += _stage_flags(self.path, "")
@@ -242,10 +229,6 @@ class Testbed:
         finally:
             _delete_namespaces(self._made)
             self._made.clear()
-            with contextlib.suppress(OSError):  # the stage's last counters, kept
-                self.out.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(self.stats_path, self.out / "stage.json")
-            shutil.rmtree(self._memory, ignore_errors=True)
 
     # -- running things --------------------------------------------------------------
     def run(self, lab: str, *cmd: str, stdin: str | None = None) -> str:
