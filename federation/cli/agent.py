@@ -32,6 +32,12 @@ __all__ = ["add", "agent_config", "run"]
 log = logging.getLogger("fedlab")
 
 
+def _default(field: str) -> object:
+    """The default of an AgentConfig field: kept there, shown in --help (a flag left out
+    is None here, so that the settings file or the experiment may give the value)."""
+    return AgentConfig.model_fields[field].default
+
+
 def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "agent",
@@ -55,7 +61,7 @@ def add(sub: Subparsers) -> None:
         metavar="FILE",
         help="take role, platform and maneuver from an experiment file; wait for ctl start",
     )
-    p.add_argument("--federation", help="federation name (default: default)")
+    p.add_argument("--federation", help=f"federation name (default: {_default('federation')})")
     p.add_argument("--lab", help="this agent's lab")
     p.add_argument("--name", help="this agent's name")
     p.add_argument(
@@ -81,14 +87,28 @@ def add(sub: Subparsers) -> None:
         "followed agent (others' poses carry their reference time: not needed by default)",
     )
     p.add_argument(
-        "--sync-period", type=float, metavar="S", help="seconds between sync requests (0.1)"
+        "--sync-period",
+        type=float,
+        metavar="S",
+        help=f"seconds between sync requests (default: {_default('sync_period')})",
     )
     p.add_argument(
         "--sync-others-period", type=float, metavar="S",
-        help="seconds between sync requests to agents neither followed nor the reference (1)",
+        help="seconds between sync requests to agents neither followed nor the reference "
+        f"(default: {_default('sync_others_period')})",
     )  # fmt: skip
-    p.add_argument("--sync-timeout", type=float, metavar="S", help="sync reply timeout (0.5)")
-    p.add_argument("--sync-window", type=float, metavar="S", help="offset averaging window (10)")
+    p.add_argument(
+        "--sync-timeout",
+        type=float,
+        metavar="S",
+        help=f"sync reply timeout (default: {_default('sync_timeout')})",
+    )
+    p.add_argument(
+        "--sync-window",
+        type=float,
+        metavar="S",
+        help=f"offset averaging window (default: {_default('sync_window')})",
+    )
     p.add_argument(
         "--estimator",
         choices=ESTIMATORS,
@@ -100,10 +120,30 @@ def add(sub: Subparsers) -> None:
         const=True,
         help="also use the server's send time (for servers with slow turnaround)",
     )
-    p.add_argument("--pose-rate", type=float, metavar="HZ", help="pose samples per second (20)")
-    p.add_argument("--status-period", type=float, metavar="S", help="seconds between status (1)")
-    p.add_argument("--clock-offset", type=float, metavar="S", help="skew this agent's clock (s)")
-    p.add_argument("--clock-drift-ppm", type=float, metavar="PPM", help="clock rate error (ppm)")
+    p.add_argument(
+        "--pose-rate",
+        type=float,
+        metavar="HZ",
+        help=f"pose samples per second (default: {_default('pose_rate')})",
+    )
+    p.add_argument(
+        "--status-period",
+        type=float,
+        metavar="S",
+        help=f"seconds between status (default: {_default('status_period')})",
+    )
+    p.add_argument(
+        "--clock-offset",
+        type=float,
+        metavar="S",
+        help=f"skew this agent's clock (s; default: {_default('clock_offset')})",
+    )
+    p.add_argument(
+        "--clock-drift-ppm",
+        type=float,
+        metavar="PPM",
+        help=f"clock rate error (ppm; default: {_default('clock_drift_ppm')})",
+    )
     p.add_argument(
         "--platform",
         metavar="SPEC",
@@ -115,7 +155,11 @@ def add(sub: Subparsers) -> None:
         metavar="NAME|FILE",
         help="GNC preset of a serial:PORT platform: knatte (default), pinocchio, a platform TOML",
     )
-    p.add_argument("--seed", type=int, help="seed of a simulated platform's noise (0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        help=f"seed of a simulated platform's noise (default: {_default('seed')})",
+    )
     p.add_argument(
         "--no-latency-compensation",
         dest="latency_compensation",
@@ -133,7 +177,8 @@ def add(sub: Subparsers) -> None:
         "--stale-after",
         type=float,
         metavar="S",
-        help="seconds without the followed pose before safe hold (0.15)",
+        help="seconds without the followed pose before safe hold "
+        f"(default: {_default('stale_after')})",
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     p.add_argument("--status-json", type=Path, metavar="FILE", help="append status lines here")

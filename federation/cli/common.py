@@ -66,7 +66,27 @@ STOP_REPORT_AFTER = 4.0
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    """Descriptions and epilogs as written (line breaks kept), defaults shown in help."""
+    """Descriptions and epilogs as written (line breaks kept), each option's default shown
+    once: appended as ``(default: X)`` unless its help already says its default, and
+    never for an option without one (None, an empty list), nor for an on/off flag, whose
+    default is the state its name does not ask for (``--no-icmp``: ICMP is on)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if not _shows_default(action) or "default" in text.lower():
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def _shows_default(action: argparse.Action) -> bool:
+    """Whether ``action``'s default is worth a ``(default: X)`` in the help: a value the
+    option takes when not given, not None, an empty list, nor an on/off flag's state."""
+    default = action.default
+    if default is None or default is argparse.SUPPRESS or default == []:
+        return False
+    if action.nargs == 0:  # a flag: store_true/false/const, count, help, version
+        return False
+    return bool(action.option_strings) or action.nargs in (argparse.OPTIONAL, "*")
 
 
 def add_zenoh_flags(parser: argparse.ArgumentParser) -> None:

@@ -133,9 +133,9 @@ def _add_packet_flags(p: argparse.ArgumentParser) -> None:
     k.add_argument(
         "--loss-burst", type=float, default=1.0, metavar="N", help="mean packets per loss run"
     )
-    k.add_argument("--rate-kbit", type=float, default=0.0, metavar="R", help="bottleneck (none)")
+    k.add_argument("--rate-kbit", type=float, default=0.0, metavar="R", help="bottleneck (0: none)")
     k.add_argument("--queue-kib", type=float, default=256.0, metavar="Q", help="bottleneck FIFO")
-    k.add_argument("--mtu", type=int, default=0, metavar="BYTES", help="largest packet (none)")
+    k.add_argument("--mtu", type=int, default=0, metavar="BYTES", help="largest packet (0: none)")
     k.add_argument(
         "--no-icmp",
         dest="icmp",
