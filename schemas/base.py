@@ -10,10 +10,13 @@ Rule: this module imports no other model module, so :mod:`schemas.config` and
 
 from __future__ import annotations
 
+import difflib
 import json
 import tomllib
+import types
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar, Union, get_args, get_origin
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, ValidationError
 
@@ -45,16 +48,78 @@ class Model(BaseModel):
 M = TypeVar("M", bound=BaseModel)
 
 
-def format_validation_error(source: str, error: ValidationError) -> str:
-    """One line per problem: ``source: field 'a.b': reason``."""
+def format_validation_error(
+    source: str, error: ValidationError, model: type[BaseModel] | None = None
+) -> str:
+    """One line per problem: ``source: field 'a.b': reason``. Given the ``model`` that
+    was validated, an unknown field names the closest known one (``did you mean``)."""
     lines = []
     for item in error.errors():
         where = ".".join(str(p) for p in item["loc"]) or "(top level)"
         reason = item["msg"]
         if item["type"] == "extra_forbidden":
             reason = "unknown field"
+            if model is not None:
+                reason += _hint(item["loc"], known_fields(model, item["loc"][:-1]))
         lines.append(f"{source}: field '{where}': {reason}")
     return "\n".join(lines)
+
+
+def _hint(loc: Sequence[int | str], known: set[str]) -> str:
+    """`` (did you mean 'x'?)`` for the known field closest to ``loc``'s last part; when
+    none is close, the few known ones; nothing when they are many or unknown."""
+    close = difflib.get_close_matches(str(loc[-1]), sorted(known), n=1, cutoff=0.6)
+    if close:
+        return f" (did you mean '{close[0]}'?)"
+    if 0 < len(known) <= 12:
+        return f" (known here: {', '.join(sorted(known))})"
+    return ""
+
+
+def known_fields(model: type[BaseModel], path: Sequence[int | str]) -> set[str]:
+    """The field names a table at ``path`` (a validation error's location) in ``model``
+    may hold: each model's along the path, through dicts, lists, optionals and unions
+    (of a union, every member's). A part naming none (a union member's tag) is passed."""
+    kinds: list[Any] = [model]
+    for part in path:
+        stepped = [t for kind in kinds for t in _step(kind, part)]
+        kinds = stepped or kinds
+    return {name for kind in kinds for name in _models_fields(kind)}
+
+
+def _flat(kind: Any) -> list[Any]:
+    """``kind`` without Annotated, a union as its members."""
+    origin = get_origin(kind)
+    if origin is Annotated:
+        return _flat(get_args(kind)[0])
+    if origin is Union or origin is types.UnionType:
+        return [m for arg in get_args(kind) for m in _flat(arg)]
+    return [kind]
+
+
+def _step(kind: Any, part: int | str) -> list[Any]:
+    out: list[Any] = []
+    for member in _flat(kind):
+        origin, args = get_origin(member), get_args(member)
+        if isinstance(member, type) and issubclass(member, BaseModel):
+            if part == member.__name__:
+                out.append(member)
+            elif isinstance(part, str) and part in member.model_fields:
+                out.append(member.model_fields[part].annotation)
+        elif origin is dict and len(args) == 2 and isinstance(part, str):
+            out.append(args[1])
+        elif origin in (list, tuple, set, frozenset) and args and isinstance(part, int):
+            out.append(args[0])
+    return out
+
+
+def _models_fields(kind: Any) -> set[str]:
+    return {
+        name
+        for member in _flat(kind)
+        if isinstance(member, type) and issubclass(member, BaseModel)
+        for name in member.model_fields
+    }
 
 
 def validate(model: type[M], data: dict[str, Any], source: str) -> M:
@@ -62,7 +127,7 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
     try:
         return model.model_validate(data)
     except ValidationError as error:
-        raise ConfigError(format_validation_error(source, error)) from None
+        raise ConfigError(format_validation_error(source, error, model)) from None
 
 
 def load_model(model: type[M], path: str | Path) -> M:

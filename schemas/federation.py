@@ -326,7 +326,8 @@ class FederationFile(base.Model):
             AgentConfig.model_validate(data)
         except ValidationError as error:
             raise _field_error(
-                f"labs.{lab}.agents.{name}", base.format_validation_error("agent", error)
+                f"labs.{lab}.agents.{name}",
+                base.format_validation_error("agent", error, AgentConfig),
             ) from None
         if agent.follow is not None and not self.has_agent(agent.follow):
             raise _field_error(
