@@ -34,7 +34,8 @@ reserved   2       u16       0
 ref_id     4       u32       CRC-32 of the reference agent's ``lab/name``
 t_ref      8       f64       reference time (s) of the pose's ``t``
 bound      16      f64       error bound of ``t_ref`` (s, >= 0): the sender's
-                             one-way delay to the reference; 0 on it
+                             one-way delay to the reference plus its
+                             estimate's own bound; 0 on it
 =========  ======  ========  ==============================================
 
 The sample's Zenoh source info (session id, sequence number) names its publisher

@@ -9,7 +9,8 @@
   omega) at once.
 - From each 64-byte reply to one of its own requests it computes the paper's
   ``offset = t2 - (t1 + t3) / 2`` (Eq. 4) and ``delay = (t3 - t1) / 2`` (Eq. 3) and
-  keeps the median of the last 50.
+  keeps the median of the last 50 (each offset is off by at most its delay, so the
+  median is off by at most the largest of them, ``delay_max``).
 - Once a second it prints a JSON line: its clock and the host's monotonic clock read
   together, the median offset and delay, the number of samples, the requests it
   served, the addresses they came from, the last pose it received.
@@ -78,6 +79,7 @@ def main(argv):
                 "host": host,
                 "offset": median(offsets),
                 "delay": median(delays),
+                "delay_max": max(delays, default=math.nan),
                 "samples": samples,
                 "served": served,
                 "malformed": malformed,

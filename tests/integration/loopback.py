@@ -33,6 +33,7 @@ from federation.report.status import last_status, read_status
 T = TypeVar("T")
 
 __all__ = [
+    "FLOAT_SLACK",
     "FOLLOWER",
     "LEADER",
     "Agent",
@@ -44,6 +45,7 @@ __all__ = [
     "Router",
     "Tap",
     "client_config",
+    "offset_error",
 ]
 
 LEADER = "kiruna/knatte"
@@ -359,3 +361,28 @@ def answer_sync(query: zenoh.Query) -> None:
     """A sync reply of the paper's size, as a second process under an agent's name
     answers its sync key (the name checks' tests)."""
     query.reply(query.key_expr, bytes(64))
+
+
+FLOAT_SLACK = 20e-6
+"""Seconds allowed beyond a stated error bound: float rounding of clocks read tens
+of seconds from their origins, and the microseconds between two clock reads."""
+
+
+def offset_error(view: dict[str, Any], truth: float) -> float:
+    """The error of a peer's offset estimate (``view``, one entry of a status line's
+    ``peers``) against ``truth``, asserted within the bound the estimate states.
+
+    Each exchange's offset is off by at most half its round trip, and the clock
+    filter's estimate is a weighted mean of exchanges: it is off by at most half the
+    window's fastest round trip (not over the median one-way ``delay``) plus the
+    filter's ``bound`` (half the weighted mean excess). That bound is measured in the
+    same run, so the claim holds whatever else the cores are doing; on an idle
+    loopback it is a few hundred microseconds."""
+    error = float(view["offset"]) - truth
+    stated = float(view["delay"]) + float(view["bound"])
+    assert abs(error) <= stated + FLOAT_SLACK, (
+        f"offset error {error * 1e3:+.3f} ms beyond the stated bound {stated * 1e3:.3f} ms "
+        f"(delay {view['delay'] * 1e3:.3f} ms + filter bound {view['bound'] * 1e3:.3f} ms)",
+        view,
+    )
+    return error

@@ -12,7 +12,7 @@ import time
 
 import pytest
 import zenoh
-from loopback import FOLLOWER, LEADER, Labs, client_config
+from loopback import FOLLOWER, LEADER, Labs, client_config, offset_error
 
 from federation.fleet.launch import wait_for
 from federation.report.status import true_offset
@@ -30,7 +30,7 @@ def test_follower_estimates_leader_clock_across_two_labs(labs: Labs) -> None:
     assert view is not None
     truth = true_offset(leader.latest(), follower.latest())
     assert truth == pytest.approx(-26.42, abs=2.0)  # agents start within 2 s of each other
-    assert abs(view["offset"] - truth) < 0.002, (view["offset"], truth)
+    offset_error(view, truth)
     assert 0 < view["delay"] < 0.005
     assert view["rejected"] == 0
     # The leader queries the follower too (the paper's two channels), with the opposite
@@ -42,7 +42,7 @@ def test_follower_estimates_leader_clock_across_two_labs(labs: Labs) -> None:
     )
     back = line["peers"][FOLLOWER]
     assert back["samples"] >= 3
-    assert abs(back["offset"] + truth) < 0.002
+    offset_error(back, -truth)
     # The follower tracks the leader's heading on simulation time (Eq. 5).
     line = follower.last()
     assert line is not None and line["reference"] == LEADER
@@ -86,7 +86,7 @@ def test_four_agents_in_two_labs_find_each_other_by_name(labs: Labs) -> None:
     for line in first.values():
         for other, view in line["peers"].items():
             assert view["alive"]
-            assert abs(view["offset"] - true_offset(first[other], line)) < 0.002
+            offset_error(view, true_offset(first[other], line))
 
     # One agent leaves; the others see its token go within the status period.
     agents["rome/ada"].stop()
@@ -128,7 +128,7 @@ def test_agent_waits_for_its_router_and_survives_router_restart(labs: Labs) -> N
     view = follower.peer(LEADER)
     assert view is not None
     truth = true_offset(leader.latest(), follower.latest())
-    assert abs(view["offset"] - truth) < 0.002
+    offset_error(view, truth)
     assert follower.alive() and leader.alive()
 
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from loopback import FOLLOWER, LEADER, Labs
+from loopback import FOLLOWER, LEADER, Labs, offset_error
 
 from federation.deploy import certs
 from federation.fleet.launch import free_port, wait_for
@@ -464,7 +464,7 @@ def test_agents_sync_over_the_tls_lab_link(labs: Labs, pki: Pki, tmp_path: Path)
     peer = follower.peer(LEADER)
     assert peer is not None
     truth = true_offset(leader.latest(), follower.latest())
-    assert abs(peer["offset"] - truth) < 0.002, (peer["offset"], truth)
+    offset_error(peer, truth)
     assert peer["rejected"] == 0
     back = leader.peer(FOLLOWER)
     assert back is not None and back["samples"] > 0  # the leader syncs with rome as well

@@ -510,15 +510,20 @@ class AgentRuntime:
 
     def reference_stamp(self, t_exec: float) -> bytes:
         """The attachment of a pose stamped ``t_exec`` (wire.encode_stamp): its reference
-        time and error bound (this agent's one-way delay to the reference)."""
+        time and error bound: this agent's one-way delay to the reference (the median,
+        which is no less than half the fastest round trip) plus its estimate's own bound
+        (half the weighted round-trip excess of the exchanges it averages), so that
+        ``|t_ref - truth| <= bound`` holds whatever queueing the exchanges met (the
+        minimum path's own asymmetry is at most half its round trip)."""
         if self.reference == self.me:
             return wire.encode_stamp(self.ref_id, t_exec, 0.0)
         client = self.peer_table.client_of(self.reference)
         offset = None if client is None else client.offset_at(t_exec)
-        bound = None if client is None else client.delay
-        if offset is None or bound is None:
+        delay = None if client is None else client.delay
+        spread = None if client is None else client.estimator.bound
+        if offset is None or delay is None:
             return wire.encode_stamp(self.ref_id, None, None)
-        return wire.encode_stamp(self.ref_id, t_exec + offset, bound)
+        return wire.encode_stamp(self.ref_id, t_exec + offset, delay + (spread or 0.0))
 
     def send_sync_requests(self, now: float | None = None) -> None:
         """Query every agent due at host monotonic ``now`` (default: the present)."""

@@ -13,10 +13,11 @@ from federation.core import wire
 
 
 class Estimate:
-    """The reference's clock 2.5 s ahead, or unknown (None)."""
+    """The reference's clock 2.5 s ahead, or unknown (None), its spread 0.25 ms."""
 
     def __init__(self) -> None:
         self.offset: float | None = 2.5
+        self.bound = 0.00025
 
     def offset_at(self, t: float) -> float | None:
         return self.offset
@@ -51,7 +52,8 @@ def test_a_pose_carries_its_reference_time_or_says_it_has_none(session: zenoh.Se
         agent.control_step()
         agent.publish_pose()
         sample, stamp = publisher.sent[-1]
-        assert stamp == wire.RefStamp(agent.ref_id, sample.t + 2.5, 0.001)
+        # Its bound: the one-way delay (1 ms) plus the estimate's own spread.
+        assert stamp == wire.RefStamp(agent.ref_id, sample.t + 2.5, 0.00125)
         client.estimator.offset = None  # reset: a contest, a clock step, a restart
         agent.publish_pose()  # before the next control step: not the old offset
         assert publisher.sent[-1][1] == wire.RefStamp(agent.ref_id, None, None)
