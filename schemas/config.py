@@ -14,6 +14,7 @@ from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from federation.core import paper
 from federation.core.channels import Channel
+from federation.core.endpoints import endpoint_problem
 from federation.core.estimators import DEFAULT_ESTIMATOR, EstimatorName
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
 from schemas import base
@@ -49,11 +50,9 @@ def _agent_id(value: str) -> str:
 
 
 def _endpoint(value: str) -> str:
-    proto, sep, address = value.partition("/")
-    if not sep or not proto or not address:
-        raise ValueError(
-            f"invalid endpoint {value!r}: expected PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447"
-        )
+    problem = endpoint_problem(value)
+    if problem is not None:
+        raise ValueError(f"invalid endpoint {value!r}: {problem}")
     return value
 
 

@@ -33,6 +33,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, Field, ValidationError, model_validator
 
 from federation.core import keys
+from federation.core.endpoints import endpoint_problem
 from federation.core.keys import DEFAULT_FEDERATION
 from schemas import base
 from schemas.base import ConfigError, load_model
@@ -58,9 +59,13 @@ def _tls_endpoint(value: str) -> str:
             f"invalid endpoint {value!r}: every link of a federation is TLS, e.g. "
             "tls/kiruna.example.org:7447"
         )
-    host, colon, port = address.split("#", 1)[0].rpartition(":")
-    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ValueError(f"invalid endpoint {value!r}: expected tls/HOST:PORT")
+    problem = endpoint_problem(value)
+    if problem is not None:
+        raise ValueError(f"invalid endpoint {value!r}: {problem}")
+    if int(address.split("#", 1)[0].split("?", 1)[0].rpartition(":")[2]) == 0:
+        raise ValueError(
+            f"invalid endpoint {value!r}: port 0 is any free port; a federation names its ports"
+        )
     return value
 
 

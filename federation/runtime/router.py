@@ -19,6 +19,7 @@ from typing import Any
 import zenoh
 
 from federation.runtime.session import ZenohConfigError, build_config, config_value
+from federation.runtime.zenoh_text import without_source_location
 from schemas.config import ConfigError, RouterConfig, ZenohOptions, validate
 from schemas.federation import endpoint_host
 
@@ -163,7 +164,8 @@ def run_router(settings: RouterConfig, conf: zenoh.Config, stop: threading.Event
     try:
         session = zenoh.open(conf)
     except Exception as error:
-        raise ZenohConfigError(f"router {settings.lab}: cannot start: {error}") from None
+        why = without_source_location(str(error))
+        raise ZenohConfigError(f"router {settings.lab}: cannot start: {why}") from None
     with session:
         log.info(
             "router %s up (zid %s), listening on %s, dialling %s",

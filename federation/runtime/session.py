@@ -33,6 +33,8 @@ from typing import Any
 
 import zenoh
 
+from federation.core.endpoints import endpoint_problem
+from federation.runtime.zenoh_text import config_file_problem
 from schemas.config import ZenohOptions
 
 __all__ = [
@@ -142,7 +144,21 @@ def build_config(
         _insert(conf, key, value, f"--cfg {item}")
         # Checked flag by flag: a bad size is refused even if a later flag would mend it.
         _check_queues(conf, f"--cfg {item}")
+    _check_endpoints(conf, str(options.config) if options.config else "--cfg")
     return conf
+
+
+def _check_endpoints(conf: zenoh.Config, source: str) -> None:
+    """Refuse an endpoint of the file or a ``--cfg`` that Zenoh would take and never
+    reach (``tcp/127.0.0.1``: no port), naming it and what is missing (the -e and -l
+    flags are checked as they are parsed, :class:`~schemas.config.ZenohOptions`)."""
+    for key in ("connect/endpoints", "listen/endpoints"):
+        value = config_value(conf, key)
+        listed = value.values() if isinstance(value, dict) else [value]  # per mode, or one
+        for endpoint in (str(e) for items in listed for e in items or []):
+            problem = endpoint_problem(endpoint)
+            if problem is not None:
+                raise ZenohConfigError(f"{source}: '{key}': {endpoint}: {problem}")
 
 
 def _check_queues(conf: zenoh.Config, source: str) -> None:
@@ -176,7 +192,7 @@ def _invalid_because(text: str) -> str:
     knows are named; otherwise the dump is left out."""
     prefix = "Invalid configuration: "
     if not text.startswith(prefix):
-        return text
+        return config_file_problem(text)  # where in the file, without Zenoh's Rust source
     try:
         dump = json.loads(text[len(prefix) :].rsplit(" at ", 1)[0])
         sizes = dump["transport"]["link"]["tx"]["queue"]["size"]

@@ -15,6 +15,7 @@ from schemas.config import (
     RouterConfig,
     ZenohOptions,
     load_model,
+    validate,
 )
 from schemas.platform import PlatformConfig
 
@@ -245,6 +246,18 @@ def test_bad_endpoint(tmp_path: Path) -> None:
 def test_zenoh_options_bad_endpoints(endpoint: str) -> None:
     with pytest.raises(ValueError, match="PROTOCOL/ADDRESS"):
         ZenohOptions(connect=[endpoint])
+
+
+def test_an_endpoint_without_its_port_is_refused_as_it_is_parsed(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as error:
+        validate(ZenohOptions, {"connect": ["tcp/127.0.0.1"]}, "command line")
+    assert str(error.value) == (
+        "command line: field 'connect.0': Value error, invalid endpoint 'tcp/127.0.0.1': "
+        "no port: write tcp/127.0.0.1:PORT, e.g. tcp/127.0.0.1:7447"
+    )
+    path = write(tmp_path, "r.toml", 'lab = "kiruna"\nconnect = ["tls/kiruna.example.org"]\n')
+    message = load_error(path, RouterConfig)
+    assert f"{path}: field 'connect.0'" in message and "no port" in message
 
 
 def test_zenoh_options_good() -> None:
