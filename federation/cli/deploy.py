@@ -9,10 +9,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from federation.cli.common import Formatter, Subparsers
+from federation.cli.common import Formatter, Subparsers, integer_in
 from federation.deploy import generate
 from schemas.base import ConfigError
-from schemas.federation import load_federation
+from schemas.federation import FederationFile, load_federation
 
 __all__ = ["add", "run"]
 
@@ -33,6 +33,7 @@ def add(sub: Subparsers) -> None:
             "Examples:\n"
             "  fedlab deploy generate deploy/federation.example.toml --out fed/\n"
             "  fedlab deploy generate federation.toml --out /tmp/fed --local   # one host\n"
+            "  fedlab deploy generate federation.toml --out /tmp/fed --local --port 17447\n"
             "  fedlab deploy check federation.toml"
         ),
     )
@@ -61,7 +62,16 @@ def add(sub: Subparsers) -> None:
     where.add_argument(
         "--local",
         action="store_true",
-        help="point every path at DIR/<lab>/ itself, to run the federation on this host",
+        help="run the federation on this host as generated: every path points at\n"
+        "DIR/<lab>/ itself, and a lab not already on loopback listens on tls/127.0.0.1:PORT\n"
+        "(dialled as tls/localhost:PORT, its certificate naming both)",
+    )
+    q.add_argument(
+        "--port",
+        type=integer_in(1, 65535, "a port"),
+        metavar="N",
+        help="with --local: the first lab's port, the next lab's N+1, and so on (default: "
+        "each lab's own listen port, one up when an earlier lab has it)",
     )
     q.set_defaults(func=run)
     q = actions.add_parser(
@@ -78,27 +88,41 @@ def add(sub: Subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     fed = load_federation(args.file)  # a ConfigError is reported by main(), exit 2
     if args.deploy_command == "check":
-        for lab, entry in fed.labs.items():
-            try:
-                generate.access_control(fed, lab)  # its ids are unique
-            except ConfigError as error:
-                raise ConfigError(f"{args.file}: {error}") from None
-            dials = f", dials {', '.join(entry.dial)}" if entry.dial else ""
-            hosted = ""
-            if entry.hosted:
-                runs = [f"{h} runs {', '.join(names)}" for h, names in entry.hosted.items()]
-                hosted = f", {len(entry.hosted)} hosted process(es) ({'; '.join(runs)})"
-            print(
-                f"{lab}: {entry.auth}, {len(entry.agents)} agent(s), "
-                f"{len(entry.operators)} operator(s){hosted}{dials}"
-            )
-        return 0
+        return _check(args.file, fed)
+    return _generate(args, fed)
+
+
+def _check(path: Path, fed: FederationFile) -> int:
+    for lab, entry in fed.labs.items():
+        try:
+            generate.access_control(fed, lab)  # its ids are unique
+        except ConfigError as error:
+            raise ConfigError(f"{path}: {error}") from None
+        dials = f", dials {', '.join(entry.dial)}" if entry.dial else ""
+        hosted = ""
+        if entry.hosted:
+            runs = [f"{h} runs {', '.join(names)}" for h, names in entry.hosted.items()]
+            hosted = f", {len(entry.hosted)} hosted process(es) ({'; '.join(runs)})"
+        print(
+            f"{lab}: {entry.auth}, {len(entry.agents)} agent(s), "
+            f"{len(entry.operators)} operator(s){hosted}{dials}"
+        )
+    return 0
+
+
+def _generate(args: argparse.Namespace, fed: FederationFile) -> int:
     root: Path = args.root
     if not args.local and not root.is_absolute():
         print(f"fedlab deploy: error: --root {root}: give an absolute path", file=sys.stderr)
         return 2
+    if args.port is not None and not args.local:
+        print(
+            "fedlab deploy: error: --port moves the labs onto loopback: give --local too",
+            file=sys.stderr,
+        )
+        return 2
     try:
-        done = generate.generate(fed, args.out, root=root, local=args.local)
+        done = generate.generate(fed, args.out, root=root, local=args.local, port=args.port)
     except (ValueError, OSError) as error:  # CertError is a ValueError
         where = f"{args.file}: " if isinstance(error, ConfigError) else ""
         print(f"fedlab deploy: error: {where}{error}", file=sys.stderr)
@@ -110,6 +134,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"removed {path.relative_to(out)}")
     if done.issued:
         print(f"issued: {', '.join(done.issued)}")
+    if args.local:
+        print(f"{len(done.files)} files in {out}, to run on this host:")
+        for lab, endpoint in done.listening.items():
+            router = out / lab / "routers" / f"{lab}.json5"
+            print(f"{lab}: its router listens on {endpoint} (fedlab router -c {router})")
+        return 0
     print(
         f"{len(done.files)} files in {out}: copy {out}/<lab>/ to /etc/fedlab on that lab's "
         f"hosts; keep {out}/ca/ offline (docs/deploy.md)"

@@ -17,9 +17,10 @@ that lab installs as ``/etc/fedlab`` (the ``root``), and beside them the CA::
     DIR/<lab>/systemd/                   fedlab-router@, fedlab-agent@, fedlab-host@.service
 
 Every path inside a generated file is absolute under ``root`` (``/etc/fedlab`` by
-default; ``local=True`` puts each lab's own ``DIR/<lab>`` there, to run a whole
-federation on one host). Generating again keeps the CA, every certificate whose
-names did not change and every password: adding a lab or an agent is one edit of
+default; ``local=True`` puts each lab's own ``DIR/<lab>`` there and its router on
+loopback, to run a whole federation on one host: :mod:`federation.deploy.local`).
+Generating again keeps the CA, every certificate whose names did not change and
+every password: adding a lab or an agent is one edit of
 the file and one run. Agents and operators no longer in the file lose their
 generated configs and, above all, their access-control entries.
 
@@ -52,6 +53,7 @@ from cryptography import x509
 
 from federation.core.keys import control_key
 from federation.deploy import certs
+from federation.deploy.local import localize
 from federation.runtime.identity import HOSTED_FIELD, certificate_cn
 from federation.runtime.session import DATA_QUEUE_BATCHES
 from schemas.base import ConfigError
@@ -97,6 +99,7 @@ class Generated:
     issued: list[str] = field(default_factory=list)
     removed: list[Path] = field(default_factory=list)
     role_changed: list[str] = field(default_factory=list)  # identities now of another kind
+    listening: dict[str, str] = field(default_factory=dict)  # lab -> its router's endpoint
 
 
 LEASE_MS = 10000
@@ -741,15 +744,24 @@ def _write_lab(
 
 
 def generate(
-    fed: FederationFile, out_dir: Path, *, root: Path = DEFAULT_ROOT, local: bool = False
+    fed: FederationFile,
+    out_dir: Path,
+    *,
+    root: Path = DEFAULT_ROOT,
+    local: bool = False,
+    port: int | None = None,
 ) -> Generated:
     """Write the federation's files into ``out_dir`` (see the module docstring).
 
     ``root`` is where each lab installs its folder; ``local`` makes it each lab's own
-    folder under ``out_dir`` (absolute), to run the federation on this host, its
-    services' state (each agent's runs) in the lab folder's ``state/``.
+    folder under ``out_dir`` (absolute), its services' state (each agent's runs) in the
+    lab folder's ``state/``, and moves every lab's router onto loopback
+    (:func:`federation.deploy.local.localize`, ``port`` the first lab's), to run the
+    federation on this host as generated.
     """
-    out = Generated()
+    if local:
+        fed = localize(fed, port)
+    out = Generated(listening={lab: entry.listen[0] for lab, entry in fed.labs.items()})
     out_dir = out_dir.resolve()
     ca = out_dir / "ca"
     _issue_certificates(fed, ca, out)
