@@ -38,6 +38,8 @@ from federation.runtime.clock import ExecClock
 from federation.runtime.fanout import Fanout
 from federation.runtime.links import SyncLinks
 from federation.runtime.loop import run_together
+from federation.runtime.routerwatch import watch_routers
+from federation.runtime.session import undeclare_all
 from schemas.config import AgentConfig, ConfigError
 
 __all__ = [
@@ -164,6 +166,7 @@ def host(
     refuse_taken_names(session, configs)
     fanout, links = Fanout(session), SyncLinks()
     runtimes: list[AgentRuntime] = []
+    listeners = watch_routers(session, f"host of {len(configs)} agent(s)")
     ended: list[AgentRuntime] = []
 
     def retire(runtime: AgentRuntime) -> None:
@@ -185,6 +188,7 @@ def host(
         run_together(runtimes, stop, spread=spread, group=group, on_end=retire)
     finally:
         close_all([runtime for runtime in runtimes if runtime not in ended])
+        undeclare_all(listeners)
         for runtime in ended:  # their recordings finished before the session closes
             for thread in runtime.finishing:
                 thread.join(FINISH_TIMEOUT)

@@ -71,6 +71,7 @@ from federation.runtime.links import PoseFeed, SyncLink, SyncLinks
 from federation.runtime.loop import run_together
 from federation.runtime.names import NameTaken, name_alive
 from federation.runtime.recorder import Message
+from federation.runtime.routerwatch import watch_routers
 from federation.runtime.runs import software_versions
 from federation.runtime.safety import Safety
 from federation.runtime.session import undeclare_all
@@ -281,6 +282,8 @@ class AgentRuntime:
                 min_free_mb=cfg.record_min_free_mb,
             )  # fmt: skip
         self._declared.append(s.liveliness().declare_token(self.key(self.me)))
+        if self.fanout is None:  # a session of its own (a host watches its shared one)
+            self._declared += watch_routers(s, f"agent {self.me}")
         self.watches.started(time.monotonic())
         if cfg.status_json is not None:
             path = Path(cfg.status_json)
