@@ -325,29 +325,70 @@ def collect(
         fetch = zenoh_fetch(session)
     out.mkdir(parents=True, exist_ok=True)
     result = CollectResult(run_id, out)
-    manifests = _manifests(fetch, federation, run_id, timeout, result)
+    declined: list[str] = []
+    started = time.monotonic()
+    manifests = _manifests(fetch, federation, run_id, timeout, result, declined)
+    waited = time.monotonic() - started
     result.missing = sorted((expected or set()) - set(manifests))
     if not manifests:
         raise ConnectError(
-            f"no agent of federation {federation!r} has a finished run {run_id!r} "
-            f"(asked {keys.all_of(federation, TOPIC)} for {timeout:g} s)"
+            nothing_to_collect(federation, run_id, timeout, waited, declined, len(result.errors))
         )
     for agent in sorted(manifests):
         _collect_agent(fetch, federation, manifests[agent], timeout, retries, result, progress)
     return result
 
 
+def nothing_to_collect(
+    federation: str,
+    run_id: str,
+    timeout: float,
+    waited: float,
+    declined: list[str],
+    not_taken: int = 0,
+) -> str:
+    """Why a collection found no manifest of ``run_id``: what it asked, how long it
+    waited (a query ends as soon as every agent reachable has answered), and what the
+    agents that answered said (``declined``: their error replies)."""
+    asked = keys.all_of(federation, TOPIC)
+    head = f"no agent of federation {federation!r} has a finished run {run_id!r}"
+    if not_taken:
+        head += f" that could be taken ({not_taken} manifest(s) refused, printed above)"
+    if declined:
+        # What agents sent: shown, never run by the terminal, and short.
+        said = ["".join(c if c.isprintable() else "\ufffd" for c in d[:200]) for d in declined]
+        shown = "; ".join(said[:10]) + ("; ..." if len(said) > 10 else "")
+        return (
+            f"{head}: asked {asked}; {len(declined)} agent(s) answered in {waited:.3f} s, "
+            f"none has it ({shown})"
+        )
+    if waited < timeout:
+        return (
+            f"{head}: asked {asked}; no agent answered, and the query ended after "
+            f"{waited:.3f} s: no agent that records runs (--experiment or --runs-dir) "
+            "is reachable"
+        )
+    return f"{head}: asked {asked}; no answer within {timeout:g} s"
+
+
 def _manifests(
-    fetch: Fetch, federation: str, run_id: str, timeout: float, result: CollectResult
+    fetch: Fetch,
+    federation: str,
+    run_id: str,
+    timeout: float,
+    result: CollectResult,
+    declined: list[str],
 ) -> dict[str, Manifest]:
     """Every agent's manifest of ``run_id``, by agent, from one query to all of them;
-    the replies not taken are ``result``'s errors (:func:`_manifest_problem`)."""
+    the replies not taken are ``result``'s errors (:func:`_manifest_problem`), the
+    error replies (no such run, busy) are appended to ``declined``."""
     manifests: dict[str, Manifest] = {}
     for reply in fetch(
         keys.all_of(federation, TOPIC), format_request(ChunkRequest(run_id)), timeout
     ):
         if reply.error is not None:
             log.debug("manifest query: %s", reply.error)
+            declined.append(reply.error)
             continue
         problem = _manifest_problem(reply, federation, run_id, manifests)
         if problem is not None:

@@ -7,9 +7,11 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import pytest
 import zenoh
 
-from federation.runtime.collect import Fetched, collect
+from federation.runtime.collect import Fetched, collect, nothing_to_collect
+from federation.runtime.session import ConnectError
 from schemas.messages import FileEntry, Manifest
 
 RUN = "r1"
@@ -100,3 +102,38 @@ def test_chunks_wait_while_a_run_is_under_way(session: zenoh.Session, tmp_path: 
         assert fetch(key, chunk, 2.0)[0].payload == b"x" * 1000
     finally:
         server.close()
+
+
+def _nothing(fetch, out: Path) -> str:  # type: ignore[no-untyped-def]
+    with pytest.raises(ConnectError) as error:
+        collect(None, "default", RUN, out, fetch=fetch, timeout=5.0)
+    return str(error.value)
+
+
+def test_a_run_no_agent_has_says_who_answered_and_how_long_it_took(tmp_path: Path) -> None:
+    declined = [
+        Fetched(b"", None, "kiruna/knatte: no finished run r1"),
+        Fetched(b"", None, "rome/pinocchio: no finished run r1\x1b[2J"),
+    ]
+    message = _nothing(lambda key, parameters, timeout: declined, tmp_path)
+    head = (
+        "no agent of federation 'default' has a finished run 'r1': "
+        "asked fedlab/default/*/*/recordings; "
+    )
+    assert message.startswith(head + "2 agent(s) answered in 0.0"), message
+    assert message.endswith(
+        "s, none has it (kiruna/knatte: no finished run r1; "
+        "rome/pinocchio: no finished run r1\ufffd[2J)"
+    )
+    assert "for 5 s" not in message
+
+
+def test_no_answer_says_whether_the_query_ended_at_once_or_timed_out() -> None:
+    assert nothing_to_collect("default", "r1", 5.0, 0.02, []).endswith(
+        "no agent answered, and the query ended after 0.020 s: no agent that records runs "
+        "(--experiment or --runs-dir) is reachable"
+    )
+    assert nothing_to_collect("default", "r1", 5.0, 5.01, []).endswith("; no answer within 5 s")
+    assert "(1 manifest(s) refused, printed above)" in nothing_to_collect(
+        "default", "r1", 5.0, 0.1, [], not_taken=1
+    )
