@@ -17,6 +17,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,8 +28,10 @@ from rich.table import Table
 from federation.core import paper
 from federation.core.channels import recording_stem
 from federation.fleet.launch import Fleet, free_port, wait_for
+from federation.fleet.progress import DemoProgress, run_line
 from federation.report.status import last_status
 from federation.report.summary import PAPER
+from federation.runtime.monitor import CLOCKS_NOTE
 
 PAPER_MANEUVER = {
     "still": paper.MANEUVER_STILL,
@@ -59,7 +62,8 @@ def experiment(duration: float) -> dict[str, Any]:
 
 
 def _progress(run: Path, elapsed: float, total: float, phase: str) -> Table:
-    table = Table(title=f"fedlab demo: {phase} {elapsed:5.1f} / {total:.0f} s")
+    title = "fedlab demo: " + (run_line(elapsed, total) if phase == "running" else phase)
+    table = Table(title=title, caption=CLOCKS_NOTE, caption_justify="left")
     for column in ("agent", "mode", "run time (s)", "heading (deg)", "offset (s)", "delay (ms)"):
         table.add_column(column, justify="right")
     for agent in (LEADER, FOLLOWER, RAW):
@@ -82,9 +86,13 @@ def _progress(run: Path, elapsed: float, total: float, phase: str) -> Table:
 
 
 def _start_run(
-    endpoint: str, seconds_ahead: float, experiment: str = "attitude-tracking-demo"
+    endpoint: str,
+    seconds_ahead: float,
+    experiment: str = "attitude-tracking-demo",
+    run_id: str | None = None,
 ) -> float:
-    """Announce the start as ``fedlab ctl start`` does; returns the reference start time."""
+    """Announce the start of run ``run_id`` as ``fedlab ctl start`` does; returns the
+    reference start time."""
     import zenoh
 
     from federation.core import keys
@@ -101,13 +109,35 @@ def _start_run(
         at = reference_now(session, "default", AgentId.parse(LEADER), clock) + seconds_ahead
         command = Command(
             command="start", at=at, seq=time.time_ns() // 1_000_000, issuer="demo",
-            experiment=experiment,
+            experiment=experiment, run_id=run_id,
             maneuver=ManeuverConfig(**PAPER_MANEUVER),
         )  # fmt: skip
         for _ in range(3):
             session.put(keys.control_key("default"), command.model_dump_json())
             time.sleep(0.05)
     return at
+
+
+def _unshown(table: Table) -> None:
+    """Where no live display is drawn (not a terminal): the progress lines say it."""
+
+
+def run_identity(experiment: str, seconds_ahead: float = START_IN) -> dict[str, Any]:
+    """What names a demo run in its run.json (and so in summary.json and the report):
+    its run id (``<experiment>-<UTC time>``, as ``fedlab ctl start`` makes it), its
+    experiment, its UTC start (``seconds_ahead`` from now) and the software's versions."""
+    import datetime
+
+    from federation.runtime.control import make_run_id
+    from federation.runtime.runs import software_versions
+
+    start = datetime.datetime.now(datetime.UTC) + datetime.timedelta(seconds=seconds_ahead)
+    return {
+        "run_id": make_run_id(experiment, start),
+        "experiment": experiment,
+        "utc_start": start.isoformat(timespec="seconds"),
+        "versions": software_versions(),
+    }
 
 
 def run_demo(
@@ -118,6 +148,7 @@ def run_demo(
 ) -> int:
     """Run the demo; ``duration`` is seconds of run time after the common start."""
     console = Console()
+    progress = DemoProgress(console)
     out.mkdir(parents=True, exist_ok=True)
     for old in [*out.glob("*.mcap"), *out.glob("*.jsonl"), *out.glob("*.png")]:
         old.unlink()
@@ -132,7 +163,9 @@ def run_demo(
     }
     started = time.monotonic()
     interrupted = False
+    identity: dict[str, Any] = {}
     with Fleet(out / "logs") as fleet:
+        progress.phase("starting routers and the lab link")
         fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
         fleet.start(
             "link",
@@ -140,6 +173,7 @@ def run_demo(
              "--jitter-ms", f"{jitter_ms}", "--seed", "1"],
         )  # fmt: skip
         fleet.start("router-rome", ["router", "--lab", "rome", "-l", rome, "-e", link])
+        progress.phase(f"starting agents: {', '.join(agents)}")
         for agent, a in agents.items():
             lab, name = agent.split("/")
             fleet.start(
@@ -153,13 +187,14 @@ def run_demo(
                  *(["--sync-with", LEADER] if agent != LEADER else [])],
             )  # fmt: skip
         total = duration + START_IN
+        progress.phase("synchronizing the followers' clocks with the leader's")
         try:
-            with Live(
-                console=console, refresh_per_second=2, transient=not console.is_terminal
-            ) as live:
+            # Redrawn in place on a terminal; elsewhere the progress lines say it.
+            with Live(console=console, refresh_per_second=2, transient=not progress.live) as live:
+                show: Callable[[Table], None] = live.update if progress.live else _unshown
 
                 def synced() -> bool:
-                    live.update(_progress(out, time.monotonic() - started, total, "syncing"))
+                    show(_progress(out, time.monotonic() - started, total, "syncing"))
                     lines = [
                         last_status(out / f"{recording_stem(a)}.jsonl") for a in (FOLLOWER, RAW)
                     ]
@@ -170,10 +205,13 @@ def run_demo(
                         f"[red]the followers never synchronized; see {out / 'logs'}[/red]"
                     )
                     return 1
-                _start_run(kiruna, START_IN)
+                identity = run_identity(str(spec["name"]))
+                progress.phase(f"running {identity['run_id']}: {total:.0f} s")
+                _start_run(kiruna, START_IN, str(spec["name"]), identity["run_id"])
                 t0 = time.monotonic()
                 while (elapsed := time.monotonic() - t0) < total:
-                    live.update(_progress(out, elapsed, total, "running"))
+                    show(_progress(out, elapsed, total, "running"))
+                    progress.run(elapsed, total, shown_live=progress.live)
                     if not all(fleet.alive(recording_stem(a)) for a in agents):
                         console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
                         break
@@ -181,8 +219,10 @@ def run_demo(
         except KeyboardInterrupt:
             interrupted = True
             console.print("interrupted: stopping agents, link and routers")
+        progress.phase("stopping agents (each closes its recording), the link and the routers")
         codes = fleet.stop_all()
     run = {
+        **identity,
         "leader": LEADER,
         "agents": {
             p["agent"]: {
@@ -203,6 +243,7 @@ def run_demo(
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
     from federation.report import write_report
 
+    progress.phase("writing the report from the recordings")
     summary = write_report(out, out)
     console.print(paper_table(summary))
     console.print(f"report.md, summary.json, figures and recordings in {out}")
@@ -311,6 +352,7 @@ def run_scenario_demo(
     simulated platform per lab; then the report (formation error, docking outcome,
     workspace) in ``out``."""
     console = Console()
+    progress = DemoProgress(console)
     out.mkdir(parents=True, exist_ok=True)
     for old in [*out.glob("*.mcap"), *out.glob("*.jsonl"), *out.glob("*.png")]:
         old.unlink()
@@ -324,7 +366,9 @@ def run_scenario_demo(
     jitter_ms = 2.0
     started = time.monotonic()
     interrupted = False
+    identity: dict[str, Any] = {}
     with Fleet(out / "logs") as fleet:
+        progress.phase(f"starting routers and lab links: {', '.join(labs)}")
         fleet.start("router-kiruna", ["router", "--lab", "kiruna", "-l", kiruna])
         for i, lab in enumerate(labs[1:]):
             link, own = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
@@ -335,6 +379,7 @@ def run_scenario_demo(
             )  # fmt: skip
             fleet.start(f"router-{lab}", ["router", "--lab", lab, "-l", own, "-e", link])
             endpoints[lab] = own
+        progress.phase(f"starting agents: {', '.join(agents)}")
         for agent in agents:
             lab, name = agent.split("/")
             fleet.start(
@@ -355,26 +400,27 @@ def run_scenario_demo(
                 lines = [last_status(out / f"{recording_stem(a)}.jsonl") for a in agents]
                 return all(line is not None and line["t_sim"] is not None for line in lines)
 
-            console.print(f"fedlab demo --scenario {scenario}: waiting for sync")
+            progress.phase(f"{scenario}: synchronizing every agent's clock with the leader's")
             if not wait_for(synced, timeout=40, interval=0.5):
                 console.print(f"[red]the agents never synchronized; see {out / 'logs'}[/red]")
                 return 1
-            _start_run(kiruna, START_IN, spec["name"])
+            identity = run_identity(str(spec["name"]))
+            progress.phase(f"running {identity['run_id']}: {total:.0f} s")
+            _start_run(kiruna, START_IN, spec["name"], identity["run_id"])
             t0 = time.monotonic()
-            last_print = 0.0
             while (elapsed := time.monotonic() - t0) < total:
                 if not all(fleet.alive(recording_stem(a)) for a in agents):
                     console.print(f"[red]an agent stopped early; see {out / 'logs'}[/red]")
                     break
-                if elapsed - last_print >= 10:
-                    last_print = elapsed
-                    console.print(f"  running {elapsed:5.1f} / {total:.0f} s")
-                time.sleep(0.5)
+                progress.run(elapsed, total)
+                time.sleep(min(0.5, total - elapsed))
         except KeyboardInterrupt:
             interrupted = True
             console.print("interrupted: stopping agents, links and routers")
+        progress.phase("stopping agents (each closes its recording), the links and the routers")
         codes = fleet.stop_all()
     run = {
+        **identity,
         "leader": agents[0],
         "scenario": scenario,
         "experiment": spec,
@@ -399,6 +445,7 @@ def run_scenario_demo(
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
     from federation.report import write_report
 
+    progress.phase("writing the report from the recordings")
     summary = write_report(out, out)
     console.print(scenario_table(summary))
     console.print(f"report.md, summary.json, figures and recordings in {out}")

@@ -11,9 +11,26 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from federation.core import paper
 from federation.report.summary import comparison_rows
 
 __all__ = ["markdown"]
+
+
+CLOCKS_NOTE = (
+    "Clock offset and drift here are the skew given to an agent's clock (`--clock-offset`, "
+    "`--clock-drift-ppm`; none on real hardware). Each agent's clock starts at an "
+    "arbitrary origin anyway, so offsets of tens of seconds between agents, even on one "
+    "host, are expected: synchronization measures them (the tables below)."
+)
+"""The report's paragraph on clocks, under the table of agents."""
+
+
+def _number(value: Any, spec: str = "g") -> str:
+    """A number as the report prints it (``spec``); "unknown" for anything else."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return "unknown"
+    return format(value, spec)
 
 
 def _emulated(meta: dict[str, Any] | None) -> str:
@@ -103,20 +120,34 @@ def markdown(summary: dict[str, Any], meta: dict[str, Any] | None) -> str:
         "| clock drift (ppm) | recording |",
         "|---|---|---|---|---|---|---|---|",
     ]
+    settings = described.get("clock_settings") or {}
+    unknown = False
     for name, a in summary["agents"].items():
-        i = info.get(name) or {}
+        i = {**(settings.get(name) or {}), **(info.get(name) or {})}  # run.json's first
+        offset, drift = _number(i.get("clock_offset"), ".3f"), _number(i.get("clock_drift_ppm"))
+        unknown = unknown or "unknown" in (offset, drift)
         comp = a["latency_compensation"]
         lines.append(
             f"| {name} | {a['role'] or '?'} | {a['platform'] or '?'} | {a['follow'] or '-'} "
             f"| {'-' if comp is None else ('on' if comp else 'off')} "
-            f"| {i.get('clock_offset', '?')} | {i.get('clock_drift_ppm', '?')} | {a['recording']} |"
+            f"| {offset} | {drift} | {a['recording']} |"
         )
+    lines += ["", CLOCKS_NOTE]
+    if unknown:
+        lines += [
+            "",
+            "Unknown: neither a run.json nor the agent's recorded settings say what skew it "
+            "was given (a recording made without a runs folder holds no settings).",
+        ]
     lines += [
         "",
         "## This run beside the paper",
         "",
         "The paper's figures come from the source paper (docs/paper.md): its validation (600 s "
-        "over the internet) and its hardware run (figures 8-11).",
+        "over the internet) and its hardware run (figures 8-11). Its clock offset, "
+        f"{paper.CLOCK_OFFSET:.3f} s, is the gap between its two labs' clocks, set beside this "
+        "run's for scale: an offset is whatever the clocks' origins make it, and what sync is "
+        "judged by is how steady its estimate is (offset std) and its error against the truth.",
         "",
         "| figure | pair or agent | this run | paper |",
         "|---|---|---:|---:|",

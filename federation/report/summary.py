@@ -161,6 +161,8 @@ def run_description(run: Run) -> dict[str, Any]:
             rec.latency_compensation = meta["latency_compensation"] == "true"
     first = next(iter(described.values()), {})
     duration = _float(first.get("duration"))
+    if duration is None and isinstance((run.meta or {}).get("duration_s"), int | float):
+        duration = float((run.meta or {})["duration_s"])  # the demo's run.json
     ran = [
         m["run_time"]
         for rec in run.agents.values()
@@ -171,12 +173,17 @@ def run_description(run: Run) -> dict[str, Any]:
     truncated = None
     if duration is not None and reached is not None:
         truncated = reached < duration - 0.5
+    # A run the recordings do not describe (the demo's, recorded to one file per agent)
+    # is described by its run.json.
+    meta = run.meta or {}
+    listed = meta.get("versions")
+    versions: dict[str, Any] = listed if isinstance(listed, dict) else {}
     return {
-        "run_id": first.get("run_id"),
-        "experiment": _experiment_name(first.get("experiment", "")),
-        "utc_start": first.get("utc_start"),
+        "run_id": first.get("run_id") or meta.get("run_id"),
+        "experiment": _experiment_name(first.get("experiment", "")) or meta.get("experiment"),
+        "utc_start": first.get("utc_start") or meta.get("utc_start"),
         "versions": {
-            k: first.get(k)
+            k: first.get(k) or versions.get(k)
             for k in ("fedlab_version", "zenoh_version", "python_version", "git_commit")
         },
         "run_duration_s": duration,
@@ -184,6 +191,25 @@ def run_description(run: Run) -> dict[str, Any]:
         "truncated": truncated,
         "command_lines": {a: m.get("command_line") for a, m in described.items()},
         "hosts": {a: m.get("host") for a, m in described.items()},
+        "clock_settings": {a: _clock_settings(m.get("agent_config")) for a, m in described.items()},
+    }
+
+
+def _clock_settings(config_json: str | None) -> dict[str, float | None]:
+    """The skew an agent's settings added to its clock (``clock_offset`` s,
+    ``clock_drift_ppm``), from the settings its recording holds; None where unknown."""
+    import json
+
+    try:
+        config = json.loads(config_json or "")
+    except ValueError:
+        config = None
+    if not isinstance(config, dict):
+        config = {}
+    return {
+        k: float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+        for k in ("clock_offset", "clock_drift_ppm")
+        for v in [config.get(k)]
     }
 
 
@@ -304,7 +330,16 @@ def comparison_rows(summary: dict[str, Any]) -> list[tuple[str, str, str, str]]:
     ) -> None:
         rows.extend((label, who, fmt(e.get(key), scale, digits), theirs) for who, e in entries)
 
-    add("offset median (s)", sync, "offset_median_s", 1, 4, f"±{paper.CLOCK_OFFSET:.3f}")
+    # Any offset is right: each clock starts at an arbitrary origin. The paper's is the
+    # gap between its two labs' clocks, given for scale, not as a target.
+    add(
+        "offset median (s; any value: arbitrary clock origins)",
+        sync,
+        "offset_median_s",
+        1,
+        4,
+        f"{paper.CLOCK_OFFSET:.3f} (its labs' clocks)",
+    )
     add("offset std (ms)", sync, "offset_std_s", 1e3, 2, _paper_range("offset_std_ms"))
     errors = ("estimate_error_median_abs_s", "estimate_error_p95_abs_s", "estimate_error_max_abs_s")
     rows.extend(

@@ -484,6 +484,13 @@ def _since(row: Row) -> Text:
     return Text(text)
 
 
+CLOCKS_NOTE = (
+    "offset: the reference's clock minus this agent's; each agent's clock starts at an "
+    "arbitrary origin, so offsets of tens of seconds, even on one host, are expected"
+)
+"""The monitor's one line on clocks, under its table."""
+
+
 def _footer(rows: Sequence[Row], malformed: int, last_error: str | None) -> Text:
     present = sum(1 for r in rows if r.state != "left")
     text = Text(f"{len(rows)} agents, {present} present · malformed status: {malformed}")
@@ -491,6 +498,7 @@ def _footer(rows: Sequence[Row], malformed: int, last_error: str | None) -> Text
         text.stylize("red", text.plain.rindex("malformed"))
         if last_error:
             text.append(f" (last: {printable(last_error[:200])})", style="red")
+    text.append(f"\n{CLOCKS_NOTE}", style="dim")
     return text
 
 

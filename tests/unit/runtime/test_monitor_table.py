@@ -303,6 +303,16 @@ def test_render_empty_table() -> None:
     assert "0 agents, 0 present · malformed status: 0" in console.export_text()
 
 
+def test_the_table_says_why_offsets_of_tens_of_seconds_are_expected() -> None:
+    console = Console(record=True, width=400, color_system=None)
+    console.print(render([], federation="x"))
+    text = " ".join(console.export_text().split())
+    assert (
+        "offset: the reference's clock minus this agent's; each agent's clock starts at an "
+        "arbitrary origin, so offsets of tens of seconds, even on one host, are expected"
+    ) in text
+
+
 def test_render_dims_stale_and_left_rows() -> None:
     rows = [
         Row(agent="a/b", lab="a", name="b", state="stale", alive=True, since_status_s=9.0),
