@@ -83,3 +83,11 @@ def test_the_formatter_appends_a_default_once_and_none_for_flags() -> None:
     assert "repeatable --no-icmp" in text
     assert "drop silently --fast" in text
     assert text.endswith("go fast")
+
+
+@pytest.mark.parametrize(("path", "parser"), ALL)
+def test_no_example_writes_into_the_packages_own_folder(
+    path: tuple[str, ...], parser: argparse.ArgumentParser
+) -> None:
+    # federation/ is fedlab's own package in a clone: generated files go elsewhere (fed/).
+    assert "--out federation" not in parser.format_help(), path
