@@ -197,9 +197,16 @@ def open_interruptible(
     conf: Any,
     stop: threading.Event,
     timeout: float | None = None,
+    source: str = "the Zenoh config",
 ) -> Any:
     """Open a session in a helper thread, so a signal can stop an agent still waiting for its
     router (zenoh.open retries a missing router forever and does not return to Python).
+
+    While it waits, it says so every 10 s (the first time after 2 s) with why, as a probe
+    of each endpoint finds it (:func:`~federation.runtime.session.diagnose`): connection
+    refused, or which certificate or login a TLS router refuses, naming the files to
+    check (``source``: where ``conf`` came from); an authentication failure is logged as
+    a warning as soon as a probe finds it. Zenoh itself says nothing while it retries.
 
     Returns the session, or None when ``stop`` was set first; raises
     :class:`~federation.runtime.session.ConnectError` when Zenoh cannot open one (with
@@ -222,22 +229,90 @@ def open_interruptible(
     # Zenoh gives up by itself after the timeout; this is the backstop.
     deadline = math.inf if timeout is None else started + timeout + 2.0
     where = ", ".join(endpoints(conf)) or "no endpoint"
+    why = _WhyWaiting(conf, source) if timeout is None else None
     while thread.is_alive() and not stop.is_set():
         thread.join(0.1)
         now = time.monotonic()
         if now >= deadline:
-            raise connect_error(conf, "no answer", timeout or 0.0)
+            raise connect_error(conf, "no answer", timeout or 0.0, source)
+        if why is not None:
+            why.poll(now - started)
         if now >= next_note:
-            log.info("waiting for the router at %s (%.0f s)...", where, now - started)
+            reason = f": {why.reason}" if why is not None and why.reason else ""
+            log.info("waiting for the router at %s (%.0f s)...%s", where, now - started, reason)
             next_note += 10.0
     if "error" in result:
         if timeout is not None:
-            raise connect_error(conf, result["error"], timeout)
+            raise connect_error(conf, result["error"], timeout, source)
         raise ConnectError(f"cannot open a Zenoh session ({where}): {result['error']}")
     if stop.is_set() and "session" not in result:
         log.info("stopped before the router was reached")
         return None
     return result["session"]
+
+
+class _WhyWaiting:
+    """Why a session does not open yet: each endpoint probed on a thread of its own
+    (:func:`~federation.runtime.session.examine`, a few seconds at most), 1 s after the
+    first attempt and every 10 s after; a new authentication failure is logged at once.
+
+    A login refused after TLS (``password``, ``session``) cannot be told from a router
+    that came up a moment ago, before Zenoh's next try (it retries 1 s, then 2 s, then
+    every 4 s): it is said only once the session is still not open :data:`SETTLED` s
+    after the probe that found it."""
+
+    FIRST, PERIOD = 1.0, 10.0
+    SETTLED = 4.5  # s: Zenoh's longest wait between tries, and a margin
+    AFTER_TLS = ("password", "session")
+
+    def __init__(self, conf: Any, source: str):
+        from federation.runtime.session import endpoints
+        from federation.runtime.tlsprobe import client_tls
+
+        self.endpoints = endpoints(conf)
+        self.tls = client_tls(conf, source)
+        self.found: list[tuple[str, Any]] = []  # (why, AuthFailure or None) per endpoint
+        self.found_at = 0.0
+        self.warned: set[str] = set()
+        self.reason = ""
+        self.next_probe = self.FIRST
+        self.waited = 0.0
+        self.thread: threading.Thread | None = None
+
+    def _probe(self) -> None:
+        from federation.runtime.session import examine
+
+        at = self.waited
+        found = [examine(e, 2.0, self.tls) for e in self.endpoints]
+        self.found, self.found_at = found, at
+
+    def _said(self, waited: float) -> list[tuple[str, Any]]:
+        """The findings as they may be said now (a refusal after TLS only once settled)."""
+        settled = waited >= self.found_at + self.SETTLED
+        return [
+            ("TLS accepted, no session yet", None)
+            if failure is not None and failure.kind in self.AFTER_TLS and not settled
+            else (why, failure)
+            for why, failure in self.found
+        ]
+
+    def poll(self, waited: float) -> None:
+        """Start a probe when one is due; log an authentication failure it found."""
+        self.waited = waited
+        said = self._said(waited)
+        for _, failure in said:
+            if failure is not None and failure.message not in self.warned:
+                self.warned.add(failure.message)
+                log.warning("no session with the router yet: %s (still trying)", failure.message)
+        if len(self.endpoints) == 1:
+            self.reason = "; ".join(why for why, _ in said)
+        else:
+            pairs = zip(self.endpoints, said, strict=False)  # said: empty before a probe
+            self.reason = "; ".join(f"{e}: {why}" for e, (why, _) in pairs)
+        if waited >= self.next_probe and (self.thread is None or not self.thread.is_alive()):
+            self.next_probe = waited + self.PERIOD
+            self.thread = threading.Thread(target=self._probe, name="why-waiting", daemon=True)
+            self.thread.start()
 
 
 def open_session(
@@ -250,11 +325,13 @@ def open_session(
 
     from federation.runtime.session import build_config, fail_fast
 
-    conf = build_config(zenoh_options(args), default_mode=default_mode)
+    options = zenoh_options(args)
+    conf = build_config(options, default_mode=default_mode)
     timeout: float | None = getattr(args, "timeout", None)
     if timeout is not None:
         fail_fast(conf, timeout)
-    return open_interruptible(zenoh.open, conf, stop, timeout)
+    source = str(options.config) if options.config else "the Zenoh flags"
+    return open_interruptible(zenoh.open, conf, stop, timeout, source)
 
 
 def federation_name(text: str) -> str:

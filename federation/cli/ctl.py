@@ -19,12 +19,14 @@ from federation.cli.common import (
     add_timeout_flag,
     add_zenoh_flags,
     agent_id,
+    client_conf,
     nonnegative,
     open_session,
     positive,
     run_id,
     stop_on_signals,
 )
+from federation.core import keys
 from federation.core.preflight import CHECKS, DEFAULT_MAX_BOUND, Row, blocking
 from federation.runtime import control
 
@@ -139,7 +141,6 @@ def preflight_table(rows: list[Row], title: str) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
-    from rich.table import Table
 
     from schemas.experiment import load_experiment
 
@@ -184,15 +185,28 @@ def run(args: argparse.Namespace) -> int:
                 console.print(preflight_table(failed.rows, "not started: preflight failed"))
                 console.print("nothing was started; fix the above or use --force")
             return 1
+    federation = experiment.federation if experiment is not None else args.federation
+    hint = None if result.ok else refused_hint(args, federation, result)
     if args.json:
-        print(json.dumps(result.as_json(), indent=1))
-        return 0 if result.ok else 1
+        print(json.dumps(result.as_json() | ({"hint": hint} if hint else {}), indent=1))
+    else:
+        print_result(console, args.action, result, hint)
+    return 0 if result.ok else 1
+
+
+def print_result(
+    console: Any, action: str, result: control.ControlResult, hint: str | None
+) -> None:
+    """The command's outcome as tables: the preflight, who confirmed, why not, and why
+    no agent may have seen it (``hint``)."""
+    from rich.table import Table
+
     if result.preflight:
         console.print(preflight_table(result.preflight, "preflight"))
     for line in result.overridden:
         console.print(f"[yellow]overridden by --force: {line}[/yellow]")
     run_id = result.command.run_id
-    title = f"fedlab ctl {args.action}{' ' + run_id if run_id else ''} ({result.elapsed:.2f} s)"
+    title = f"fedlab ctl {action}{' ' + run_id if run_id else ''} ({result.elapsed:.2f} s)"
     table = Table(title=title)
     table.add_column("agent")
     table.add_column("mode")
@@ -200,4 +214,23 @@ def run(args: argparse.Namespace) -> int:
     for agent, mode in result.modes.items():
         table.add_row(agent, mode, result.reasons.get(agent, ""))
     console.print(table)
-    return 0 if result.ok else 1
+    if hint:
+        console.print(f"[red]{hint}[/red]")
+
+
+def refused_hint(
+    args: argparse.Namespace, federation: str, result: control.ControlResult
+) -> str | None:
+    """Why no agent saw the command, when a router's access control likely dropped it:
+    Zenoh drops a denied put without telling the sender (:func:`refused_commands`)."""
+    from federation.core.authfail import refused_commands
+    from federation.runtime.identity import IdentityError, identities
+
+    conf, source = client_conf(args)
+    try:
+        proved = identities(conf, source)
+    except IdentityError:
+        proved = {}
+    reasons = {a: result.reasons.get(a, "") for a in result.pending}
+    key = keys.control_key(federation)
+    return refused_commands(key, proved, source, reasons, frozenset(result.modes))

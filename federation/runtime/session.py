@@ -33,6 +33,7 @@ from typing import Any
 
 import zenoh
 
+from federation.core.authfail import AuthFailure, ClientTls
 from federation.core.endpoints import endpoint_problem
 from federation.runtime.zenoh_text import config_file_problem
 from schemas.config import ZenohOptions
@@ -47,6 +48,7 @@ __all__ = [
     "connect_error",
     "diagnose",
     "endpoints",
+    "examine",
     "fail_fast",
     "undeclare_all",
 ]
@@ -255,37 +257,60 @@ def _host_port(address: str) -> tuple[str, int] | None:
     return host.strip("[]"), int(port)
 
 
-def diagnose(endpoint: str, timeout: float = 2.0) -> str:
+def diagnose(endpoint: str, timeout: float = 2.0, tls: ClientTls | None = None) -> str:
+    """Why ``endpoint`` cannot be reached (see :func:`examine`), in words."""
+    return examine(endpoint, timeout, tls)[0]
+
+
+def examine(
+    endpoint: str, timeout: float = 2.0, tls: ClientTls | None = None
+) -> tuple[str, AuthFailure | None]:
     """Why ``endpoint`` (``tcp/host:port``, ``tls/...``) cannot be reached, probed with a
     plain TCP connection: refused, unreachable, no answer, unknown host; or, when TCP
-    connects, that the failure is above it (TLS, or not a Zenoh router)."""
+    connects, that the failure is above it: with the client's TLS settings ``tls``, what
+    a TLS handshake as that client shows (:mod:`federation.runtime.tlsprobe`: which
+    certificate or login the router refuses, or the client refuses); else TLS, or not a
+    Zenoh router. Returns that, and the authentication failure when it is one."""
     proto, _, address = endpoint.partition("/")
     target = _host_port(address)
     if proto not in ("tcp", "tls", "ws") or target is None:
-        return f"no answer on {endpoint}"
+        return f"no answer on {endpoint}", None
     try:
         with socket.create_connection(target, timeout=timeout):
             pass
     except socket.gaierror as error:
-        return f"cannot resolve {target[0]} ({error.strerror})"
+        return f"cannot resolve {target[0]} ({error.strerror})", None
     except ConnectionRefusedError:
-        return "connection refused (nothing listens on that port)"
+        return "connection refused (nothing listens on that port)", None
     except TimeoutError:
-        return f"no answer within {timeout:g} s (host down, or a firewall drops the packets)"
+        return f"no answer within {timeout:g} s (host down, or a firewall drops the packets)", None
     except OSError as error:
         if error.errno in (errno.ENETUNREACH, errno.EHOSTUNREACH):
-            return f"unreachable ({error.strerror})"
-        return f"cannot connect ({error.strerror or error})"
+            return f"unreachable ({error.strerror})", None
+        return f"cannot connect ({error.strerror or error})", None
+    if proto == "tls" and tls is not None:
+        from federation.runtime.tlsprobe import probe  # cryptography: only when probing
+
+        failure = probe(target[0], target[1], endpoint, tls, timeout)
+        if failure is not None:
+            return failure.message, failure
     if proto == "tls":
         return (
-            "TCP connects but the TLS session failed (check the CA, the certificate and its name)"
+            "TCP connects but the TLS session failed (check the CA, the certificate and its name)",
+            None,
         )
-    return "TCP connects but no Zenoh session opened (is it a Zenoh router?)"
+    return "TCP connects but no Zenoh session opened (is it a Zenoh router?)", None
 
 
-def connect_error(conf: zenoh.Config, error: object, timeout: float) -> ConnectError:
-    """A :class:`ConnectError` naming every endpoint and why it failed."""
-    reasons = [f"{e}: {diagnose(e, min(2.0, timeout))}" for e in endpoints(conf)]
+def connect_error(
+    conf: zenoh.Config, error: object, timeout: float, source: str = "the Zenoh config"
+) -> ConnectError:
+    """A :class:`ConnectError` naming every endpoint and why it failed (``source``: where
+    ``conf`` came from, the file a TLS failure's message names)."""
+    from federation.runtime.tlsprobe import client_tls
+
+    tls = client_tls(conf, source)
+    reasons = [f"{e}: {diagnose(e, min(2.0, timeout), tls)}" for e in endpoints(conf)]
     where = "; ".join(reasons) or "no endpoint to dial (give -e/--connect)"
     return ConnectError(f"no Zenoh session within {timeout:g} s: {where} [zenoh: {error}]")
 
