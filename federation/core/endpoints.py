@@ -30,9 +30,9 @@ def endpoint_problem(endpoint: str) -> str | None:
             return f"expected :PORT after [{inside}], e.g. {proto}/[{inside}]:7447"
         host, port = f"[{inside}]", after[1:]
     else:
-        if address.count(":") > 1:
-            return f"an IPv6 address goes in brackets, e.g. {proto}/[::1]:7447"
         host, _, port = address.partition(":")
+        if ":" in port:  # a second colon: an IPv6 address
+            return f"an IPv6 address goes in brackets, e.g. {proto}/[::1]:7447"
         if not host:
             return f"no host before :{port}, e.g. {proto}/127.0.0.1:{port or 7447}"
     if not port:
