@@ -1,5 +1,5 @@
 """``fedlab bench sync|latency|scale|memory|network|scenarios``: benchmarks, beside
-baselines run alongside.
+baselines run alongside; ``fedlab bench table``: their headline figures from benchmarks/.
 
 Each parses its flags, runs :mod:`federation.bench` and prints a table (or ``--json``).
 """
@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
-from federation.bench import latency, memory, scale, sync
+from federation.bench import latency, memory, scale, sync, table
 from federation.cli.common import Formatter, Subparsers, positive
 
 __all__ = ["add", "run"]
@@ -30,7 +31,8 @@ def add(sub: Subparsers) -> None:
             "  fedlab bench scale --agents 2 --agents 8 --seconds 20\n"
             "  fedlab bench memory --agents 32 --agents 128 --json\n"
             "  fedlab bench network --scenario loss5 --transport multilink --seconds 60\n"
-            "  fedlab bench scenarios --json > benchmarks/scenarios.json"
+            "  fedlab bench scenarios --json > benchmarks/scenarios.json\n"
+            "  fedlab bench table   # the README's table, from benchmarks/"
         ),
     )
     benches = p.add_subparsers(dest="bench", required=True, metavar="BENCH")
@@ -40,6 +42,7 @@ def add(sub: Subparsers) -> None:
     _add_memory(benches)
     _add_network(benches)
     _add_scenarios(benches)
+    _add_table(benches)
     p.set_defaults(func=run)
 
 
@@ -47,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark named by ``args.bench`` and print its results."""
     runs = {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}
     runs |= {"memory": _run_memory, "network": _run_network, "scenarios": _run_scenarios}
+    runs |= {"table": _run_table}
     return runs[args.bench](args)
 
 
@@ -526,4 +530,41 @@ def _run_scenarios(args: argparse.Namespace) -> int:
             f"{a['scale_max']:.2f}",
         )
     console.print(table)
+    return 0
+
+
+# -- table ---------------------------------------------------------------------------
+def _add_table(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "table",
+        help="the benchmarks' headline figures as a Markdown table, from their result files",
+        formatter_class=Formatter,
+        description=(
+            "Print one Markdown table of every benchmark's headline figures, read from the\n"
+            "committed result files (benchmarks/README.md says which command made each).\n"
+            "The README's benchmark table is this output; a test fails when they differ."
+        ),
+        epilog="Example:\n  fedlab bench table --dir benchmarks",
+    )
+    p.add_argument(
+        "--dir",
+        type=Path,
+        default=Path("benchmarks"),
+        metavar="DIR",
+        help="the folder of result files",
+    )
+    p.add_argument(
+        "--link-prefix",
+        default="benchmarks/",
+        metavar="PREFIX",
+        help="what each file's link starts with (docs/ pages: ../benchmarks/)",
+    )
+
+
+def _run_table(args: argparse.Namespace) -> int:
+    try:
+        print(table.table_markdown(args.dir, args.link_prefix), end="")
+    except (OSError, KeyError, ValueError) as error:
+        print(f"fedlab bench table: error: {args.dir}: {error}", file=sys.stderr)
+        return 1
     return 0

@@ -1,0 +1,252 @@
+"""The benchmarks' headline figures as one Markdown table, read from the committed result
+files in ``benchmarks/`` (``fedlab bench table``; the README's table is this text, and
+``tests/unit/bench/test_bench_table.py`` fails when they differ).
+
+Each row names its file; a figure is never typed by hand. Ranges are min to max over a
+file's repeats, medians first; a baseline is measured in the same run as the figure.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+__all__ = ["FILES", "Row", "rows", "table_markdown"]
+
+FILES: dict[str, str] = {
+    "sync-drift-600s.json": "fedlab bench sync --scenario drift --duration 600 --json",
+    "sync-180s.json": (
+        "fedlab bench sync --scenario paper-like --scenario heavy-tail --scenario bursts"
+        " --scenario asymmetry --duration 180 --json"
+    ),
+    "latency-60s.json": "fedlab bench latency --seconds 60 --rate 100 --json",
+    "scale-16-40s.json": (
+        "fedlab bench scale --agents 16 --seconds 40 --mode default --mode bare --runs 3 --json"
+    ),
+    "scale-64-128-40s.json": (
+        "fedlab bench scale --agents 64 --agents 128 --seconds 40 --mode default --mode bare"
+        " --runs 3 --json"
+    ),
+    "scale-256-8labs-150s.json": (
+        "fedlab bench scale --agents 256 --labs 8 --seconds 150 --mode default --json"
+    ),
+    "memory-32-128.json": "fedlab bench memory --agents 32 --agents 128 --json",
+    "network-sync-estimator-60s.json": "(root) fedlab bench network --transport tcp-tuned ...",
+    "network-sync-estimator-multilink-60s.json": (
+        "(root) fedlab bench network --transport multilink ..."
+    ),
+    "scenarios.json": "fedlab bench scenarios --json",
+}
+"""The current result of each benchmark, and the command that made it (the full command
+of each is in benchmarks/README.md, or inside the file)."""
+
+Row = tuple[str, str, str, str, str]
+"""benchmark, figure, fedlab, baseline, file."""
+
+
+def _load(folder: Path, name: str) -> Any:
+    return json.loads((folder / name).read_text(encoding="utf-8"))
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1000:.3f}"
+
+
+def _spread(values: Iterable[float], fmt: str = "{:.2f}") -> str:
+    """Median, and min to max when the values differ."""
+    vals = sorted(values)
+    med = fmt.format(statistics.median(vals))
+    if len(vals) == 1 or vals[0] == vals[-1]:
+        return med
+    return f"{med} ({fmt.format(vals[0])} to {fmt.format(vals[-1])})"
+
+
+def _summary(s: dict[str, float], scale: float = 1.0, fmt: str = "{:.2f}") -> str:
+    """A bench summary's {median, min, max}, scaled."""
+    values = [s["median"] * scale, s["min"] * scale, s["max"] * scale]
+    med, lo, hi = (fmt.format(v) for v in values)
+    return med if lo == hi else f"{med} ({lo} to {hi})"
+
+
+def _sync_rows(folder: Path) -> list[Row]:
+    out: list[Row] = []
+    drift = {r["estimator"]: r for r in _load(folder, "sync-drift-600s.json")}
+    out.append(
+        (
+            "sync, 50 ppm drift, 600 s",
+            "offset error vs truth, p95 (ms); baseline: the paper's held mean",
+            _ms(drift["clockfilter"]["p95"]),
+            _ms(drift["mean"]["p95"]),
+            "sync-drift-600s.json",
+        )
+    )
+    runs = _load(folder, "sync-180s.json")
+    for scenario in ("paper-like", "heavy-tail", "bursts", "asymmetry"):
+        by = {r["estimator"]: r for r in runs if r["scenario"] == scenario}
+        out.append(
+            (
+                f"sync, {scenario}, 180 s",
+                "offset error, p95 over restarts (ms); baseline: the paper's mean",
+                _ms(by["clockfilter"]["restarts"]["p95"]),
+                _ms(by["mean"]["restarts"]["p95"]),
+                "sync-180s.json",
+            )
+        )
+    return out
+
+
+def _latency_rows(folder: Path) -> list[Row]:
+    d = _load(folder, "latency-60s.json")
+    fed, bare = d["fedlab_pose"], d["bare_zenoh"]
+    return [
+        (
+            "latency, loopback, two routers",
+            "pose one way, p50 / p99 (ms); baseline: bare Zenoh pub/sub",
+            f"{fed['p50_ms']:.3f} / {fed['p99_ms']:.3f}",
+            f"{bare['p50_ms']:.3f} / {bare['p99_ms']:.3f}",
+            "latency-60s.json",
+        )
+    ]
+
+
+def _scale_rows(folder: Path) -> list[Row]:
+    out: list[Row] = []
+    for name in ("scale-16-40s.json", "scale-64-128-40s.json"):
+        summary = _load(folder, name)["summary"]
+        for n, modes in summary.items():
+            fed, bare = modes["default"], modes["bare"]
+            out.append(
+                (
+                    f"scale, {n} agents, 4 labs",
+                    "CPU per agent (mcores); baseline: bare zenoh-python agents",
+                    _summary(fed["cpu_per_agent"], 1000),
+                    _summary(bare["cpu_per_agent"], 1000),
+                    name,
+                )
+            )
+            out.append(
+                (
+                    f"scale, {n} agents, 4 labs",
+                    "pose p99 (ms); loss",
+                    f"{_summary(fed['p99_ms'])}; {fed['loss']['max']:g}",
+                    f"{_summary(bare['p99_ms'])}; {bare['loss']['max']:g}",
+                    name,
+                )
+            )
+    big = _load(folder, "scale-256-8labs-150s.json")
+    for r in big:
+        out.append(
+            (
+                f"scale, {r['n']} agents, {r['labs']} labs",
+                "CPU per agent (mcores); pose p99 (ms); poses lost",
+                f"{r['cpu_per_agent'] * 1000:.2f}; {r['p99_ms']:.2f}; "
+                f"{round(r['loss'] * r['samples'])} of {r['samples']}",
+                "",
+                "scale-256-8labs-150s.json",
+            )
+        )
+    return out
+
+
+def _memory_rows(folder: Path) -> list[Row]:
+    rows = _load(folder, "memory-32-128.json")["rows"]
+    out: list[Row] = []
+    for n in sorted({r["n"] for r in rows}):
+
+        def kib(mode: str, n: int = n) -> str:
+            kibs = (r["kib_per_agent"] for r in rows if (r["n"], r["mode"]) == (n, mode))
+            return _spread(kibs, "{:.1f}")
+
+        out.append(
+            (
+                f"memory, {n} agents in one process",
+                "KiB per agent added; baseline: bare zenoh-python",
+                kib("default"),
+                kib("bare"),
+                "memory-32-128.json",
+            )
+        )
+    return out
+
+
+def _network_rows(folder: Path) -> list[Row]:
+    out: list[Row] = []
+    for name, link in (
+        ("network-sync-estimator-60s.json", "TCP (shipped)"),
+        ("network-sync-estimator-multilink-60s.json", "TCP + UDP multilink"),
+    ):
+        results = _load(folder, name)["results"]
+        for scenario in ("loss1", "loss5", "loss20"):
+            runs = [r for r in results if r["scenario"]["name"] == scenario]
+            holds = ", ".join(str(r["holds"]) for r in runs)
+            p99 = ", ".join(f"{r['pose_latency_ms']['p99']:.0f}" for r in runs)
+            loss = round(runs[0]["scenario"]["loss"] * 100)
+            out.append(
+                (
+                    f"network, 40 ms, {loss} % loss, {link}",
+                    "safe holds per 60 s; pose p99 (ms), each run",
+                    f"{holds}; {p99}",
+                    "",
+                    name,
+                )
+            )
+    return out
+
+
+def _scenario_rows(folder: Path) -> list[Row]:
+    d = _load(folder, "scenarios.json")
+    out: list[Row] = []
+    for f in d["formation"]:
+        if f["delay_s"] < 0.2:
+            continue
+        on = "on" if f["latency_compensation"] else "off"
+        out.append(
+            (
+                f"formation, {f['delay_s'] * 1000:.0f} ms, compensation {on}",
+                "slot error RMS per seed (cm)",
+                ", ".join(f"{e * 100:.2f}" for e in f["error_rms_m"]),
+                "",
+                "scenarios.json",
+            )
+        )
+    dock = d["docking"]
+    out.append(
+        (
+            f"docking, {dock['delay_s'] * 1000:.0f} ms",
+            "seeds docked; closing speed at contact, median (cm/s)",
+            f"{dock['successes']} of {dock['seeds']}; "
+            + f"{statistics.median(r['contact_speed_mps'] for r in dock['runs']) * 100:.2f}",
+            "",
+            "scenarios.json",
+        )
+    )
+    return out
+
+
+_SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
+    _sync_rows,
+    _latency_rows,
+    _scale_rows,
+    _memory_rows,
+    _network_rows,
+    _scenario_rows,
+)
+
+
+def rows(folder: Path) -> list[Row]:
+    """Every headline figure of the result files in ``folder``."""
+    return [row for section in _SECTIONS for row in section(folder)]
+
+
+def table_markdown(folder: Path, link_prefix: str = "benchmarks/") -> str:
+    """The table, each file linked as ``link_prefix + name``."""
+    lines = [
+        "| benchmark | figure | fedlab | baseline, same run | result |",
+        "|---|---|---:|---:|---|",
+    ]
+    for bench, figure, fed, base, name in rows(folder):
+        lines.append(f"| {bench} | {figure} | {fed} | {base} | [{name}]({link_prefix}{name}) |")
+    return "\n".join(lines) + "\n"
