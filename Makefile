@@ -28,17 +28,17 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# The suite in three passes, each always run (either failing fails the target): the unit
-# tests on parallel workers (pure logic and short-lived processes), then the integration
-# tests one at a time (real routers and agents whose sync and timing claims assume the
-# cores are theirs), then the unit tests marked `timing` (a closed loop on real time).
+# The suite in two passes, both always run (either failing fails the target): every test
+# on parallel workers, less those marked `timing`; then the `timing` tests one at a time
+# (real-time bounds on a closed loop, an abort's latency, a start's spread: claims about
+# processes that have the cores to themselves). Sync accuracy is judged against the
+# bound each estimate states in the same run, so it holds on shared cores.
 WORKERS ?= 4
 
 test: lint typecheck
-	$(BIN)/pytest tests/unit -n $(WORKERS) --dist worksteal -m "not timing"; unit=$$?; \
-	$(BIN)/pytest tests/integration; integration=$$?; \
-	$(BIN)/pytest tests/unit -m timing; timing=$$?; \
-	[ $$unit = 0 ] && [ $$integration = 0 ] && [ $$timing = 0 ]
+	$(BIN)/pytest tests -n $(WORKERS) --dist worksteal -m "not timing"; parallel=$$?; \
+	$(BIN)/pytest tests -m timing; timing=$$?; \
+	[ $$parallel = 0 ] && [ $$timing = 0 ]
 
 check: lint typecheck
 	$(BIN)/pytest tests/unit -n auto -m "not timing" -q

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from loopback import FOLLOWER, LEADER, Agent, Labs, Router, client_config
+from loopback import FOLLOWER, LEADER, Agent, Labs, Router, client_config, offset_error
 
 from federation.fleet.launch import wait_for
 from federation.report.status import true_offset
@@ -58,7 +58,7 @@ def test_lab_link_lost_safe_hold_within_200_ms_and_resume(labs: Labs) -> None:
     assert held and all(r["valves_open"] == 0 for r in held)
 
 
-@pytest.mark.timing
+@pytest.mark.timing  # 2 ms against a median delay of 100 ms: the filter, not a bound
 def test_sync_converges_over_a_lossy_link(labs: Labs) -> None:
     """20 % of segments lost and retransmitted 200 ms late (TCP between routers)."""
     pair = labs.pair(link=["--delay-ms", "20", "--jitter-ms", "2", "--loss", "0.2", "--seed", "4"])
@@ -97,7 +97,7 @@ def test_router_restart_sync_resumes_within_5_s(labs: Labs) -> None:
     assert follower.alive() and leader.alive()
 
 
-@pytest.mark.timing
+@pytest.mark.timing  # the step's size is read from one exchange: off by its queueing
 def test_clock_step_is_detected_and_estimates_reset(labs: Labs) -> None:
     router = labs.router("kiruna")
     leader = agent(labs, LEADER, router, "--clock-step", "6:0.5")
@@ -113,7 +113,7 @@ def test_clock_step_is_detected_and_estimates_reset(labs: Labs) -> None:
     view = follower.latest()["peers"][LEADER]
     truth = true_offset(leader.latest(), follower.latest())
     print(f"clock step detected; offset error after it {(view['offset'] - truth) * 1e3:+.3f} ms")
-    assert abs(view["offset"] - truth) < 0.002
+    offset_error(view, truth)
     log = follower.log()
     assert re.search(r"clock step of \+0\.(49\d|50\d) s", log), log[-2000:]
 
