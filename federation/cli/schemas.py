@@ -1,5 +1,6 @@
 """``fedlab schemas``: write or check the JSON Schemas of fedlab's messages and config files
-(:mod:`schemas.export`; ``python -m schemas.export`` does the same)."""
+(:mod:`schemas.export`; ``python -m schemas.export`` does the same), and the user guide's
+generated reference pages (``--docs``: :mod:`federation.cli.reference`)."""
 
 from __future__ import annotations
 
@@ -29,7 +30,9 @@ def add(sub: Subparsers) -> None:
         epilog=(
             "Examples:\n  fedlab schemas\n  fedlab schemas --check\n"
             "  fedlab schemas --holds > table.md   # docs/holds.md's table\n"
-            "  fedlab schemas --counters > table.md   # docs/counters.md's table"
+            "  fedlab schemas --counters > table.md   # docs/counters.md's table\n"
+            "  fedlab schemas --docs            # docs/reference/: every command and config field\n"
+            "  fedlab schemas --docs --check"
         ),
     )
     p.add_argument(
@@ -48,10 +51,44 @@ def add(sub: Subparsers) -> None:
         action="store_true",
         help="print the counters' table (docs/counters.md) from federation.core.counters and exit",
     )
+    p.add_argument(
+        "--docs",
+        action="store_true",
+        help="write the reference pages (every command, every config field) instead; "
+        "with --check, exit 1 if they are stale",
+    )
+    p.add_argument(
+        "--docs-dir",
+        type=Path,
+        default=Path("docs/reference"),
+        metavar="DIR",
+        help="where --docs writes",
+    )
     p.set_defaults(func=run)
 
 
+def _run_docs(args: argparse.Namespace) -> int:
+    from federation.cli import reference  # imports every command's parser
+
+    if args.check:
+        stale = reference.check(args.docs_dir)
+        if stale:
+            print(
+                f"stale reference pages in {args.docs_dir}: {', '.join(stale)}; "
+                "run: fedlab schemas --docs",
+                file=sys.stderr,
+            )
+            return 1
+        print(f"{len(reference.PAGES)} reference pages in {args.docs_dir} match the code")
+        return 0
+    for path in reference.write(args.docs_dir):
+        print(path)
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.docs:
+        return _run_docs(args)
     if args.holds:
         print(holds_table_markdown(), end="")
         return 0
