@@ -40,11 +40,9 @@ The parts that decide what is shown take data and return rows
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 import os
-import re
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -56,31 +54,24 @@ import foxglove.layouts as fl
 import zenoh
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from foxglove.messages import (
-    Color,
-    CubePrimitive,
     FrameTransform,
     FrameTransforms,
-    LinePrimitive,
-    LinePrimitiveLineType,
-    Point3,
-    Pose,
-    Quaternion,
-    SceneEntity,
     SceneEntityDeletion,
     SceneEntityDeletionType,
     SceneUpdate,
-    TextPrimitive,
-    Timestamp,
     Vector3,
 )
 from pydantic import ValidationError
 
-from agents.workspace import Area, Frame
 from federation.core import keys, wire
 from federation.core.keys import AgentId
+from federation.runtime.scene import DEFAULT_FOOTPRINT, area_corners, footprint
+from federation.runtime.scene import area_entity as _area_entity
+from federation.runtime.scene import platform_entity as _entity
+from federation.runtime.scene import rotation as _rotation
+from federation.runtime.scene import stamp as _stamp
 from federation.runtime.session import undeclare_all
-from schemas.messages import Status, Workspace
-from schemas.platform import load_platform
+from schemas.messages import Status
 
 __all__ = [
     "COMMON_FRAME",
@@ -102,7 +93,6 @@ __all__ = [
 log = logging.getLogger("fedlab.foxglove")
 
 COMMON_FRAME = "fedlab_common"
-DEFAULT_FOOTPRINT = 0.3  # m, side of the square drawn for a platform with no preset
 SCENE_PERIOD = 1.0  # s between scene updates (a client that joins late gets one soon)
 MAX_STATUS_BYTES = 1 << 20
 
@@ -194,30 +184,6 @@ def sync_topic(agent: str, peer: str) -> str:
     return f"/fedlab/sync/{agent}/{peer}"
 
 
-_PRESET = re.compile(r"[a-z0-9_-]{1,63}")
-
-
-@functools.lru_cache(maxsize=64)
-def footprint(platform: str) -> float:
-    """Side of the square drawn for a platform (m): twice its preset's moment arm, or
-    :data:`DEFAULT_FOOTPRINT` for a pose source with no preset. Only a preset's name is
-    looked up (deploy/platforms/NAME.toml), never a path: the name comes from any
-    agent's status, and a path there would have this host open what it names (a FIFO
-    hangs the view, /dev/zero fills its memory)."""
-    if platform == "kinematic" or not _PRESET.fullmatch(platform):
-        return DEFAULT_FOOTPRINT
-    try:
-        return 2.0 * load_platform(platform).moment_arm
-    except Exception:  # a preset that does not load: drawn at the default size
-        return DEFAULT_FOOTPRINT
-
-
-def area_corners(workspace: Workspace) -> list[tuple[float, float]]:
-    """The usable area's corners in the common frame (m), counter-clockwise from
-    (x_min, y_min) of the table frame: :math:`p_c = R(\\theta) p_t + o`."""
-    return Frame.from_config(workspace.frame).area_to_common(Area(*workspace.area))
-
-
 def _plot(title: str, field: str, sync_topics: Sequence[str]) -> fl.PlotPanel:
     def label(topic: str) -> str:  # /fedlab/sync/L/N/PL/PN: L/N -> PL/PN
         parts = topic.removeprefix("/fedlab/sync/").split("/")
@@ -293,14 +259,6 @@ def write_layout(path: Path, sync_topics: Sequence[str]) -> None:
     os.replace(partial, path)
 
 
-def _stamp(ns: int) -> Timestamp:
-    return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
-
-
-def _rotation(heading: float) -> Quaternion:
-    return Quaternion(x=0.0, y=0.0, z=math.sin(heading / 2), w=math.cos(heading / 2))
-
-
 def frame_transform(agent: AgentId, pose: wire.Pose, ns: int) -> FrameTransform:
     """``fedlab_common`` -> ``LAB/NAME`` at wall-clock ``ns``."""
     return FrameTransform(
@@ -309,72 +267,6 @@ def frame_transform(agent: AgentId, pose: wire.Pose, ns: int) -> FrameTransform:
         child_frame_id=str(agent),
         translation=Vector3(x=pose.x, y=pose.y, z=0.0),
         rotation=_rotation(pose.heading),
-    )
-
-
-def _entity(agent: str, side: float, ns: int) -> SceneEntity:
-    """A platform's footprint and name, locked to its frame."""
-    half = 0.5 * side
-    return SceneEntity(
-        timestamp=_stamp(ns),
-        frame_id=agent,
-        id=f"platform:{agent}",
-        frame_locked=True,
-        cubes=[
-            CubePrimitive(
-                pose=Pose(position=Vector3(z=0.025), orientation=_rotation(0.0)),
-                size=Vector3(x=side, y=side, z=0.05),
-                color=Color(r=0.2, g=0.55, b=0.9, a=0.8),
-            ),
-            # A nose on the body's +x: the heading at a glance.
-            CubePrimitive(
-                pose=Pose(position=Vector3(x=half, z=0.05), orientation=_rotation(0.0)),
-                size=Vector3(x=0.3 * side, y=0.1 * side, z=0.05),
-                color=Color(r=0.95, g=0.45, b=0.1, a=1.0),
-            ),
-        ],
-        texts=[
-            TextPrimitive(
-                pose=Pose(position=Vector3(z=0.3), orientation=_rotation(0.0)),
-                billboard=True,
-                font_size=14.0,
-                scale_invariant=True,
-                color=Color(r=1.0, g=1.0, b=1.0, a=1.0),
-                text=agent,
-            )
-        ],
-    )
-
-
-def _area_entity(agent: str, corners: list[tuple[float, float]], ns: int) -> SceneEntity:
-    """A work area's outline in the common frame (a closed line on the floor), labelled
-    with its lab at its first corner."""
-    identity = Pose(position=Vector3(), orientation=_rotation(0.0))
-    x0, y0 = corners[0]
-    return SceneEntity(
-        timestamp=_stamp(ns),
-        frame_id=COMMON_FRAME,
-        id=f"area:{agent}",
-        lines=[
-            LinePrimitive(
-                type=LinePrimitiveLineType.LineLoop,
-                pose=identity,
-                thickness=0.02,
-                scale_invariant=False,
-                points=[Point3(x=x, y=y, z=0.0) for x, y in corners],
-                color=Color(r=0.3, g=0.85, b=0.4, a=1.0),
-            )
-        ],
-        texts=[
-            TextPrimitive(
-                pose=Pose(position=Vector3(x=x0, y=y0, z=0.05), orientation=_rotation(0.0)),
-                billboard=True,
-                font_size=12.0,
-                scale_invariant=True,
-                color=Color(r=0.3, g=0.85, b=0.4, a=1.0),
-                text=f"{agent.split('/')[0]} work area",
-            )
-        ],
     )
 
 
