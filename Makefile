@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test check lint typecheck clean
+.PHONY: setup demo test check lint typecheck docs clean
 
 setup: $(STAMP)
 
@@ -24,6 +24,12 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/lint-imports
+	$(MAKE) docs
+
+# The user guide (mkdocs.yml, docs/) as a site in .site/; --strict: a broken link or
+# anchor fails the build, and so `make lint` and `make test`.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir .site
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
@@ -44,4 +50,4 @@ check: lint typecheck
 	$(BIN)/pytest tests/unit -n auto -m "not timing" -q
 
 clean:
-	rm -rf $(VENV) runs .mypy_cache .ruff_cache .pytest_cache
+	rm -rf $(VENV) runs .site .mypy_cache .ruff_cache .pytest_cache
