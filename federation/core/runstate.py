@@ -2,14 +2,21 @@
 
 ::
 
-    waiting --start(at)--> armed --t_sim >= at--> running --freeze--> frozen
-      ^  ^                  |  ^                   |   ^                 |
-      |  |                  |  +--start (re-arm)   |   +-----resume------+
-      |  +------reset-------+                      |
+    waiting --start(at)--> armed --t_sim >= at--> running --freeze(at)--> freezing
+      ^  ^                  |  ^                   |   ^                    |
+      |  |                  |  +--start (re-arm)   |   |             t_sim >= at
+      |  +------reset-------+                      |   |                    v
+      |                                            |   +-- resuming <----- frozen
+      |                                            |  t_sim >= at   resume(at)
       |                                  run_time >= duration
       |                                            v
       +------------reset----------------------- done --start--> armed
     any mode --abort--> aborted --reset--> waiting
+
+``freezing`` and ``resuming`` are stages, not modes: a run whose freeze is announced
+for an instant to come is still ``running`` (its platforms fly on until then), one
+whose resume is announced still ``frozen``. A freeze or resume whose instant has come
+applies at once, as before (``running`` to ``frozen``, ``frozen`` to ``running``).
 
 The rules :meth:`RunState.command` keeps (which commands reach it at all is decided
 first by :class:`federation.core.commands.CommandGate`):
@@ -26,25 +33,35 @@ first by :class:`federation.core.commands.CommandGate`):
    A start without a ``duration``, for a run state without a default one, is
    ``ignored``: a run must end.
 5. ``freeze`` only while running, ``resume`` only while frozen, each at ``at`` (not
-   later than the present, not earlier than the run's start, its last resume or the
-   freeze) or the present; a resume's ``at`` more than ``LATE_START`` past is ``ignored``, as a
-   start's is, and a freeze's makes it freeze at the present; anything else is
-   ``ignored``.
+   earlier than the run's start, its last resume or the freeze) or the present. An
+   ``at`` to come arms the transition (``freezing``, ``resuming``): it applies when the
+   reference time reaches it, on every agent at the same instant of the run. A
+   resume's ``at`` more than ``LATE_START`` past is ``ignored``, as a start's is; a
+   freeze's makes it freeze at the present, and a freeze applied after its instant
+   says how late it came. A resume whose ``at`` is before the freeze's instant (armed
+   or applied) is ``ignored``: the run would resume before it froze. A second freeze
+   while one is armed, or a second resume while one is armed, keeps the earlier
+   instant (whatever order two operators' commands arrive in, every agent keeps the
+   same one); a resume while a freeze is armed, or a freeze while a resume is armed,
+   is ``ignored`` (the armed one applies first; an abort ends either). Anything else
+   is ``ignored``.
 6. A start or resume without ``at`` acts on receipt, unless its ``issued_at`` (the
    reference time it was sent) is more than ``LATE_START`` past: ``ignored`` (it waited
    behind a cut link; acted on now, it would set platforms moving when no one chose).
    A resume with neither is ``ignored`` (ctl stamps every resume). A freeze acts on
    receipt however late, and without the reference time at the last one known.
 
-What each command does in each mode (rules 1 to 5 without their instants) is one
-table, :data:`COMMAND_RULES`. What a table cannot say, whether a command came in time,
+What each command does in each mode and stage (rules 1 to 5 without their instants)
+is one table, :data:`COMMAND_RULES`. What a table cannot say, whether a command came in time,
 is a few named checks: those of rule 6 and a resume's instant run before the table's
 rule (:data:`TIMING_CHECKS`; after an abort none runs, rule 3 answers first), and a
 start's own (not synchronized, instant passed, no duration) once its mode lets it arm.
 
 :meth:`RunState.update` makes the transitions no command makes: armed to running
-once the reference time reaches the start, running to done once the run time
-reaches the duration.
+once the reference time reaches the start, an armed freeze or resume once it reaches
+its instant, running to done once the run time reaches the duration (a freeze armed
+for after the run's end never applies). :attr:`RunState.last` is the last transition
+applied: its instant on reference time and the run time then.
 
 ``run_time`` is the experiment's clock: reference time since the start, less the
 time spent frozen. The leader's maneuver is a function of it.
@@ -60,9 +77,21 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, Literal, Protocol, get_args
 
-__all__ = ["HOLD_MODES", "MOVING_MODES", "Event", "Mode", "RunCommand", "RunState"]
+__all__ = [
+    "HOLD_MODES",
+    "MOVING_MODES",
+    "Applied",
+    "Event",
+    "Mode",
+    "RunCommand",
+    "RunState",
+    "Stage",
+]
 
 Mode = Literal["waiting", "armed", "running", "frozen", "done", "aborted"]
+Stage = Literal[Mode, "freezing", "resuming"]
+"""A mode, or a run with a freeze (``freezing``: still running) or a resume
+(``resuming``: still frozen) armed for an instant to come."""
 
 HOLD_MODES: frozenset[str] = frozenset({"waiting", "armed", "done", "aborted"})
 """Modes in which every valve stays closed: a platform moves only in a run under way
@@ -99,57 +128,88 @@ class RunCommand(Protocol):
 class Event:
     """What a transition (or a refused command) did, for the log and the recording."""
 
-    kind: Literal["armed", "started", "frozen", "resumed", "done", "aborted", "reset", "ignored"]
+    kind: Literal[
+        "armed", "started", "freezing", "frozen", "resuming", "resumed", "done", "aborted",
+        "reset", "ignored",
+    ]  # fmt: skip
     t_sim: float | None  # reference time the event refers to (s)
     detail: str = ""
 
 
+APPLIED_KINDS = frozenset({"started", "frozen", "resumed", "done", "aborted"})
+"""The events that change whether the run's clock runs: :attr:`RunState.last` records them."""
+
+
+@dataclass(frozen=True)
+class Applied:
+    """A transition applied: its event, the reference instant it applied at (s) and the
+    run time then (s; None for an abort before the start)."""
+
+    kind: str
+    at: float | None
+    run_time: float | None
+    detail: str = ""
+
+
 Outcome = Literal[
-    "arm", "freeze", "resume", "abort", "reset", "nothing", "busy", "after abort", "wrong mode"
+    "arm",
+    "freeze",
+    "resume",
+    "abort",
+    "reset",
+    "nothing",
+    "busy",
+    "after abort",
+    "wrong mode",
+    "armed first",
 ]
-"""What a command does in a mode: a transition (``arm`` to ``reset``: its handler's own
+"""What a command does in a stage: a transition (``arm`` to ``reset``: its handler's own
 checks may still refuse it), ``nothing`` (no event), or a refusal (``ignored``):
-``busy`` (a run under way: abort first), ``after abort`` (reset first), ``wrong mode``."""
+``busy`` (a run under way: abort first), ``after abort`` (reset first), ``wrong mode``,
+``armed first`` (a freeze or resume is armed: it applies first)."""
 
 COMMANDS = ("start", "freeze", "resume", "abort", "reset")
 """Every command :class:`RunCommand` names, in the columns of :data:`COMMAND_RULES`."""
 
 # fmt: off
-_RULE_ROWS: dict[Mode, tuple[Outcome, Outcome, Outcome, Outcome, Outcome]] = {
-    #            start          freeze         resume         abort      reset
-    "waiting": ("arm",         "wrong mode",  "wrong mode",  "abort",   "nothing"),
-    "armed":   ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
-    "running": ("busy",        "freeze",      "wrong mode",  "abort",   "busy"),
-    "frozen":  ("busy",        "wrong mode",  "resume",      "abort",   "busy"),
-    "done":    ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
-    "aborted": ("after abort", "after abort", "after abort", "nothing", "reset"),
+_RULE_ROWS: dict[Stage, tuple[Outcome, Outcome, Outcome, Outcome, Outcome]] = {
+    #             start          freeze         resume         abort      reset
+    "waiting":  ("arm",         "wrong mode",  "wrong mode",  "abort",   "nothing"),
+    "armed":    ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
+    "running":  ("busy",        "freeze",      "wrong mode",  "abort",   "busy"),
+    "freezing": ("busy",        "freeze",      "armed first", "abort",   "busy"),
+    "frozen":   ("busy",        "wrong mode",  "resume",      "abort",   "busy"),
+    "resuming": ("busy",        "armed first", "resume",      "abort",   "busy"),
+    "done":     ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
+    "aborted":  ("after abort", "after abort", "after abort", "nothing", "reset"),
 }
 # fmt: on
 
-COMMAND_RULES: dict[tuple[Mode, str], Outcome] = {
+COMMAND_RULES: dict[tuple[Stage, str], Outcome] = {
     (mode, command): outcome
     for mode, row in _RULE_ROWS.items()
     for command, outcome in zip(COMMANDS, row, strict=True)
 }
-"""(mode, command) to what the command does in that mode: rules 1 to 5 of the module's
+"""(stage, command) to what the command does in that stage: rules 1 to 5 of the module's
 docstring, without their instants."""
 
 _REFUSALS: dict[Outcome, str] = {
     "busy": "{command} while {mode}: abort first",
     "after abort": "{command} after abort: fedlab ctl reset first",
     "wrong mode": "{command} while {mode}",
+    "armed first": "{command} while {mode}: the armed one applies first (or abort)",
 }
 """The detail of an ``ignored`` event, for each outcome that refuses."""
 
 
-def rule(mode: Mode, command: str) -> Outcome:
-    """What ``command`` does in ``mode``: its :data:`COMMAND_RULES` entry. A command the
-    table does not name is refused as one in the wrong mode, and after an abort as every
-    command but abort and reset."""
+def rule(mode: Stage, command: str) -> Outcome:
+    """What ``command`` does in ``mode`` (a stage): its :data:`COMMAND_RULES` entry. A
+    command the table does not name is refused as one in the wrong mode, and after an
+    abort as every command but abort and reset."""
     return COMMAND_RULES.get((mode, command), "after abort" if mode == "aborted" else "wrong mode")
 
 
-def _refusal(outcome: Outcome, command: str, mode: Mode, t_sim: float | None) -> Event:
+def _refusal(outcome: Outcome, command: str, mode: Stage, t_sim: float | None) -> Event:
     return Event("ignored", t_sim, _REFUSALS[outcome].format(command=command, mode=mode))
 
 
@@ -189,6 +249,18 @@ def _instant_passed(state: RunState, cmd: RunCommand, t_sim: float | None) -> Ev
     return None
 
 
+def _before_the_freeze(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
+    """Rule 5: a resume whose ``at`` is before the freeze's instant (armed or applied)
+    would resume a run before it froze: the agents that took the freeze first and those
+    that took the resume first would not agree on the run's clock."""
+    freeze = state.freeze_at
+    if cmd.at is not None and freeze is not None and cmd.at < freeze:
+        return Event(
+            "ignored", t_sim, f"resume at {cmd.at:.3f} s, before the freeze at {freeze:.3f} s"
+        )
+    return None
+
+
 def _unsynchronized(state: RunState, cmd: RunCommand, t_sim: float | None) -> Event | None:
     """Rule 4: a start now needs the present reference time."""
     if cmd.at is None and t_sim is None:
@@ -208,7 +280,7 @@ _ON_RECEIPT: tuple[Check, ...] = (_sent_long_ago,)
 
 TIMING_CHECKS: dict[str, tuple[Check, ...]] = {
     "start": _ON_RECEIPT,
-    "resume": (_sent_long_ago, _unstamped, _instant_passed),
+    "resume": (_sent_long_ago, _unstamped, _instant_passed, _before_the_freeze),
     "freeze": (),  # a freeze late is a freeze now: it sets nothing moving
     "abort": (),
     "reset": (),
@@ -232,13 +304,22 @@ def _first_refusal(
 
 
 def _instant(cmd: RunCommand, t_sim: float | None) -> float | None:
-    """When a freeze or resume acts: at its ``at`` but not later than the present, and
-    at the present without an ``at``, without the present, or with an ``at`` more than
-    ``LATE_START`` past (a freeze that late would rewind the run's clock, the leader
-    slewing back to an old heading; refused, it would leave the platforms flying)."""
+    """When a freeze or resume acts: at its ``at``, and at the present without an
+    ``at``, without the present, or with an ``at`` more than ``LATE_START`` past (a
+    freeze that late would rewind the run's clock, the leader slewing back to an old
+    heading; refused, it would leave the platforms flying). An ``at`` to come is armed."""
     if cmd.at is None or t_sim is None or t_sim - cmd.at > LATE_START:
         return t_sim
-    return min(cmd.at, t_sim)
+    return cmd.at
+
+
+def _lateness(cmd: RunCommand, t_sim: float | None) -> str:
+    """What a freeze applied on receipt says of its instant: how late it came."""
+    if cmd.at is None or t_sim is None or t_sim <= cmd.at:
+        return ""
+    if t_sim - cmd.at > LATE_START:
+        return f"late: its instant passed {t_sim - cmd.at:.3f} s ago; frozen now"
+    return f"late: received {t_sim - cmd.at:.3f} s after its instant"
 
 
 class RunState:
@@ -256,14 +337,39 @@ class RunState:
         self.duration: float | None = duration
         self.last_t_sim: float | None = None  # the reference time of the last update
         self.autostart = autostart
+        # A freeze or resume announced for an instant to come: (command, reference time).
+        self.armed: tuple[Literal["freeze", "resume"], float] | None = None
+        self.last: Applied | None = None  # the run's last transition applied
         if autostart:
             self.mode = "armed"  # start_at set at the first update with a reference time
 
+    @property
+    def stage(self) -> Stage:
+        """The mode, or ``freezing`` / ``resuming`` while a freeze / resume is armed."""
+        if self.armed is None:
+            return self.mode
+        return "freezing" if self.armed[0] == "freeze" else "resuming"
+
+    @property
+    def freeze_at(self) -> float | None:
+        """The freeze's instant, armed or applied (frozen); None otherwise."""
+        if self.armed is not None and self.armed[0] == "freeze":
+            return self.armed[1]
+        return self.frozen_at if self.mode == "frozen" else None
+
+    @property
+    def due(self) -> float | None:
+        """The reference time of the next transition a command armed (a start, a freeze,
+        a resume), None if none is armed (an autostart's has no instant)."""
+        if self.armed is not None:
+            return self.armed[1]
+        return self.start_at if self.mode == "armed" else None
+
     def command(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
         """Apply a command received when the reference time was ``t_sim``: its checks of
-        time (:data:`TIMING_CHECKS`), then its rule for the present mode
+        time (:data:`TIMING_CHECKS`), then its rule for the present stage
         (:data:`COMMAND_RULES`)."""
-        outcome = rule(self.mode, cmd.command)
+        outcome = rule(self.stage, cmd.command)
         if outcome != "after abort":
             checks = TIMING_CHECKS.get(cmd.command, _ON_RECEIPT)
             refused = _first_refusal(checks, self, cmd, t_sim)
@@ -272,8 +378,8 @@ class RunState:
         if outcome == "nothing":
             return []
         if outcome in _REFUSALS:
-            return [_refusal(outcome, cmd.command, self.mode, t_sim)]
-        return self._TRANSITIONS[outcome](self, cmd, t_sim)
+            return [_refusal(outcome, cmd.command, self.stage, t_sim)]
+        return self._noted(self._TRANSITIONS[outcome](self, cmd, t_sim))
 
     def _arm(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
         """Start: arm at ``at``, or now; it names the run and may give its duration."""
@@ -283,14 +389,15 @@ class RunState:
         duration = getattr(cmd, "duration", None)
         self.mode, self.start_at = "armed", cmd.at if cmd.at is not None else t_sim
         self.frozen_total, self.frozen_at, self.autostart = 0.0, None, False
-        self.resumed_at = None
+        self.resumed_at, self.armed, self.last = None, None, None
         self.run_id = getattr(cmd, "run_id", None)
         self.duration = self.default_duration if duration is None else duration
         return [Event("armed", self.start_at), *self.update(t_sim)]
 
     def _freeze(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
-        """Freeze a running run, at an instant of its own: not before its start nor its
-        last resume (an instant before a resume would rewind the run's clock)."""
+        """Freeze a running run at an instant of its own (not before its start nor its
+        last resume: that would rewind the run's clock); armed if it is to come, and
+        then only if no freeze is armed for an earlier one."""
         at = _instant(cmd, t_sim)
         floor = max((t for t in (self.start_at, self.resumed_at) if t is not None), default=None)
         if at is not None and floor is not None:
@@ -300,35 +407,64 @@ class RunState:
             # known, not left running while the others freeze.
             at = self.last_t_sim if self.last_t_sim is not None else self.start_at
         if at is None:
-            return [_refusal("wrong mode", cmd.command, self.mode, t_sim)]
-        self.mode, self.frozen_at = "frozen", at
-        return [Event("frozen", at)]
+            return [_refusal("wrong mode", cmd.command, self.stage, t_sim)]
+        earlier = self._earlier_armed("freeze", at, t_sim)
+        if earlier is not None:
+            return [earlier]
+        if t_sim is not None and at > t_sim:
+            self.armed = ("freeze", at)
+            return [Event("freezing", at)]
+        return self._apply_freeze(at, _lateness(cmd, t_sim))
 
     def _resume(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
-        """Resume a frozen run; the time frozen is not run time."""
+        """Resume a frozen run (the time frozen is not run time); armed if its instant
+        is to come, and then only if no resume is armed for an earlier one."""
         at = _instant(cmd, t_sim)
         if at is None:
-            return [_refusal("wrong mode", cmd.command, self.mode, t_sim)]
+            return [_refusal("wrong mode", cmd.command, self.stage, t_sim)]
         assert self.frozen_at is not None  # set by the freeze
         at = max(at, self.frozen_at)  # no run time is made up before the freeze
+        earlier = self._earlier_armed("resume", at, t_sim)
+        if earlier is not None:
+            return [earlier]
+        if t_sim is not None and at > t_sim:
+            self.armed = ("resume", at)
+            return [Event("resuming", at)]
+        return self._apply_resume(at)
+
+    def _earlier_armed(self, command: str, at: float, t_sim: float | None) -> Event | None:
+        """A second freeze (resume) while one is armed: the earlier instant is kept, so
+        every agent keeps the same one whatever order the two arrive in."""
+        if self.armed is None or at < self.armed[1]:
+            return None
+        armed = self.armed[1]
+        return Event("ignored", t_sim, f"{command} at {at:.3f} s: one is armed for {armed:.3f} s")
+
+    def _apply_freeze(self, at: float, detail: str = "") -> list[Event]:
+        self.mode, self.frozen_at, self.armed = "frozen", at, None
+        return [Event("frozen", at, detail)]
+
+    def _apply_resume(self, at: float) -> list[Event]:
+        assert self.frozen_at is not None
         self.frozen_total += max(0.0, at - self.frozen_at)
-        self.mode, self.frozen_at, self.resumed_at = "running", None, at
+        self.mode, self.frozen_at, self.resumed_at, self.armed = "running", None, at, None
         return [Event("resumed", at)]
 
     def _abort(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
         """Abort, holding the run time where it is: at the abort while running, at the
-        freeze or the end while frozen or done, none before the start."""
+        freeze or the end while frozen or done, none before the start. A freeze or resume
+        armed is dropped with the run."""
         if self.mode == "running":
             self.frozen_at = t_sim
         elif self.mode in ("waiting", "armed"):
             self.frozen_at = None
-        self.mode = "aborted"
+        self.mode, self.armed = "aborted", None
         return [Event("aborted", t_sim)]
 
     def _reset(self, cmd: RunCommand, t_sim: float | None) -> list[Event]:
         """Back to waiting for a start (an operator's explicit act)."""
         self.mode, self.start_at, self.frozen_at = "waiting", None, None
-        self.autostart = False
+        self.autostart, self.armed, self.last = False, None, None
         return [Event("reset", t_sim)]
 
     _TRANSITIONS: ClassVar[
@@ -343,8 +479,9 @@ class RunState:
     """The handler of each outcome that is a transition."""
 
     def update(self, t_sim: float | None) -> list[Event]:
-        """Advance time: an armed run starts once the reference time reaches its start;
-        a running one is done once its run time reaches its duration."""
+        """Advance time: an armed run starts once the reference time reaches its start,
+        an armed freeze or resume applies once it reaches its instant, a running run is
+        done once its run time reaches its duration."""
         if t_sim is None:
             return []
         self.last_t_sim = t_sim
@@ -355,13 +492,42 @@ class RunState:
         if self.mode == "armed" and start is not None and t_sim >= start:
             self.mode = "running"
             events.append(Event("started", t_sim))
+        if self.armed is not None and t_sim >= self.armed[1]:
+            events += self._due_now()
         if self.mode == "running" and self.duration is not None:
             run_time = self.run_time(t_sim)
             if run_time is not None and run_time >= self.duration:
                 assert start is not None
-                self.mode = "done"
+                self.mode, self.armed = "done", None
                 self.frozen_at = start + self.frozen_total + self.duration  # run time held
                 events.append(Event("done", self.frozen_at))
+        return self._noted(events)
+
+    def _due_now(self) -> list[Event]:
+        """The armed freeze or resume, its instant reached: applied at that instant. A
+        freeze at or after the run's end is dropped: the run is done first."""
+        assert self.armed is not None
+        command, at = self.armed
+        if command == "resume":
+            return self._apply_resume(at)
+        start, duration = self.start_at, self.duration
+        if (
+            start is not None
+            and duration is not None
+            and at >= start + self.frozen_total + duration
+        ):
+            self.armed = None
+            return []
+        return self._apply_freeze(at)
+
+    def _noted(self, events: list[Event]) -> list[Event]:
+        """``events``, the last transition among them kept as :attr:`last`."""
+        applied = [e for e in events if e.kind in APPLIED_KINDS]
+        if applied:
+            event = applied[-1]
+            at = self.start_at if event.kind == "started" else event.t_sim
+            run_time = 0.0 if event.kind == "started" else self.run_time(at)
+            self.last = Applied(event.kind, at, run_time, event.detail)
         return events
 
     def run_time(self, t_sim: float | None) -> float | None:

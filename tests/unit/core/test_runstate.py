@@ -18,11 +18,13 @@ from federation.core.runstate import (
     COMMAND_RULES,
     COMMANDS,
     TIMING_CHECKS,
+    Applied,
     Event,
     Mode,
     Outcome,
     RunCommand,
     RunState,
+    Stage,
     rule,
 )
 from schemas.messages import Command
@@ -38,8 +40,10 @@ class Cmd:
     issued_at: float | None = None
 
 
-def in_mode(mode: Mode) -> RunState:
-    """A run state brought to ``mode`` by commands (seqs 0 to 2); run started at 5 s."""
+def in_mode(mode: Stage) -> RunState:
+    """A run state brought to ``mode`` (a stage) by commands (seqs 0 to 2); run started
+    at 5 s; ``freezing``: a freeze armed for 12 s; ``resuming``: frozen at 8 s, a resume
+    armed for 12 s."""
     state = RunState()
     if mode == "waiting":
         return state
@@ -49,8 +53,13 @@ def in_mode(mode: Mode) -> RunState:
     state.update(5.0)
     if mode == "running":
         return state
-    if mode == "frozen":
+    if mode == "freezing":
+        state.command(Cmd("freeze", 1, at=12.0), t_sim=8.0)
+        return state
+    if mode in ("frozen", "resuming"):
         state.command(Cmd("freeze", 1, at=8.0), t_sim=8.0)
+        if mode == "resuming":
+            state.command(Cmd("resume", 2, at=12.0, issued_at=8.0), t_sim=8.0)
         return state
     if mode == "done":
         state.duration = 2.0
@@ -60,9 +69,9 @@ def in_mode(mode: Mode) -> RunState:
     return state
 
 
-@pytest.mark.parametrize("mode", ["waiting", "armed", "running", "frozen", "done", "aborted"])
-def test_in_mode_reaches_each_mode(mode: Mode) -> None:
-    assert in_mode(mode).mode == mode
+@pytest.mark.parametrize("mode", get_args(Stage))
+def test_in_mode_reaches_each_mode(mode: Stage) -> None:
+    assert in_mode(mode).stage == mode
 
 
 # ------------------------------------------------------------------ the edges
@@ -104,10 +113,16 @@ def test_a_freeze_without_at_freezes_now() -> None:
     assert state.frozen_at == 7.0
 
 
-def test_a_resume_before_the_freeze_adds_no_frozen_time() -> None:
+def test_a_resume_at_an_instant_before_the_freeze_is_ignored() -> None:
+    # Resumed "at 7" a run frozen at 8 would resume before it froze: an agent that took
+    # the resume before the freeze could not agree with one that took them in order.
     state = in_mode("frozen")  # frozen at 8
-    # No run time is made up before the freeze: resumed at the freeze's instant.
-    assert state.command(Cmd("resume", 2, at=7.0), t_sim=8.0) == [Event("resumed", 8.0)]
+    assert state.command(Cmd("resume", 2, at=7.0), t_sim=8.0) == [
+        Event("ignored", 8.0, "resume at 7.000 s, before the freeze at 8.000 s")
+    ]
+    assert (state.mode, state.frozen_at, state.frozen_total) == ("frozen", 8.0, 0.0)
+    # Without an instant, on receipt (stamped), it resumes now: nothing is made up.
+    assert state.command(Cmd("resume", 3, issued_at=8.0), t_sim=8.0) == [Event("resumed", 8.0)]
     assert state.frozen_total == 0.0
 
 
@@ -127,8 +142,10 @@ def test_a_freeze_whose_instant_passed_freezes_now(at: float) -> None:
     # back to the maneuver's first heading); ignored, a freeze 1.3 s late on a congested
     # link would leave the platforms flying.
     state = in_mode("running")
-    assert state.command(Cmd("freeze", 3, at=at), t_sim=50.0) == [Event("frozen", 50.0)]
+    late = f"late: its instant passed {50.0 - at:.3f} s ago; frozen now"
+    assert state.command(Cmd("freeze", 3, at=at), t_sim=50.0) == [Event("frozen", 50.0, late)]
     assert state.mode == "frozen" and state.frozen_at == 50.0
+    assert state.last == Applied("frozen", 50.0, 45.0, late)  # what status and log say
 
 
 @pytest.mark.parametrize("kind", ["resume", "start"])
@@ -242,16 +259,25 @@ def test_the_schema_command_is_a_run_command() -> None:
 
 def test_running_freeze_freezes_and_run_time_stops() -> None:
     state = in_mode("running")
-    assert state.command(Cmd("freeze", 1, at=7.9), t_sim=8.0) == [Event("frozen", 7.9)]
+    late = "late: received 0.100 s after its instant"
+    assert state.command(Cmd("freeze", 1, at=7.9), t_sim=8.0) == [Event("frozen", 7.9, late)]
     assert (state.mode, state.frozen_at) == ("frozen", 7.9)
     assert state.run_time(20.0) == pytest.approx(2.9)  # held at the freeze
 
 
-def test_a_freeze_or_resume_in_the_future_acts_now() -> None:
-    state = in_mode("running")
-    assert state.command(Cmd("freeze", 1, at=38.0), t_sim=8.0) == [Event("frozen", 8.0)]
-    assert state.command(Cmd("resume", 2, at=40.0), t_sim=10.0) == [Event("resumed", 10.0)]
-    assert state.run_time(12.0) == pytest.approx(5.0)  # 7 s since the start, 2 s frozen
+def test_a_freeze_or_resume_in_the_future_arms_and_applies_at_its_instant() -> None:
+    state = in_mode("running")  # started at 5
+    assert state.command(Cmd("freeze", 1, at=38.0), t_sim=8.0) == [Event("freezing", 38.0)]
+    assert (state.mode, state.stage, state.due) == ("running", "freezing", 38.0)
+    assert state.update(37.99) == [] and state.mode == "running"  # flying until then
+    assert state.update(38.004) == [Event("frozen", 38.0)]  # the tick after: at its instant
+    assert state.last == Applied("frozen", 38.0, 33.0)
+    assert state.command(Cmd("resume", 2, at=40.0), t_sim=39.0) == [Event("resuming", 40.0)]
+    assert (state.mode, state.stage) == ("frozen", "resuming")
+    assert state.run_time(39.5) == pytest.approx(33.0)  # still frozen
+    assert state.update(40.01) == [Event("resumed", 40.0)]
+    assert state.last == Applied("resumed", 40.0, 33.0)
+    assert state.run_time(42.0) == pytest.approx(35.0)  # 37 s since the start, 2 s frozen
 
 
 def test_frozen_resume_runs_again_less_the_time_frozen() -> None:
@@ -397,7 +423,8 @@ def test_a_start_whose_instant_has_passed_is_refused() -> None:
 def test_a_freeze_before_the_runs_start_freezes_at_its_start() -> None:
     # A freeze "at 0" would rewind the run time to 0 and move the run's end later.
     state = in_mode("running")  # started at 5 s
-    assert state.command(Cmd("freeze", 1, at=4.5), t_sim=5.4) == [Event("frozen", 5.0)]
+    late = "late: received 0.900 s after its instant"
+    assert state.command(Cmd("freeze", 1, at=4.5), t_sim=5.4) == [Event("frozen", 5.0, late)]
     assert state.run_time(20.0) == 0.0
 
 
@@ -414,11 +441,13 @@ def test_a_command_whose_maneuver_is_too_short_to_fly_is_malformed() -> None:
 # ------------------------------------------------------------------ the whole table
 
 MODES: tuple[Mode, ...] = get_args(Mode)
-EVERY_RULE = list(product(MODES, COMMANDS))
+STAGES: tuple[Stage, ...] = get_args(Stage)
+EVERY_RULE = list(product(STAGES, COMMANDS))
 
 
-def documented_rule(mode: Mode, command: str) -> Outcome:
+def documented_rule(mode: Stage, command: str) -> Outcome:
     """Rules 1 to 5 of the module's docstring, as they read there, without instants."""
+    under_way = ("running", "freezing", "frozen", "resuming")
     if command == "abort":  # rule 1
         return "nothing" if mode == "aborted" else "abort"
     if command == "reset":  # rule 2
@@ -428,11 +457,15 @@ def documented_rule(mode: Mode, command: str) -> Outcome:
     if mode == "aborted":  # rule 3
         return "after abort"
     if command == "start":  # rule 4
-        return "busy" if mode in ("running", "frozen") else "arm"
-    if command == "freeze":  # rule 5
-        return "freeze" if mode == "running" else "wrong mode"
+        return "busy" if mode in under_way else "arm"
+    if command == "freeze":  # rule 5: while running (a second one while armed too)
+        if mode == "resuming":
+            return "armed first"
+        return "freeze" if mode in ("running", "freezing") else "wrong mode"
     assert command == "resume"
-    return "resume" if mode == "frozen" else "wrong mode"
+    if mode == "freezing":
+        return "armed first"
+    return "resume" if mode in ("frozen", "resuming") else "wrong mode"
 
 
 def test_the_table_names_every_command_in_every_mode() -> None:
@@ -442,19 +475,21 @@ def test_the_table_names_every_command_in_every_mode() -> None:
 
 
 @pytest.mark.parametrize(("mode", "command"), EVERY_RULE)
-def test_the_table_keeps_the_documented_rules(mode: Mode, command: str) -> None:
+def test_the_table_keeps_the_documented_rules(mode: Stage, command: str) -> None:
     assert COMMAND_RULES[mode, command] == rule(mode, command) == documented_rule(mode, command)
 
 
-def timely(command: str) -> Cmd:
-    """``command`` in time at 9.5 s: sent then, acting then (a start later, at 20 s)."""
-    return Cmd(command, 10, at=20.0 if command == "start" else 9.5, issued_at=9.5)
+def timely(command: str, mode: Stage) -> Cmd:
+    """``command`` in time at 9.5 s: sent then, acting then (a start later, at 20 s; a
+    resume while a freeze is armed for 12 s, after it, at 12.5 s)."""
+    at = {"start": 20.0, "resume": 12.5 if mode == "freezing" else 9.5}.get(command, 9.5)
+    return Cmd(command, 10, at=at, issued_at=9.5)
 
 
 @pytest.mark.parametrize(("mode", "command"), EVERY_RULE)
-def test_every_rule_does_what_the_table_says(mode: Mode, command: str) -> None:
-    """A command in time, in every mode, has the effect its table entry names."""
-    expected: dict[Outcome, tuple[list[Event], Mode]] = {
+def test_every_rule_does_what_the_table_says(mode: Stage, command: str) -> None:
+    """A command in time, in every stage, has the effect its table entry names."""
+    expected: dict[Outcome, tuple[list[Event], Stage]] = {
         "arm": ([Event("armed", 20.0)], "armed"),
         "freeze": ([Event("frozen", 9.5)], "frozen"),
         "resume": ([Event("resumed", 9.5)], "running"),
@@ -467,19 +502,32 @@ def test_every_rule_does_what_the_table_says(mode: Mode, command: str) -> None:
             mode,
         ),
         "wrong mode": ([Event("ignored", 9.5, f"{command} while {mode}")], mode),
+        "armed first": (
+            [
+                Event(
+                    "ignored",
+                    9.5,
+                    f"{command} while {mode}: the armed one applies first (or abort)",
+                )
+            ],
+            mode,
+        ),
     }
     state = in_mode(mode)
-    events = state.command(timely(command), t_sim=9.5)
-    assert (events, state.mode) == expected[COMMAND_RULES[mode, command]]
+    events = state.command(timely(command, mode), t_sim=9.5)
+    assert (events, state.stage) == expected[COMMAND_RULES[mode, command]]
 
 
 def snapshot(state: RunState) -> tuple[object, ...]:
-    return (state.mode, state.start_at, state.frozen_at, state.frozen_total, state.run_id)
+    return (
+        state.mode, state.start_at, state.frozen_at, state.frozen_total, state.run_id,
+        state.armed,
+    )  # fmt: skip
 
 
 @pytest.mark.parametrize(("mode", "command"), EVERY_RULE)
 def test_on_receipt_long_after_it_was_sent_only_a_start_or_resume_is_refused(
-    mode: Mode, command: str
+    mode: Stage, command: str
 ) -> None:
     """Rule 6 over the whole table: a start or resume on receipt sent 1.1 s before is
     ignored (after an abort, rule 3 answers first); any other command late does what it
@@ -495,8 +543,8 @@ def test_on_receipt_long_after_it_was_sent_only_a_start_or_resume_is_refused(
         assert (late, snapshot(late_state)) == (fresh, snapshot(fresh_state))
 
 
-@pytest.mark.parametrize("mode", MODES)
-def test_a_command_the_table_does_not_name_is_ignored(mode: Mode) -> None:
+@pytest.mark.parametrize("mode", STAGES)
+def test_a_command_the_table_does_not_name_is_ignored(mode: Stage) -> None:
     events = in_mode(mode).command(Cmd("launch", 10, at=9.5), t_sim=9.5)
     detail = "launch after abort: fedlab ctl reset first" if mode == "aborted" else None
     assert events == [Event("ignored", 9.5, detail or f"launch while {mode}")]

@@ -62,7 +62,8 @@ def test_a_start_or_resume_exactly_late_start_past_its_instant_acts_at_it() -> N
 def test_a_freeze_exactly_late_start_past_its_instant_freezes_at_it() -> None:
     # Rule 5: only a freeze *more than* LATE_START late freezes at the present.
     state = running(start=5.0)
-    assert state.command(Cmd("freeze", at=EDGE), t_sim=NOW) == [Event("frozen", EDGE)]
+    late = "late: received 1.000 s after its instant"
+    assert state.command(Cmd("freeze", at=EDGE), t_sim=NOW) == [Event("frozen", EDGE, late)]
     assert state.run_time(NOW + 10.0) == EDGE - 5.0
 
 
@@ -94,7 +95,8 @@ def test_a_start_or_resume_whose_instant_is_long_past_is_ignored(late: float) ->
 def test_a_freeze_whose_instant_is_long_past_freezes_now(late: float) -> None:
     now = 2 * late
     state = running()
-    assert state.command(Cmd("freeze", at=now - late), t_sim=now) == [Event("frozen", now)]
+    said = f"late: its instant passed {late:.3f} s ago; frozen now"
+    assert state.command(Cmd("freeze", at=now - late), t_sim=now) == [Event("frozen", now, said)]
 
 
 # ------------------------------------------------------------------ what an abort holds
