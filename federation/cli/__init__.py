@@ -43,6 +43,7 @@ COMMANDS: tuple[str, ...] = (
     "bridge",
     "emulate-device",
     "report",
+    "merge",
     "analyze",
     "bench",
     "certs",

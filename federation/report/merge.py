@@ -1,0 +1,690 @@
+"""One MCAP for a whole run, on reference time (``fedlab merge RUN_DIR``).
+
+Each agent records its own file (:mod:`federation.runtime.recorder`): log times on its
+host's wall clock, payload stamps on its own clock. :func:`merge` writes every agent's
+channels into one file whose log time is the run's **reference time** (the reference
+agent's clock, the one every follower's ``t_sim`` is on), never a host's wall clock:
+
+.. math::
+
+    \\text{log\\_time} = E + (t_\\text{ref} - T_0), \\qquad
+    t_\\text{ref} = t + \\hat o(t)
+
+with :math:`t` a message's stamp on its agent's clock (``t_exec``; ``t_recv`` for a
+pose received, ``t3`` for a sync exchange), :math:`\\hat o(t)` the agent's own estimate
+of the reference clock minus its own (``t_sim - t_exec`` of its ``/reference``,
+linear between samples; 0 on the reference), :math:`T_0` the run's start on reference
+time (the reference's ``started`` event) and :math:`E` that instant in UTC as the hosts'
+wall clocks say it (the median over agents; its uncertainty is their disagreement plus
+each one's scatter, in the ``fedlab.merge`` metadata record). Each JSON message gains
+two last fields, ``t_ref`` (s) and ``t_ref_bound`` (s, the error bound of its stamp:
+the agent's ``reference_bound`` from its status lines, the larger of those either
+side, plus the interpolation's; null before its first estimate). The original log
+time is each message's publish time and its sequence is kept, each agent's metadata
+records are copied (named ``LAB/NAME RECORD``), and its clock (estimate points, bounds,
+host truth) is a metadata record ``LAB/NAME clock`` and the channel
+``/LAB/NAME/clock``: the original files can be rebuilt from the merged one (drop the
+two fields, log time from publish time, ``/tf`` and ``/pose`` again from
+``/pose/sent``). Messages without an own-clock stamp (another program's channels) are
+placed by their log time through the agent's wall-clock-to-own-clock line, whose
+largest residual is added to their bound.
+
+Streaming: a first pass reads each file's ``/reference``, ``/status``, ``/control`` and
+``/sync/exchange`` and keeps the offset estimate thinned (:class:`Thinned`: points only
+where a line through them would leave ``THIN_S``), one number per status line and the
+last status; the second reads every file once, in log-time order, holds each agent's
+messages for ``REORDER_S`` (a message's stamp precedes its log time by less) to order
+them by reference time, and merges the agents with :func:`heapq.merge`. Nothing grows
+with the number of messages but the status lines' bounds (16 bytes a second).
+Foxglove's types and the layout: :mod:`federation.report.mergeview`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import json
+import math
+import statistics
+from bisect import bisect_right
+from collections import Counter
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from foxglove.messages import SceneUpdate
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel as McapChannel
+from mcap.records import Message as McapMessage
+from mcap.records import Schema
+from mcap.writer import Writer
+
+from federation.core.channels import FOXGLOVE_CHANNELS, Channel
+from federation.report import mergeview as view
+from federation.report.analysis import Clock, clock_map
+from federation.report.load import agent_from_filename
+from federation.report.status import clock_line
+from federation.runtime.mcapfile import CHUNK_SIZE, as_metadata, is_finished
+from schemas.config import ConfigError
+
+__all__ = [
+    "MERGE_METADATA",
+    "REORDER_S",
+    "STAMP_FIELDS",
+    "THIN_S",
+    "AgentClock",
+    "MergeResult",
+    "Thinned",
+    "merge",
+    "survey",
+    "write_merged",
+]
+
+MERGE_METADATA = "fedlab.merge"
+"""Name of the merged file's metadata record: the epoch and its uncertainty, the
+reference agent, the run's start, what log and publish times mean, counts, notes."""
+REORDER_S = 2.0  # s a message is held to be ordered by reference time
+THIN_S = 0.5e-6  # s, half-width of the corridor the offset points are thinned within
+STAMP_FIELDS: dict[str, str] = {
+    Channel.POSE_SENT: "t_exec", Channel.POSE_RECEIVED: "t_recv",
+    Channel.SYNC_EXCHANGE: "t3", Channel.REFERENCE: "t_exec", Channel.TRUTH: "t_exec",
+    Channel.CONTROL: "t_exec", Channel.STATUS: "t_exec",
+}  # fmt: skip
+"""Each recorded channel's stamp on its agent's own clock (others: ``t_exec`` if there)."""
+_SURVEYED = [Channel.REFERENCE, Channel.STATUS, Channel.CONTROL, Channel.SYNC_EXCHANGE]
+_SOURCE_NOTES = {
+    "none": "{}: no estimate of the reference clock; its messages left out",
+    "exchanges": "{}: no /reference estimate; mapped by its sync exchanges",
+}
+_DERIVED = frozenset(FOXGLOVE_CHANNELS)  # a recording's /tf and /pose: from /pose/sent
+
+
+class Thinned:
+    """Points ``(t, y)`` given in time order, kept only where needed: linear
+    interpolation between kept points stays within ``2 * tolerance`` of every point
+    given (the swinging door: a point is kept when no line from the last kept one
+    passes within ``tolerance`` of all since)."""
+
+    def __init__(self, tolerance: float = THIN_S):
+        self.tolerance = tolerance
+        self.t: list[float] = []
+        self.y: list[float] = []
+        self._last: tuple[float, float] | None = None
+        self._low, self._high = -math.inf, math.inf
+
+    def add(self, t: float, y: float) -> None:
+        if not self.t:
+            self.t.append(t)
+            self.y.append(y)
+            return
+        last = self._last
+        if t <= (last[0] if last else self.t[-1]):
+            return  # not later than the last point: out of order, dropped
+        low, high = self._corridor(t, y)
+        if low > high and last is not None:  # no line fits them all: keep the last
+            self.t.append(last[0])
+            self.y.append(last[1])
+            self._low, self._high = -math.inf, math.inf
+            low, high = self._corridor(t, y)
+        self._low, self._high = low, high
+        self._last = (t, y)
+
+    def _corridor(self, t: float, y: float) -> tuple[float, float]:
+        dt = t - self.t[-1]
+        low = (y - self.tolerance - self.y[-1]) / dt
+        high = (y + self.tolerance - self.y[-1]) / dt
+        return max(self._low, low), min(self._high, high)
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The kept points and the last one given."""
+        t, y = list(self.t), list(self.y)
+        if self._last is not None:
+            t.append(self._last[0])
+            y.append(self._last[1])
+        return np.array(t, dtype=float), np.array(y, dtype=float)
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value) if math.isfinite(value) else None
+
+
+@dataclass
+class AgentClock:
+    """One agent's recording and how its clock maps to reference time."""
+
+    agent: str
+    path: Path
+    reference: str | None = None  # the reference agent its statuses name
+    source: str = "none"  # "reference" (its own clock), "estimate" (/reference), "exchanges"
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # own clock, s
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(0))  # reference minus own, s
+    status_t: list[float] = field(default_factory=list)  # own clock of each status line
+    status_bound: list[float] = field(default_factory=list)  # its reference_bound (NaN: none)
+    status_wall: list[float] = field(default_factory=list)  # its log time, host wall clock, s
+    status_host: list[float] = field(default_factory=list)  # its host_monotonic
+    started: float | None = None  # reference time of its started event
+    first: float | None = None  # its first own-clock stamp surveyed
+    host: str | None = None  # the host that recorded it (fedlab.run metadata)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    wall: Clock | None = None  # own clock = a + b * wall clock (s)
+    wall_residual: float = 0.0  # s, largest distance of a status line from that line
+    truth: Clock | None = None  # own clock = a + b * host monotonic (one host's truth)
+    reference_truth: Clock | None = None  # the reference's, when the host is one
+    notes: list[str] = field(default_factory=list)
+
+    def to_reference(self, t: float) -> float:
+        """Own clock ``t`` (s) on reference time (s)."""
+        if not self.t.size:
+            return t
+        return t + float(np.interp(t, self.t, self.offset))
+
+    def bound(self, t: float) -> float | None:
+        """Error bound (s) of :meth:`to_reference` at own clock ``t``; None where unknown
+        (before the agent's first estimate, or no status line said)."""
+        if self.source == "reference":
+            return 0.0
+        if not self.t.size or t < self.t[0] or not self.status_t:
+            return None
+        k = bisect_right(self.status_t, t)
+        near = [self.status_bound[i] for i in (k - 1, k) if 0 <= i < len(self.status_t)]
+        near = [b for b in near if math.isfinite(b)]
+        return max(near) + 2 * THIN_S if near else None
+
+    def from_wall(self, wall_ns: int) -> float | None:
+        """Own clock (s) at a log time (host wall clock, ns), by the wall line."""
+        if self.wall is None:
+            return None
+        a, b = self.wall
+        return a + b * wall_ns / 1e9
+
+    def describe(self) -> dict[str, Any]:
+        """As a metadata record's data (JSON-ready)."""
+        return {
+            "file": self.path.name, "reference": self.reference, "source": self.source,
+            "offset_points": json.dumps([self.t.tolist(), self.offset.tolist()]),
+            "bounds": json.dumps([self.status_t, [_number(b) for b in self.status_bound]]),
+            "wall_line": json.dumps(self.wall), "wall_residual_s": self.wall_residual,
+            "host_truth_line": json.dumps(self.truth), "host": self.host,
+            "started_ref_s": self.started, "thinning_bound_s": 2 * THIN_S,
+        }  # fmt: skip
+
+
+def _messages(path: Path, topics: list[str] | None, notes: list[str]) -> Iterator[Any]:
+    """(schema, channel, message) of a recording in log-time order; from a file not
+    finished (its agent killed), in file order up to the damage (a note says so)."""
+    with path.open("rb") as f:
+        if is_finished(path):
+            yield from make_reader(f).iter_messages(topics=topics, log_time_order=True)
+            return
+        try:  # file order: ordering a damaged file's messages would load them all
+            yield from NonSeekingReader(f).iter_messages(topics=topics, log_time_order=False)
+        except Exception as error:  # mcap raises many kinds on damage
+            notes.append(f"{path.name}: damaged ({type(error).__name__}); read up to it")
+
+
+class _Survey:
+    """What the first pass gathers of one recording, topic by topic."""
+
+    def __init__(self, clock: AgentClock):
+        self.clock = clock
+        self.own, self.exchanges = Thinned(), Thinned()
+        self.references: Counter[str] = Counter()
+        self.wall_lines: list[dict[str, float]] = []
+        self.host_lines: list[dict[str, float]] = []
+
+    def reference(self, t: float, data: dict[str, Any], log_time: int) -> None:
+        t_sim = _number(data.get("t_sim"))
+        if t_sim is not None:
+            self.own.add(t, t_sim - t)
+
+    def status(self, t: float, data: dict[str, Any], log_time: int) -> None:
+        clock = self.clock
+        if isinstance(data.get("agent"), str):
+            clock.agent = data["agent"]
+        if isinstance(data.get("reference"), str):
+            self.references[data["reference"]] += 1
+        ready = data.get("ready")
+        bound = _number(ready.get("reference_bound")) if isinstance(ready, dict) else None
+        clock.status_t.append(t)
+        clock.status_bound.append(math.nan if bound is None else bound)
+        clock.status_wall.append(log_time / 1e9)
+        self.wall_lines.append({"t_exec": t, "host_monotonic": log_time / 1e9})
+        host = _number(data.get("host_monotonic"))
+        if host is not None:
+            self.host_lines.append({"t_exec": t, "host_monotonic": host})
+
+    def control(self, t: float, data: dict[str, Any], log_time: int) -> None:
+        at = _number(data.get("at"))
+        if data.get("event") == "started" and at is not None and self.clock.started is None:
+            self.clock.started = at
+
+    def exchange(self, t: float, data: dict[str, Any], log_time: int) -> None:
+        estimate = _number(data.get("estimate"))
+        if estimate is not None:
+            self.exchanges.add(t, estimate)  # the reference's, if it is the only peer
+
+    def finish(self) -> AgentClock:
+        clock = self.clock
+        clock.reference = self.references.most_common(1)[0][0] if self.references else None
+        if clock.reference == clock.agent:
+            clock.source = "reference"
+        elif self.own.t:
+            clock.source, (clock.t, clock.offset) = "estimate", self.own.points()
+        elif self.exchanges.t:
+            clock.source, (clock.t, clock.offset) = "exchanges", self.exchanges.points()
+        clock.wall, clock.wall_residual = _line(self.wall_lines)
+        clock.truth, _ = _line(self.host_lines)
+        return clock
+
+
+def survey(path: Path) -> AgentClock:
+    """The first pass over one recording: who recorded it, its offset estimate of the
+    reference clock (thinned), its status lines' bounds, wall and host times."""
+    clock = AgentClock(agent_from_filename(path), path)
+    gather = _Survey(clock)
+    handlers = {
+        Channel.REFERENCE: gather.reference, Channel.STATUS: gather.status,
+        Channel.CONTROL: gather.control, Channel.SYNC_EXCHANGE: gather.exchange,
+    }  # fmt: skip
+    for _schema, channel, message in _messages(path, list(_SURVEYED), clock.notes):
+        try:
+            data = json.loads(message.data)
+        except ValueError:
+            continue
+        t = _number(data.get(STAMP_FIELDS[channel.topic])) if isinstance(data, dict) else None
+        if t is None:
+            continue
+        if clock.first is None:
+            clock.first = t
+        handlers[channel.topic](t, data, message.log_time)
+    gather.finish()
+    if is_finished(path):
+        with path.open("rb") as f:
+            clock.metadata = {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+    clock.host = (clock.metadata.get("fedlab.run") or {}).get("host") or None
+    return clock
+
+
+def _line(lines: list[dict[str, float]]) -> tuple[Clock | None, float]:
+    """The clock line through status lines (:func:`clock_line`) and its largest residual."""
+    if len(lines) < 2 or lines[0]["host_monotonic"] == lines[-1]["host_monotonic"]:
+        return None, 0.0
+    a, b = clock_line(lines)
+    residual = max(abs(m["t_exec"] - (a + b * m["host_monotonic"])) for m in lines)
+    return (a, b), residual
+
+
+@dataclass
+class Epoch:
+    """The run's start: on reference time (``start``, s) and in UTC as the hosts' wall
+    clocks say it (``ns``), with its uncertainty (s)."""
+
+    start: float
+    ns: int
+    uncertainty: float | None
+    hosts: dict[str, float]  # per agent: its host's wall clock at reference 0, s
+
+    def log_time(self, t_ref: float) -> int:
+        return self.ns + round((t_ref - self.start) * 1e9)
+
+
+def epoch(clocks: Sequence[AgentClock], notes: list[str]) -> Epoch:
+    """The run's start on reference time and in UTC: the reference's started event (else
+    any agent's, else the earliest stamp), and each host's wall clock at it."""
+    starts = [c.started for c in clocks if c.source == "reference" and c.started is not None]
+    starts += [c.started for c in clocks if c.started is not None]
+    if starts:
+        start = starts[0]
+    else:
+        firsts = [c.to_reference(c.first) for c in clocks if c.first is not None]
+        start = min(firsts) if firsts else 0.0
+        notes.append("no started event: the epoch is the first stamp recorded")
+    hosts: dict[str, float] = {}
+    scatter = 0.0
+    for c in clocks:
+        if c.source == "none" or not c.status_t:
+            continue
+        zeros = [w - c.to_reference(t) for t, w in zip(c.status_t, c.status_wall, strict=True)]
+        hosts[c.agent] = statistics.median(zeros)
+        scatter = max(scatter, (max(zeros) - min(zeros)) / 2)
+    if not hosts:
+        notes.append("no status line: the epoch's UTC is unknown (log time 0 is the start)")
+        return Epoch(start, 0, None, {})
+    zero = statistics.median(hosts.values())
+    spread = max(abs(v - zero) for v in hosts.values())
+    ns = round(zero * 1e9) + round(start * 1e9)
+    return Epoch(start, ns, spread + scatter, hosts)
+
+
+@dataclass
+class MergeResult:
+    """What :func:`merge` wrote."""
+
+    agents: list[str]
+    reference: str | None
+    epoch: Epoch
+    messages_in: int = 0
+    messages_out: int = 0
+    late: int = 0  # written with a log time before one already written
+    skipped: int = 0  # a recording's /tf and /pose (rebuilt from /pose/sent)
+    notes: list[str] = field(default_factory=list)
+    peer_topics: list[str] = field(default_factory=list)
+
+    def metadata(self) -> dict[str, str]:
+        return as_metadata({
+            "format": "fedlab merged run 1", "reference_agent": self.reference,
+            "agents": json.dumps(self.agents),
+            "reference_start_s": repr(self.epoch.start), "epoch_ns": self.epoch.ns,
+            "epoch_utc": _utc(self.epoch.ns) if self.epoch.hosts else None,
+            "epoch_uncertainty_s": self.epoch.uncertainty,
+            "host_wall_at_reference_zero_s": json.dumps(self.epoch.hosts),
+            "log_time": "epoch_ns + (t_ref - reference_start_s) * 1e9: reference time",
+            "publish_time": "the recording's log time: its host's wall clock",
+            "appended_fields": "t_ref,t_ref_bound (s; the last two of each JSON message)",
+            "messages_in": self.messages_in, "messages_out": self.messages_out,
+            "late": self.late, "derived_skipped": self.skipped,
+            "notes": json.dumps(self.notes),
+        })  # fmt: skip
+
+
+def _utc(ns: int) -> str:
+    import datetime
+
+    when = datetime.datetime.fromtimestamp(ns // 1_000_000_000, datetime.UTC)
+    return when.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
+
+
+@dataclass(order=True)
+class _Item:
+    """One message to write: its log time (ns) first, for ordering."""
+
+    ns: int
+    agent: int
+    seq: int
+    channel: McapChannel = field(compare=False)
+    schema: Schema | None = field(compare=False)
+    message: McapMessage = field(compare=False)
+    data: bytes = field(compare=False)
+    decoded: dict[str, Any] | None = field(compare=False)
+
+
+def _mapped(clock: AgentClock, index: int, epoch: Epoch, notes: list[str]) -> Iterator[_Item]:
+    """One agent's messages with their reference log time, ordered within ``REORDER_S``."""
+    held: list[_Item] = []
+    window = round(REORDER_S * 1e9)
+    counter = itertools.count()
+    for schema, channel, message in _messages(clock.path, None, notes):
+        decoded = None
+        if channel.message_encoding == "json":
+            try:
+                loaded = json.loads(message.data)
+            except ValueError:
+                loaded = None
+            decoded = loaded if isinstance(loaded, dict) else None
+        t = (
+            None
+            if decoded is None
+            else _number(decoded.get(STAMP_FIELDS.get(channel.topic, "t_exec")))
+        )
+        extra = 0.0
+        if t is None:
+            t, extra = clock.from_wall(message.log_time), clock.wall_residual
+            if t is None:
+                t = clock.first or 0.0
+                extra = math.inf
+        t_ref = clock.to_reference(t)
+        data = message.data
+        if decoded is not None:
+            bound = clock.bound(t)
+            bound = None if bound is None or not math.isfinite(bound + extra) else bound + extra
+            data = _appended(message.data, decoded, t_ref, bound)
+        item = _Item(epoch.log_time(t_ref), index, next(counter), channel, schema, message,
+                     data, decoded)  # fmt: skip
+        heapq.heappush(held, item)
+        while held and held[0].ns <= item.ns - window:
+            yield heapq.heappop(held)
+    while held:
+        yield heapq.heappop(held)
+
+
+def _appended(data: bytes, decoded: dict[str, Any], t_ref: float, bound: float | None) -> bytes:
+    """A JSON object's bytes with ``t_ref`` and ``t_ref_bound`` as its last fields."""
+    tail = f'"t_ref": {t_ref!r}, "t_ref_bound": {"null" if bound is None else repr(bound)}}}'
+    body = data.rstrip()
+    if not body.endswith(b"}"):
+        return data
+    return body[:-1] + (b", " if decoded else b"") + tail.encode()
+
+
+class _Output:
+    """The merged file's schemas and channels, each registered once."""
+
+    def __init__(self, writer: Writer):
+        self.writer = writer
+        self.schemas: dict[Any, int] = {}
+        self.channels: dict[str, int] = {}
+        self.last = -1
+        self.late = 0
+        self.written = 0
+
+    def schema(self, key: Any, name: str, encoding: str, data: bytes) -> int:
+        if key not in self.schemas:
+            self.schemas[key] = self.writer.register_schema(name, encoding, data)
+        return self.schemas[key]
+
+    def channel(self, topic: str, encoding: str, schema_id: int, meta: dict[str, str]) -> int:
+        if topic not in self.channels:
+            self.channels[topic] = self.writer.register_channel(topic, encoding, schema_id, meta)
+        return self.channels[topic]
+
+    def write(self, channel_id: int, ns: int, data: bytes, publish: int, seq: int = 0) -> None:
+        if ns < self.last:
+            self.late += 1
+        self.last = max(self.last, ns)
+        self.writer.add_message(channel_id, max(ns, 0), data, publish, seq)
+        self.written += 1
+
+    def foxglove(self, topic: str, message: Any, ns: int, publish: int, agent: str) -> None:
+        """``message`` (a Foxglove type) on ``topic``, under the SDK's schema."""
+        schema = type(message).get_schema()
+        schema_id = self.schema(schema.name, schema.name, schema.encoding, schema.data)
+        meta = {"agent": agent, "stamp_bound": "see t_ref_bound of /LAB/NAME/pose/sent"}
+        channel = self.channel(topic, schema.encoding, schema_id, meta)
+        self.write(channel, ns, message.encode(), publish)
+
+    def json(self, topic: str, schema: dict[str, Any], row: Any, ns: int, publish: int) -> None:
+        schema_id = self.schema(schema["title"], schema["title"], "jsonschema",
+                                view.schema_json(schema))  # fmt: skip
+        channel = self.channel(topic, "json", schema_id, {})
+        self.write(channel, ns, json.dumps(row).encode(), publish)
+
+
+def _source_schema(schema: Schema | None) -> tuple[str, str, bytes]:
+    """A recorded channel's schema, a JSON schema given ``t_ref`` and ``t_ref_bound``."""
+    if schema is None:
+        return "", "", b""
+    if schema.encoding != "jsonschema":
+        return schema.name, schema.encoding, schema.data
+    try:
+        loaded = json.loads(schema.data)
+    except ValueError:
+        return schema.name, schema.encoding, schema.data
+    properties = loaded.setdefault("properties", {})
+    properties["t_ref"] = {"type": "number", "description": "reference time, s"}
+    properties["t_ref_bound"] = {"type": ["number", "null"], "description": "its bound, s"}
+    return schema.name, schema.encoding, json.dumps(loaded).encode()
+
+
+def merge(paths: Sequence[Path], writer: Writer, run_json: str | None = None) -> MergeResult:
+    """Merge the recordings ``paths`` (one per agent) into ``writer`` (started, not
+    finished), on reference time (see the module's text).
+
+    Raises
+    ------
+    ConfigError
+        When no recording names a reference agent, or none maps to it.
+    """
+    notes: list[str] = []
+    clocks = [survey(Path(p)) for p in paths]
+    for c in clocks:
+        notes += c.notes
+    named = Counter(c.reference for c in clocks if c.reference)
+    reference = named.most_common(1)[0][0] if named else None
+    if reference is None:
+        raise ConfigError("no recording's status names the reference agent: nothing to map to")
+    _truths(clocks, reference, notes)
+    notes += [_SOURCE_NOTES[c.source].format(c.agent) for c in clocks if c.source in _SOURCE_NOTES]
+    mapped = [c for c in clocks if c.source != "none"]
+    if not mapped:
+        raise ConfigError("no recording maps to reference time")
+    when = epoch(mapped, notes)
+    result = MergeResult([c.agent for c in mapped], reference, when, notes=notes)
+    for c in clocks:
+        writer.add_metadata(f"{c.agent} clock", as_metadata(c.describe()))
+        for name, record in c.metadata.items():
+            writer.add_metadata(f"{c.agent} {name}", record)
+    if run_json is not None:
+        writer.add_metadata("run.json", {"json": run_json})
+    out = _Output(writer)
+    before: dict[str, dict[str, Any]] = {}
+    streams = [_mapped(c, i, when, notes) for i, c in enumerate(mapped)]
+    for item in heapq.merge(*streams):
+        result.messages_in += 1
+        clock = mapped[item.agent]
+        if item.channel.topic in _DERIVED:
+            result.skipped += 1
+            continue
+        _write(out, clock, item, before, result)
+    result.messages_out, result.late = out.written, out.late
+    writer.add_metadata(MERGE_METADATA, result.metadata())
+    return result
+
+
+def _truths(clocks: Sequence[AgentClock], reference: str, notes: list[str]) -> None:
+    """Keep each agent's host truth only when every recording comes from one host (their
+    monotonic clocks are then one), as the report assumes."""
+    hosts = {c.host for c in clocks}
+    ref = next((c for c in clocks if c.agent == reference), None)
+    if len(hosts) > 1 or ref is None or ref.truth is None:
+        for c in clocks:
+            c.truth = None
+        notes.append("no host truth: the recordings come from several hosts or lack the reference")
+        return
+    for c in clocks:
+        c.reference_truth = ref.truth
+
+
+def _true_offset(clock: AgentClock, t: float) -> float | None:
+    """Reference minus own clock at own time ``t`` by the host truth, if known."""
+    if clock.truth is None or clock.reference_truth is None:
+        return None
+    return float(clock_map(clock.truth, clock.reference_truth)(np.array([t]))[0]) - t
+
+
+def _write(
+    out: _Output,
+    clock: AgentClock,
+    item: _Item,
+    before: dict[str, dict[str, Any]],
+    result: MergeResult,
+) -> None:
+    """One recorded message, namespaced, and what Foxglove shows of it."""
+    agent, topic, ns = clock.agent, item.channel.topic, item.ns
+    publish, decoded = item.message.log_time, item.decoded
+    name, encoding, data = _source_schema(item.schema)
+    schema_id = out.schema((agent, item.channel.schema_id), name, encoding, data) if name else 0
+    meta = dict(item.channel.metadata) | {
+        "agent": agent, "source_topic": topic,
+        "stamp_field": STAMP_FIELDS.get(topic, "t_exec"), "source_file": clock.path.name,
+    }  # fmt: skip
+    channel = out.channel(f"/{agent}{topic}", item.channel.message_encoding, schema_id, meta)
+    out.write(channel, ns, item.data, publish, item.message.sequence)
+    if decoded is None:
+        return
+    if topic == Channel.POSE_SENT:
+        shown = view.pose_messages(agent, decoded, ns)
+        if shown is not None:
+            out.foxglove("/tf", shown[0], ns, publish, agent)
+            out.foxglove(f"/{agent}/pose", shown[1], ns, publish, agent)
+    elif topic == Channel.CONTROL:
+        out.foxglove(f"/{agent}/log", view.control_log(agent, decoded, ns), ns, publish, agent)
+    elif topic == Channel.STATUS:
+        _write_status(out, clock, decoded, ns, publish, before, result)
+
+
+def _write_status(
+    out: _Output,
+    clock: AgentClock,
+    decoded: dict[str, Any],
+    ns: int,
+    publish: int,
+    before: dict[str, dict[str, Any]],
+    result: MergeResult,
+) -> None:
+    """A status line's log lines, scene, lab frame, clock row and peer views."""
+    agent = clock.agent
+    lines, entities, frame = view.status_view(agent, decoded, before.get(agent), ns)
+    before[agent] = {"hold": decoded.get("hold"), "peers": decoded.get("peers")}
+    for line in lines:
+        out.foxglove(f"/{agent}/log", line, ns, publish, agent)
+    out.foxglove("/scene", SceneUpdate(entities=entities), ns, publish, agent)
+    if frame is not None:
+        out.foxglove("/tf", frame, ns, publish, agent)
+    t = _number(decoded.get("t_exec"))
+    if t is not None:
+        row = view.clock_row(t, clock.to_reference(t), clock.bound(t), _true_offset(clock, t))
+        out.json(f"/{agent}/clock", view.CLOCK_SCHEMA, row, ns, publish)
+    for peer, row in view.peer_rows(decoded):
+        topic_name = f"/{agent}/sync/{peer}"
+        if topic_name not in out.channels:
+            result.peer_topics.append(topic_name)
+        out.json(topic_name, view.PEER_SCHEMA, row, ns, publish)
+
+
+def write_merged(run_dir: str | Path, out: str | Path | None = None) -> tuple[MergeResult, Path]:
+    """Merge every ``*.mcap`` of ``run_dir`` into ``out`` (default ``RUN_DIR/merged.mcap``,
+    itself never read as a recording) and write its Foxglove layout beside it
+    (``NAME.layout.json``). Returns the result and the layout's path.
+
+    Raises
+    ------
+    ConfigError
+        When the directory holds no recording, or none maps to reference time.
+    """
+    directory = Path(run_dir)
+    if not directory.is_dir():
+        raise ConfigError(f"{directory}: no such run directory")
+    target = Path(out) if out is not None else directory / "merged.mcap"
+    paths = [p for p in sorted(directory.glob("*.mcap")) if p.resolve() != target.resolve()]
+    paths = [p for p in paths if not _is_merged(p)]
+    if not paths:
+        raise ConfigError(f"{directory}: no MCAP recordings (*.mcap) in this run directory")
+    run_json = directory / "run.json"
+    text = run_json.read_text(encoding="utf-8") if run_json.is_file() else None
+    partial = target.with_name(target.name + ".partial")
+    with partial.open("wb") as sink:
+        result = _write_file(paths, sink, text)
+    partial.replace(target)
+    layout = target.with_name(target.stem + ".layout.json")
+    layout.write_text(view.layout(result.agents, result.peer_topics) + "\n", encoding="utf-8")
+    return result, layout
+
+
+def _write_file(paths: Sequence[Path], sink: IO[bytes], run_json: str | None) -> MergeResult:
+    writer = Writer(sink, chunk_size=4 * CHUNK_SIZE)
+    writer.start(profile="", library="fedlab merge")
+    result = merge(paths, writer, run_json)
+    writer.finish()  # type: ignore[no-untyped-call]
+    return result
+
+
+def _is_merged(path: Path) -> bool:
+    """Whether ``path`` is a merged file (its ``fedlab.merge`` record), not a recording."""
+    if not is_finished(path):
+        return False
+    with path.open("rb") as f:
+        return any(m.name == MERGE_METADATA for m in make_reader(f).iter_metadata())
