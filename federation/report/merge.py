@@ -51,7 +51,7 @@ from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import numpy as np
 from foxglove.messages import SceneUpdate
@@ -175,6 +175,7 @@ class AgentClock:
     truth: Clock | None = None  # own clock = a + b * host monotonic (one host's truth)
     reference_truth: Clock | None = None  # the reference's, when the host is one
     notes: list[str] = field(default_factory=list)
+    skipped: int = 0  # its /tf and /pose messages, left out (from /pose/sent again)
 
     def to_reference(self, t: float) -> float:
         """Own clock ``t`` (s) on reference time (s)."""
@@ -398,57 +399,61 @@ def _utc(ns: int) -> str:
     return when.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
 
 
-@dataclass(order=True)
-class _Item:
-    """One message to write: its log time (ns) first, for ordering."""
+class _Item(NamedTuple):
+    """One message to write, ordered by its log time (ns; then agent and sequence)."""
 
     ns: int
     agent: int
     seq: int
-    channel: McapChannel = field(compare=False)
-    schema: Schema | None = field(compare=False)
-    message: McapMessage = field(compare=False)
-    data: bytes = field(compare=False)
-    decoded: dict[str, Any] | None = field(compare=False)
+    channel: McapChannel
+    schema: Schema | None
+    message: McapMessage
+    data: bytes
+    decoded: dict[str, Any] | None
 
 
 def _mapped(clock: AgentClock, index: int, epoch: Epoch, notes: list[str]) -> Iterator[_Item]:
-    """One agent's messages with their reference log time, ordered within ``REORDER_S``."""
+    """One agent's messages with their reference log time, ordered within ``REORDER_S``
+    (its ``/tf`` and ``/pose`` left out and counted: ``/pose/sent`` gives them again)."""
     held: list[_Item] = []
     window = round(REORDER_S * 1e9)
     counter = itertools.count()
     for schema, channel, message in _messages(clock.path, None, notes):
-        decoded = None
-        if channel.message_encoding == "json":
-            try:
-                loaded = json.loads(message.data)
-            except ValueError:
-                loaded = None
-            decoded = loaded if isinstance(loaded, dict) else None
-        t = (
-            None
-            if decoded is None
-            else _number(decoded.get(STAMP_FIELDS.get(channel.topic, "t_exec")))
-        )
+        if channel.topic in _DERIVED:
+            clock.skipped += 1
+            continue
+        decoded = _decoded(channel, message)
+        stamped = STAMP_FIELDS.get(channel.topic, "t_exec")
+        t = None if decoded is None else _number(decoded.get(stamped))
         extra = 0.0
         if t is None:
             t, extra = clock.from_wall(message.log_time), clock.wall_residual
             if t is None:
-                t = clock.first or 0.0
-                extra = math.inf
+                t, extra = clock.first or 0.0, math.inf
         t_ref = clock.to_reference(t)
         data = message.data
         if decoded is not None:
             bound = clock.bound(t)
             bound = None if bound is None or not math.isfinite(bound + extra) else bound + extra
             data = _appended(message.data, decoded, t_ref, bound)
-        item = _Item(epoch.log_time(t_ref), index, next(counter), channel, schema, message,
-                     data, decoded)  # fmt: skip
-        heapq.heappush(held, item)
-        while held and held[0].ns <= item.ns - window:
+        ns = epoch.log_time(t_ref)
+        heapq.heappush(held, _Item(ns, index, next(counter), channel, schema, message, data,
+                                   decoded))  # fmt: skip
+        while held[0].ns <= ns - window:
             yield heapq.heappop(held)
     while held:
         yield heapq.heappop(held)
+
+
+def _decoded(channel: McapChannel, message: McapMessage) -> dict[str, Any] | None:
+    """A JSON channel's message as a dict; None for any other."""
+    if channel.message_encoding != "json":
+        return None
+    try:
+        loaded = json.loads(message.data)
+    except ValueError:
+        return None
+    return loaded if isinstance(loaded, dict) else None
 
 
 def _appended(data: bytes, decoded: dict[str, Any], t_ref: float, bound: float | None) -> bytes:
@@ -554,12 +559,10 @@ def merge(paths: Sequence[Path], writer: Writer, run_json: str | None = None) ->
     streams = [_mapped(c, i, when, notes) for i, c in enumerate(mapped)]
     for item in heapq.merge(*streams):
         result.messages_in += 1
-        clock = mapped[item.agent]
-        if item.channel.topic in _DERIVED:
-            result.skipped += 1
-            continue
-        _write(out, clock, item, before, result)
+        _write(out, mapped[item.agent], item, before, result)
     result.messages_out, result.late = out.written, out.late
+    result.skipped = sum(c.skipped for c in mapped)
+    result.messages_in += result.skipped
     writer.add_metadata(MERGE_METADATA, result.metadata())
     return result
 
@@ -595,8 +598,10 @@ def _write(
     """One recorded message, namespaced, and what Foxglove shows of it."""
     agent, topic, ns = clock.agent, item.channel.topic, item.ns
     publish, decoded = item.message.log_time, item.decoded
-    name, encoding, data = _source_schema(item.schema)
-    schema_id = out.schema((agent, item.channel.schema_id), name, encoding, data) if name else 0
+    schema_id = out.schemas.get((agent, item.channel.schema_id))
+    if schema_id is None:
+        name, encoding, data = _source_schema(item.schema)
+        schema_id = out.schema((agent, item.channel.schema_id), name, encoding, data) if name else 0
     meta = dict(item.channel.metadata) | {
         "agent": agent, "source_topic": topic,
         "stamp_field": STAMP_FIELDS.get(topic, "t_exec"), "source_file": clock.path.name,
