@@ -16,7 +16,9 @@ of the reference clock minus its own (``t_sim - t_exec`` of its ``/reference``,
 linear between samples; 0 on the reference), :math:`T_0` the run's start on reference
 time (the reference's ``started`` event) and :math:`E` that instant in UTC as the hosts'
 wall clocks say it (the median over agents; its uncertainty is their disagreement plus
-each one's scatter, in the ``fedlab.merge`` metadata record). Each JSON message gains
+each one's scatter, in the ``fedlab.merge`` metadata record; it leaves out the
+recorder's latency, the time from a stamp to its record, under a millisecond, which
+makes :math:`E` late by as much). Each JSON message gains
 two last fields, ``t_ref`` (s) and ``t_ref_bound`` (s, the error bound of its stamp:
 the agent's ``reference_bound`` from its status lines, the larger of those either
 side, plus the interpolation's; null before its first estimate). The original log
