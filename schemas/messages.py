@@ -21,6 +21,7 @@ __all__ = [
     "Manifest",
     "PeerStatus",
     "Readiness",
+    "RunTransition",
     "Status",
     "Workspace",
     "is_abort",
@@ -176,6 +177,28 @@ class Status(BaseModel):
     workspace: Workspace | None = Field(
         None, description="its lab's frame and usable area, when it keeps one (formation, docking)"
     )
+    transition: RunTransition | None = Field(
+        None,
+        description="the run's last transition applied: its reference instant and run time "
+        "(every agent of a run applies a start, freeze or resume at the same ones)",
+    )
+    armed: RunTransition | None = Field(
+        None, description="a freeze or resume announced for an instant to come"
+    )
+
+
+class RunTransition(BaseModel):
+    """A run's transition on reference time: one applied (a start, freeze, resume, end or
+    abort), or a freeze or resume armed for an instant to come."""
+
+    model_config = ConfigDict(extra="allow")
+
+    event: str = Field(
+        description="applied: started, frozen, resumed, done, aborted; armed: freeze, resume"
+    )
+    at: float | None = Field(description="reference time it applies (applied) at, s")
+    run_time: float | None = Field(None, description="run time then, s (applied only)")
+    detail: str = Field("", description="how late a freeze came, when it did")
 
 
 class Command(BaseModel):

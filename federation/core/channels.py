@@ -74,6 +74,7 @@ CHANNEL_FIELDS: dict[Channel, tuple[str, ...]] = {
     Channel.TRUTH: ("t_exec", "host_monotonic", *_POSE),
     Channel.CONTROL: (
         "event", "command", "at", "t_exec", "t_sim", "host_monotonic", "mode", "detail",
+        "run_time",
     ),
     Channel.STATUS: ("agent", "t_exec", "host_monotonic", "peers", "counters"),
 }  # fmt: skip

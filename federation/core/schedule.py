@@ -38,7 +38,7 @@ class Due(NamedTuple):
     finished: bool = False
     """The duration has passed: publish a last status and stop (nothing else runs)."""
     control: bool = False
-    """Run the control step (its tick came, or an armed start did)."""
+    """Run the control step (its tick came, or an armed start, freeze or resume did)."""
     pose: bool = False
     """Publish the pose."""
     sync: bool = False
@@ -106,7 +106,8 @@ class Timetable:
         return Due(False, control, pose, sync, status, lateness, overrun)
 
     def next_wake(self, start_at: float = math.inf) -> float:
-        """When something is due next: the earliest deadline, or an armed start."""
+        """When something is due next: the earliest deadline, or an armed start, freeze
+        or resume."""
         return min(
             self.next_control, self.next_pose, self.next_sync, self.next_status,
             self.deadline, start_at,

@@ -54,8 +54,9 @@ class Looped(Protocol):
 
     def count(self, name: Count) -> None: ...
 
-    def start_due(self) -> float:
-        """Host monotonic time at which an armed run starts (inf if none is armed)."""
+    def transition_due(self) -> float:
+        """Host monotonic time at which an armed start, freeze or resume applies (inf if
+        none is armed)."""
 
     def control_step(self) -> None: ...
 
@@ -99,7 +100,7 @@ class Schedule:
         """Run what is due at host monotonic ``now``; the next wake-up time, or None
         once the duration has passed (the final status is then published)."""
         agent = self.agent
-        due = self.timetable.due(now, agent.start_due())
+        due = self.timetable.due(now, agent.transition_due())
         if due.finished:
             agent.end()  # valves closed before anything that could wait (a status put)
             return None
@@ -115,7 +116,7 @@ class Schedule:
             agent.send_sync_requests(now)
         if due.status:
             agent.publish_status()
-        return self.timetable.next_wake(agent.start_due())
+        return self.timetable.next_wake(agent.transition_due())
 
 
 L = TypeVar("L", bound=Looped)

@@ -31,6 +31,7 @@ from schemas.config import ManeuverConfig
 from schemas.messages import (
     Command,
     CommandOutcome,
+    RunTransition,
     is_abort,
     malformed_outcome,
     validation_reason,
@@ -119,6 +120,22 @@ class RunControl:
         log.error("run %s: %s: aborted here", state.run_id, detail)
         self.apply([dataclasses.replace(e, detail=detail) for e in events], t_exec, host)
         self.status_now = True
+
+    def transitions(self) -> dict[str, RunTransition | None]:
+        """The status's ``transition`` (the last applied) and ``armed`` (a freeze or
+        resume to come) fields."""
+        state = self.run_state
+        with self.lock:
+            last, armed = state.last, state.armed
+        applied = None
+        if last is not None:
+            applied = RunTransition(
+                event=last.kind, at=last.at, run_time=last.run_time, detail=last.detail
+            )
+        return {
+            "transition": applied,
+            "armed": None if armed is None else RunTransition(event=armed[0], at=armed[1]),
+        }
 
     def busy(self) -> str | None:
         """Why recordings are not served now: a run started by ctl armed, running or
@@ -278,10 +295,19 @@ class RunControl:
                     "event": event.kind, "command": None, "at": self.run_state.start_at,
                     "t_exec": t_exec, "t_sim": event.t_sim, "host_monotonic": host,
                     "mode": self.run_state.mode, "detail": event.detail,
+                    "run_time": self._run_time_at(event),
                 },
             )  # fmt: skip
             if event.kind in ("aborted", "done"):
                 self.recordings.end_run()
+
+    def _run_time_at(self, event: Event) -> float | None:
+        """The run time at a transition ``event`` applied (as :attr:`RunState.last` has
+        it), None for any other event."""
+        last = self.run_state.last
+        if last is None or (last.kind, last.at) != (event.kind, event.t_sim):
+            return 0.0 if event.kind == "started" else None
+        return last.run_time
 
     def _armed(self) -> None:
         owner, state = self.owner, self.run_state

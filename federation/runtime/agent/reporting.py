@@ -142,7 +142,7 @@ class Reporter:
             pose=list(owner.pose), peers=self.peer_table.views(t_exec, host),
             counters=owner.counter_snapshot(), contested=self.intake.contested(host),
             workspace=None if owner.scenario is None else owner.scenario.workspace(),
-            loop=self.loop_stats(),
+            loop=self.loop_stats(), **self.commands.transitions(),
         )  # fmt: skip
 
     def readiness(self, t_exec: float) -> Readiness:

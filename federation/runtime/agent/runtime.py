@@ -345,8 +345,8 @@ class AgentRuntime:
         Periodic tasks on one thread: the platform's control step (its ``rate``,
         100 Hz for simulated platforms), pose publication (``pose_rate``), sync
         requests (``sync_period``) and status (``status_period``). A missed tick is
-        skipped, not made up, and counted in ``loop_overruns``. An armed start is a
-        deadline of its own, so the run begins on time, not at the next tick.
+        skipped, not made up, and counted in ``loop_overruns``. An armed start, freeze or
+        resume is a deadline of its own, so it applies on time, not at the next tick.
         """
         run_together([self], stop)
 
@@ -368,17 +368,18 @@ class AgentRuntime:
         """Simulation time (Eq. 5): the reference agent's clock."""
         return self.timebase.sim_time(t_exec)
 
-    def start_due(self) -> float:
-        """Host monotonic time at which an armed run starts (inf if none is armed)."""
-        state = self.run_state
-        start_at = state.start_at
-        if state.mode != "armed" or start_at is None:
+    def transition_due(self) -> float:
+        """Host monotonic time at which an armed start, freeze or resume applies (inf if
+        none is armed): a deadline of the loop's own, so that it applies on time, not at
+        the next control tick."""
+        due = self.run_state.due
+        if due is None:
             return math.inf
         t_exec, host = self.clock.read()
         t_sim = self.timebase.sim_time(t_exec)
         if t_sim is None:
             return math.inf
-        return host + (start_at - t_sim) / self.clock.rate
+        return host + (due - t_sim) / self.clock.rate
 
     # -- the agent's own loop --------------------------------------------------------
     def reference_heading(
@@ -411,6 +412,8 @@ class AgentRuntime:
         events, run_time = self.commands.update(t_sim)
         if events:
             self.commands.apply(events, t_exec, host)
+            if any(e.kind in ("frozen", "resumed") for e in events):
+                self.commands.status_now = True  # ctl waits to see it applied
         self.watches.step(t_exec, host)
         restored = self.safety.enforce()  # a step never runs free while a hold stands
         if restored is not None:

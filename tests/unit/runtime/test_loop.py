@@ -39,7 +39,7 @@ class Stub:
     def count(self, name: str) -> None:
         self.counters.append(name)
 
-    def start_due(self) -> float:
+    def transition_due(self) -> float:
         return self.start_at
 
     def control_step(self) -> None:
@@ -84,7 +84,7 @@ def test_an_armed_start_wakes_the_loop_and_runs_a_control_step() -> None:
     schedule = Schedule(agent, t0=0.0)
     schedule.tick(0.0)
     agent.start_at = 0.004
-    assert schedule.timetable.next_wake(agent.start_due()) == 0.004
+    assert schedule.timetable.next_wake(agent.transition_due()) == 0.004
     agent.calls.clear()
     assert schedule.tick(0.004) == pytest.approx(0.01)  # started: back to the grid
     assert agent.calls == ["control"] and len(agent.lateness) == 1
