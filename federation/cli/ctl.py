@@ -47,9 +47,11 @@ def add(sub: Subparsers) -> None:
             "when its own synchronized clock reaches that instant and is done (valves closed,\n"
             "recording finalized) after the experiment's duration. abort is sent at once and\n"
             "puts every platform in safe hold; reset brings aborted agents back to waiting.\n"
-            "freeze acts on receipt; resume syncs with the run's reference and resumes every\n"
-            "agent at the reference time it is issued (one receiving it over 1 s late ignores\n"
-            "it). status prints the preflight table. Exit code 1\n"
+            "freeze and resume sync with the run's reference and are announced --in seconds\n"
+            "ahead (default: the least that reaches every participant, from the one-way\n"
+            "delays they report): every agent freezes (resumes) at that instant, at the same\n"
+            "run time (one receiving a resume over 1 s late ignores it; a freeze late freezes\n"
+            "at once). status prints the preflight table. Exit code 1\n"
             "if an agent did not confirm (the table says why) or the router is unreachable."
         ),
         epilog=(
@@ -57,6 +59,8 @@ def add(sub: Subparsers) -> None:
             "  fedlab ctl status --experiment deploy/experiments/attitude-tracking.toml \\\n"
             "      -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl start --experiment deploy/experiments/attitude-tracking.toml \\\n"
+            "      -e tcp/127.0.0.1:7447\n"
+            "  fedlab ctl freeze --experiment deploy/experiments/attitude-tracking.toml \\\n"
             "      -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl abort -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl reset --experiment deploy/experiments/attitude-tracking.toml \\\n"
@@ -66,7 +70,7 @@ def add(sub: Subparsers) -> None:
     p.add_argument(
         "action",
         choices=[*control.ACTIONS, "status"],
-        help="start or resume at a common instant; freeze, abort, reset on receipt; status",
+        help="start, freeze or resume at a common instant; abort, reset on receipt; status",
     )
     p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
     add_federation_flag(p, "federation name (an experiment's own wins)")
@@ -78,8 +82,10 @@ def add(sub: Subparsers) -> None:
         dest="start_in",
         type=nonnegative,
         metavar="S",
-        help=f"start this many seconds ahead, at least {control.START_IN_MIN:g} "
-        f"(default: the experiment's start_delay, else {control.DEFAULT_START_IN:g})",
+        help=f"start this many seconds ahead, at least {control.START_IN_MIN:g}, or freeze or "
+        "resume (default: for a start the experiment's start_delay, else "
+        f"{control.DEFAULT_START_IN:g}; for a freeze or resume the least that reaches every "
+        "participant, from their one-way delays to the reference)",
     )
     p.add_argument("--run-id", type=run_id, metavar="ID", help="name of the run (start)")
     p.add_argument(
@@ -210,12 +216,24 @@ def print_result(
     table = Table(title=title)
     table.add_column("agent")
     table.add_column("mode")
+    table.add_column("applied at (reference time, run time)")
     table.add_column("why not confirmed")
     for agent, mode in result.modes.items():
-        table.add_row(agent, mode, result.reasons.get(agent, ""))
+        table.add_row(
+            agent, mode, applied_at(result.applied.get(agent)), result.reasons.get(agent, "")
+        )
     console.print(table)
     if hint:
         console.print(f"[red]{hint}[/red]")
+
+
+def applied_at(transition: dict[str, Any] | None) -> str:
+    """An agent's last transition as the table shows it: ``frozen 1234.567 s, 12.345 s``."""
+    if not transition or transition.get("at") is None:
+        return ""
+    run_time = transition.get("run_time")
+    text = f"{transition.get('event')} {transition['at']:.3f} s"
+    return text + ("" if run_time is None else f", {run_time:.3f} s")
 
 
 def refused_hint(

@@ -10,14 +10,19 @@ as agents do, and announces a start at a reference time some seconds ahead,
 with the run's duration; every agent begins when its own synchronized clock
 reaches that instant, and is ``done`` after the duration.
 
-``abort``, ``freeze`` and ``reset`` are published at once, before anything is
-discovered or synchronized, and act on receipt: nothing they need can be missing, and
-none sets a platform moving. ``resume`` does: ctl syncs with the reference clock the
-participants report (as for a start) and sends it stamped with the reference time it
-is issued at; every agent resumes at that instant of the run, and one that receives
-it more than a second late (queued behind a cut link) ignores it rather than set its
-platform moving at a time no one chose. Without a reference that answers (within a
-few seconds), or one all participants share, no resume goes out.
+``abort`` and ``reset`` are published at once, before anything is discovered or
+synchronized, and act on receipt: nothing they need can be missing, and neither sets a
+platform moving. ``freeze`` and ``resume``, like ``start``, take effect at a reference
+instant announced ahead (``start_in`` s, by default the least that reaches every
+participant with margin: :mod:`federation.core.lead`, from the one-way delays the
+participants report and ctl's own to the reference): ctl syncs with the reference
+clock the participants report and every agent applies the command when its own
+synchronized clock reaches that instant, so every lab freezes (resumes) at the same
+run time. A resume received more than a second after its instant (queued behind a cut
+link) is ignored rather than set a platform moving at a time no one chose; without a
+reference that answers (within a few seconds), or one all participants share, no
+resume goes out. A freeze then goes out all the same, to act on receipt, and ctl says
+why (a freeze late is a freeze now: it sets nothing moving).
 
 Each :func:`issue` is a new issuer (host, pid and a random tag) numbering its
 commands 1, 2, 3... (:class:`Issuer`): agents order commands per issuer
@@ -44,6 +49,7 @@ from typing import Any, Literal
 from federation.core import keys
 from federation.core.clockfilter import ClockFilter
 from federation.core.keys import AgentId
+from federation.core.lead import delays_to, transition_lead
 from federation.core.preflight import (
     DEFAULT_MAX_BOUND,
     DEFAULT_STALE_AFTER,
@@ -73,6 +79,7 @@ __all__ = [
     "issue",
     "make_run_id",
     "reference_now",
+    "reference_sync",
     "send",
     "status",
 ]
@@ -142,6 +149,9 @@ class ControlResult:
     preflight: list[Row] = field(default_factory=list)
     overridden: list[str] = field(default_factory=list)
     """With ``force``: the preflight failures a start went ahead despite."""
+    applied: dict[str, Any] = field(default_factory=dict)
+    """Each agent's last transition applied, as its status says (event, reference
+    instant ``at``, ``run_time``): a freeze or resume's instant, the same on each."""
 
     @property
     def pending(self) -> list[str]:
@@ -169,6 +179,7 @@ class ControlResult:
             "reasons": self.reasons,
             "overridden": self.overridden,
             "preflight": [r.as_json() for r in self.preflight],
+            "applied": self.applied,
         }
 
 
@@ -182,6 +193,13 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
     Raises :class:`~federation.runtime.session.ConnectError` when it does not answer
     (:data:`REFERENCE_UNANSWERED` queries in a row: a few seconds, not twenty).
     """
+    return reference_sync(session, federation, reference, clock)[0]
+
+
+def reference_sync(
+    session: Any, federation: str, reference: AgentId, clock: ExecClock
+) -> tuple[float, float]:
+    """:func:`reference_now`, and ctl's median one-way delay to the reference (s)."""
     client = SyncClient(ClockFilter(), timeout=1.0)
     key = keys.agent_key(federation, reference, "sync")
     done = threading.Event()
@@ -207,10 +225,10 @@ def reference_now(session: Any, federation: str, reference: AgentId, clock: Exec
     finally:
         querier.close()
     t = clock.now()
-    offset = client.offset_at(t)
-    if offset is None:
+    offset, delay = client.offset_at(t), client.delay
+    if offset is None or delay is None:
         raise ConnectError(f"reference agent {reference} did not answer sync queries on {key}")
-    return t + offset
+    return t + offset, delay
 
 
 def _accepted(status: dict[str, Any], command: Command) -> bool:
@@ -396,7 +414,9 @@ def issue(
         Agent whose clock is reference time (default: see :func:`choose_reference`).
     start_in
         s between now (reference time) and the start; default the experiment's
-        ``start_delay``, else :data:`DEFAULT_START_IN`.
+        ``start_delay``, else :data:`DEFAULT_START_IN`. For a freeze or resume, s between
+        now and its instant; default the least that reaches every participant
+        (:func:`federation.core.lead.transition_lead`).
     wait
         s to wait for confirmations.
     discover
@@ -442,8 +462,8 @@ def issue(
         it = _Issuing(
             session, fed, federation, experiment, issuer or Issuer(), wait, discover, progress
         )
-        if action == "resume":
-            return _issue_resume(it, reference)
+        if action in ("freeze", "resume"):
+            return _issue_announced(it, action, reference, start_in)
         if action != "start":
             return _issue_on_receipt(it, action)
         return _issue_start(it, reference, start_in, run_id, duration, force, max_bound)
@@ -485,9 +505,10 @@ class _Issuing:
 
 
 def _issue_on_receipt(it: _Issuing, action: Action) -> ControlResult:
-    """A freeze, an abort or a reset. Agents act on it on receipt, so there is nothing to
-    look up first: it is published at once (an abort leaves before anything is
-    discovered), then confirmed, an abort sent again while ctl waits."""
+    """An abort or a reset (or a freeze no reference time can be had for). Agents act on
+    it on receipt, so there is nothing to look up first: it is published at once (an
+    abort leaves before anything is discovered), then confirmed, an abort sent again
+    while ctl waits."""
     experiment = it.experiment
     # An abort is for every agent; the rest for the experiment's only.
     command = it.command(
@@ -667,8 +688,11 @@ def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> froz
     return frozenset(seen) if participants is None else participants
 
 
-def _issue_resume(it: _Issuing, reference: AgentId | None) -> ControlResult:
-    """A resume at the reference time it is issued (see the module's notes)."""
+def _issue_announced(
+    it: _Issuing, action: Action, reference: AgentId | None, start_in: float | None
+) -> ControlResult:
+    """A freeze or resume at a reference instant announced ``start_in`` s ahead (see the
+    module's notes); a freeze that cannot be timed goes out on receipt."""
     experiment = it.experiment
     it.fed.discover(_participants(experiment), it.discover)
     seen = it.fed.snapshot()
@@ -676,30 +700,37 @@ def _issue_resume(it: _Issuing, reference: AgentId | None) -> ControlResult:
     if not expected:
         raise ConnectError(
             f"no agent found in federation {it.federation!r} within {it.discover:g} s: "
-            "resume not sent"
+            f"{action} not sent"
         )
-    shared = _shared_reference(expected, seen)
-    if reference is not None and reference != shared:
-        raise ConfigError(
-            f"resume not sent: --reference {reference}, but the participants count time on "
-            f"{shared}'s clock"
-        )
-    ref = shared
     try:
-        at = reference_now(it.session, it.federation, ref, ExecClock())
-    except ConnectError as error:  # a platform set moving whenever it arrives: not sent
-        raise ConnectError(f"resume not sent: {error}") from None
-    it.progress(f"resume at reference time {at:.3f} s ({ref}'s clock)")
+        ref = _shared_reference(expected, seen)
+        if reference is not None and reference != ref:
+            raise ConfigError(
+                f"--reference {reference}, but the participants count time on {ref}'s clock"
+            )
+        ref_now, ctl_delay = reference_sync(it.session, it.federation, ref, ExecClock())
+    except (ConfigError, ConnectError) as error:
+        if action == "resume":  # a platform set moving whenever it arrives: not sent
+            raise type(error)(f"resume not sent: {error}") from None
+        it.progress(f"freeze on receipt, not at a common instant: {error}")
+        return _issue_on_receipt(it, action)
+    lead = transition_lead(delays_to(str(ref), sorted(expected), seen), ctl_delay)
+    ahead = lead.seconds if start_in is None else start_in
+    at = ref_now + ahead
+    it.progress(
+        f"{action} at reference time {at:.3f} s ({ref}'s clock), "
+        f"{lead.describe() if start_in is None else f'{ahead:g} s ahead (--in)'}"
+    )
     command = it.command(
-        "resume", at=at, issued_at=at,
+        action, at=at, issued_at=ref_now,
         participants=sorted(_expected(experiment, {})) if experiment is not None else None,
     )  # fmt: skip
     sent = it.publish(command)
-    modes = confirm(command, expected, it.fed, it.wait, it.progress)
+    modes = confirm(command, expected, it.fed, it.wait + ahead, it.progress)
     result = _result(command, ref, expected, modes, sent, it.fed)
-    if result.pending:
+    if result.pending and action == "resume":
         # Some flying, some frozen is no run: freeze them all again (as a start not every
-        # participant confirmed is aborted), and say so.
+        # participant confirmed is aborted), on receipt, and say so.
         it.publish(it.command("freeze", participants=command.participants))
         for agent in result.pending:
             result.reasons[agent] += "; freeze sent to all again"
@@ -713,13 +744,12 @@ def _shared_reference(expected: frozenset[str] | set[str], seen: dict[str, Any])
     absent = sorted(agent for agent in expected if not (seen.get(agent) or {}).get("reference"))
     if absent:
         raise ConfigError(
-            f"resume not sent: the reference clock of {', '.join(absent)} is not known (no "
-            "status from it)"
+            f"the reference clock of {', '.join(absent)} is not known (no status from it)"
         )
     refs = {str(seen[agent]["reference"]) for agent in expected}
     if len(refs) != 1:
         raise ConfigError(
-            f"resume not sent: the participants report {len(refs)} reference clocks "
+            f"the participants report {len(refs)} reference clocks "
             f"({', '.join(sorted(refs))}): not one run"
         )
     return AgentId.parse(refs.pop())
@@ -741,7 +771,8 @@ def _result(
         preflight=rows or [], overridden=overridden or [],
     )  # fmt: skip
     reasons = {a: why_not(seen.get(a), command) for a in result.pending}
+    applied = {a: seen[a].get("transition") for a in sorted(seen) if seen[a].get("transition")}
     return ControlResult(
         command, reference, expected, modes, result.elapsed, sent, reasons,
-        result.preflight, result.overridden,
+        result.preflight, result.overridden, applied,
     )  # fmt: skip

@@ -639,21 +639,26 @@ def test_ctl_sends_an_abort_urgently_and_again_until_confirmed(
         assert options["congestion_control"] == zenoh.CongestionControl.BLOCK
 
 
-def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
+def test_ctl_freezes_and_resumes_at_an_instant_announced_ahead_on_the_runs_reference(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     statuses: dict[str, dict[str, Any]] = {
-        "lab/a": {"mode": "frozen", "role": "leader", "reference": "lab/a"},
-        "lab/b": {"mode": "frozen", "role": "follower", "reference": "lab/a"},
-    }
+        "lab/a": {"mode": "running", "role": "leader", "reference": "lab/a"},
+        "lab/b": {
+            "mode": "running", "role": "follower", "reference": "lab/a",
+            "peers": {"lab/a": {"delay": 0.040}},
+        },
+    }  # fmt: skip
     monkeypatch.setattr(control, "Federation", _fake_federation(statuses))
     synced: list[AgentId] = []
 
-    def reference_now(session: Any, federation: str, ref: AgentId, clock: Any) -> float:
+    def reference_sync(
+        session: Any, federation: str, ref: AgentId, clock: Any
+    ) -> tuple[float, float]:
         synced.append(ref)
-        return 100.0
+        return 100.0, 0.001  # the reference's clock now; ctl 1 ms from it
 
-    monkeypatch.setattr(control, "reference_now", reference_now)
+    monkeypatch.setattr(control, "reference_sync", reference_sync)
     heard = ["lab/a", "lab/b"]  # who takes a resume when it comes
 
     class Session(_Recorder):
@@ -664,19 +669,26 @@ def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
                 statuses[agent]["mode"] = mode or statuses[agent]["mode"]
 
     session = Session()
-    # A freeze leaves at once, before any look-up: nothing it needs can be missing.
-    control.issue(session, "freeze", wait=0.1, discover=0.0)
-    assert {(p[1]["at"], p[1]["issued_at"]) for p in session.puts} == {(None, None)}
-    assert synced == []
-    # A resume sets platforms moving: at the instant it is issued, on the participants'
-    # reference (not a leader ctl would pick now).
-    session.puts.clear()
     lines: list[str] = []
-    result = control.issue(session, "resume", wait=0.5, discover=0.0, progress=lines.append)
+    # A freeze at an instant ahead: the least that reaches lab/b (40 ms from the
+    # reference, ctl 1 ms from it) with margin, on the participants' reference.
+    result = control.issue(session, "freeze", wait=0.5, discover=0.0, progress=lines.append)
     (command,) = {p[1]["seq"]: p[1] for p in session.puts}.values()  # copies of one command
-    assert command["command"] == "resume" and command["at"] == command["issued_at"] == 100.0
+    lead = 0.25 + 2 * 0.041
+    assert command["command"] == "freeze" and command["issued_at"] == 100.0
+    assert command["at"] == pytest.approx(100.0 + lead)
     assert synced == [AgentId("lab", "a")] and result.ok
-    assert "resume at reference time 100.000 s (lab/a's clock)" in lines
+    assert any("slowest path: to lab/b, 41.0 ms one way" in line for line in lines), lines
+    # --in says how far ahead.
+    session.puts.clear()
+    control.issue(session, "freeze", start_in=2.0, wait=0.5, discover=0.0)
+    assert {p[1]["at"] for p in session.puts} == {102.0}
+    # A resume too, at an instant ahead.
+    session.puts.clear()
+    result = control.issue(session, "resume", wait=0.5, discover=0.0, progress=lines.append)
+    (command,) = {p[1]["seq"]: p[1] for p in session.puts}.values()
+    assert command["command"] == "resume" and command["at"] == pytest.approx(100.0 + lead)
+    assert command["issued_at"] == 100.0 and result.ok
     # One that does not resume (late, say): the others are frozen again, and ctl says so.
     control.issue(session, "freeze", wait=0.5, discover=0.0)
     heard.remove("lab/b")
@@ -686,25 +698,32 @@ def test_ctl_freezes_at_once_and_resumes_at_the_instant_on_the_runs_reference(
     assert result.pending == ["lab/b"] and "freeze sent to all again" in result.reasons["lab/b"]
     assert statuses["lab/a"]["mode"] == "frozen"
     # Participants on different reference clocks, one absent, or another --reference:
-    # not sent, and why.
+    # no resume sent, and why.
     session.puts.clear()
     statuses["lab/b"]["reference"] = "lab/b"
     with pytest.raises(ConfigError, match=r"2 reference clocks \(lab/a, lab/b\): not one run"):
         control.issue(session, "resume", wait=0.1, discover=0.0)
     del statuses["lab/b"]["reference"]
-    with pytest.raises(ConfigError, match="reference clock of lab/b is not known"):
+    with pytest.raises(ConfigError, match="resume not sent: the reference clock of lab/b is not"):
         control.issue(session, "resume", wait=0.1, discover=0.0)
     statuses["lab/b"]["reference"] = "lab/a"
     with pytest.raises(ConfigError, match="--reference lab/x, but the participants"):
         control.issue(session, "resume", reference=AgentId("lab", "x"), wait=0.1, discover=0.0)
 
-    def silent(*args: Any, **kwargs: Any) -> float:
+    def silent(*args: Any, **kwargs: Any) -> tuple[float, float]:
         raise ConnectError("reference lab/a did not answer")
 
-    monkeypatch.setattr(control, "reference_now", silent)
+    monkeypatch.setattr(control, "reference_sync", silent)
     with pytest.raises(ConnectError, match="resume not sent: reference lab/a did not answer"):
         control.issue(session, "resume", wait=0.1, discover=0.0)
     assert session.puts == []
+    # A freeze that cannot be timed still goes out, on receipt, and ctl says why.
+    lines.clear()
+    control.issue(session, "freeze", wait=0.1, discover=0.0, progress=lines.append)
+    assert session.puts and {(p[1]["at"], p[1]["issued_at"]) for p in session.puts} == {
+        (None, None)
+    }
+    assert "freeze on receipt, not at a common instant: reference lab/a did not answer" in lines
 
 
 def test_a_silent_reference_is_given_up_after_a_few_queries_not_twenty() -> None:
