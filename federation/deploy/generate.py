@@ -24,16 +24,16 @@ every password: adding a lab or an agent is one edit of
 the file and one run. Agents and operators no longer in the file lose their
 generated configs and, above all, their access-control entries.
 
-Access control (default deny), enforced by each lab's router on the sessions
-attached to it: an agent may write (put, delete, declare a queryable or a
-liveliness token, reply) only on its own address, ``fedlab/<fed>/<lab>/<name>``
-and below; a hosted process (``fedlab host``, the lab's ``hosted``) only on the
-addresses of the agents it runs, which have no identity of their own; operators
-only put on the control key; another lab's router only
-under the labs reached through it, and the control key if an operator is among those
-labs; every listed identity
-reads the federation's keys. A certificate CN (or user name) no subject lists
-can do nothing.
+Access control (default deny), enforced by each lab's router on the sessions attached to
+it: an agent may write (put, delete, declare a queryable or a liveliness token, reply)
+only on its own address, ``fedlab/<fed>/<lab>/<name>``, and the protocol's keys below it
+(pose, sync, status, recordings); a hosted process (``fedlab host``, the lab's
+``hosted``) only on the addresses of the agents it runs, which have no identity of their
+own; operators only put on the control key; another lab's router only under the labs
+reached through it, and the control key if an operator is among those labs; every listed
+identity reads the federation's keys. A certificate CN (or user name) no subject lists
+can do nothing. What an identity that may write can send (sizes per key, its agents'
+pose and status rates) is bounded by :mod:`federation.deploy.limits`.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from typing import Any
 from cryptography import x509
 
 from federation.core.keys import control_key
-from federation.deploy import certs
+from federation.deploy import certs, limits
 from federation.deploy.local import localize
 from federation.runtime.identity import HOSTED_FIELD, certificate_cn
 from federation.runtime.session import DATA_QUEUE_BATCHES
@@ -115,13 +115,16 @@ def _prefix(fed: str) -> str:
 def _common(limit: int) -> dict[str, Any]:
     """What routers, agents and operators share: no scouting, Zenoh's universal
     transport with QoS on (what a default Zenoh client uses; with QoS off a congested
-    link drops pose for good: docs/deploy.md, "Transports under loss"), and the
-    largest message they accept."""
+    link drops pose for good: docs/deploy.md, "Transports under loss"), the largest
+    message they accept, and no shared memory (a Zenoh 1.10 process keeps every
+    same-host sender's pool mapped for good, and a message in one bypasses the size
+    limits: docs/deploy.md, "Bounded resources")."""
     return {
         "scouting": {"multicast": {"enabled": False}},
         "transport": {
             "unicast": {"lowlatency": False, "qos": {"enabled": True}},
             "link": {"protocols": ["tls"], "rx": {"max_message_size": limit}},
+            "shared_memory": {"enabled": False},
         },
     }
 
@@ -170,7 +173,8 @@ def access_control(fed: FederationFile, lab: str) -> dict[str, Any]:
         )
     for name in entry.agents:
         own = f"{prefix}/{lab}/{name}"
-        rules.append(_rule(f"writes-{name}", "ingress", WRITES, [own, f"{own}/**"]))
+        keys = [own, *(f"{own}/{topic}" for topic in limits.AGENT_TOPICS)]
+        rules.append(_rule(f"writes-{name}", "ingress", WRITES, keys))
         if entry.host_of(name) is not None:
             continue  # its host's identity speaks for it: none of its own
         subjects.append(_subject(entry, f"agent-{name}", [f"{lab}/{name}"]))
@@ -232,8 +236,10 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
             "timeout_ms": -1,
             "exit_on_failure": False,
         },
-        **_common(fed.message_limit),
+        **_common(limits.message_limit(fed)),
         "access_control": access_control(fed, lab),
+        "low_pass_filter": limits.low_pass_filter(fed),
+        "downsampling": limits.downsampling(fed, lab),
     }
     # Data batches queued as in fedlab's sessions (Zenoh's two dropped poses on a
     # busy host: docs/scale.md, "Loss on a busy host").
@@ -274,7 +280,7 @@ def agent_zenoh(
             "timeout_ms": -1,  # an agent waits for its router however long it takes
             "exit_on_failure": False,
         },
-        **_common(fed.message_limit),
+        **_common(limits.message_limit(fed)),
     }
     tls: dict[str, Any] = {"root_ca_certificate": str(c / "ca.pem")}
     if entry.auth == "certificate":

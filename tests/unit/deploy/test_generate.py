@@ -61,15 +61,15 @@ def test_each_agent_writes_only_its_own_keys_and_operators_only_control() -> Non
     fed = load_federation(EXAMPLE)
     kiruna = gen.router_config(fed, "kiruna", gen.DEFAULT_ROOT)
     rome = gen.router_config(fed, "rome", gen.DEFAULT_ROOT)
+    # Its token and the protocol's keys: nothing else under its name (an insider's own
+    # keys would otherwise carry whatever it likes across the lab link).
+    own = "fedlab/default/kiruna/knatte"
     assert _writes(kiruna, "kiruna/knatte") == {
-        "fedlab/default/kiruna/knatte",
-        "fedlab/default/kiruna/knatte/**",
-    }
+        own, f"{own}/pose", f"{own}/sync", f"{own}/status", f"{own}/recordings"
+    }  # fmt: skip
     assert _writes(kiruna, "kiruna/ctl") == {"fedlab/default/control"}
-    assert _writes(rome, "rome/pinocchio") == {
-        "fedlab/default/rome/pinocchio",
-        "fedlab/default/rome/pinocchio/**",
-    }
+    assert "fedlab/default/rome/pinocchio/**" not in _writes(rome, "rome/pinocchio")
+    assert "fedlab/default/rome/pinocchio/pose" in _writes(rome, "rome/pinocchio")
     # Rome's agents by user name, Kiruna's by certificate.
     subjects = {s["id"]: s for s in rome["access_control"]["subjects"]}
     assert subjects["agent-pinocchio"] == {"id": "agent-pinocchio", "usernames": ["rome/pinocchio"]}

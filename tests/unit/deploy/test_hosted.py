@@ -69,7 +69,12 @@ def acl(doc: dict[str, Any], who: str) -> tuple[set[str], set[str]]:
 
 
 def own(*agents: str) -> set[str]:
-    return {k for a in agents for k in (f"fedlab/default/{a}", f"fedlab/default/{a}/**")}
+    topics = ("pose", "sync", "status", "recordings")
+    return {
+        k
+        for a in agents
+        for k in (f"fedlab/default/{a}", *(f"fedlab/default/{a}/{t}" for t in topics))
+    }
 
 
 def test_a_host_writes_for_exactly_its_agents_which_have_no_identity(tmp_path: Path) -> None:
