@@ -112,6 +112,11 @@ def test_an_outside_subscriber_on_a_shipped_router_receives_again_after_congesti
     assert after > 0.2 * before, f"{after} samples in 4 s after the stall, {before} before it"
 
 
+# The fault needs the router's queue to the stopped subscriber to be the one that
+# congests: on cores shared with other tests the publisher's own link may congest first,
+# its drops happen there, and the router's mark is never set (4517 samples after the
+# stall in a parallel run). Alone, the queue that overflows is the router's.
+@pytest.mark.timing
 def test_with_qos_off_the_router_drops_for_good_after_congestion(
     labs: Labs, fleet: Fleet, tmp_path: Path
 ) -> None:
