@@ -51,7 +51,7 @@ def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None
         lambda: all((a.last() or {}).get("mode") == "running" for a in agents.values()),
         timeout=10,
     )
-    # Freeze on receipt; resume at the reference time ctl issued it, the same for both labs.
+    # Freeze and resume at reference instants ctl announced ahead, the same for both labs.
     for action, mode in (("freeze", "frozen"), ("resume", "running")):
         done = ctl(action, "--experiment", str(EXPERIMENT), "-e", pair.rome.endpoint)
         assert done.returncode == 0, done.stdout + done.stderr
@@ -87,7 +87,7 @@ def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None
             if e["event"] == "command" and e["command"]["command"] == "resume"
         ]  # fmt: skip
         (resumed,) = [e for e in control if e["event"] == "resumed"]
-        assert resume["at"] is not None and resume["issued_at"] == resume["at"]
+        assert resume["at"] is not None and resume["at"] > resume["issued_at"]
         assert resumed["t_sim"] == pytest.approx(resume["at"], abs=1e-9), agent
 
         held = next(e for e in control if e["event"] == "aborted")
