@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from federation.cli.common import (
     Formatter,
@@ -70,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.text import Text
 
+    from federation.report.completion import summary_lines
     from federation.runtime.collect import collect, describe
     from federation.runtime.monitor import printable
     from schemas.experiment import load_experiment
@@ -87,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
             timeout=args.timeout, retries=args.retries,
             progress=lambda line: console.print(Text(printable(line))),
         )  # fmt: skip
+    parts, duration = completions(args.out, expected)
     if args.json:
-        print(json.dumps(describe(result), indent=1))
+        print(json.dumps(describe(result) | {"participants": parts}, indent=1))
     else:
         # What agents sent (error texts, file names) is printed as text, never as markup,
         # and without control characters.
@@ -104,5 +107,26 @@ def run(args: argparse.Namespace) -> int:
             console.print(Text(printable(error), style="red"))
         for agent, what in sorted(result.incomplete.items()):  # collected, but not whole
             console.print(Text(printable(f"{agent}: {what}"), style="yellow"))
+        for line in summary_lines(parts, duration):  # how far each flew, and if it finished
+            console.print(Text(printable(line)))
         console.print(f"{result.bytes_fetched} bytes fetched into {args.out}")
     return 0 if result.ok else 1
+
+
+def completions(out: Path, expected: set[str] | None) -> tuple[dict[str, Any], float | None]:
+    """Per participant of the run collected into ``out``: the run time it reached and
+    whether it completed (:mod:`federation.report.completion`); the run's duration."""
+    from federation.report.completion import participants
+    from federation.report.load import load_run
+    from federation.report.summary import run_description
+    from schemas.config import ConfigError
+
+    try:
+        run = load_run(out)
+    except ConfigError:  # nothing collected: no recording to read
+        run = None
+    parts = {} if run is None else participants(run)
+    for agent in sorted(expected or ()):
+        parts.setdefault(agent, {"reached_s": None, "complete": False, "ended": "no recording"})
+    duration = None if run is None else run_description(run)["run_duration_s"]
+    return dict(sorted(parts.items())), duration

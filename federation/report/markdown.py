@@ -49,10 +49,44 @@ def _emulated(meta: dict[str, Any] | None) -> str:
     return text + " between the labs' routers."
 
 
-def _run_lines(described: dict[str, Any]) -> list[str]:
-    """Experiment, run id, date, versions, truncation and each agent's command line."""
-    if not described.get("run_id"):
+def _completion_lines(described: dict[str, Any]) -> list[str]:
+    """Whether the run completed, and per participant the run time it reached: a
+    participant that stopped early is never said to have completed it."""
+    parts = described.get("participants") or {}
+    duration = described.get("run_duration_s")
+    of = f" its {duration:g} s of run time" if duration is not None else " its run"
+    if not parts:
         return []
+    if described.get("complete"):
+        return [f"Every participant completed{of}.", ""]
+    lines = [
+        f"**Incomplete run**: not every participant completed{of}; figures cover what each "
+        "recorded.",
+        "",
+        "| participant | run time reached (s) | completed | how its run ended |",
+        "|---|---:|---|---|",
+    ]
+    for agent, part in parts.items():
+        reached = part.get("reached_s")
+        lines.append(
+            f"| {agent} | {'-' if reached is None else f'{reached:.1f}'} "
+            f"| {'yes' if part.get('complete') else 'no'} | {_ENDED.get(part.get('ended'), '?')} |"
+        )
+    return [*lines, ""]
+
+
+_ENDED = {
+    "done": "done: its run time reached the duration",
+    "aborted": "aborted",
+    "stopped early": "stopped early: no end recorded (its process stopped or was killed)",
+    "no recording": "no recording",
+}
+
+
+def _run_lines(described: dict[str, Any]) -> list[str]:
+    """Experiment, run id, date, versions, completion and each agent's command line."""
+    if not described.get("run_id"):
+        return _completion_lines(described)
     versions = described.get("versions") or {}
     lines = [
         f"Experiment **{described.get('experiment') or '?'}**, run `{described['run_id']}`, "
@@ -69,8 +103,7 @@ def _run_lines(described: dict[str, Any]) -> list[str]:
             "(aborted or stopped early).",
             "",
         ]
-    elif duration is not None:
-        lines += [f"The run completed its {duration:g} s of run time.", ""]
+    lines += _completion_lines(described)
     for agent, command in sorted((described.get("command_lines") or {}).items()):
         host = (described.get("hosts") or {}).get(agent) or "?"
         lines.append(f"- {agent} on {host}: `{command}`")

@@ -27,6 +27,7 @@ from federation.report.analysis import (
     sync_pairs,
     xcorr_lag,
 )
+from federation.report.completion import incomplete_notes, participants
 from federation.report.load import Run
 
 __all__ = [
@@ -173,6 +174,7 @@ def run_description(run: Run) -> dict[str, Any]:
     truncated = None
     if duration is not None and reached is not None:
         truncated = reached < duration - 0.5
+    parts = participants(run)
     # A run the recordings do not describe (the demo's, recorded to one file per agent)
     # is described by its run.json.
     meta = run.meta or {}
@@ -189,6 +191,9 @@ def run_description(run: Run) -> dict[str, Any]:
         "run_duration_s": duration,
         "run_time_reached_s": reached,
         "truncated": truncated,
+        # Per participant: the run time it reached, whether its run ended done.
+        "participants": parts,
+        "complete": bool(parts) and all(p["complete"] for p in parts.values()),
         "command_lines": {a: m.get("command_line") for a, m in described.items()},
         "hosts": {a: m.get("host") for a, m in described.items()},
         "clock_settings": {a: _clock_settings(m.get("agent_config")) for a, m in described.items()},
@@ -268,6 +273,7 @@ def summarize(run: Run, sync_phase: float = paper.SYNC_PHASE) -> dict[str, Any]:
     if not pairs:
         run.notes.append(f"no {Channel.SYNC_EXCHANGE} recorded by any agent")
     meta = run.meta or {}
+    run.notes += incomplete_notes(described["participants"])
     if described["truncated"]:
         run.notes.append(
             f"truncated run: run time reached {described['run_time_reached_s']:.1f} s of "
