@@ -5,7 +5,8 @@ An agent records its run's end as a ``/control`` event: ``done`` when its run ti
 reached the duration, ``aborted`` when the run was aborted. A recording with neither
 is of an agent whose process stopped (Ctrl-C, SIGTERM) or was killed before its run
 ended: never complete, however far the others flew. The run time reached is the
-largest an agent recorded (its ``/reference`` rows and its ``/control`` events). The
+largest an agent recorded (its ``/reference`` rows, ``/status`` lines and ``/control``
+events). The
 participants are every agent recorded, every agent of ``run.json`` and every agent a
 recorded start named; one without a recording reached nothing known.
 """
@@ -29,9 +30,8 @@ def completion(rec: AgentRecording) -> dict[str, Any]:
     ``complete`` (its run ended ``done``) and ``ended`` (``done``, ``aborted``, or
     ``stopped early``: no end recorded)."""
     control = rec.channel(Channel.CONTROL)
-    times = [
-        m.get("run_time") for m in rec.channel(Channel.REFERENCE) if m.get("mode") in _RUN_MODES
-    ]
+    rows = [*rec.channel(Channel.REFERENCE), *rec.channel(Channel.STATUS)]
+    times = [m.get("run_time") for m in rows if m.get("mode") in _RUN_MODES]
     times += [e.get("run_time") for e in control if e.get("event") in ("frozen", "resumed", *ENDS)]
     numbers = [float(t) for t in times if isinstance(t, int | float) and not isinstance(t, bool)]
     ends = [str(e["event"]) for e in control if e.get("event") in ENDS]
