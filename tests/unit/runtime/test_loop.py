@@ -97,6 +97,7 @@ def test_the_duration_ends_with_the_platform_held_then_a_last_status() -> None:
     assert agent.calls == ["hold", "status"]
 
 
+@pytest.mark.timing  # real time: poses counted in 0.2 and 0.3 s of a loop
 def test_run_together_runs_every_agent_for_its_duration() -> None:
     agents = [stub(duration=0.2), stub(duration=0.3, pose_rate=50.0)]
     run_together(agents, threading.Event(), spread=0.02)
@@ -113,6 +114,7 @@ def test_a_stopped_loop_reports_once_more() -> None:
     assert [a.calls for a in agents] == [["status"], ["status"]]
 
 
+@pytest.mark.timing  # real time: ticks 20 ms apart within 8 ms
 def test_agents_tick_in_groups_staggered_over_the_spread() -> None:
     """Groups of ``group`` agents tick on one wake-up; the groups' first ticks are
     staggered evenly over ``spread`` (4 agents in groups of 2 over 40 ms: 0 and 20 ms)."""
