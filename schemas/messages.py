@@ -137,6 +137,13 @@ class Status(BaseModel):
     run_time: float | None = Field(None, description="experiment time since the start, s")
     run_id: str | None = Field(None, description="the run started last (ctl start names it)")
     duration: float | None = Field(None, description="run time after which the run is done, s")
+    start_at: float | None = Field(
+        None,
+        description="the run's start instant on reference time, s (with run_id, duration, "
+        "frozen_total and experiment: the run's announcement a rejoining agent reads)",
+    )
+    frozen_total: float = Field(0.0, description="reference time the run spent frozen, s")
+    experiment: str | None = Field(None, description="the experiment the run's start named")
     ready: Readiness | None = Field(None, description="what preflight checks of this agent")
     commands: list[CommandOutcome] = Field(
         default_factory=list, description="the last commands received and what became of each"

@@ -80,6 +80,7 @@ class RunControl:
         self.log: deque[CommandOutcome] = deque(maxlen=8)
         self.closing = False  # no command but an abort is taken once set
         self.status_now = False  # a command was applied: report it at the next step
+        self.experiment: str | None = None  # the experiment the run's start named
         # The run (id, start) the scenario's guidance is for; a new one is begun on the
         # loop's thread at its next step, not under a reference it is computing.
         self._scenario_run: tuple[str | None, float | None] | None = None
@@ -230,8 +231,10 @@ class RunControl:
                 owner.safety.close_valves()
             with self.lock:
                 events = self.run_state.command(command, owner.sim_time(t_exec))
-                if command.maneuver is not None and any(e.kind == "armed" for e in events):
-                    owner.maneuver = maneuver_of(command.maneuver)
+                if any(e.kind == "armed" for e in events):
+                    self.experiment = command.experiment
+                    if command.maneuver is not None:
+                        owner.maneuver = maneuver_of(command.maneuver)
             self._tell_safety(events)
             if command.command == "reset" and not any(e.kind == "ignored" for e in events):
                 owner.platform.acknowledge_restart()
