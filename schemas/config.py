@@ -17,6 +17,7 @@ from federation.core.channels import Channel
 from federation.core.endpoints import endpoint_problem
 from federation.core.estimators import DEFAULT_ESTIMATOR, EstimatorName
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
+from federation.core.rejoin import Policy as RejoinPolicy
 from schemas import base
 from schemas.base import ConfigError as ConfigError
 from schemas.base import format_validation_error as format_validation_error
@@ -29,6 +30,7 @@ __all__ = [
     "AgentConfig",
     "ConfigError",
     "ManeuverConfig",
+    "RejoinPolicy",
     "RouterConfig",
     "ZenohOptions",
     "format_validation_error",
@@ -212,6 +214,12 @@ class AgentConfig(_Model):
         description="this agent's part of a formation, docking or adaptive-gain scenario "
         "(from --experiment); none: attitude tracking as configured above",
     )
+    rejoin: RejoinPolicy | None = Field(
+        None,
+        description="whether this agent, (re)started while its run is under way, joins it: "
+        "auto (when synchronized and ready), operator (only after fedlab ctl admit LAB/NAME), "
+        "never; none: operator for a real platform (serial:PORT), auto for a simulated one",
+    )
 
     @field_validator("platform")
     @classmethod
@@ -257,6 +265,14 @@ class AgentConfig(_Model):
     @property
     def agent(self) -> AgentId:
         return AgentId(self.lab, self.name)
+
+    @property
+    def rejoin_policy(self) -> RejoinPolicy:
+        """:attr:`rejoin`, or its default: ``operator`` for a real platform, ``auto``
+        for a simulated one."""
+        if self.rejoin is not None:
+            return self.rejoin
+        return "operator" if self.hardware else "auto"
 
     @property
     def hardware(self) -> bool:

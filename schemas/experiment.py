@@ -24,7 +24,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
-from schemas.config import AgentRef, ManeuverConfig, _Model, _name, load_model
+from schemas.config import AgentRef, ManeuverConfig, RejoinPolicy, _Model, _name, load_model
 from schemas.scenario import (
     AdaptiveConfig,
     DockingConfig,
@@ -35,7 +35,7 @@ from schemas.scenario import (
     ScenarioPart,
 )
 
-__all__ = ["ExperimentConfig", "Participant", "load_experiment"]
+__all__ = ["ExperimentConfig", "Participant", "load_experiment", "stricter"]
 
 
 class Participant(_Model):
@@ -53,6 +53,21 @@ class Participant(_Model):
         False, description="a follower schedules its heading gains from the leader's motion"
     )
     seed: int | None = Field(None, description="seed of the simulated platform's noise")
+    rejoin: RejoinPolicy | None = Field(
+        None,
+        description="whether it joins a run under way when (re)started: auto, operator (after "
+        "fedlab ctl admit), never; none: operator for a real platform, auto for a simulated "
+        "one (the experiment's rejoin, if stricter, wins)",
+    )
+
+
+STRICTNESS: tuple[RejoinPolicy, ...] = ("auto", "operator", "never")
+"""Rejoin policies, least strict first."""
+
+
+def stricter(a: RejoinPolicy, b: RejoinPolicy) -> RejoinPolicy:
+    """The stricter of two rejoin policies (never > operator > auto)."""
+    return max(a, b, key=STRICTNESS.index)
 
 
 class ExperimentConfig(_Model):
@@ -75,6 +90,12 @@ class ExperimentConfig(_Model):
     docking: DockingConfig | None = None
     relative_sensor: RelativeSensorConfig = Field(default_factory=RelativeSensorConfig)
     adaptive: AdaptiveConfig = Field(default_factory=AdaptiveConfig)
+    rejoin: RejoinPolicy = Field(
+        "auto",
+        description="the most a participant may rejoin a run under way: auto, operator (only "
+        "after fedlab ctl admit), never; each participant's own (its platform's default: "
+        "operator for a real one) applies if stricter",
+    )
     participants: list[Participant] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -89,6 +110,13 @@ class ExperimentConfig(_Model):
         else:
             self._check_attitude_tracking()
         return self
+
+    def rejoin_of(self, part: Participant) -> RejoinPolicy | None:
+        """The rejoin policy of ``part``'s agent: its own, bounded by the experiment's;
+        None where its platform's default (operator for a real one, auto otherwise) is it."""
+        if part.rejoin is not None:
+            return stricter(part.rejoin, self.rejoin)
+        return None if self.rejoin == "auto" else self.rejoin
 
     def _check_roles(self, names: list[str]) -> None:
         """Each agent takes part once; one leads; a follower follows one who takes part;

@@ -330,6 +330,8 @@ def _experiment_part(
         "wait_start": True,
         "experiment": str(path),
         "run_duration": experiment.duration,
+        # The experiment's rejoin, where it says more than the platform's default.
+        **({} if experiment.rejoin_of(part) is None else {"rejoin": experiment.rejoin_of(part)}),
         # Every run recorded on this host, unless a recording names one file for all.
         **({} if record else {"runs_dir": "runs"}),
         **_scenario_part(experiment, me),
