@@ -23,7 +23,9 @@ arbitrary sequences of triggers:
 3. An abort is lifted only by an operator's reset; so is an estimate restarted from
    outlier fixes. A confirmed reset leaves none of the holds it lifts.
 4. A run's holds follow its mode: before its start the platform waits (``waiting``),
-   after its end it is ``done``; a reset between runs is ``reset``.
+   after its end it is ``done``; a reset between runs is ``reset``. A rejoin (a run
+   under way joined, :mod:`federation.core.rejoin`) lifts ``waiting`` and ``reset`` as
+   a start does, and nothing else: a fault or a condition standing still holds.
 5. Conditions lift on their own when they clear: a stale link, a contested peer, a
    lost router.
 
@@ -75,6 +77,8 @@ class Trigger(Enum):
     # The run (federation.core.runstate's events, and the operator's reset).
     RUN_ARMED = "run_armed"
     RUN_STARTED = "run_started"
+    RUN_REJOINED = "run_rejoined"
+    """The agent joined a run under way (federation.core.rejoin decided it)."""
     RUN_DONE = "run_done"
     RUN_ABORTED = "run_aborted"
     OPERATOR_RESET = "operator_reset"
@@ -101,7 +105,7 @@ class Release(StrEnum):
 
     NEVER = "never (a new process)"
     OPERATOR = "an operator's reset (fedlab ctl reset)"
-    RUN = "the run (a start, or a reset)"
+    RUN = "the run (a start, a rejoin, or a reset)"
     ON_ITS_OWN = "on its own, when the condition clears"
 
 
@@ -148,8 +152,8 @@ RULES: tuple[Rule, ...] = (
           "clock stepped, the router lost, the estimate restarted)"),
     _rule(Hold.DONE,        T.RUN_DONE,       (T.RUN_ARMED, T.OPERATOR_RESET), R.RUN,        False,
           "the run reached its duration"),
-    _rule(Hold.RESET,       T.OPERATOR_RESET, (T.RUN_ARMED,),                  R.RUN,        False,
-          "waiting for the next start after an operator's reset"),
+    _rule(Hold.RESET,       T.OPERATOR_RESET, (T.RUN_ARMED, T.RUN_REJOINED),   R.RUN,        False,
+          "waiting for the next start (or a rejoin) after an operator's reset"),
     _rule(Hold.CONTESTED,   T.CONTESTED,      (T.CONTEST_CLEARED,),            R.ON_ITS_OWN, True,
           "two sources speak for the followed agent: nothing from it is used; lifted "
           "once the contest clears and a pose and a sync exchange came since"),
@@ -163,8 +167,9 @@ RULES: tuple[Rule, ...] = (
           "is published; lifted once it flows again"),
     _rule(Hold.ENDED,       T.ENDED,          (),                              R.NEVER,      True,
           "the agent's duration passed, or it is closing: the process ends"),
-    _rule(Hold.WAITING,     T.RUN_ARMED,      (T.RUN_STARTED,),                R.RUN,        False,
-          "waiting for its run to start (fedlab ctl start)"),
+    _rule(Hold.WAITING,     T.RUN_ARMED,      (T.RUN_STARTED, T.RUN_REJOINED), R.RUN,        False,
+          "waiting for its run to start (fedlab ctl start), or to rejoin a run under way "
+          "(its rejoin policy: auto, or after fedlab ctl admit)"),
 )
 # fmt: on
 """Every hold, highest rank first (the one status shows when several stand)."""

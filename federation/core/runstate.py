@@ -63,6 +63,10 @@ its instant, running to done once the run time reaches the duration (a freeze ar
 for after the run's end never applies). :attr:`RunState.last` is the last transition
 applied: its instant on reference time and the run time then.
 
+:meth:`RunState.rejoin` joins, from ``waiting``, a run under way that others announce
+(:mod:`federation.core.rejoin` decides whether): ``running`` at once, with the run's id,
+start instant, time frozen and duration, so its run time is theirs (event ``rejoined``).
+
 ``run_time`` is the experiment's clock: reference time since the start, less the
 time spent frozen. The leader's maneuver is a function of it.
 
@@ -129,14 +133,14 @@ class Event:
     """What a transition (or a refused command) did, for the log and the recording."""
 
     kind: Literal[
-        "armed", "started", "freezing", "frozen", "resuming", "resumed", "done", "aborted",
-        "reset", "ignored",
+        "armed", "started", "rejoined", "freezing", "frozen", "resuming", "resumed", "done",
+        "aborted", "reset", "ignored",
     ]  # fmt: skip
     t_sim: float | None  # reference time the event refers to (s)
     detail: str = ""
 
 
-APPLIED_KINDS = frozenset({"started", "frozen", "resumed", "done", "aborted"})
+APPLIED_KINDS = frozenset({"started", "rejoined", "frozen", "resumed", "done", "aborted"})
 """The events that change whether the run's clock runs: :attr:`RunState.last` records them."""
 
 
@@ -466,6 +470,29 @@ class RunState:
         self.mode, self.start_at, self.frozen_at = "waiting", None, None
         self.autostart, self.armed, self.last = False, None, None
         return [Event("reset", t_sim)]
+
+    def rejoin(
+        self,
+        run_id: str,
+        start_at: float,
+        frozen_total: float,
+        duration: float,
+        t_sim: float | None,
+    ) -> list[Event]:
+        """Join a run under way at reference time ``t_sim``: from ``waiting`` only, with a
+        run that has begun and not ended, ``running`` at once on the run's clock (its
+        start instant and time frozen); ``ignored`` otherwise."""
+        if self.mode != "waiting":
+            return [Event("ignored", t_sim, f"rejoin while {self.mode}")]
+        if t_sim is None:
+            return [Event("ignored", None, "rejoin, but not synchronized yet")]
+        run_time = t_sim - start_at - frozen_total
+        if not 0.0 <= run_time < duration:
+            return [Event("ignored", t_sim, f"rejoin at run time {run_time:.3f} s: no run then")]
+        self.mode, self.start_at, self.frozen_total = "running", start_at, frozen_total
+        self.frozen_at, self.resumed_at, self.armed, self.autostart = None, None, None, False
+        self.run_id, self.duration, self.last_t_sim = run_id, duration, t_sim
+        return self._noted([Event("rejoined", t_sim, f"at run time {run_time:.3f} s")])
 
     _TRANSITIONS: ClassVar[
         dict[Outcome, Callable[[RunState, RunCommand, float | None], list[Event]]]

@@ -54,6 +54,7 @@ _LOCAL_ABORT = Command(command="abort", seq=-1, issuer="fedlab (this agent)")
 _RUN_TRIGGERS = {
     "armed": Trigger.RUN_ARMED,
     "started": Trigger.RUN_STARTED,
+    "rejoined": Trigger.RUN_REJOINED,
     "done": Trigger.RUN_DONE,
     "aborted": Trigger.RUN_ABORTED,
 }

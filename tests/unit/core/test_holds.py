@@ -54,6 +54,26 @@ def test_a_new_supervisor_waits_and_a_start_releases() -> None:
     assert change.lifted == {Hold.WAITING} and s.may_open and s.hold is None
 
 
+def test_a_rejoin_lifts_only_the_run_holds_of_waiting() -> None:
+    # A restarted agent (waiting) that joins a run under way is released as a start
+    # releases it; a fault or a condition standing still holds it.
+    assert {r.hold for r in RULES if Trigger.RUN_REJOINED in r.lifted_by} == {
+        Hold.WAITING,
+        Hold.RESET,
+    }
+    assert not any(r.set_by is Trigger.RUN_REJOINED for r in RULES)
+    s = Supervisor()
+    assert s.apply(Trigger.RUN_REJOINED).lifted == {Hold.WAITING} and s.may_open
+    s = Supervisor()
+    s.apply(Trigger.LINK_STALE)
+    s.apply(Trigger.RUN_REJOINED)
+    assert s.hold is Hold.STALE and not s.may_open
+    s = Supervisor(())
+    s.apply(Trigger.RUN_ABORTED)
+    s.apply(Trigger.RUN_REJOINED)
+    assert s.hold is Hold.ABORTED, "a rejoin lifted an abort"
+
+
 def test_the_highest_ranked_hold_is_shown_and_the_others_still_stand() -> None:
     s = Supervisor(())
     for trigger in (Trigger.LINK_STALE, Trigger.ROUTER_LOST, Trigger.RUN_DONE):
@@ -186,6 +206,7 @@ class _Cmd:
 _RUN_TRIGGER = {
     "armed": Trigger.RUN_ARMED,
     "started": Trigger.RUN_STARTED,
+    "rejoined": Trigger.RUN_REJOINED,
     "done": Trigger.RUN_DONE,
     "aborted": Trigger.RUN_ABORTED,
 }
@@ -206,6 +227,8 @@ STEPS = st.lists(
         st.tuples(st.just("command"), COMMANDS, st.sampled_from([None, -0.5, 0.0, 0.5])),
         st.tuples(st.just("time"), st.floats(0.0, 3.0), st.none()),
         st.tuples(st.just("condition"), CONDITIONS, st.none()),
+        # A run under way others announce: begun this long ago (s of run time).
+        st.tuples(st.just("rejoin"), st.sampled_from([-1.0, 0.0, 3.0, 9.9, 12.0]), st.none()),
     ),
     max_size=50,
 )
@@ -231,6 +254,9 @@ def test_with_a_real_run_state_the_valves_open_only_in_a_run_under_way(
             assert isinstance(what, Trigger)
             s.apply(what)
             continue
+        elif kind == "rejoin":
+            assert isinstance(what, float)
+            events = run.rejoin("r", t - what, 0.0, 10.0, t)
         else:
             assert isinstance(what, str)
             at = None if arg is None else t + float(str(arg))
