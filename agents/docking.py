@@ -186,8 +186,8 @@ class DockingGuidance:
         self, config: DockingConfig, sensor: RelativeSensorConfig, compensate: bool = True
     ):
         self.config = config
-        self.sensor_config = sensor if compensate else sensor.model_copy(update={"horizon": 1e-9})
-        self.sensor = RelativeSensor(self.sensor_config)
+        self.sensor_config = sensor
+        self.sensor = RelativeSensor(sensor, compensate)
         self.target = TargetFilter()
         self.phase = APPROACH
         self.events: list[tuple[float, str]] = []

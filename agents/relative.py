@@ -83,10 +83,14 @@ class RelativeSensor:
     ``counters``: measurements given (``relative_given``), and none: out of the field
     of view or range (``relative_out_of_view``), a dropout (``relative_dropped``),
     nothing shared yet (``relative_no_pose``) or only too old (``relative_stale_pose``).
+    ``compensate``: measure the other's shared pose dead-reckoned to now (latency
+    compensation), else where it was at its stamp; either way a pose older than the
+    config's ``horizon`` gives no measurement.
     """
 
-    def __init__(self, config: RelativeSensorConfig):
+    def __init__(self, config: RelativeSensorConfig, compensate: bool = True):
         self.config = config
+        self.compensate = compensate
         self.rng = np.random.default_rng(config.seed)
         self._period = 1.0 / config.rate
         self._next: float | None = None
@@ -114,7 +118,7 @@ class RelativeSensor:
         """Range-free relative pose before noise: (x, y) in own body frame, heading
         difference; ``other`` = (its stamp on reference time, its pose)."""
         stamp, pose = other
-        o = dead_reckon(pose, now - stamp, self.config.horizon)
+        o = dead_reckon(pose, now - stamp, self.config.horizon) if self.compensate else pose
         dx, dy = o.x - own.x, o.y - own.y
         c, s = math.cos(own.heading), math.sin(own.heading)
         return Pose(c * dx + s * dy, -s * dx + c * dy, wrap_angle(o.heading - own.heading))

@@ -38,6 +38,18 @@ def test_noiseless_measurement_is_the_difference_of_the_poses_dead_reckoned() ->
     assert (x, y) == pytest.approx((0.01, 0.0))
 
 
+def test_without_compensation_a_late_pose_is_measured_where_it_was() -> None:
+    sensor = RelativeSensor(QUIET, compensate=False)
+    own = Pose(1.0, 0.0, math.pi)
+    other = (9.75, Pose(0.0, 0.0, 0.0, 0.05, 0.0, 0.0))  # stamped 250 ms ago, moving +x
+    m = sensor.measure(10.0, other, own)
+    assert m is not None and m.range == pytest.approx(1.0)  # not moved on
+    assert sensor.counters[Count.RELATIVE_GIVEN] == 1
+    # Past the horizon it is stale, compensated or not.
+    assert sensor.measure(12.0, (10.5, other[1]), own) is None
+    assert sensor.counters[Count.RELATIVE_STALE_POSE] == 1
+
+
 def test_field_of_view_range_and_rate() -> None:
     sensor = RelativeSensor(QUIET.model_copy(update={"fov_deg": 60, "max_range": 2.0}))
     own = Pose()
