@@ -16,8 +16,9 @@ that refuses answers):
 1. ``never``: this agent's policy refuses every rejoin.
 2. Only an agent ``waiting`` rejoins (one armed, running, frozen, done or aborted
    takes its runs from commands).
-3. It must know the reference time now (its sync client locked): joining needs the
-   run's clock.
+3. It must know the reference time now and pass its own preflight (its sync client
+   locked, its platform ready: no fault hold, measurements fresh): joining needs the
+   run's clock and a platform fit to fly.
 4. An announcement counts only if it is fresh (its status's reference time within
    :data:`FRESH` of now), from another agent, for this agent's reference and
    experiment, of a run ``running`` with nothing armed (a freeze or resume to come:
@@ -98,6 +99,8 @@ class Situation:
     now: float | None
     """Reference time now, s (None: not synchronized)."""
     seen: tuple[Announcement, ...]
+    unready: str | None = None
+    """Why its preflight fails (None: it passes)."""
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,10 @@ def _unsynchronized(s: Situation) -> str | None:
     return "no reference time: not synchronized" if s.now is None else None
 
 
+def _unready(s: Situation) -> str | None:
+    return None if s.unready is None else f"preflight: {s.unready}"
+
+
 def _no_run(s: Situation) -> str | None:
     return None if _runs(s) else "no run under way"
 
@@ -179,6 +186,7 @@ CHECKS: tuple[tuple[str, Callable[[Situation], str | None]], ...] = (
     ("never", _never),
     ("not waiting", _not_waiting),
     ("unsynchronized", _unsynchronized),
+    ("unready", _unready),
     ("no run", _no_run),
     ("disagree", _disagree),
     ("ending", _ending),

@@ -62,6 +62,7 @@ from federation.runtime.agent.commands import RunControl, maneuver_of
 from federation.runtime.agent.intake import PoseIntake
 from federation.runtime.agent.peers import Peer, PeerTable
 from federation.runtime.agent.recordings import Recordings
+from federation.runtime.agent.rejoining import Rejoining
 from federation.runtime.agent.reporting import Reporter
 from federation.runtime.agent.watches import Watches
 from federation.runtime.clock import ExecClock
@@ -139,6 +140,7 @@ class AgentRuntime:
         self.intake = PoseIntake(self, self.peer_table, self.commands)
         self.watches = Watches(self, self.intake, self.peer_table, self.commands)
         self.reporter = Reporter(self, self.intake, self.peer_table, self.commands, self.recordings)
+        self.rejoining = Rejoining(self, self.commands)  # a run under way joined
         self.recording_server: RecordingServer | None = None
         self._clock_stepped = False
         self._pose_sn = 0  # sequence number in the pose samples' source info
@@ -275,6 +277,12 @@ class AgentRuntime:
                 keys.all_agents(fed), callback(self.on_liveliness, indirect=False), history=True
             )
         )
+        if self.rejoining.policy != "never":  # the runs under way others announce
+            self._declared.append(
+                s.declare_subscriber(
+                    keys.all_of(fed, "status"), callback(self.rejoining.on_status, indirect=False)
+                )
+            )
         if cfg.runs_dir is not None:
             software_versions()  # now, not on Zenoh's thread when a run arms (git: up to 2 s)
             self.recording_server = RecordingServer(
@@ -409,6 +417,7 @@ class AgentRuntime:
         t_exec, host = self.clock.read()
         self.watches.look(host)
         t_sim = self.sim_time(t_exec)
+        self.rejoining.look(t_exec, host, t_sim)
         events, run_time = self.commands.update(t_sim)
         if events:
             self.commands.apply(events, t_exec, host)
@@ -427,6 +436,8 @@ class AgentRuntime:
                 self.commands.scenario_new_run = False
                 self.scenario.new_run()
             self._scenario_reference(t_exec, t_sim, run_time)
+        if self.run_state.mode == "running":  # a rejoined platform captures its reference
+            self.guidance = self.rejoining.guidance(*self.guidance, host)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         self.watches.watch_area(t_exec, host)

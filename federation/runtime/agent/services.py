@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from federation.runtime.recorder import Message
     from federation.runtime.safety import Safety
     from schemas.config import AgentConfig
-    from schemas.messages import Status
+    from schemas.messages import Readiness, Status
 
 __all__ = ["AgentServices"]
 
@@ -66,5 +66,7 @@ class AgentServices(Protocol):
     def sim_time(self, t_exec: float) -> float | None: ...
 
     def status(self) -> Status: ...
+
+    def readiness(self, t_exec: float) -> Readiness: ...
 
     def counter_snapshot(self) -> dict[Count, int]: ...

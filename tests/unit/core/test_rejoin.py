@@ -48,6 +48,7 @@ def test_time_spent_frozen_is_not_run_time() -> None:
         ({"mode": "done"}, "done: only a waiting agent rejoins"),
         ({"mode": "running"}, "running: only a waiting agent rejoins"),
         ({"now": None}, "not synchronized"),
+        ({"unready": "reference clock not locked"}, "preflight: reference clock not locked"),
         ({"seen": ()}, "no run under way"),
         ({"seen": (dataclasses.replace(LEADER, mode="frozen"),)}, "no run under way"),
         ({"seen": (dataclasses.replace(LEADER, armed=True),)}, "no run under way"),
@@ -102,7 +103,7 @@ def test_stale_announcements_beside_a_fresh_one_do_not_count() -> None:
 
 def test_the_table_names_every_rule_once() -> None:
     names = [name for name, _ in CHECKS]
-    assert len(names) == len(set(names)) == 7
+    assert len(names) == len(set(names)) == 8
 
 
 def test_the_first_refusal_answers() -> None:
