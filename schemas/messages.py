@@ -192,6 +192,16 @@ class Status(BaseModel):
     armed: RunTransition | None = Field(
         None, description="a freeze or resume announced for an instant to come"
     )
+    rejoin: str | None = Field(
+        None,
+        description="while waiting: why it does not join a run under way (its rejoin policy, "
+        "no run, not synchronized, an operator's admit awaited...)",
+    )
+    admit_run: str | None = Field(
+        None,
+        description="the run under way it joins once an operator admits it (fedlab ctl admit "
+        "LAB/NAME); none: it waits for no admit",
+    )
 
 
 class RunTransition(BaseModel):
@@ -211,6 +221,10 @@ class RunTransition(BaseModel):
 class Command(BaseModel):
     """Execution control, published on ``fedlab/<federation>/control`` (JSON).
 
+    ``admit`` lets the agents it names (``participants``) rejoin a run under way when
+    their rejoin policy is ``operator`` (:mod:`federation.core.rejoin`); it does nothing
+    to a run state.
+
     Modelled on SpaceFOM's run/freeze/shutdown modes. ``at`` is a reference
     (simulation) time: every agent acts when its own synchronized clock reaches
     it, so a start is simultaneous without a video call. Without ``at`` the
@@ -221,7 +235,7 @@ class Command(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    command: Literal["start", "freeze", "resume", "abort", "reset"]
+    command: Literal["start", "freeze", "resume", "abort", "reset", "admit"]
     at: float | None = Field(None, allow_inf_nan=False, description="reference time, s")
     seq: int = Field(description="the issuer's command number, 1, 2, 3...; repeats are ignored")
     issued_at: float | None = Field(
@@ -242,9 +256,16 @@ class Command(BaseModel):
     participants: list[Annotated[str, Field(max_length=200)]] | None = Field(
         None,
         max_length=4096,
-        description="LAB/NAME of every agent a start, freeze, resume or reset is for: an "
-        "agent not named ignores it (an abort is for every agent); none: every agent",
+        description="LAB/NAME of every agent a start, freeze, resume, reset or admit is for: "
+        "an agent not named ignores it (an abort is for every agent); none: every agent (an "
+        "admit names its agents)",
     )
+
+    @model_validator(mode="after")
+    def _admit_names(self) -> Command:
+        if self.command == "admit" and not self.participants:
+            raise ValueError("an admit names the agents it admits (participants)")
+        return self
 
     def not_for(self, agent: str) -> str | None:
         """Why this command is not for ``agent`` (it names the participants, not this

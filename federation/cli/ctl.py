@@ -1,4 +1,4 @@
-"""``fedlab ctl start|freeze|resume|abort|reset|status``: execution control over the federation.
+"""``fedlab ctl start|freeze|resume|abort|reset|admit|status``: execution control.
 
 Parses, calls :func:`federation.runtime.control.issue` (or
 :func:`~federation.runtime.control.status`) and prints who confirmed, who is
@@ -36,7 +36,8 @@ __all__ = ["add", "run"]
 def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "ctl",
-        help="start, freeze, resume, abort or reset a run; status: who is ready",
+        help="start, freeze, resume, abort or reset a run; admit an agent into one under "
+        "way; status: who is ready",
         formatter_class=Formatter,
         description=(
             "start checks every participant first (present, waiting, synchronized with the\n"
@@ -51,7 +52,9 @@ def add(sub: Subparsers) -> None:
             "ahead (default: the least that reaches every participant, from the one-way\n"
             "delays they report): every agent freezes (resumes) at that instant, at the same\n"
             "run time (one receiving a resume over 1 s late ignores it; a freeze late freezes\n"
-            "at once). status prints the preflight table. Exit code 1\n"
+            "at once). admit LAB/NAME lets an agent (re)started mid-run whose rejoin policy is\n"
+            "operator join the run under way. status prints the preflight table (and who\n"
+            "waits to be admitted). Exit code 1\n"
             "if an agent did not confirm (the table says why) or the router is unreachable."
         ),
         epilog=(
@@ -63,14 +66,24 @@ def add(sub: Subparsers) -> None:
             "  fedlab ctl freeze --experiment deploy/experiments/attitude-tracking.toml \\\n"
             "      -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl abort -e tcp/127.0.0.1:7447\n"
+            "  fedlab ctl admit rome/pinocchio -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl reset --experiment deploy/experiments/attitude-tracking.toml \\\n"
             "      -e tcp/127.0.0.1:7447"
         ),
     )
     p.add_argument(
         "action",
-        choices=[*control.ACTIONS, "status"],
-        help="start, freeze or resume at a common instant; abort, reset on receipt; status",
+        choices=[*control.ACTIONS, "admit", "status"],
+        help="start, freeze or resume at a common instant; abort, reset on receipt; admit "
+        "LAB/NAME into the run under way; status",
+    )
+    p.add_argument(
+        "agents",
+        nargs="*",
+        type=agent_id,
+        metavar="LAB/NAME",
+        help="admit: the agents to let rejoin the run under way (their rejoin policy is "
+        "operator, a real platform's default; ctl status shows who waits for it)",
     )
     p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
     add_federation_flag(p, "federation name (an experiment's own wins)")
@@ -141,7 +154,10 @@ def preflight_table(rows: list[Row], title: str) -> Any:
             else:
                 cells.append(f"[red]{check.detail}[/red]")
         agent = row.agent if row.participant else f"{row.agent} (not a participant)"
-        table.add_row(agent, row.mode or "-", *cells)
+        mode = row.mode or "-"
+        if row.admit_run is not None:
+            mode = f"[yellow]{mode}: to be admitted to {row.admit_run} (ctl admit)[/yellow]"
+        table.add_row(agent, mode, *cells)
     return table
 
 
@@ -155,7 +171,15 @@ def run(args: argparse.Namespace) -> int:
     session = open_session(args, stop_on_signals())
     if session is None:
         return 0
+    if args.agents and args.action != "admit":
+        console.print(f"[red]{args.action} names no agents (only admit does)[/red]")
+        return 2
+    if args.action == "admit" and not args.agents:
+        console.print("[red]admit names the agents to admit: fedlab ctl admit LAB/NAME[/red]")
+        return 2
     with session:
+        if args.action == "admit":
+            return run_admit(args, session, experiment, console)
         if args.action == "status":
             rows = control.status(
                 session, federation=args.federation, experiment=experiment,
@@ -197,6 +221,31 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result.as_json() | ({"hint": hint} if hint else {}), indent=1))
     else:
         print_result(console, args.action, result, hint)
+    return 0 if result.ok else 1
+
+
+def run_admit(args: argparse.Namespace, session: Any, experiment: Any, console: Any) -> int:
+    """``fedlab ctl admit LAB/NAME...``: who rejoined, and why the others did not."""
+    from rich.table import Table
+
+    from federation.runtime.admit import admit
+
+    federation = experiment.federation if experiment is not None else args.federation
+    result = admit(
+        session, args.agents, federation=federation, wait=max(args.wait, 1.0),
+        discover=args.discover, progress=console.print,
+    )  # fmt: skip
+    if args.json:
+        print(json.dumps(result.as_json(), indent=1))
+        return 0 if result.ok else 1
+    table = Table(title=f"fedlab ctl admit ({result.elapsed:.2f} s)")
+    for column in ("agent", "mode", "rejoined at run time", "why not"):
+        table.add_column(column)
+    for agent, mode in result.modes.items():
+        joined = result.joined.get(agent)
+        at = "" if joined is None else f"{joined:.3f} s"
+        table.add_row(agent, mode, at, result.reasons.get(agent, ""))
+    console.print(table)
     return 0 if result.ok else 1
 
 

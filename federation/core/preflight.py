@@ -19,12 +19,17 @@ peers       no peer it syncs with is alive but silent (``peers.<agent>.silent``:
             request for 2 s); the silent ones are named with how long
 ==========  ================================================================
 
+A row also names the run under way an agent waits to be admitted to
+(``admit_run``: its rejoin policy is ``operator``; ``fedlab ctl admit LAB/NAME`` lets
+it join).
+
 A check that fails says why in its cell (``absent``, ``mode running``,
 ``not locked``, ``bound 12.3 ms > 10 ms``...).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -63,6 +68,8 @@ class Row:
     mode: str | None = None
     run_id: str | None = None
     participant: bool = True
+    admit_run: str | None = None
+    """The run under way it joins once an operator admits it (none: it awaits no admit)."""
 
     @property
     def ok(self) -> bool:
@@ -80,6 +87,7 @@ class Row:
             "ok": self.ok,
             "mode": self.mode,
             "run_id": self.run_id,
+            "admit_run": self.admit_run,
             "checks": {k: {"ok": c.ok, "detail": c.detail} for k, c in self.checks.items()},
         }
 
@@ -156,7 +164,9 @@ def _row(
         ),
         "peers": _peers(status),
     }
-    return Row(agent, checks, mode, status.get("run_id"))
+    admit_run = status.get("admit_run")
+    admit = admit_run if isinstance(admit_run, str) else None
+    return Row(agent, checks, mode, status.get("run_id"), admit_run=admit)
 
 
 def preflight(
@@ -176,7 +186,7 @@ def preflight(
     rows = [_row(a, statuses.get(a), ages.get(a), limits, reference) for a in expected]
     for agent in others:
         row = _row(agent, statuses.get(agent), ages.get(agent), limits)
-        rows.append(Row(row.agent, row.checks, row.mode, row.run_id, participant=False))
+        rows.append(dataclasses.replace(row, participant=False))
     return rows
 
 

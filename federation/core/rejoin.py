@@ -112,7 +112,8 @@ class Decision:
     run: Announcement | None = None
     run_time: float | None = None
     waiting_admit: bool = False
-    """A run it could join, waiting for an operator's admit (preflight's table says so)."""
+    """A run it could join (``run``), waiting for an operator's admit (preflight's table
+    says so)."""
 
 
 def _counts(s: Situation, a: Announcement) -> bool:
@@ -201,7 +202,9 @@ def decide(s: Situation) -> Decision:
     for name, check in CHECKS:
         why = check(s)
         if why is not None:
-            return Decision(False, why, waiting_admit=name == "not admitted")
+            if name == "not admitted":  # the run it would join, for preflight's table
+                return Decision(False, why, _runs(s)[0], waiting_admit=True)
+            return Decision(False, why)
     run, now = _runs(s)[0], s.now
     assert now is not None
     return Decision(True, f"rejoin run {run.run_id}", run, run.run_time(now))

@@ -50,10 +50,13 @@ first by :class:`federation.core.commands.CommandGate`):
    behind a cut link; acted on now, it would set platforms moving when no one chose).
    A resume with neither is ``ignored`` (ctl stamps every resume). A freeze acts on
    receipt however late, and without the reference time at the last one known.
+7. ``admit`` does nothing to a run state in any mode: it lets a waiting agent rejoin a
+   run under way, which :mod:`federation.core.rejoin` decides and :meth:`RunState.rejoin`
+   applies.
 
-What each command does in each mode and stage (rules 1 to 5 without their instants)
-is one table, :data:`COMMAND_RULES`. What a table cannot say, whether a command came in time,
-is a few named checks: those of rule 6 and a resume's instant run before the table's
+What each command does in each mode and stage (rules 1 to 5 and 7 without their
+instants) is one table, :data:`COMMAND_RULES`. What a table cannot say, whether a command
+came in time, is a few named checks: those of rule 6 and a resume's instant run before the table's
 rule (:data:`TIMING_CHECKS`; after an abort none runs, rule 3 answers first), and a
 start's own (not synchronized, instant passed, no duration) once its mode lets it arm.
 
@@ -172,20 +175,20 @@ checks may still refuse it), ``nothing`` (no event), or a refusal (``ignored``):
 ``busy`` (a run under way: abort first), ``after abort`` (reset first), ``wrong mode``,
 ``armed first`` (a freeze or resume is armed: it applies first)."""
 
-COMMANDS = ("start", "freeze", "resume", "abort", "reset")
+COMMANDS = ("start", "freeze", "resume", "abort", "reset", "admit")
 """Every command :class:`RunCommand` names, in the columns of :data:`COMMAND_RULES`."""
 
 # fmt: off
-_RULE_ROWS: dict[Stage, tuple[Outcome, Outcome, Outcome, Outcome, Outcome]] = {
-    #             start          freeze         resume         abort      reset
-    "waiting":  ("arm",         "wrong mode",  "wrong mode",  "abort",   "nothing"),
-    "armed":    ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
-    "running":  ("busy",        "freeze",      "wrong mode",  "abort",   "busy"),
-    "freezing": ("busy",        "freeze",      "armed first", "abort",   "busy"),
-    "frozen":   ("busy",        "wrong mode",  "resume",      "abort",   "busy"),
-    "resuming": ("busy",        "armed first", "resume",      "abort",   "busy"),
-    "done":     ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset"),
-    "aborted":  ("after abort", "after abort", "after abort", "nothing", "reset"),
+_RULE_ROWS: dict[Stage, tuple[Outcome, Outcome, Outcome, Outcome, Outcome, Outcome]] = {
+    #             start          freeze         resume         abort      reset      admit
+    "waiting":  ("arm",         "wrong mode",  "wrong mode",  "abort",   "nothing", "nothing"),
+    "armed":    ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset",   "nothing"),
+    "running":  ("busy",        "freeze",      "wrong mode",  "abort",   "busy",    "nothing"),
+    "freezing": ("busy",        "freeze",      "armed first", "abort",   "busy",    "nothing"),
+    "frozen":   ("busy",        "wrong mode",  "resume",      "abort",   "busy",    "nothing"),
+    "resuming": ("busy",        "armed first", "resume",      "abort",   "busy",    "nothing"),
+    "done":     ("arm",         "wrong mode",  "wrong mode",  "abort",   "reset",   "nothing"),
+    "aborted":  ("after abort", "after abort", "after abort", "nothing", "reset",   "nothing"),
 }
 # fmt: on
 
@@ -194,8 +197,8 @@ COMMAND_RULES: dict[tuple[Stage, str], Outcome] = {
     for mode, row in _RULE_ROWS.items()
     for command, outcome in zip(COMMANDS, row, strict=True)
 }
-"""(stage, command) to what the command does in that stage: rules 1 to 5 of the module's
-docstring, without their instants."""
+"""(stage, command) to what the command does in that stage: rules 1 to 5 and 7 of the
+module's docstring, without their instants."""
 
 _REFUSALS: dict[Outcome, str] = {
     "busy": "{command} while {mode}: abort first",
@@ -288,6 +291,7 @@ TIMING_CHECKS: dict[str, tuple[Check, ...]] = {
     "freeze": (),  # a freeze late is a freeze now: it sets nothing moving
     "abort": (),
     "reset": (),
+    "admit": (),  # nothing to a run state (rule 7)
 }
 """The checks a command passes, in this order, before its rule in :data:`COMMAND_RULES`
 applies (not after an abort: rule 3 answers first). A command not named here is

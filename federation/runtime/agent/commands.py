@@ -16,7 +16,7 @@ import logging
 import math
 import threading
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
 from pydantic import ValidationError
@@ -82,6 +82,8 @@ class RunControl:
         self.closing = False  # no command but an abort is taken once set
         self.status_now = False  # a command was applied: report it at the next step
         self.experiment: str | None = None  # the experiment the run's start named
+        # An operator's admit: why it is refused, or None (the agent's rejoin takes it).
+        self.admit: Callable[[], str | None] = lambda: "this agent rejoins no run"
         # The run (id, start) the scenario's guidance is for; a new one is begun on the
         # loop's thread at its next step, not under a reference it is computing.
         self._scenario_run: tuple[str | None, float | None] | None = None
@@ -184,6 +186,10 @@ class RunControl:
         refused = self._not_mine(command)
         if refused is None and command.command == "start":
             refused = self.recordings.recorded_before(command.run_id)
+        if refused is None and command.command == "admit":  # no run state's business
+            refused = self.admit()
+            if refused is None:
+                return []
         if refused is not None:  # refused before the run state sees it
             return [Event("ignored", self.owner.sim_time(t_exec), refused)]
         return self._run(command, t_exec)

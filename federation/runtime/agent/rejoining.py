@@ -89,7 +89,10 @@ class Rejoining:
     def look(self, t_exec: float, host: float, t_sim: float | None) -> None:
         """While waiting, every :data:`LOOK_PERIOD`: decide, and join if so."""
         run = self.commands.run_state
-        if self.policy == "never" or run.mode != "waiting" or host < self._next_look:
+        if self.policy == "never" or run.mode != "waiting":
+            self.admitted = False  # an admit is for the run under way while it waits
+            return
+        if host < self._next_look:
             return
         self._next_look = host + LOOK_PERIOD
         ready = self.owner.readiness(t_exec)
@@ -124,6 +127,7 @@ class Rejoining:
                     joined.run_id, joined.start_at, joined.frozen_total, joined.duration, t_sim
                 )
                 if any(e.kind == "rejoined" for e in events):
+                    self.admitted = False  # an admit lets in one rejoin
                     commands.experiment = joined.experiment
                     # The capture begins before the platform is released: its first step
                     # already asks for no more than the platform's limits.
@@ -150,7 +154,23 @@ class Rejoining:
             self.capture = None
         return out
 
-    def waiting_admit(self) -> bool:
-        """Whether it waits for an operator's admit to join a run under way."""
+    def admit(self) -> str | None:
+        """An operator's admit (``fedlab ctl admit``, Zenoh's thread): why it is refused,
+        or None (admitted: the next decision, at the next step, may join)."""
+        mode = self.commands.run_state.mode
+        if self.policy == "never":
+            return "rejoin = never: no admit lets it rejoin"
+        if mode != "waiting":
+            return f"admit while {mode}: only a waiting agent rejoins"
+        self.admitted = True
+        self._next_look = 0.0
+        return None
+
+    def report(self) -> dict[str, str | None]:
+        """The status's ``rejoin`` (why it does not join, while waiting) and ``admit_run``
+        (the run it joins once admitted)."""
         decision = self.decision
-        return decision is not None and decision.waiting_admit
+        if decision is None or self.commands.run_state.mode != "waiting":
+            return {"rejoin": None, "admit_run": None}
+        run = decision.run if decision.waiting_admit else None
+        return {"rejoin": decision.why, "admit_run": None if run is None else run.run_id}

@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import Counter
+from collections.abc import Callable
 from typing import IO, TYPE_CHECKING, Any
 
 import zenoh
@@ -98,6 +99,8 @@ class Reporter:
         self._delay_warned = False
         self.status_file: IO[str] | None = None
         self.publisher: Any = None  # the status publisher, declared at start
+        # The status's rejoin and admit_run fields (the agent's rejoin gives them).
+        self.rejoin_report: Callable[[], dict[str, str | None]] = dict
 
     def count(self, name: Count) -> None:
         """Bump a counter; callbacks may run on several Zenoh threads at once."""
@@ -143,7 +146,7 @@ class Reporter:
             pose=list(owner.pose), peers=self.peer_table.views(t_exec, host),
             counters=owner.counter_snapshot(), contested=self.intake.contested(host),
             workspace=None if owner.scenario is None else owner.scenario.workspace(),
-            loop=self.loop_stats(), **self.commands.transitions(),
+            loop=self.loop_stats(), **self.commands.transitions(), **self.rejoin_report(),
         )  # fmt: skip
 
     def readiness(self, t_exec: float) -> Readiness:

@@ -141,6 +141,8 @@ class AgentRuntime:
         self.watches = Watches(self, self.intake, self.peer_table, self.commands)
         self.reporter = Reporter(self, self.intake, self.peer_table, self.commands, self.recordings)
         self.rejoining = Rejoining(self, self.commands)  # a run under way joined
+        self.commands.admit = self.rejoining.admit
+        self.reporter.rejoin_report = self.rejoining.report
         self.recording_server: RecordingServer | None = None
         self._clock_stepped = False
         self._pose_sn = 0  # sequence number in the pose samples' source info

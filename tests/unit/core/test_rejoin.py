@@ -78,9 +78,10 @@ def test_time_spent_frozen_is_not_run_time() -> None:
 )
 def test_each_rule_refuses(change: dict[str, object], why: str) -> None:
     d = decide(dataclasses.replace(WAITING, **change))  # type: ignore[arg-type]
-    assert not d.join and d.run is None
-    assert why in d.why
-    assert d.waiting_admit == why.startswith("waiting for an operator")
+    assert not d.join and why in d.why
+    admit = why.startswith("waiting for an operator")
+    assert d.waiting_admit == admit
+    assert d.run == (LEADER if admit else None)
 
 
 def test_an_admitted_operator_policy_joins() -> None:
