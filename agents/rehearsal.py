@@ -11,6 +11,7 @@ adaptive gains) sees the same noise.
 
 - :func:`formation_run`: N platforms keep a formation around a circling centre;
 - :func:`docking_run`: a chaser docks with a target from relative measurements;
+- :func:`attitude_run`: the paper's experiment, followers tracking the leader's heading;
 - :func:`adaptive_run`: a follower tracks a leader's heading maneuver with fixed or
   adaptive gains;
 - :func:`rehearse`: any registered scenario (a plug-in's too), each agent's part given,
@@ -27,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.docking import ContactState, contact_state
+from agents.docking import FINAL, ContactState, contact_state
 from agents.formation import slot_errors
 from agents.guidance import Reference, ReferenceManeuver, track_heading
 from agents.scenario import ScenarioGuidance
@@ -44,6 +45,7 @@ __all__ = [
     "DelayLine",
     "DockingOutcome",
     "adaptive_run",
+    "attitude_run",
     "docking_run",
     "formation_run",
     "rehearse",
@@ -252,6 +254,7 @@ class DockingOutcome:
     velocity_error_rms_mps: float  # chaser's Kalman velocity estimate vs truth
     velocity_error_max_mps: float
     workspace: dict[str, dict[Count, int]]
+    final_lateral_rms_m: float  # chaser's true offset across the axis in the final phase
 
     def summary(self) -> dict[str, Any]:
         c = self.contact
@@ -263,6 +266,7 @@ class DockingOutcome:
             "heading_error_deg": None if c is None else math.degrees(abs(c.heading_error)),
             "chaser_velocity_error_rms_mps": self.velocity_error_rms_mps,
             "chaser_velocity_error_max_mps": self.velocity_error_max_mps,
+            "final_lateral_rms_m": self.final_lateral_rms_m,
             "phases": self.phases,
             "counters": self.counters,
             "workspace": self.workspace,
@@ -286,6 +290,11 @@ def docking_run(
     target = next(m for m in members if m.name == d.target)
     found: dict[str, Any] = {}
     verr: list[float] = []
+    final: list[float] = []  # m, the chaser's lateral offset (truth) in the final phase
+    scenario: ScenarioGuidance = chaser.scenario  # type: ignore[attr-defined]
+    assert isinstance(scenario.scenario, Docking)
+    guidance = scenario.scenario.chaser
+    assert guidance is not None
 
     def observe(t: float, run_time: float, by_name: dict[str, _Member]) -> None:
         truth = chaser.platform.truth
@@ -294,6 +303,8 @@ def docking_run(
         if "contact" in found:
             return
         state = contact_state(truth, target.platform.truth)
+        if guidance.phase == FINAL:
+            final.append(state.lateral)
         if state.axial <= d.contact_distance:
             found["contact"] = state
             found["time"] = run_time
@@ -307,10 +318,6 @@ def docking_run(
         and abs(c.lateral) <= criteria.max_lateral
         and math.degrees(abs(c.heading_error)) <= criteria.max_heading_deg
     )
-    scenario: ScenarioGuidance = chaser.scenario  # type: ignore[attr-defined]
-    assert isinstance(scenario.scenario, Docking)
-    guidance = scenario.scenario.chaser
-    assert guidance is not None
     return DockingOutcome(
         success=success,
         time_s=found.get("time"),
@@ -320,6 +327,7 @@ def docking_run(
         velocity_error_rms_mps=float(np.sqrt(np.mean(np.square(verr)))) if verr else math.nan,
         velocity_error_max_mps=float(np.max(verr)) if verr else math.nan,
         workspace={m.name: dict(m.platform.workspace_counters) for m in members},
+        final_lateral_rms_m=float(np.sqrt(np.mean(np.square(final)))) if final else math.nan,
     )
 
 
@@ -370,6 +378,74 @@ def rehearse(
     return {
         "series": series,
         "counters": {m.name: m.scenario.counters for m in members},  # type: ignore[attr-defined]
+    }
+
+
+# ---------------------------------------------------------------- attitude tracking
+
+
+def attitude_run(
+    experiment: ExperimentConfig,
+    delay: float,
+    compensate: bool = True,
+    seed: int = 0,
+    duration: float | None = None,
+    jitter: float = 0.002,
+) -> dict[str, Any]:
+    """The paper's attitude-tracking experiment in simulated time: the leader flies its
+    maneuver on run time, each follower tracks the heading it receives from the agent
+    it follows (dead-reckoned to now with ``compensate``), as the agent runtime does.
+
+    Returns
+    -------
+    dict
+        ``heading_error_rms_deg``, ``heading_error_max_deg``: every follower's true
+        heading against its leader's true heading at the same reference time, every
+        0.01 s from the maneuver's start to the run's end (before it both hold still);
+        ``per_follower`` (the same per follower).
+    """
+    assert experiment.kind == "attitude-tracking"
+    duration = experiment.duration if duration is None else duration
+    m = experiment.maneuver
+    maneuver = ReferenceManeuver(m.still, m.duration, math.radians(m.amplitude_deg))
+    platforms = _platforms(experiment, seed)
+    follows = {p.agent: p.follow for p in experiment.participants if p.follow is not None}
+
+    def guidance_of(agent: str) -> Callable[..., Reference]:
+        followed = follows.get(agent)
+
+        def guidance(
+            t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
+        ) -> Reference:
+            if followed is None:  # the leader
+                return Reference(*maneuver(run_time)) if run_time is not None else Reference()
+            got = others.get(followed)
+            if got is None:
+                return Reference()
+            return Reference(*track_heading(PoseSample(*got), t, compensate=compensate))
+
+        return guidance
+
+    members = [_Member(a, platforms[a], guidance_of(a)) for a in platforms]
+    _links(members, delay, jitter, seed)
+    errors: dict[str, list[float]] = {a: [] for a in follows}
+
+    def observe(t: float, run_time: float, by_name: dict[str, _Member]) -> None:
+        if run_time < m.still:
+            return
+        for agent, followed in follows.items():
+            own, lead = by_name[agent].platform.truth, by_name[followed].platform.truth
+            errors[agent].append(wrap_angle(own.heading - lead.heading))
+
+    _run(members, duration, 20.0, observe, record_every=0.01)
+    every = np.degrees(np.abs(np.concatenate([errors[a] for a in follows])))
+    return {
+        "delay_s": delay,
+        "latency_compensation": compensate,
+        "seed": seed,
+        "heading_error_rms_deg": float(np.sqrt(np.mean(every**2))),
+        "heading_error_max_deg": float(np.max(every)),
+        "per_follower": {a: float(np.sqrt(np.mean(np.degrees(e) ** 2))) for a, e in errors.items()},
     }
 
 

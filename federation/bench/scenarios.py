@@ -10,7 +10,10 @@ real-process runs are ``fedlab demo --scenario formation|docking``.
   and without latency compensation, over seeds;
 - docking: outcome and contact figures over seeds at 40 ms;
 - adaptive: a follower's heading error with fixed and scheduled gains under
-  leader maneuvers of three amplitudes and speeds.
+  leader maneuvers of three amplitudes and speeds;
+- transparency: each scenario's tracking error at 40 ms and 250 ms over the same
+  scenario with no delay, same seeds, with and without latency compensation
+  (:mod:`federation.bench.transparency`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.rehearsal import adaptive_run, docking_run, formation_run
+from federation.bench.transparency import transparency
 from schemas.experiment import load_experiment
 from schemas.scenario import AdaptiveConfig
 
@@ -39,11 +43,13 @@ ADAPTIVE_MANEUVERS = ((30.0, 20.0), (60.0, 30.0), (90.0, 40.0))
 
 
 def run(experiments: Path, seeds: int = 3, docking_seeds: int = 10) -> dict[str, Any]:
-    """Every comparison; ``experiments`` is the folder of formation.toml and docking.toml."""
+    """Every comparison; ``experiments`` is the folder of formation.toml, docking.toml
+    and attitude-tracking.toml. The transparency ratios take ``seeds`` seeds."""
     return {
         "formation": formation_rows(experiments / "formation.toml", seeds),
         "docking": docking_outcomes(experiments / "docking.toml", docking_seeds),
         "adaptive": adaptive_rows(),
+        "transparency": transparency(experiments, seeds),
     }
 
 

@@ -226,6 +226,48 @@ def _scenario_rows(folder: Path) -> list[Row]:
     return out
 
 
+def _ratio(stats: dict[str, float | None]) -> str:
+    med, lo, hi = stats["median"], stats["min"], stats["max"]
+    if med is None or lo is None or hi is None:
+        return "none"
+    return f"{med:.3f}" if f"{lo:.3f}" == f"{hi:.3f}" else f"{med:.3f} ({lo:.3f} to {hi:.3f})"
+
+
+def _figure(values: Iterable[float | None], unit: str) -> str:
+    """A no-delay figure's median, in cm for metres."""
+    got = [v for v in values if v is not None]
+    if not got:
+        return "none"
+    med = statistics.median(got)
+    return f"{med * 100:.2f} cm" if unit == "m" else f"{med:.3f} {unit}"
+
+
+def _transparency_rows(folder: Path) -> list[Row]:
+    """Per scenario and compensation setting: the ratio at each delay; the baseline is
+    the scenario's error with no delay."""
+    rows = _load(folder, "scenarios.json")["transparency"]
+    out: list[Row] = []
+    for scenario, compensate in dict.fromkeys(
+        (r["scenario"], r["latency_compensation"]) for r in rows
+    ):
+        mine = [
+            r for r in rows if (r["scenario"], r["latency_compensation"]) == (scenario, compensate)
+        ]
+        first = mine[0]
+        delays = "; ".join(f"{r['delay_s'] * 1000:.0f}" for r in mine)
+        out.append(
+            (
+                f"transparency, {scenario}, compensation {'on' if compensate else 'off'}",
+                f"error with {delays} ms / with none, median (min to max) of "
+                f"{len(first['ratio'])} seeds; error: {first['figure']}",
+                "; ".join(_ratio(r["ratio_stats"]) for r in mine),
+                _figure(first["baseline"], first["unit"]),
+                "scenarios.json",
+            )
+        )
+    return out
+
+
 _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _sync_rows,
     _latency_rows,
@@ -233,6 +275,7 @@ _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _memory_rows,
     _network_rows,
     _scenario_rows,
+    _transparency_rows,
 )
 
 

@@ -356,7 +356,7 @@ def _run_memory(args: argparse.Namespace) -> int:
 
 # -- network -------------------------------------------------------------------------
 _NETWORK_SCENARIOS = ("clean", "loss1", "loss5", "loss20", "cut10", "mtu576")
-_NETWORK_TRANSPORTS = ("multilink", "tcp", "tcp-tuned")
+_NETWORK_TRANSPORTS = ("multilink", "tcp", "tcp-tuned", "tls", "quic", "quic-stream")
 
 
 def _add_network(benches: Subparsers) -> None:
@@ -383,7 +383,9 @@ def _add_network(benches: Subparsers) -> None:
     p.add_argument(
         "--transport", action="append", choices=_NETWORK_TRANSPORTS, metavar="NAME",
         help="multilink: deploy/routers/multilink (TCP + UDP links); tcp: deploy/routers; "
-        "tcp-tuned: deploy/routers on hosts with deploy/sysctl (repeatable; default tcp-tuned)",
+        "tcp-tuned: deploy/routers on hosts with deploy/sysctl; tls: tcp-tuned with the "
+        "generated deployment's mutual-TLS lab link; quic: the same on QUIC, pose as "
+        "datagrams (mixed_rel); quic-stream: QUIC, one stream (repeatable; default tcp-tuned)",
     )  # fmt: skip
     p.add_argument(
         "--seconds", type=positive, default=60.0, metavar="S",
@@ -469,16 +471,18 @@ def _add_scenarios(benches: Subparsers) -> None:
 
     p = benches.add_parser(
         "scenarios",
-        help="formation, docking and adaptive gains in simulated time (exact comparisons)",
+        help="formation, docking, adaptive gains and transparency ratios in simulated time",
         formatter_class=Formatter,
         description=(scenarios.__doc__ or "").split("\n\n")[0],
         epilog="Example: fedlab bench scenarios --seeds 3 --docking-seeds 10 --json",
     )
     p.add_argument(
         "--experiments", type=Path, default=Path("deploy/experiments"), metavar="DIR",
-        help="folder holding formation.toml and docking.toml",
+        help="folder holding formation.toml, docking.toml and attitude-tracking.toml",
     )  # fmt: skip
-    p.add_argument("--seeds", type=int, default=3, metavar="N", help="formation seeds")
+    p.add_argument(
+        "--seeds", type=int, default=3, metavar="N", help="formation and transparency seeds"
+    )
     p.add_argument("--docking-seeds", type=int, default=10, metavar="N", help="docking seeds")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
@@ -530,7 +534,25 @@ def _run_scenarios(args: argparse.Namespace) -> int:
             f"{a['scale_max']:.2f}",
         )
     console.print(table)
+    console.print(_transparency_table(result["transparency"]))
     return 0
+
+
+def _transparency_table(rows: list[dict[str, Any]]) -> Any:
+    from rich.table import Table
+
+    table = Table(title="transparency: tracking error with the delay / with none, same seeds")
+    for col in ("scenario", "one-way delay (ms)", "compensation", "ratio median (min to max)"):
+        table.add_column(col)
+    for row in rows:
+        r = row["ratio_stats"]
+        table.add_row(
+            row["scenario"],
+            f"{row['delay_s'] * 1e3:.0f}",
+            "on" if row["latency_compensation"] else "off",
+            "-" if r["median"] is None else f"{r['median']:.3f} ({r['min']:.3f} to {r['max']:.3f})",
+        )
+    return table
 
 
 # -- table ---------------------------------------------------------------------------

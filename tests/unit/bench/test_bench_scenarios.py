@@ -41,9 +41,15 @@ def test_a_run_has_every_comparison(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(scenarios, "formation_rows", lambda path, n: calls.append((path.name, n)))
     monkeypatch.setattr(scenarios, "docking_outcomes", lambda path, n: calls.append((path.name, n)))
     monkeypatch.setattr(scenarios, "adaptive_rows", lambda: calls.append(("adaptive", None)))
+    monkeypatch.setattr(scenarios, "transparency", lambda path, n: calls.append((path.name, n)))
     result = scenarios.run(EXPERIMENTS, seeds=2, docking_seeds=5)
-    assert set(result) == {"formation", "docking", "adaptive"}
-    assert calls == [("formation.toml", 2), ("docking.toml", 5), ("adaptive", None)]
+    assert set(result) == {"formation", "docking", "adaptive", "transparency"}
+    assert calls == [
+        ("formation.toml", 2),
+        ("docking.toml", 5),
+        ("adaptive", None),
+        ("experiments", 2),
+    ]
 
 
 def test_command_line_refuses_zero_seeds(capsys: pytest.CaptureFixture[str]) -> None:
@@ -53,5 +59,5 @@ def test_command_line_refuses_zero_seeds(capsys: pytest.CaptureFixture[str]) -> 
 
 def test_committed_results_were_made_by_this_benchmark() -> None:
     committed = json.loads((ROOT / "benchmarks" / "scenarios.json").read_text())
-    assert set(committed) == {"formation", "docking", "adaptive"}
+    assert set(committed) == {"formation", "docking", "adaptive", "transparency"}
     assert committed["docking"]["successes"] == committed["docking"]["seeds"] == 10
