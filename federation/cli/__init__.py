@@ -44,6 +44,7 @@ COMMANDS: tuple[str, ...] = (
     "emulate-device",
     "report",
     "merge",
+    "replay",
     "analyze",
     "bench",
     "certs",
