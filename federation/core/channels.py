@@ -44,6 +44,7 @@ __all__ = [
     "Channel",
     "json_schema",
     "recording_stem",
+    "segment_stem",
 ]
 
 
@@ -116,6 +117,13 @@ def json_schema(channel: Channel) -> dict[str, object]:
         "type": "object",
         "properties": {name: {"type": kind} for name, kind in CHANNEL_TYPES[channel].items()},
     }
+
+
+def segment_stem(agent: str, segment: int) -> str:
+    """The stem of a run's ``segment``-th recording by ``agent`` (1: its first, from the
+    start; 2, 3...: after each rejoin): ``rome-pinocchio``, ``rome-pinocchio.seg2``."""
+    stem = recording_stem(agent)
+    return stem if segment <= 1 else f"{stem}.seg{segment}"
 
 
 def recording_stem(agent: str) -> str:

@@ -57,6 +57,7 @@ __all__ = [
     "finalize",
     "free_bytes",
     "incomplete_name",
+    "listed",
     "manifest_name",
     "recover_run",
     "recover_runs",
@@ -83,10 +84,13 @@ def incomplete_name(stem: str) -> str:
     return f"{stem}.incomplete.json"
 
 
-def write_incomplete(run_dir: Path, agent: str, run_id: str, what: dict[str, Any]) -> Path:
-    """Write ``<lab>-<name>.incomplete.json`` (what a recording misses and why) into
-    ``run_dir``; returns its path, for the manifest."""
-    path = run_dir / incomplete_name(recording_stem(agent))
+def write_incomplete(
+    run_dir: Path, agent: str, run_id: str, what: dict[str, Any], stem: str | None = None
+) -> Path:
+    """Write ``<lab>-<name>.incomplete.json`` (what a recording misses and why; ``stem``:
+    a later segment's, ``<lab>-<name>.seg2``) into ``run_dir``; returns its path, for the
+    manifest."""
+    path = run_dir / incomplete_name(stem or recording_stem(agent))
     data = {"agent": agent, "run_id": run_id, **what}
     write_durably(path, json.dumps(data, indent=1) + "\n")
     return path
@@ -178,12 +182,27 @@ def sha256_file(path: Path, block: int = CHUNK_SIZE) -> str:
     return digest.hexdigest()
 
 
+def listed(run_dir: Path, agent: str) -> set[str] | None:
+    """The file names ``agent``'s manifest in ``run_dir`` lists; None without a manifest
+    (or with one that cannot be read)."""
+    try:
+        text = (run_dir / manifest_name(recording_stem(agent))).read_text(encoding="utf-8")
+        return {f.name for f in Manifest.model_validate_json(text).files}
+    except (OSError, ValueError):
+        return None
+
+
 def finalize(run_dir: Path, agent: str, run_id: str, files: list[Path]) -> Path:
     """Write the manifest of an agent's finished ``files`` of a run; returns its path.
-    Written durably (:func:`write_durably`): a manifest is never seen half-written."""
+    The files an earlier manifest of the run lists stay listed while they are there: a
+    run flown in segments (rejoined) has one manifest of every segment, whichever
+    segment is finalized last. Written durably (:func:`write_durably`): a manifest is
+    never seen half-written."""
+    names = {p.name for p in files}
+    kept = [run_dir / name for name in sorted((listed(run_dir, agent) or set()) - names)]
     entries = [
         FileEntry(name=p.name, size=p.stat().st_size, sha256=sha256_file(p))
-        for p in files
+        for p in [*kept, *files]
         if p.exists()
     ]
     manifest = Manifest(agent=agent, run_id=run_id, files=entries)
@@ -232,12 +251,19 @@ def unfinished_runs(runs_dir: Path, agent: str) -> list[Path]:
         folders = sorted(p for p in Path(runs_dir).iterdir() if p.is_dir())
     except OSError:  # no runs yet (or unreadable: a recording there would fail too)
         return []
-    return [
-        folder
-        for folder in folders
-        if not (folder / manifest_name(stem)).exists()
-        and ((folder / f"{stem}.mcap").exists() or (folder / f"{stem}.mcap.partial").exists())
-    ]
+    return [folder for folder in folders if _unfinished(folder, agent, stem)]
+
+
+def _unfinished(folder: Path, agent: str, stem: str) -> bool:
+    """Whether ``folder`` holds ``agent``'s first recording of the run (or the original a
+    recovery kept aside) and no manifest lists it (none at all, or only a later
+    segment's: the agent killed, started again, rejoined and finished the run)."""
+    if not ((folder / f"{stem}.mcap").exists() or (folder / f"{stem}.mcap.partial").exists()):
+        return False
+    if not (folder / manifest_name(stem)).exists():
+        return True
+    names = listed(folder, agent)
+    return names is not None and f"{stem}.mcap" not in names
 
 
 def recover_run(

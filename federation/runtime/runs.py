@@ -43,7 +43,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import IO, Any
 
-from federation.core.channels import Channel, recording_stem
+from federation.core.channels import Channel, segment_stem
 from federation.runtime.collect import finalize, free_bytes, write_incomplete
 from federation.runtime.recorder import Message, Recorder, is_finished
 from schemas.config import AgentConfig
@@ -290,7 +290,9 @@ def recording_budget(
 class RunRecording:
     """An agent's recording of one run; ``record`` and ``status_line`` until ``finish``.
     Its MCAP takes at most ``max_mb`` MiB (None: no limit of its own) and at most half
-    the space free when it starts; under ``min_free_mb`` MiB free, an error is logged."""
+    the space free when it starts; under ``min_free_mb`` MiB free, an error is logged.
+    ``segment`` 2, 3...: the part of the run flown after a rejoin, in files of its own
+    (``<lab>-<name>.seg2.mcap``) listed in the run's one manifest."""
 
     def __init__(
         self,
@@ -303,12 +305,14 @@ class RunRecording:
         extra: dict[str, Any] | None = None,
         max_mb: int | None = None,
         min_free_mb: int = 0,
+        segment: int = 1,
     ):
         self.run_id = run_id
         self.agent = agent
         self.dir = Path(runs_dir) / run_id
         self.dir.mkdir(parents=True, exist_ok=True)
-        stem = recording_stem(agent)
+        self.segment = segment
+        self.stem = stem = segment_stem(agent, segment)
         self.mcap = self.dir / f"{stem}.mcap"
         self.status = self.dir / f"{stem}.jsonl"
         free, self.max_bytes = recording_budget(self.dir, max_mb, self)
@@ -343,7 +347,7 @@ class RunRecording:
         PROMISES.give_back(self.dir, self)
         try:
             what = {"not_recorded": f"the run's recording could not start: {error}"}
-            write_incomplete(self.dir, self.agent, self.run_id, what)
+            write_incomplete(self.dir, self.agent, self.run_id, what, self.stem)
         except OSError:  # the disk said no: take away what would pass for a recording
             for path in (self.mcap, self.status):
                 with contextlib.suppress(OSError):
@@ -436,7 +440,9 @@ class RunRecording:
                 files = [self.mcap, self.status]
                 if not recorder.complete or self.status_write_errors:  # said beside it
                     what = recorder.report() | {"status_write_errors": self.status_write_errors}
-                    files.append(write_incomplete(self.dir, self.agent, self.run_id, what))
+                    files.append(
+                        write_incomplete(self.dir, self.agent, self.run_id, what, self.stem)
+                    )
                 finalize(self.dir, self.agent, self.run_id, files)
                 log.info("run %s finalized in %s", self.run_id, self.dir)
             except Exception:

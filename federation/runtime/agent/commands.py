@@ -294,6 +294,8 @@ class RunControl:
         for event in events:
             if event.kind == "armed":
                 self._armed()
+            elif event.kind == "rejoined":
+                self._armed(segment=True)
             level = logging.WARNING if event.kind in ("aborted", "ignored") else logging.INFO
             log.log(
                 level, "run %s %s at reference time %s %s",
@@ -319,18 +321,21 @@ class RunControl:
             return 0.0 if event.kind == "started" else None
         return last.run_time
 
-    def _armed(self) -> None:
+    def _armed(self, segment: bool = False) -> None:
+        """A run armed (``segment``: rejoined): the scenario's guidance begins anew and
+        the run is recorded (rejoined: as its next segment)."""
         owner, state = self.owner, self.run_state
         run = (state.run_id, state.start_at)
         if owner.scenario is not None and run != self._scenario_run:
             self._scenario_run = run  # nothing of the last run's guidance carries over
             self.scenario_new_run = True
         cfg = owner.config
-        self.recordings.begin_run(
-            state.run_id,
-            {
-                "role": cfg.role, "follow": cfg.follow,
-                "latency_compensation": cfg.latency_compensation,
-                "reference": str(owner.reference), "duration": state.duration,
-            },
-        )  # fmt: skip
+        settings: dict[str, object] = {
+            "role": cfg.role, "follow": cfg.follow,
+            "latency_compensation": cfg.latency_compensation,
+            "reference": str(owner.reference), "duration": state.duration,
+        }  # fmt: skip
+        if segment:
+            self.recordings.begin_segment(state.run_id, settings)
+        else:
+            self.recordings.begin_run(state.run_id, settings)

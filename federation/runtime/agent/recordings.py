@@ -8,7 +8,7 @@ import logging
 import threading
 from pathlib import Path
 
-from federation.core.channels import Channel
+from federation.core.channels import Channel, segment_stem
 from federation.core.counters import Count
 from federation.runtime.collect import manifest_name
 from federation.runtime.recorder import Message, Recorder
@@ -92,6 +92,30 @@ class Recordings:
             self.run = RunRecording(
                 cfg.runs_dir, run_id, self.me, cfg.record_channels, cfg.model_dump_json(),
                 cfg.experiment, settings, cfg.record_max_mb, cfg.record_min_free_mb,
+            )  # fmt: skip
+            self._update_recorded()
+        except OSError as error:
+            log.error("cannot record run %s under %s: %s", run_id, cfg.runs_dir, error)
+
+    def begin_segment(self, run_id: str | None, settings: dict[str, object]) -> None:
+        """A recording of the run just rejoined under runs_dir, as its next segment (the
+        files of the segments before it, this agent's before a restart, are kept)."""
+        cfg = self.config
+        if cfg.runs_dir is None or self.recorder is not None or run_id is None:
+            return
+        self.end_run()
+        folder = Path(cfg.runs_dir) / run_id
+        segment = 2
+        while any(
+            (folder / f"{segment_stem(self.me, segment)}{ext}").exists()
+            for ext in (".mcap", ".mcap.partial", ".jsonl")
+        ):
+            segment += 1
+        try:
+            self.run = RunRecording(
+                cfg.runs_dir, run_id, self.me, cfg.record_channels, cfg.model_dump_json(),
+                cfg.experiment, settings | {"segment": segment}, cfg.record_max_mb,
+                cfg.record_min_free_mb, segment=segment,
             )  # fmt: skip
             self._update_recorded()
         except OSError as error:
