@@ -1,0 +1,160 @@
+"""``fedlab replay`` against a live run on loopback: a leader's short run is recorded,
+then replayed as a ghost that a live follower tracks. The follower receives the
+ghost's poses stamped on the live reference clock, its reference trails the recorded
+heading by a few ms at most, the ghost's status says it is a replay, and a second
+replay under the live ghost's name is refused (exit 2)."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+from lifecycle import fedlab
+from loopback import FOLLOWER, LEADER, Labs, Process, client_config
+
+from federation.core import keys, wire
+from federation.fleet.launch import wait_for
+from federation.report.analysis import best_shift
+from federation.runtime.mcapfile import read_messages
+from federation.runtime.replayfile import Recording
+
+pytestmark = pytest.mark.integration
+
+
+def experiment(path: Path, agent: str, duration: float) -> Path:
+    """A one-participant experiment: ``agent`` leads (its clock is reference time)."""
+    path.write_text(
+        f'name = "replay"\nduration = {duration}\nstart_delay = 1.0\n'
+        "[maneuver]\nstill = 0.5\nduration = 10.0\namplitude_deg = 20.0\n"
+        f'[[participants]]\nagent = "{agent}"\nrole = "leader"\nplatform = "knatte"\n',
+        encoding="utf-8",
+    )
+    return path
+
+
+def start(exp: Path, run_id: str, endpoint: str) -> None:
+    started, _ = fedlab(
+        "ctl", "start", "--experiment", str(exp), "--run-id", run_id, "--in", "1.5", "-e", endpoint
+    )
+    assert started.returncode == 0, started.stdout + started.stderr
+
+
+class Heard:
+    """The ghost's poses (payload, stamp) and statuses as a client hears them."""
+
+    def __init__(self, endpoint: str, who: str):
+        self.poses: list[tuple[wire.PoseSample, wire.RefStamp]] = []
+        self.statuses: list[dict[str, Any]] = []
+        self._lock = threading.Lock()
+        self.session = zenoh.open(client_config(endpoint))
+        agent = keys.AgentId.parse(who)
+        self.subs = [
+            self.session.declare_subscriber(keys.agent_key("default", agent, "pose"), self._pose),
+            self.session.declare_subscriber(
+                keys.agent_key("default", agent, "status"), self._status
+            ),
+        ]
+
+    def _pose(self, sample: zenoh.Sample) -> None:
+        attachment = sample.attachment
+        assert attachment is not None
+        with self._lock:
+            self.poses.append(
+                (
+                    wire.decode_pose(sample.payload.to_bytes()),
+                    wire.decode_stamp(attachment.to_bytes()),
+                )
+            )
+
+    def _status(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.statuses.append(json.loads(sample.payload.to_bytes()))
+
+    def close(self) -> None:
+        for sub in self.subs:
+            sub.undeclare()
+        self.session.close()
+
+
+def test_a_replayed_leader_drives_a_live_follower(labs: Labs, tmp_path: Path) -> None:
+    router = labs.router("kiruna")
+    # A short recorded run of the leader.
+    leader = labs.agent(
+        LEADER, router, "--experiment", str(experiment(tmp_path / "rec.toml", LEADER, 4.0)),
+        record=True,
+    )  # fmt: skip
+    leader.until(lambda s: s["mode"] == "waiting", timeout=10, what="waiting")
+    start(tmp_path / "rec.toml", "recorded", router.endpoint)
+    leader.until(lambda s: s["mode"] == "done", timeout=10, what="done")
+    assert leader.stop() == 0
+    recorded = list(Recording(leader.record, LEADER).poses())
+    assert recorded and recorded[-1].run_time > 3.5
+
+    # Live: a follower of the recorded leader's name, its own clock the reference.
+    config = tmp_path / "follower.toml"
+    config.write_text(
+        f'lab = "rome"\nname = "pinocchio"\nrole = "follower"\nfollow = "{LEADER}"\n'
+        f'reference = "{FOLLOWER}"\n',
+        encoding="utf-8",
+    )
+    follower = labs.agent(
+        FOLLOWER, router, "--agent-config", str(config), "--wait-start", "--sync-window", "2",
+        role="follower", follow=LEADER, record=True,
+    )  # fmt: skip
+    follower.until(lambda s: s["mode"] == "waiting", timeout=10, what="waiting")
+    heard = Heard(router.endpoint, LEADER)
+    try:
+        ghost = Process(
+            labs.fleet, "replay",
+            ["replay", str(leader.record), "--agent", LEADER, "-e", router.endpoint],
+        )  # fmt: skip
+        ghost.start()
+        assert wait_for(lambda: bool(heard.statuses), timeout=10), ghost.log()
+        # Refused while the ghost holds the name.
+        refused, _ = fedlab("replay", str(leader.record), "--agent", LEADER, "-e", router.endpoint)
+        assert refused.returncode == 2, refused.stdout + refused.stderr
+        assert f"an agent named {LEADER} is live" in refused.stderr
+        follower.wait_samples(LEADER, 10, timeout=10)  # the follower syncs with the ghost
+        start(experiment(tmp_path / "live.toml", FOLLOWER, 4.0), "live", router.endpoint)
+        line = follower.until(lambda s: s["mode"] == "done", timeout=12, what="done")
+        assert wait_for(lambda: not ghost.alive(), timeout=5), "the ghost did not end"
+        assert ghost.stop() == 0
+        assert "replay of kiruna/knatte ended" in ghost.log()
+    finally:
+        heard.close()
+    assert follower.stop() == 0
+
+    status = heard.statuses[-1]
+    assert status["platform"] == f"replay:{leader.record.name}", status
+    assert status["replay"]["agent"] == LEADER and status["replay"]["poses_sent"] > 50, status
+    # Stamped on the live reference clock: a pose's reference time is its run time.
+    start_at = line["start_at"]
+    times = np.array([p.run_time for p in recorded])
+    heading = np.array([p.pose.heading for p in recorded])
+    assert len(heard.poses) > 50
+    errors = []
+    for pose, stamp in heard.poses:
+        assert stamp.t_ref is not None and stamp.bound is not None and stamp.bound < 0.02
+        assert stamp.ref_id == wire.reference_id(FOLLOWER)
+        recorded_at = times[heading == pose.pose.heading]  # the recorded pose it replays
+        assert len(recorded_at), pose
+        errors.append(float(np.min(np.abs(recorded_at - (stamp.t_ref - start_at)))))
+    late = max(errors)
+    print(f"ghost poses: {len(heard.poses)}, stamp vs recorded run time: max {late * 1e3:.2f} ms")
+    assert late < 0.02
+    # The follower's reference trails the recorded heading by a few ms.
+    reference = [
+        m for m in read_messages(follower.record)["/reference"] if m.get("run_time") is not None
+    ]
+    moving = (0.7, 3.8)
+    trail = best_shift(
+        [m["run_time"] for m in reference], np.unwrap([m["heading_ref"] for m in reference]),
+        times, np.unwrap(heading), moving,
+    )  # fmt: skip
+    print(f"follower reference trails the recorded heading by {trail * 1e3:.2f} ms")
+    assert trail is not None and abs(trail) < 0.005
