@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
 def completions(out: Path, expected: set[str] | None) -> tuple[dict[str, Any], float | None]:
     """Per participant of the run collected into ``out``: the run time it reached and
     whether it completed (:mod:`federation.report.completion`); the run's duration."""
-    from federation.report.completion import participants
+    from federation.report.completion import NO_RECORDING, participants
     from federation.report.load import load_run
     from federation.report.summary import run_description
     from schemas.config import ConfigError
@@ -127,6 +127,6 @@ def completions(out: Path, expected: set[str] | None) -> tuple[dict[str, Any], f
         run = None
     parts = {} if run is None else participants(run)
     for agent in sorted(expected or ()):
-        parts.setdefault(agent, {"reached_s": None, "complete": False, "ended": "no recording"})
+        parts.setdefault(agent, dict(NO_RECORDING))
     duration = None if run is None else run_description(run)["run_duration_s"]
     return dict(sorted(parts.items())), duration

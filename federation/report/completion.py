@@ -9,38 +9,97 @@ largest an agent recorded (its ``/reference`` rows, ``/status`` lines and ``/con
 events). The
 participants are every agent recorded, every agent of ``run.json`` and every agent a
 recorded start named; one without a recording reached nothing known.
+
+An agent killed mid-run and started again may rejoin it (``rejoined``): it records
+the rest of the run as a new segment. Each segment runs from its ``started`` (run
+time 0) or ``rejoined`` event to the largest run time it recorded; between two
+segments is a gap, of run time the agent did not fly. A participant with a gap is not
+complete either, even if it ended ``done``: it flew the run's end, not all of it.
 """
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 from federation.core.channels import Channel
-from federation.report.load import AgentRecording, Run
+from federation.report.load import AgentRecording, Messages, Run
 
-__all__ = ["ENDS", "completion", "incomplete_notes", "participants", "summary_lines"]
+__all__ = [
+    "ENDS",
+    "NO_RECORDING",
+    "completion",
+    "gaps",
+    "incomplete_notes",
+    "participants",
+    "segments",
+    "summary_lines",
+]
 
 ENDS = frozenset({"done", "aborted"})
 """The ``/control`` events that end a run."""
+_SPAN_EVENTS = frozenset({"frozen", "resumed", "rejoined", *ENDS})
+"""The ``/control`` events whose run time a participant reached."""
 _RUN_MODES = frozenset({"running", "frozen", "done", "aborted"})
+
+
+def _numbers(times: list[Any]) -> list[float]:
+    return [float(t) for t in times if isinstance(t, int | float) and not isinstance(t, bool)]
+
+
+def _reached(messages: Messages) -> list[float]:
+    """Every run time a segment's messages recorded."""
+    control = messages.get(Channel.CONTROL) or []
+    rows = [*(messages.get(Channel.REFERENCE) or []), *(messages.get(Channel.STATUS) or [])]
+    times = [m.get("run_time") for m in rows if m.get("mode") in _RUN_MODES]
+    times += [e.get("run_time") for e in control if e.get("event") in _SPAN_EVENTS]
+    return _numbers(times)
+
+
+def segments(rec: AgentRecording) -> list[tuple[float, float]]:
+    """The run time each segment of ``rec`` flew, (from, to) s: from its start (0) or
+    rejoin, to the largest run time it recorded; none for a segment that never ran."""
+    spans = []
+    for messages in rec.segments or [rec.messages]:
+        times = _reached(messages)
+        if not times:
+            continue
+        control = messages.get(Channel.CONTROL) or []
+        begun = [e for e in control if e.get("event") in ("started", "rejoined")]
+        first = _numbers([begun[0].get("run_time")]) if begun else []
+        spans.append((first[0] if first else min(times), max(times)))
+    return spans
+
+
+def gaps(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The run time between consecutive segments, (from, to) s."""
+    return [(a[1], b[0]) for a, b in itertools.pairwise(spans) if b[0] > a[1]]
 
 
 def completion(rec: AgentRecording) -> dict[str, Any]:
     """One participant: ``reached_s`` (run time reached, None if it never ran),
-    ``complete`` (its run ended ``done``) and ``ended`` (``done``, ``aborted``, or
-    ``stopped early``: no end recorded)."""
+    ``complete`` (its run ended ``done`` with no gap), ``ended`` (``done``, ``aborted``,
+    or ``stopped early``: no end recorded), ``segments_s`` (the run time each segment
+    flew, [from, to] s) and ``gaps_s`` (the run time between them, [from, to] s)."""
     control = rec.channel(Channel.CONTROL)
-    rows = [*rec.channel(Channel.REFERENCE), *rec.channel(Channel.STATUS)]
-    times = [m.get("run_time") for m in rows if m.get("mode") in _RUN_MODES]
-    times += [e.get("run_time") for e in control if e.get("event") in ("frozen", "resumed", *ENDS)]
-    numbers = [float(t) for t in times if isinstance(t, int | float) and not isinstance(t, bool)]
+    numbers = _reached(rec.messages)
     ends = [str(e["event"]) for e in control if e.get("event") in ENDS]
     ended = ends[-1] if ends else "stopped early"
+    spans = segments(rec)
+    holes = gaps(spans)
     return {
         "reached_s": max(numbers) if numbers else None,
-        "complete": ended == "done",
+        "complete": ended == "done" and not holes,
         "ended": ended,
+        "segments_s": [list(span) for span in spans],
+        "gaps_s": [list(hole) for hole in holes],
     }
+
+
+NO_RECORDING: dict[str, Any] = {
+    "reached_s": None, "complete": False, "ended": "no recording", "segments_s": [], "gaps_s": [],
+}  # fmt: skip
+"""What is known of a participant without a recording."""
 
 
 def _named(run: Run) -> list[str]:
@@ -61,7 +120,7 @@ def participants(run: Run) -> dict[str, dict[str, Any]]:
     for agent in _named(run):
         rec = run.agents.get(agent)
         if rec is None:
-            out[agent] = {"reached_s": None, "complete": False, "ended": "no recording"}
+            out[agent] = dict(NO_RECORDING)
         else:
             out[agent] = completion(rec)
     return out
@@ -70,12 +129,28 @@ def participants(run: Run) -> dict[str, dict[str, Any]]:
 def incomplete_notes(parts: dict[str, dict[str, Any]]) -> list[str]:
     """A note for each participant that ran but did not complete: its figures are of
     the part it flew."""
-    return [
-        f"{agent} did not complete the run ({part['ended']} at run time "
-        f"{part['reached_s']:.1f} s): its figures cover that part only"
-        for agent, part in parts.items()
-        if not part["complete"] and part["reached_s"] is not None
-    ]
+    notes = []
+    for agent, part in parts.items():
+        if part["complete"] or part["reached_s"] is None:
+            continue
+        holes = part.get("gaps_s") or []
+        if holes:
+            notes.append(
+                f"{agent} flew the run in {len(part.get('segments_s') or [])} segments, "
+                f"not from {_spans(holes)} s of run time ({part['ended']} at "
+                f"{part['reached_s']:.1f} s): its figures cover the parts it flew"
+            )
+        else:
+            notes.append(
+                f"{agent} did not complete the run ({part['ended']} at run time "
+                f"{part['reached_s']:.1f} s): its figures cover that part only"
+            )
+    return notes
+
+
+def _spans(spans: list[list[float]]) -> str:
+    """``[[6.1, 8.4], [12, 13]]`` -> ``6.1 to 8.4, 12.0 to 13.0``."""
+    return ", ".join(f"{a:.1f} to {b:.1f}" for a, b in spans)
 
 
 def _how(entry: dict[str, Any]) -> str:
@@ -95,5 +170,11 @@ def summary_lines(parts: dict[str, dict[str, Any]], duration: float | None) -> l
     for agent, entry in parts.items():
         reached = entry.get("reached_s")
         shown = "no run time" if reached is None else f"reached {reached:.1f} s{of}"
-        lines.append(f"{agent}: {shown}, {_how(entry)}")
+        holes = entry.get("gaps_s") or []
+        flown = (
+            f" in {len(entry.get('segments_s') or [])} segments, gap {_spans(holes)} s"
+            if holes
+            else ""
+        )
+        lines.append(f"{agent}: {shown}, {_how(entry)}{flown}")
     return lines

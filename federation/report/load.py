@@ -1,8 +1,10 @@
 """Reading a run directory: every agent's MCAP recording and the demo's ``run.json``.
 
 A run directory holds one MCAP recording per agent (``<lab>-<name>.mcap``, see
-:mod:`federation.runtime.recorder`) and, optionally, the ``run.json`` the demo writes
-(roles, followed agents, latency compensation, the emulated link). A damaged
+:mod:`federation.runtime.recorder`), one more per segment an agent flew after a rejoin
+(``<lab>-<name>.seg2.mcap``...: read as that agent's, in segment order) and,
+optionally, the ``run.json`` the demo writes (roles, followed agents, latency
+compensation, the emulated link). A damaged
 recording (an agent killed, its summary broken) gives every message up to the
 damage; what could not be read becomes a note, not an error. Recordings from before
 the channels in Foxglove's types (``/tf``, ``/pose``) read the same: only the JSON
@@ -20,7 +22,7 @@ from federation.core.channels import Channel
 from federation.runtime.recorder import read_messages
 from schemas.config import ConfigError
 
-__all__ = ["AgentRecording", "Messages", "Run", "agent_from_filename", "load_run"]
+__all__ = ["AgentRecording", "Messages", "Run", "agent_from_filename", "load_run", "segment_of"]
 
 Messages = dict[str, list[dict[str, Any]]]
 """A recording's decoded messages by channel, in log-time order."""
@@ -32,14 +34,31 @@ class AgentRecording:
 
     agent: str
     messages: Messages
+    """Every segment's messages, one after the other."""
     file: str = ""
     role: str | None = None
     follow: str | None = None
     platform: str | None = None
     latency_compensation: bool | None = None
+    segments: list[Messages] = field(default_factory=list)
+    """Each segment's messages (one file each: the run from its start, then from each
+    rejoin), in order; one for an agent that flew its run in one go."""
 
     def channel(self, topic: str) -> list[dict[str, Any]]:
         return self.messages.get(topic) or []
+
+    def add_segment(self, messages: Messages, file: str) -> None:
+        """The next segment of its run (flown after a rejoin), recorded in ``file``."""
+        self.segments.append(messages)
+        for topic, items in messages.items():
+            self.messages[topic] = [*self.channel(topic), *items]
+        self.file = f"{self.file}, {file}" if self.file else file
+
+
+def segment_of(path: Path) -> int:
+    """``rome-pinocchio.seg2.mcap`` -> 2; a run's first recording (no ``.segN``) -> 1."""
+    _, _, tail = path.stem.rpartition(".seg")
+    return int(tail) if path.stem != tail and tail.isdigit() else 1
 
 
 @dataclass
@@ -75,8 +94,10 @@ class Run:
 
 
 def agent_from_filename(path: Path) -> str:
-    """``rome-pinocchio-raw.mcap`` -> ``rome/pinocchio-raw`` (lab names hold no dash)."""
-    lab, _, name = path.stem.partition("-")
+    """``rome-pinocchio-raw.mcap`` -> ``rome/pinocchio-raw`` (lab names hold no dash;
+    ``rome-pinocchio.seg2.mcap``, a later segment, -> ``rome/pinocchio``)."""
+    stem = path.stem if segment_of(path) == 1 else path.stem.rpartition(".seg")[0]
+    lab, _, name = stem.partition("-")
     return f"{lab}/{name}" if name else lab
 
 
@@ -132,7 +153,7 @@ def load_run(run_dir: str | Path) -> Run:
     directory = Path(run_dir)
     if not directory.is_dir():
         raise ConfigError(f"{directory}: no such run directory")
-    files = sorted(directory.glob("*.mcap"))
+    files = sorted(directory.glob("*.mcap"), key=lambda p: (agent_from_filename(p), segment_of(p)))
     if not files:
         raise ConfigError(f"{directory}: no MCAP recordings (*.mcap) in this run directory")
     notes: list[str] = []
@@ -146,16 +167,32 @@ def load_run(run_dir: str | Path) -> Run:
             continue
         status = messages.get(Channel.STATUS) or []
         agent = str(status[0].get("agent")) if status else agent_from_filename(path)
-        if agent in agents:
-            notes.append(f"{path.name}: a second recording of {agent}; skipped")
-            continue
-        agents[agent] = _describe(agent, messages, path.name, meta)
+        _add(agents, agent, messages, path, meta, notes)
     if not agents:
         raise ConfigError(f"{directory}: no readable MCAP recording ({len(files)} files tried)")
     for agent in (meta or {}).get("agents") or {}:
         if agent not in agents:
             notes.append(f"{agent} is in run.json but has no recording")
     return Run(agents, meta, notes, str(directory))
+
+
+def _add(
+    agents: dict[str, AgentRecording],
+    agent: str,
+    messages: Messages,
+    path: Path,
+    meta: dict[str, Any] | None,
+    notes: list[str],
+) -> None:
+    """``agent``'s recording in ``path``: its first, a later segment of its run, or a
+    second recording of it (skipped, with a note)."""
+    rec = agents.get(agent)
+    if rec is None:
+        agents[agent] = _describe(agent, messages, path.name, meta)
+    elif segment_of(path) > len(rec.segments):
+        rec.add_segment(messages, path.name)
+    else:
+        notes.append(f"{path.name}: a second recording of {agent}; skipped")
 
 
 def _read_meta(run_json: Path, notes: list[str]) -> dict[str, Any] | None:
@@ -178,7 +215,9 @@ def _describe(
     agent: str, messages: Messages, file: str, meta: dict[str, Any] | None
 ) -> AgentRecording:
     """Role and followed agent from run.json, else from the recorded status."""
-    rec = AgentRecording(agent, messages, file)
+    rec = AgentRecording(
+        agent, {k: list(v) for k, v in messages.items()}, file, segments=[messages]
+    )
     status = messages.get(Channel.STATUS) or []
     last = status[-1] if status else {}
     info = ((meta or {}).get("agents") or {}).get(agent) or {}

@@ -63,14 +63,17 @@ def _completion_lines(described: dict[str, Any]) -> list[str]:
         f"**Incomplete run**: not every participant completed{of}; figures cover what each "
         "recorded.",
         "",
-        "| participant | run time reached (s) | completed | how its run ended |",
-        "|---|---:|---|---|",
+        "| participant | run time reached (s) | completed | how its run ended | segments "
+        "| gaps (run time, s) |",
+        "|---|---:|---|---|---:|---|",
     ]
     for agent, part in parts.items():
         reached = part.get("reached_s")
+        holes = ", ".join(f"{a:.1f} to {b:.1f}" for a, b in part.get("gaps_s") or []) or "-"
         lines.append(
             f"| {agent} | {'-' if reached is None else f'{reached:.1f}'} "
-            f"| {'yes' if part.get('complete') else 'no'} | {_ENDED.get(part.get('ended'), '?')} |"
+            f"| {'yes' if part.get('complete') else 'no'} | {_ENDED.get(part.get('ended'), '?')} "
+            f"| {len(part.get('segments_s') or [])} | {holes} |"
         )
     return [*lines, ""]
 

@@ -53,7 +53,10 @@ def test_a_follower_stopped_early_is_reported_incomplete_with_the_run_time_it_re
     assert done.returncode == 0, done.stdout + done.stderr
     parts = as_json(done)["participants"]
     print(f"collect: {json.dumps(parts)}")
-    assert parts[LEADER] == {"reached_s": pytest.approx(RUN), "complete": True, "ended": "done"}
+    assert parts[LEADER] == {
+        "reached_s": pytest.approx(RUN), "complete": True, "ended": "done",
+        "segments_s": [[0.0, pytest.approx(RUN)]], "gaps_s": [],
+    }  # fmt: skip
     reached = parts[FOLLOWER]["reached_s"]
     assert parts[FOLLOWER]["complete"] is False, parts
     assert parts[FOLLOWER]["ended"] in ("aborted", "stopped early"), parts

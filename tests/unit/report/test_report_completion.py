@@ -69,8 +69,14 @@ def test_a_follower_stopped_at_12_s_of_30_s_is_reported_incomplete(tmp_path: Pat
     summary = write_report(run_dir, tmp_path / "out")
     on_disk = json.loads((tmp_path / "out" / "summary.json").read_text())
     parts = on_disk["run"]["participants"]
-    assert parts[LEADER] == {"reached_s": DURATION, "complete": True, "ended": "done"}
-    assert parts[FOLLOWER] == {"reached_s": 12.0, "complete": False, "ended": "stopped early"}
+    assert parts[LEADER] == {
+        "reached_s": DURATION, "complete": True, "ended": "done",
+        "segments_s": [[0.0, DURATION]], "gaps_s": [],
+    }  # fmt: skip
+    assert parts[FOLLOWER] == {
+        "reached_s": 12.0, "complete": False, "ended": "stopped early",
+        "segments_s": [[0.0, 12.0]], "gaps_s": [],
+    }  # fmt: skip
     assert on_disk["run"]["complete"] is False
     assert summary["run"]["participants"] == parts
     report = (tmp_path / "out" / "report.md").read_text()
@@ -100,8 +106,85 @@ def test_an_aborted_participant_and_one_without_a_recording_are_not_complete(
     meta = {"duration_s": DURATION, "agents": {"rome/geppetto": {"role": "follower"}}}
     (run_dir / "run.json").write_text(json.dumps(meta))
     parts = load_run_parts(run_dir)
-    assert parts[FOLLOWER] == {"reached_s": 7.5, "complete": False, "ended": "aborted"}
-    assert parts["rome/geppetto"] == {"reached_s": None, "complete": False, "ended": "no recording"}
+    assert parts[FOLLOWER] == {
+        "reached_s": 7.5, "complete": False, "ended": "aborted",
+        "segments_s": [[0.0, 7.5]], "gaps_s": [],
+    }  # fmt: skip
+    assert parts["rome/geppetto"] == {
+        "reached_s": None, "complete": False, "ended": "no recording",
+        "segments_s": [], "gaps_s": [],
+    }  # fmt: skip
+
+
+def _segment(directory: Path, begin: float, until: float, end: str | None, segment: int) -> None:
+    """The follower's ``segment``-th recording: from a start (0) or a rejoin at run time
+    ``begin`` to ``until``, then ``end`` (or nothing: killed)."""
+    stem = FOLLOWER.replace("/", "-") + ("" if segment == 1 else f".seg{segment}")
+    rec = Recorder(directory / f"{stem}.mcap", FOLLOWER)
+    kind = "started" if segment == 1 else "rejoined"
+    rec.record("/control", _event(kind, 100.0 + begin, begin))
+    for t in np.arange(begin, until + 1e-9, 0.1):
+        rec.record(
+            "/reference",
+            {
+                "t_exec": 100.0 + t,
+                "host_monotonic": 100.0 + t,
+                "t_sim": 100.0 + t,
+                "run_time": t,
+                "heading_ref": 0.0,
+                "rate_ref": 0.0,
+                "mode": "running",
+                "valves_open": 0,
+            },
+        )
+    if end is not None:
+        rec.record("/control", _event(end, 100.0 + until, until))
+    rec.record(
+        "/status",
+        {"agent": FOLLOWER, "role": "follower", "t_exec": until, "host_monotonic": until,
+         "peers": {}},
+    )  # fmt: skip
+    rec.close()
+
+
+def test_a_follower_killed_and_rejoined_is_one_participant_in_two_segments_with_its_gap(
+    tmp_path: Path,
+) -> None:
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    _record(run_dir, LEADER, DURATION, "done")
+    _segment(run_dir, 0.0, 6.0, None, 1)  # killed at 6 s
+    _segment(run_dir, 8.5, DURATION, "done", 2)  # rejoined at 8.5 s, flew to the end
+    (run_dir / "run.json").write_text(json.dumps({"duration_s": DURATION}))
+    run = load_run(run_dir)
+    assert sorted(run.agents) == [LEADER, FOLLOWER]
+    assert len(run.agents[FOLLOWER].segments) == 2
+    assert not any("second recording" in n for n in run.notes)
+    summary = write_report(run_dir, tmp_path / "out")
+    parts = summary["run"]["participants"]
+    assert parts[FOLLOWER] == {
+        "reached_s": DURATION, "complete": False, "ended": "done",
+        "segments_s": [[0.0, 6.0], [8.5, DURATION]], "gaps_s": [[6.0, 8.5]],
+    }  # fmt: skip
+    assert parts[LEADER]["complete"] is True and summary["run"]["complete"] is False
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert f"| {FOLLOWER} | 30.0 | no | done: its run time reached the duration | 2 " in report
+    assert "| 6.0 to 8.5 |" in report
+    assert f"| {LEADER} | 30.0 | yes | done: its run time reached the duration | 1 | - |" in report
+    assert any(
+        f"{FOLLOWER} flew the run in 2 segments, not from 6.0 to 8.5 s of run time" in n
+        for n in summary["notes"]
+    )
+    lines = summary_lines(parts, DURATION)
+    assert f"{FOLLOWER}: reached 30.0 s of 30 s, completed in 2 segments, gap 6.0 to 8.5 s" in lines
+
+
+def test_a_later_segment_alone_is_its_agents_recording(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    _segment(run_dir, 8.5, 20.0, "done", 2)  # the first segment lost
+    parts = load_run_parts(run_dir)
+    assert parts[FOLLOWER]["segments_s"] == [[8.5, 20.0]] and parts[FOLLOWER]["gaps_s"] == []
 
 
 def load_run_parts(run_dir: Path) -> dict[str, Any]:
