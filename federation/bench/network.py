@@ -31,8 +31,10 @@ Transports (:data:`TRANSPORTS`): ``multilink`` (deploy/routers/multilink/: a TCP
 link for declarations, queries and control, a UDP link beside it for best-effort
 pose, 512-byte batches, 15 s lease, hosts with deploy/sysctl/90-fedlab-wan.conf),
 ``tcp`` (deploy/routers/, the default: one TCP link, universal transport with QoS, the
-kernel's default TCP settings) and ``tcp-tuned`` (the default routers on hosts with
-the sysctl file).
+kernel's default TCP settings), ``tcp-tuned`` (the default routers on hosts with
+the sysctl file), ``tls`` (the generated TLS deployment's lab link: mutual TLS with
+lab certificates made per run), ``quic`` (the same certificates on a QUIC lab link,
+best-effort pose as QUIC datagrams) and ``quic-stream`` (QUIC, one stream for all).
 """
 
 from __future__ import annotations
@@ -54,7 +56,16 @@ from federation.link.packet import PacketOptions
 from federation.testbed import ADDR, Testbed, TestbedError
 from federation.testbed.topology import parse_sysctl_conf
 
-__all__ = ["SCENARIOS", "TRANSPORTS", "Scenario", "count_samples", "run", "run_one", "score"]
+__all__ = [
+    "SCENARIOS",
+    "TRANSPORTS",
+    "Scenario",
+    "count_samples",
+    "make_certs",
+    "run",
+    "run_one",
+    "score",
+]
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTERS = DEPLOY / "routers"
@@ -86,6 +97,40 @@ TRANSPORTS: dict[str, dict[str, list[str]]] = {
         "rome": ["-e", f"tcp/{ADDR.kiruna}:{PORT}"],
         "ports": ["tcp/7447"],
         "sysctl": [str(SYSCTL)],
+    },
+    # The lab link of the generated TLS deployment (federation/deploy/generate.py): one
+    # TLS link, mutual TLS with lab certificates from the federation's CA (made per run
+    # by federation.deploy.certs), the dialler checking Kiruna's name; the default
+    # router configs otherwise (universal transport, QoS on, 10 s lease), hosts with the
+    # sysctl file. Agents reach their lab router on loopback over plain TCP, as in
+    # every other transport here: only the lab link crosses the WAN.
+    "tls": {
+        "kiruna": ["-l", f"tls/{ADDR.kiruna}:{PORT}"],
+        "rome": ["-e", f"tls/{ADDR.kiruna}:{PORT}"],
+        "ports": ["tcp/7447"],
+        "sysctl": [str(SYSCTL)],
+        "certs": ["lab"],
+    },
+    # The same with a QUIC lab link (same certificates, same TLS settings: Zenoh's QUIC
+    # link reads transport/link/tls) in Zenoh's mixed-reliability mode (mixed_rel=1,
+    # eclipse-zenoh/zenoh#2476): reliable messages (declarations, queries, replies,
+    # control, liveliness) on a QUIC stream, best-effort ones (pose) as QUIC datagrams
+    # on the same encrypted connection. Kiruna opens UDP 7447 instead of TCP.
+    "quic": {
+        "kiruna": ["-l", f"quic/{ADDR.kiruna}:{PORT}?mixed_rel=1"],
+        "rome": ["-e", f"quic/{ADDR.kiruna}:{PORT}?mixed_rel=1"],
+        "ports": ["udp/7447"],
+        "sysctl": [str(SYSCTL)],
+        "certs": ["lab"],
+    },
+    # A QUIC lab link with every message on one stream (Zenoh's QUIC default): a lost
+    # packet holds everything behind it, as on TCP.
+    "quic-stream": {
+        "kiruna": ["-l", f"quic/{ADDR.kiruna}:{PORT}"],
+        "rome": ["-e", f"quic/{ADDR.kiruna}:{PORT}"],
+        "ports": ["udp/7447"],
+        "sysctl": [str(SYSCTL)],
+        "certs": ["lab"],
     },
 }
 
@@ -184,12 +229,40 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
 
 
 # -- a run -----------------------------------------------------------------------------
-def _router_args(lab: str, transport: str, cfg: Sequence[str] = ()) -> list[str]:
+def _router_args(
+    lab: str, transport: str, cfg: Sequence[str] = (), certs: Path | None = None
+) -> list[str]:
+    """``fedlab router`` arguments for ``lab``; a transport with certificates gets its
+    lab's from ``certs`` (see :func:`make_certs`), before ``cfg``, which comes last."""
     t = TRANSPORTS[transport]
-    listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if lab == "rome" else []
+    # Agents reach the router on loopback; Kiruna's WAN listener covers it only when it
+    # is a TCP one on every address.
+    plain = lab == "rome" or not t[lab][1].startswith("tcp/0.0.0.0:")
+    listen = ["-l", f"tcp/127.0.0.1:{PORT}"] if plain else []
     config = ROUTERS.joinpath(*t.get("config", []), f"{lab}.json5")
+    secure: list[str] = []
+    if t.get("certs"):
+        if certs is None:
+            raise ValueError(f"transport {transport!r} needs the lab certificates (certs=)")
+        from federation.deploy.certs import cfg_flags, tls_settings
+
+        settings = tls_settings(certs, lab, listen=True)
+        settings["transport/link/tls/verify_name_on_connect"] = True  # as generated
+        secure = cfg_flags(settings)
     # --open: the testbed's namespaces are the network, with nothing else on it.
-    return ["router", "-c", str(config), "--open", *listen, *t[lab], *_cfg_flags(cfg)]
+    return ["router", "-c", str(config), "--open", *listen, *t[lab], *secure, *_cfg_flags(cfg)]
+
+
+def make_certs(directory: Path) -> Path:
+    """A federation CA and both labs' router certificates in ``directory``, Kiruna's
+    naming its testbed address (the name Rome's router checks as it dials)."""
+    from federation.deploy.certs import init_ca, issue_lab
+
+    directory.mkdir(parents=True, exist_ok=True)
+    init_ca(directory, force=True)
+    issue_lab(directory, "kiruna", [ADDR.kiruna, "localhost"], force=True)
+    issue_lab(directory, "rome", [ADDR.rome, "localhost"], force=True)
+    return directory
 
 
 def _cfg_flags(cfg: Sequence[str]) -> list[str]:
@@ -228,9 +301,10 @@ def run_one(
     sysctls: dict[str, str] = {}
     for conf in t.get("sysctl", []):
         sysctls |= parse_sysctl_conf(Path(conf).read_text())
+    certs = make_certs(out / "certs") if t.get("certs") else None
     with Testbed(out, path, kiruna_ports=t["ports"], sysctls=sysctls, seed=seed) as bed:
-        bed.fedlab("kiruna", "router-kiruna", _router_args("kiruna", transport, cfg))
-        bed.fedlab("rome", "router-rome", _router_args("rome", transport, cfg))
+        bed.fedlab("kiruna", "router-kiruna", _router_args("kiruna", transport, cfg, certs))
+        bed.fedlab("rome", "router-rome", _router_args("rome", transport, cfg, certs))
         run_for = seconds + sync_phase
         common = ["-e", f"tcp/127.0.0.1:{PORT}", "--status-period", "0.5"]
         common += ["--duration", f"{run_for + 5:g}", *_cfg_flags(cfg)]

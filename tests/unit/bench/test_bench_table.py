@@ -32,6 +32,10 @@ def test_every_result_file_is_read_and_listed_with_its_command() -> None:
     # Read by other tests and by `fedlab bench sync --replay`, not by the table.
     others = {"sync-testbed-replay.json", "network-tcp-tuned-60s.json"}
     others |= {"network-multilink-qos-60s.json"}
+    # docs/deploy.md's "Pose under loss on the secure path" (TLS and QUIC lab links).
+    others |= {"network-secure-loss5-60s.json", "network-quic-loss5-seeds45-60s.json"}
+    others |= {"network-quic-references-loss5-60s.json", "network-quic-cut-loss20-60s.json"}
+    others |= {"network-quic-clean-loss1-60s.json"}
     assert on_disk == read | others
     listing = (BENCHMARKS / "README.md").read_text(encoding="utf-8")
     missing = [name for name in on_disk if f"`{name}`" not in listing]
