@@ -31,12 +31,15 @@ if TYPE_CHECKING:
     from federation.runtime.agent.commands import RunControl
     from federation.runtime.agent.services import AgentServices
 
-__all__ = ["LOOK_PERIOD", "Rejoining", "limits_of"]
+__all__ = ["LOOK_PERIOD", "MAX_STEP", "Rejoining", "limits_of"]
 
 log = logging.getLogger("fedlab.agent")
 
 LOOK_PERIOD = 0.2
 """s between two decisions while waiting."""
+MAX_STEP = 0.1
+"""s: the longest step the capture takes at once (a loop that stalled, a run frozen in
+between): it moves on no further than a control step or two would, never by a jump."""
 
 
 def limits_of(platform: str, preset: str | None) -> Limits:
@@ -89,8 +92,13 @@ class Rejoining:
     def look(self, t_exec: float, host: float, t_sim: float | None) -> None:
         """While waiting, every :data:`LOOK_PERIOD`: decide, and join if so."""
         run = self.commands.run_state
-        if self.policy == "never" or run.mode != "waiting":
+        if run.mode not in ("running", "frozen"):
+            self.capture = None  # a run that ended (aborted, done) captures nothing more
+        if run.mode != "waiting":
             self.admitted = False  # an admit is for the run under way while it waits
+            return
+        if self.policy == "never":
+            self.decision = Decision(False, "rejoin = never")
             return
         if host < self._next_look:
             return
@@ -147,12 +155,17 @@ class Rejoining:
         if capture is None:
             return heading, rate
         last, self._last_host = self._last_host, host
-        dt = 0.0 if last is None else max(0.0, host - last)
+        dt = 0.0 if last is None else min(MAX_STEP, max(0.0, host - last))
         out = capture.step(heading, rate, dt)
         if capture.captured:
             log.info("rejoin: reference captured")
             self.capture = None
         return out
+
+    def pause(self, host: float) -> None:
+        """A step not flown on the capture (the run frozen): it resumes from here."""
+        if self.capture is not None:
+            self._last_host = host
 
     def admit(self) -> str | None:
         """An operator's admit (``fedlab ctl admit``, Zenoh's thread): why it is refused,

@@ -440,6 +440,8 @@ class AgentRuntime:
             self._scenario_reference(t_exec, t_sim, run_time)
         if self.run_state.mode == "running":  # a rejoined platform captures its reference
             self.guidance = self.rejoining.guidance(*self.guidance, host)
+        else:
+            self.rejoining.pause(host)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         self.watches.watch_area(t_exec, host)

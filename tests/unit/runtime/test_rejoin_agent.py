@@ -242,3 +242,45 @@ def test_an_admit_given_before_a_run_is_forgotten_once_it_leaves_waiting() -> No
     r.step(0.05)
     assert r.agent.run_state.mode == "running"
     assert not r.agent.rejoining.admitted
+
+
+def _rejoined() -> Restarted:
+    r = Restarted()
+    r.synced()
+    r.step()
+    r.leader_flies(6.0)
+    r.step(0.25)
+    assert r.agent.run_state.mode == "running" and r.agent.rejoining.capture is not None
+    return r
+
+
+def test_a_freeze_mid_capture_resumes_it_where_it_was_without_a_step() -> None:
+    r = _rejoined()
+    r.step(0.01)
+    heading, rate = r.agent.guidance
+    r.command("freeze", at=r.t_sim(), issued_at=r.t_sim())
+    for _ in range(50):  # 2.5 s frozen
+        r.step(0.05)
+    assert r.agent.run_state.mode == "frozen" and r.agent.rejoining.capture is not None
+    r.command("resume", at=r.t_sim(), issued_at=r.t_sim())
+    r.step(0.01)
+    assert r.agent.run_state.mode == "running"
+    after, after_rate = r.agent.guidance
+    limits = r.agent.rejoining.limits
+    # One control step's worth from where it was, not the 2.5 s frozen at once.
+    assert abs(wrap_angle(after - heading)) <= limits.max_rate * 0.05
+    assert abs(after_rate - rate) <= limits.max_accel * 0.05
+
+
+def test_a_run_that_ends_mid_capture_drops_it() -> None:
+    r = _rejoined()
+    r.command("abort")
+    r.step()
+    assert r.agent.run_state.mode == "aborted" and r.agent.rejoining.capture is None
+    assert r.agent.platform.held
+
+
+def test_never_says_so_while_waiting() -> None:
+    r = Restarted(rejoin="never")
+    r.step()
+    assert r.last_status()["rejoin"] == "rejoin = never"
