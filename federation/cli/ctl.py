@@ -168,15 +168,15 @@ def run(args: argparse.Namespace) -> int:
 
     console = Console(stderr=args.json, width=max(Console().width, 120))
     experiment = load_experiment(args.experiment) if args.experiment else None
-    session = open_session(args, stop_on_signals())
-    if session is None:
-        return 0
     if args.agents and args.action != "admit":
         console.print(f"[red]{args.action} names no agents (only admit does)[/red]")
         return 2
     if args.action == "admit" and not args.agents:
         console.print("[red]admit names the agents to admit: fedlab ctl admit LAB/NAME[/red]")
         return 2
+    session = open_session(args, stop_on_signals())
+    if session is None:
+        return 0
     with session:
         if args.action == "admit":
             return run_admit(args, session, experiment, console)
