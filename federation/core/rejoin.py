@@ -14,6 +14,9 @@ The rules :func:`decide` keeps, each a row of :data:`CHECKS`, in order (the firs
 that refuses answers):
 
 1. ``never``: this agent's policy refuses every rejoin.
+1a. Its guidance must be capturable: the capture (:mod:`federation.core.capture`)
+   brings a heading reference in without a step, not a formation's or docking's
+   position reference; an agent flying one does not rejoin (``uncapturable`` says why).
 2. Only an agent ``waiting`` rejoins (one armed, running, frozen, done or aborted
    takes its runs from commands).
 3. It must know the reference time now and pass its own preflight (its sync client
@@ -101,6 +104,8 @@ class Situation:
     seen: tuple[Announcement, ...]
     unready: str | None = None
     """Why its preflight fails (None: it passes)."""
+    uncapturable: str | None = None
+    """Why its reference cannot be captured without a step (None: it can)."""
 
 
 @dataclass(frozen=True)
@@ -139,6 +144,10 @@ def _runs(s: Situation) -> list[Announcement]:
 
 def _never(s: Situation) -> str | None:
     return "rejoin = never" if s.policy == "never" else None
+
+
+def _uncapturable(s: Situation) -> str | None:
+    return s.uncapturable
 
 
 def _not_waiting(s: Situation) -> str | None:
@@ -185,6 +194,7 @@ def _not_admitted(s: Situation) -> str | None:
 
 CHECKS: tuple[tuple[str, Callable[[Situation], str | None]], ...] = (
     ("never", _never),
+    ("uncapturable", _uncapturable),
     ("not waiting", _not_waiting),
     ("unsynchronized", _unsynchronized),
     ("unready", _unready),

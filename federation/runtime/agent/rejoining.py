@@ -24,6 +24,7 @@ from federation.core.rejoin import Announcement, Decision, Situation, announceme
 from schemas.base import ConfigError
 from schemas.experiment import load_experiment
 from schemas.platform import PlatformConfig, load_platform
+from schemas.scenario import ScenarioPart
 
 if TYPE_CHECKING:
     import zenoh
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
     from federation.runtime.agent.commands import RunControl
     from federation.runtime.agent.services import AgentServices
 
-__all__ = ["LOOK_PERIOD", "MAX_STEP", "Rejoining", "limits_of"]
+__all__ = ["LOOK_PERIOD", "MAX_STEP", "Rejoining", "limits_of", "uncapturable"]
 
 log = logging.getLogger("fedlab.agent")
 
@@ -40,6 +41,15 @@ LOOK_PERIOD = 0.2
 MAX_STEP = 0.1
 """s: the longest step the capture takes at once (a loop that stalled, a run frozen in
 between): it moves on no further than a control step or two would, never by a jump."""
+
+
+def uncapturable(scenario: ScenarioPart | None) -> str | None:
+    """Why an agent flying ``scenario`` cannot rejoin without a step in its reference:
+    the capture brings in a heading reference (attitude tracking, adaptive gains), not a
+    formation's or docking's position reference. None: it can."""
+    if scenario is None or scenario.kind == "attitude-tracking":
+        return None
+    return f"{scenario.kind}: its position reference has no capture (it would step): no rejoin"
 
 
 def limits_of(platform: str, preset: str | None) -> Limits:
@@ -115,6 +125,7 @@ class Rejoining:
             me=str(self.owner.me), reference=str(self.owner.reference),
             experiment=self.experiment, mode=run.mode, policy=self.policy,
             admitted=self.admitted, now=t_sim, seen=seen, unready=unready,
+            uncapturable=uncapturable(self.owner.config.scenario),
         )  # fmt: skip
         decision = decide(situation)
         if self.decision is None or decision.why != self.decision.why:

@@ -45,6 +45,7 @@ def test_time_spent_frozen_is_not_run_time() -> None:
     ("change", "why"),
     [
         ({"policy": "never"}, "rejoin = never"),
+        ({"uncapturable": "a formation's position reference"}, "a formation's position"),
         ({"mode": "done"}, "done: only a waiting agent rejoins"),
         ({"mode": "running"}, "running: only a waiting agent rejoins"),
         ({"now": None}, "not synchronized"),
@@ -104,7 +105,7 @@ def test_stale_announcements_beside_a_fresh_one_do_not_count() -> None:
 
 def test_the_table_names_every_rule_once() -> None:
     names = [name for name, _ in CHECKS]
-    assert len(names) == len(set(names)) == 8
+    assert len(names) == len(set(names)) == 9
 
 
 def test_the_first_refusal_answers() -> None:

@@ -284,3 +284,14 @@ def test_never_says_so_while_waiting() -> None:
     r = Restarted(rejoin="never")
     r.step()
     assert r.last_status()["rejoin"] == "rejoin = never"
+
+
+def test_only_a_heading_reference_is_captured() -> None:
+    from federation.runtime.agent.rejoining import uncapturable
+    from schemas.scenario import ScenarioPart
+
+    assert uncapturable(None) is None
+    assert uncapturable(ScenarioPart(kind="attitude-tracking")) is None
+    for kind in ("formation", "docking"):
+        why = uncapturable(ScenarioPart.model_construct(kind=kind))
+        assert why is not None and "no rejoin" in why
