@@ -14,22 +14,22 @@ The rules :func:`decide` keeps, each a row of :data:`CHECKS`, in order (the firs
 that refuses answers):
 
 1. ``never``: this agent's policy refuses every rejoin.
-1a. Its guidance must be capturable: the capture (:mod:`federation.core.capture`)
+2. Its guidance must be capturable: the capture (:mod:`federation.core.capture`)
    brings a heading reference in without a step, not a formation's or docking's
    position reference; an agent flying one does not rejoin (``uncapturable`` says why).
-2. Only an agent ``waiting`` rejoins (one armed, running, frozen, done or aborted
+3. Only an agent ``waiting`` rejoins (one armed, running, frozen, done or aborted
    takes its runs from commands).
-3. It must know the reference time now and pass its own preflight (its sync client
+4. It must know the reference time now and pass its own preflight (its sync client
    locked, its platform ready: no fault hold, measurements fresh): joining needs the
    run's clock and a platform fit to fly.
-4. An announcement counts only if it is fresh (its status's reference time within
+5. An announcement counts only if it is fresh (its status's reference time within
    :data:`FRESH` of now), from another agent, for this agent's reference and
    experiment, of a run ``running`` with nothing armed (a freeze or resume to come:
    wait until it has applied). None counts: no run under way.
-5. The announcements must agree (one run id, start instants within
+6. The announcements must agree (one run id, start instants within
    :data:`AGREE`): otherwise which run is under way cannot be told.
-6. The run must have at least :data:`MIN_LEFT` of run time left.
-7. ``operator``: only after an operator's admit (``fedlab ctl admit LAB/NAME``).
+7. The run must have at least :data:`MIN_LEFT` of run time left.
+8. ``operator``: only after an operator's admit (``fedlab ctl admit LAB/NAME``).
 
 A decision that joins gives the run (:class:`Announcement`) and its run time now.
 """
@@ -203,7 +203,8 @@ CHECKS: tuple[tuple[str, Callable[[Situation], str | None]], ...] = (
     ("ending", _ending),
     ("not admitted", _not_admitted),
 )
-"""The module's rules 1 to 7, in order: a name and the check (why not, or None)."""
+"""The module's rules 1 to 8, in order (rule 4 in two rows: synchronized, then its
+preflight): a name and the check (why not, or None)."""
 
 
 def decide(s: Situation) -> Decision:

@@ -171,6 +171,9 @@ class Holds(RuleBasedStateMachine):
             assert not self.s.standing & RESET_LIFTS, "a confirmed reset left a hold it lifts"
         for hold in change.lifted:
             assert trigger in BY_HOLD[hold].lifted_by
+        if trigger is Trigger.RUN_REJOINED:  # a rejoin lifts only what a start would
+            assert change.lifted <= {Hold.WAITING, Hold.RESET}, change
+            assert not change.set
 
     @precondition(lambda self: self.aborted)
     @rule(trigger=TRIGGERS.filter(lambda t: t is not Trigger.OPERATOR_RESET))
