@@ -154,10 +154,15 @@ class LabEntry(base.Model):
         return self.agent_endpoint or self.endpoint or self.listen[0]
 
     def cert_hosts(self) -> list[str]:
-        """The lab certificate's names: hosts of endpoint and agent_endpoint, then hosts."""
+        """The lab certificate's names: hosts of endpoint and agent_endpoint, then hosts;
+        with an endpoint on ``localhost``, ``127.0.0.1`` too (another lab's router dials
+        it there over QUIC: federation/deploy/lablink.py)."""
         out: list[str] = []
         dialled = [self.endpoint, self.agents_endpoint()]
-        for host in [endpoint_host(e) for e in dialled if e is not None] + self.hosts:
+        hosts = [endpoint_host(e) for e in dialled if e is not None]
+        if self.endpoint is not None and endpoint_host(self.endpoint) == "localhost":
+            hosts.append("127.0.0.1")
+        for host in hosts + self.hosts:
             if host and not _is_wildcard(host) and host not in out:
                 out.append(host)
         return out
@@ -245,7 +250,13 @@ class FederationFile(base.Model):
         0,
         ge=0,
         description="bytes: the largest message a router or agent accepts; 0: what fedlab's "
-        "largest message needs (a recording chunk, 1 MiB, plus 64 KiB)",
+        "largest message needs (a recording chunk, 32 KiB, plus 64 KiB)",
+    )
+    lab_link: Literal["quic", "tls"] = Field(
+        "quic",
+        description="how a router dials a certificate lab's router: quic (QUIC with mixed "
+        "reliability: pose as datagrams, never behind a lost packet; UDP on the listener's "
+        "port) or tls (TLS over TCP); agents always dial their own router over TLS",
     )
     labs: dict[Name, LabEntry] = Field(min_length=1, description="the labs by name")
 

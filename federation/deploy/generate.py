@@ -52,7 +52,7 @@ from typing import Any
 from cryptography import x509
 
 from federation.core.keys import control_key
-from federation.deploy import certs, limits
+from federation.deploy import certs, lablink, limits
 from federation.deploy.local import localize
 from federation.runtime.identity import HOSTED_FIELD, certificate_cn
 from federation.runtime.session import DATA_QUEUE_BATCHES
@@ -230,9 +230,9 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
     doc: dict[str, Any] = {
         "mode": "router",
         "metadata": {"lab": lab, "federation": fed.federation},
-        "listen": {"endpoints": _listen(entry)},
+        "listen": {"endpoints": _listen(entry) + lablink.listen_quic(fed, lab)},
         "connect": {
-            "endpoints": [fed.labs[o].endpoint for o in entry.dial],
+            "endpoints": lablink.dial(fed, lab),
             "timeout_ms": -1,
             "exit_on_failure": False,
         },
@@ -243,6 +243,7 @@ def router_config(fed: FederationFile, lab: str, root: Path) -> dict[str, Any]:
     }
     # Data batches queued as in fedlab's sessions (Zenoh's two dropped poses on a
     # busy host: docs/scale.md, "Loss on a busy host").
+    doc["transport"]["link"]["protocols"] = lablink.protocols(fed, lab)
     doc["transport"]["link"]["tx"] = {
         "lease": LEASE_MS, "keep_alive": 4, "queue": {"size": {"data": DATA_QUEUE_BATCHES}}
     }  # fmt: skip

@@ -65,8 +65,9 @@ def setup(labs: Labs, tmp: Path) -> Path:
     generate(load_federation(source), out, local=True)
     for lab in ("kiruna", "rome"):
         config = out / lab / "routers" / f"{lab}.json5"
-        listen = json.loads(zenoh.Config.from_file(str(config)).get_json("listen/endpoints"))[0]
-        labs.router(lab, listen=listen, config=config)
+        doc = zenoh.Config.from_file(str(config))
+        listen, *more = json.loads(doc.get_json("listen/endpoints"))  # TLS, then QUIC
+        labs.router(lab, *(a for e in more for a in ("-l", e)), listen=listen, config=config)
     return out
 
 
@@ -138,15 +139,19 @@ def test_a_hosted_process_flies_its_agents_and_speaks_for_no_other(
                     return True
         return False
 
-    allowed = "fedlab/default/kiruna/f1/probe"
+    allowed = "fedlab/default/kiruna/f1/recordings"
     listener = open_as(fed / "rome" / "agents" / "pinocchio.json5")
     speaker = open_as(sim / "sim.json5")
     try:
-        sub = listener.declare_subscriber("fedlab/default/kiruna/*/probe", on_sample)
+        sub = listener.declare_subscriber("fedlab/default/kiruna/*/recordings", on_sample)
         try:
             # The route is up end to end before anything forbidden is sent...
             assert wait_for_payload(b"first", allowed), "the host's own agent's key never arrived"
-            for key in ("fedlab/default/kiruna/knatte/probe", "fedlab/default/kiruna/f3/probe"):
+            forged = (
+                "fedlab/default/kiruna/knatte/recordings",
+                "fedlab/default/kiruna/f3/recordings",
+            )
+            for key in forged:
                 for _ in range(20):  # bounded: 20 puts each
                     speaker.put(key, b"forged")
             # ...and a later put on an allowed key arrives after them, had they passed.
@@ -161,11 +166,13 @@ def test_a_hosted_process_flies_its_agents_and_speaks_for_no_other(
         declared = [
             speaker.liveliness().declare_token(f3),
             speaker.declare_queryable(f"{f3}/sync", lambda q: q.reply(q.key_expr, b"forged")),
-            speaker.declare_queryable(f"{f1}/probe", lambda q: q.reply(q.key_expr, b"own")),
+            speaker.declare_queryable(f"{f1}/recordings", lambda q: q.reply(q.key_expr, b"own")),
         ]
         try:
             assert wait_for(
-                lambda: any(r.ok is not None for r in listener.get(f"{f1}/probe", timeout=0.5)),
+                lambda: any(
+                    r.ok is not None for r in listener.get(f"{f1}/recordings", timeout=0.5)
+                ),
                 timeout=10,
             ), "the host's own agent's queryable never answered"
             # f1's token (held by the host, which runs it) is seen where f3's is not.

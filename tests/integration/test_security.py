@@ -319,8 +319,15 @@ def test_agents_write_only_under_their_own_lab(labs: Labs, pki: Pki, sessions: l
     in_rome = Inbox(pinocchio, "fedlab/default/**")
     in_kiruna = Inbox(knatte, "fedlab/default/**")
     sessions += [in_rome, in_kiruna]
-    linked = _probe_until_linked(knatte, in_rome, "fedlab/default/kiruna/knatte/probe", 10)
+    linked = _probe_until_linked(knatte, in_rome, "fedlab/default/kiruna/knatte/status", 10)
     facts = [f"lab link carried a kiruna sample {linked:.2f} s after the routers listened"]
+    # ... nor under its own name outside the protocol's keys (its token, pose, sync,
+    # status, recordings), where anything it liked would cross the lab link.
+    _forbidden_then_allowed(
+        knatte, in_rome, forbidden="fedlab/default/kiruna/knatte/other",
+        allowed="fedlab/default/kiruna/knatte/pose", tag=b"own-other",
+    )  # fmt: skip
+    assert "fedlab/default/kiruna/knatte/other" not in in_rome
 
     # A kiruna agent cannot publish under rome (or outside the federation's keys)...
     latency = _forbidden_then_allowed(

@@ -110,8 +110,8 @@ def make_federation(tmp: Path, three: bool = False, watch_all: bool = False) -> 
 def start_routers(labs: Labs, fed: Federation, *kiruna_extra: str) -> None:
     for lab in fed.labs:
         doc = zenoh.Config.from_file(str(fed.router_config(lab)))
-        listen = json.loads(doc.get_json("listen/endpoints"))[0]
-        extra = kiruna_extra if lab == "kiruna" else ()
+        listen, *more = json.loads(doc.get_json("listen/endpoints"))  # TLS, then QUIC
+        extra = [*(kiruna_extra if lab == "kiruna" else ()), *(a for e in more for a in ("-l", e))]
         labs.router(lab, *extra, listen=listen, config=fed.router_config(lab))
 
 

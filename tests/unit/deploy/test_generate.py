@@ -96,7 +96,8 @@ def test_a_neighbour_router_writes_only_the_labs_behind_it() -> None:
         "fedlab/default/rome/**",
         "fedlab/default/control",
     }
-    assert lund["connect"]["endpoints"] == ["tls/kiruna.example.org:7447"]
+    # Lund dials Kiruna (certificates) over QUIC: pose as datagrams (federation/deploy/lablink.py)
+    assert lund["connect"]["endpoints"] == ["quic/kiruna.example.org:7447?mixed_rel=1"]
     assert kiruna["connect"]["endpoints"] == []
 
 

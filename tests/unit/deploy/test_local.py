@@ -68,7 +68,8 @@ def test_generate_local_writes_loopback_endpoints_and_matching_certificates(
     assert "rome: its router listens on tls/127.0.0.1:30001" in printed
     rome_router = out / "rome" / "routers" / "rome.json5"
     assert _get(rome_router, "listen/endpoints") == ["tls/127.0.0.1:30001#enable_mtls=false"]
-    assert _get(rome_router, "connect/endpoints") == ["tls/localhost:30000"]
+    # Rome dials Kiruna over QUIC (pose as datagrams), on 127.0.0.1: lablink.quic_endpoint
+    assert _get(rome_router, "connect/endpoints") == ["quic/127.0.0.1:30000?mixed_rel=1"]
     knatte = out / "kiruna" / "agents" / "knatte.json5"
     assert _get(knatte, "connect/endpoints") == ["tls/localhost:30000"]
     ctl = out / "rome" / "operators" / "ctl.json5"
