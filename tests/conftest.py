@@ -10,6 +10,8 @@ import pytest
 import zenoh
 
 from federation.fleet.launch import Fleet
+from federation.runtime import runs
+from federation.runtime.agent import recordings
 from federation.runtime.runs import LEDGER_ENV
 
 
@@ -18,9 +20,15 @@ def promises_ledger(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
 ) -> Path:
     """Each test's recordings (and its child processes') promise disk space in a ledger of
-    their own, not the host's: no test's budget depends on another's, or on a real run."""
+    their own, not the host's, and in a process-wide table of their own: no test's budget
+    depends on another's, or on a real run. A test that abandons a recording as a killed
+    process would (its promise never given back) leaves nothing to the next test run on
+    the same worker."""
     folder = tmp_path_factory.mktemp("promises")
     monkeypatch.setenv(LEDGER_ENV, str(folder))
+    fresh = runs._Promises()
+    monkeypatch.setattr(runs, "PROMISES", fresh)
+    monkeypatch.setattr(recordings, "PROMISES", fresh)
     return folder
 
 
