@@ -22,9 +22,9 @@ from federation.fleet.launch import Fleet, wait_for
 
 pytestmark = pytest.mark.integration
 
-RUN = 24.0  # s of run time
+RUN = 19.0  # s of run time
 KILL_AT = 3.0  # s of run time
-HELD_FOR = 4.0  # s it is watched, held, once ready to join
+HELD_FOR = 2.5  # s it is watched, held, once ready to join
 
 
 def _valves(events: Path) -> list[dict[str, Any]]:
