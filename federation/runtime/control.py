@@ -683,9 +683,16 @@ def _participants(experiment: ExperimentConfig | None) -> frozenset[str] | None:
 
 
 def _expected(experiment: ExperimentConfig | None, seen: dict[str, Any]) -> frozenset[str]:
-    """Whom a command is for: the experiment's participants, or every agent seen."""
+    """Whom a command is for: the experiment's participants, or every agent seen but a
+    replay (``fedlab replay``: it follows the run from the others' status and confirms
+    no command)."""
     participants = _participants(experiment)
-    return frozenset(seen) if participants is None else participants
+    if participants is not None:
+        return participants
+    return frozenset(
+        who for who, status in seen.items()
+        if not str(status.get("platform") or "").startswith("replay:")
+    )  # fmt: skip
 
 
 def _issue_announced(
