@@ -54,3 +54,13 @@ def session() -> Iterator[zenoh.Session]:
     conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     with zenoh.open(conf) as s:
         yield s
+
+
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """``-m timing`` (make test's second pass) imports only the test files that mark a
+    test ``timing``: collecting every file to keep 16 tests took longer than some of them."""
+    if config.getoption("markexpr") != "timing" or collection_path.suffix != ".py":
+        return None
+    if not collection_path.name.startswith("test_"):
+        return None
+    return "mark.timing" not in collection_path.read_text(encoding="utf-8")
