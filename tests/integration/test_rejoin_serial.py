@@ -22,7 +22,7 @@ from federation.fleet.launch import Fleet, wait_for
 
 pytestmark = pytest.mark.integration
 
-RUN = 19.0  # s of run time
+RUN = 24.0  # s of run time: a restart on loaded cores, its sync and the admit fit in it
 KILL_AT = 3.0  # s of run time
 HELD_FOR = 2.5  # s it is watched, held, once ready to join
 
