@@ -79,9 +79,9 @@ _DEFAULTS: dict[str, Any] = {
     # a group's replies and poses fill eight at once: docs/scale.md, "Loss on a busy host").
     "transport/link/tx/queue/size/data": DATA_QUEUE_BATCHES,
     # No shared memory: a Zenoh 1.10 process maps and locks every same-host sender's
-    # pool (16 MiB, the sender's choice) for its lifetime, so each new session that sent
-    # one large message grew a router and an agent by a pool for good; a message in
-    # shared memory also bypasses max_message_size. fedlab's messages are 8 bytes to
+    # pool (16 MiB, the sender's choice) for its lifetime, so each new session that
+    # sends one large message grows a router and an agent by a pool for good; a message
+    # in shared memory also bypasses max_message_size. fedlab's messages are 8 bytes to
     # 64 KiB and cross hosts, where shared memory never applies (docs/deploy.md,
     # "Bounded resources").
     "transport/shared_memory/enabled": False,

@@ -243,10 +243,10 @@ class Testbed:
         execs the command, so the pid is the command's own), at niceness
         :data:`LAB_NICE`: a lab's routers and agents have their host's cores to
         themselves, so on a host shared with other work (parallel tests) they run
-        first, and what the testbed measures is the path, not the neighbours' load
-        (a leader paused 174 ms between poses on cores shared with four test workers,
-        and its follower was held on a clean path). Threads the process starts later
-        inherit it."""
+        first, and what the testbed measures is the path, not the neighbours' load (at
+        the default niceness, four test workers on two cores pause a leader between
+        poses long enough to hold its follower on a clean path). Threads the process
+        starts later inherit it."""
         proc = self.fleet.spawn(name, ["ip", "netns", "exec", self.ns[lab], *argv])
         with contextlib.suppress(OSError):  # not root: as it is
             os.setpriority(os.PRIO_PROCESS, proc.pid, LAB_NICE)
