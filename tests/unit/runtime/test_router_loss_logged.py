@@ -44,7 +44,10 @@ def test_a_client_says_its_router_is_gone_and_back(caplog: pytest.LogCaptureFixt
         router.close()  # type: ignore[no-untyped-call]
         _wait_for(caplog, f"agent kiruna/knatte: the router at {endpoint} is gone", 5.0)
         router = _router(endpoint)
-        _wait_for(caplog, f"agent kiruna/knatte: the router at {endpoint} is back after", 10.0)
+        # The client dials again on Zenoh's backoff (1, 2, 4 s ... apart): on cores shared
+        # with parallel workers its next attempt came more than 10 s after the router
+        # was back (a fresh clone at 70c7f3d); the claim is the line, not its delay.
+        _wait_for(caplog, f"agent kiruna/knatte: the router at {endpoint} is back after", 30.0)
     finally:
         undeclare_all(listeners)
         client.close()  # type: ignore[no-untyped-call]
