@@ -44,9 +44,9 @@ def test_a_client_says_its_router_is_gone_and_back(caplog: pytest.LogCaptureFixt
         router.close()  # type: ignore[no-untyped-call]
         _wait_for(caplog, f"agent kiruna/knatte: the router at {endpoint} is gone", 5.0)
         router = _router(endpoint)
-        # The client dials again on Zenoh's backoff (1, 2, 4 s ... apart): on cores shared
-        # with parallel workers its next attempt came more than 10 s after the router
-        # was back (a fresh clone at 70c7f3d); the claim is the line, not its delay.
+        # The client dials again on Zenoh's backoff: on cores shared with parallel
+        # workers the line did not come within 10 s of the router's return (a fresh
+        # clone at 70c7f3d); the claim is the line, not its delay.
         _wait_for(caplog, f"agent kiruna/knatte: the router at {endpoint} is back after", 30.0)
     finally:
         undeclare_all(listeners)
