@@ -14,11 +14,11 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+import test_trust
 import zenoh
 
 from federation.deploy.certs import init_ca, issue_lab, tls_settings
@@ -27,26 +27,15 @@ from federation.fleet.launch import free_port, wait_for
 pytestmark = pytest.mark.integration
 
 
+sessions = test_trust.sessions  # the fixture closing every session at teardown
+
+
 @pytest.fixture
 def certs(tmp_path: Path) -> Path:
     init_ca(tmp_path)
     for lab in ("kiruna", "rome"):
         issue_lab(tmp_path, lab, ["localhost", "127.0.0.1"])
     return tmp_path
-
-
-@pytest.fixture
-def closing() -> Iterator[list[Any]]:
-    """Sessions and declarations to close or undeclare at teardown, last first."""
-    items: list[Any] = []
-    try:
-        yield items
-    finally:
-        for item in reversed(items):
-            if isinstance(item, zenoh.Session):
-                item.close()
-            else:
-                item.undeclare()
 
 
 def _config(mode: str, settings: dict[str, Any], **endpoints: list[str]) -> zenoh.Config:
@@ -88,7 +77,7 @@ def _acl(cn: str) -> dict[str, Any]:
 
 @pytest.mark.parametrize("subject", ["rome", "someone-else"])
 def test_access_control_by_certificate_applies_to_stream_and_datagrams(
-    certs: Path, closing: list[Any], subject: str
+    certs: Path, sessions: list[Any], subject: str
 ) -> None:
     port = free_port()
     kiruna_conf = _config(
@@ -98,9 +87,9 @@ def test_access_control_by_certificate_applies_to_stream_and_datagrams(
     )
     kiruna_conf.insert_json5("access_control", json.dumps(_acl(subject)))
     kiruna = zenoh.open(kiruna_conf)
-    closing.append(kiruna)
+    sessions.append(kiruna)
     got: list[str] = []
-    closing.append(kiruna.declare_subscriber("a/**", lambda s: got.append(str(s.key_expr))))
+    sessions.append(kiruna.declare_subscriber("a/**", lambda s: got.append(str(s.key_expr))))
     rome = zenoh.open(
         _config(
             "router",
@@ -109,7 +98,7 @@ def test_access_control_by_certificate_applies_to_stream_and_datagrams(
             connect=[f"quic/localhost:{port}?mixed_rel=1"],
         )
     )
-    closing.append(rome)
+    sessions.append(rome)
     assert wait_for(lambda: list(rome.info.routers_zid()), 10.0, 0.1), "no QUIC lab link"
     reliability = {"be": zenoh.Reliability.BEST_EFFORT, "rel": zenoh.Reliability.RELIABLE}
     pubs = {
@@ -117,7 +106,7 @@ def test_access_control_by_certificate_applies_to_stream_and_datagrams(
         for where in ("ok", "no")
         for name, rel in reliability.items()
     }
-    closing.extend(pubs.values())
+    sessions.extend(pubs.values())
     allowed = {"a/ok/be", "a/ok/rel"} if subject == "rome" else set()
     # Publish on every key for at least 1 s, and until each allowed key has arrived (5 s
     # at most): a denied key then had its chances.
@@ -135,7 +124,7 @@ def test_access_control_by_certificate_applies_to_stream_and_datagrams(
     assert set(counts) == allowed, counts
 
 
-def test_a_client_without_a_certificate_is_refused(certs: Path, closing: list[Any]) -> None:
+def test_a_client_without_a_certificate_is_refused(certs: Path, sessions: list[Any]) -> None:
     port = free_port()
     kiruna = zenoh.open(
         _config(
@@ -144,8 +133,8 @@ def test_a_client_without_a_certificate_is_refused(certs: Path, closing: list[An
             listen=[f"quic/127.0.0.1:{port}?mixed_rel=1"],
         )
     )
-    closing.append(kiruna)
+    sessions.append(kiruna)
     conf = _config("client", tls_settings(certs), connect=[f"quic/localhost:{port}?mixed_rel=1"])
     conf.insert_json5("connect/timeout_ms", "2000")
     with pytest.raises(zenoh.ZError):
-        closing.append(zenoh.open(conf))
+        sessions.append(zenoh.open(conf))
