@@ -138,8 +138,10 @@ def test_a_replayed_leader_drives_a_live_follower(labs: Labs, tmp_path: Path) ->
     heading = np.array([p.pose.heading for p in recorded])
     assert len(heard.poses) > 50
     errors = []
+    # A stamp's bound is the ghost's one-way delay plus its estimate's bound
+    # (docs/protocol.md): a few ms on an idle loopback, tens on shared cores (42 ms seen).
     for pose, stamp in heard.poses:
-        assert stamp.t_ref is not None and stamp.bound is not None and stamp.bound < 0.02
+        assert stamp.t_ref is not None and stamp.bound is not None and 0 < stamp.bound < 0.25
         assert stamp.ref_id == wire.reference_id(FOLLOWER)
         recorded_at = times[heading == pose.pose.heading]  # the recorded pose it replays
         assert len(recorded_at), pose

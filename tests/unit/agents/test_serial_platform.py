@@ -361,6 +361,9 @@ class Clock:
         return self.k * self.period
 
 
+LAG = 0.1  # s: how far apart in time the pty run and its twin may respond
+
+
 def chase(plat: SerialPlatform) -> tuple[float, float]:
     """A reference always AHEAD of the estimate at its rate: +torque, saturated, every step."""
     est = plat.pose
@@ -392,10 +395,17 @@ def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_pa
     finally:
         plat.close()
     simulated = SimulatedPlatform(KNATTE, seed=3)
-    apart = []
-    for t, heading in rows:
+    twin_rows = []
+    for t, _ in rows:
         twin = simulated.step(t, ref if t >= 0.5 else 0.0, 0.0)
-        apart.append(abs(heading - twin.heading))
+        twin_rows.append((t, twin.heading))
+    # The same chain on the same plant, up to the line's timing: the emulator paces its
+    # frames on real time, so its first fix, and with it the whole response, may come a
+    # few periods later or earlier than the twin's. Each heading is compared with the
+    # twin's over LAG either side (two of the emulator's 20 Hz fixes).
+    apart = [
+        min(abs(heading - h) for s, h in twin_rows if abs(s - t) <= LAG) for t, heading in rows
+    ]
     settled_at = None
     for t, heading in rows:
         if t >= 0.5 and abs(heading - ref) < 0.05:
@@ -408,7 +418,8 @@ def test_closed_loop_over_a_pty_converges_to_a_heading_step(fleet: Fleet, tmp_pa
     print(
         f"heading step 0.3 rad over the pty: within 0.05 rad (for 1 s) after {took}, "
         f"final error {rows[-1][1] - ref:+.4f} rad (simulated twin "
-        f"{twin.heading - ref:+.4f}); largest difference from the twin {max(apart):.4f} rad; "
+        f"{twin.heading - ref:+.4f}); largest difference from the twin (within {LAG} s) "
+        f"{max(apart):.4f} rad; "
         f"host counters {counters}"
     )
     assert settled_at is not None and settled_at - 0.5 < 7.0
