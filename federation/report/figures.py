@@ -12,6 +12,7 @@ matplotlib is imported when a figure is drawn (Agg backend, no display needed).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -56,7 +57,7 @@ def write_figures(
             path = out / f"sync_{recording_stem(pair.client)}_{recording_stem(pair.peer)}.png"
             plot_sync(pair, path, s.get("emulated_delay_s"), sync_phase)
             figures[f"sync {pair.client} {pair.peer}"] = path
-    follow_list = follows(Run(run.agents, run.meta, [], run.directory))  # notes: summary's
+    follow_list = follows(dataclasses.replace(run, notes=[]))  # notes: summary's
     if not follow_list:
         summary["notes"].append("no follower with a recorded leader: no heading figures")
         return figures

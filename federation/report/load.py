@@ -8,7 +8,9 @@ compensation, the emulated link). A damaged
 recording (an agent killed, its summary broken) gives every message up to the
 damage; what could not be read becomes a note, not an error. Recordings from before
 the channels in Foxglove's types (``/tf``, ``/pose``) read the same: only the JSON
-channels are read.
+channels are read. A merged file (``fedlab merge``, its ``fedlab.merge`` metadata
+record) in the folder is not a recording and is skipped here:
+:mod:`federation.report.frommerged` reads it into the same :class:`Run`.
 """
 
 from __future__ import annotations
@@ -19,10 +21,27 @@ from pathlib import Path
 from typing import Any
 
 from federation.core.channels import Channel
-from federation.runtime.recorder import read_messages
+from federation.runtime.mcapfile import is_finished
+from federation.runtime.recorder import read_messages, read_metadata
 from schemas.config import ConfigError
 
-__all__ = ["AgentRecording", "Messages", "Run", "agent_from_filename", "load_run", "segment_of"]
+__all__ = [
+    "MERGE_METADATA",
+    "AgentRecording",
+    "Messages",
+    "Run",
+    "add_recording",
+    "agent_from_filename",
+    "is_merged",
+    "load_run",
+    "parse_meta",
+    "recordings",
+    "segment_of",
+]
+
+MERGE_METADATA = "fedlab.merge"
+"""Name of a merged file's metadata record (:mod:`federation.report.merge`): the mark
+that tells a merged file from a recording."""
 
 Messages = dict[str, list[dict[str, Any]]]
 """A recording's decoded messages by channel, in log-time order."""
@@ -43,6 +62,9 @@ class AgentRecording:
     segments: list[Messages] = field(default_factory=list)
     """Each segment's messages (one file each: the run from its start, then from each
     rejoin), in order; one for an agent that flew its run in one go."""
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    """Its first segment's MCAP metadata records by name (``fedlab.run``...; empty for
+    an old or damaged recording)."""
 
     def channel(self, topic: str) -> list[dict[str, Any]]:
         return self.messages.get(topic) or []
@@ -69,6 +91,11 @@ class Run:
     meta: dict[str, Any] | None = None
     notes: list[str] = field(default_factory=list)
     directory: str = ""
+    sources: list[str] = field(default_factory=list)
+    """The files read, by name: the per-agent recordings, or the one merged file."""
+    experiment: dict[str, Any] | None = None
+    """The run's ``experiment.json`` as the merged file carries it (None: read from
+    ``directory``, or none)."""
 
     @property
     def leader(self) -> str | None:
@@ -142,8 +169,22 @@ def _recover(path: Path) -> Messages:
     return partial
 
 
+def is_merged(path: Path) -> bool:
+    """Whether ``path`` is a merged file (its ``fedlab.merge`` record), not a recording."""
+    if not is_finished(path):
+        return False
+    return MERGE_METADATA in read_metadata(path)
+
+
+def recordings(directory: Path) -> list[Path]:
+    """The per-agent recordings of a run folder (merged files left out), by agent and
+    segment."""
+    files = [p for p in directory.glob("*.mcap") if not is_merged(p)]
+    return sorted(files, key=lambda p: (agent_from_filename(p), segment_of(p)))
+
+
 def load_run(run_dir: str | Path) -> Run:
-    """Read every ``*.mcap`` of ``run_dir`` and its optional ``run.json``.
+    """Read every per-agent ``*.mcap`` of ``run_dir`` and its optional ``run.json``.
 
     Raises
     ------
@@ -153,7 +194,7 @@ def load_run(run_dir: str | Path) -> Run:
     directory = Path(run_dir)
     if not directory.is_dir():
         raise ConfigError(f"{directory}: no such run directory")
-    files = sorted(directory.glob("*.mcap"), key=lambda p: (agent_from_filename(p), segment_of(p)))
+    files = recordings(directory)
     if not files:
         raise ConfigError(f"{directory}: no MCAP recordings (*.mcap) in this run directory")
     notes: list[str] = []
@@ -167,42 +208,68 @@ def load_run(run_dir: str | Path) -> Run:
             continue
         status = messages.get(Channel.STATUS) or []
         agent = str(status[0].get("agent")) if status else agent_from_filename(path)
-        _add(agents, agent, messages, path, meta, notes)
+        add_recording(
+            agents, agent, messages, path.name, segment_of(path), _metadata(path), meta, notes
+        )
     if not agents:
         raise ConfigError(f"{directory}: no readable MCAP recording ({len(files)} files tried)")
     for agent in (meta or {}).get("agents") or {}:
         if agent not in agents:
             notes.append(f"{agent} is in run.json but has no recording")
-    return Run(agents, meta, notes, str(directory))
+    return Run(agents, meta, notes, str(directory), [p.name for p in files])
 
 
-def _add(
+def add_recording(
     agents: dict[str, AgentRecording],
     agent: str,
     messages: Messages,
-    path: Path,
+    file: str,
+    segment: int,
+    metadata: dict[str, dict[str, str]],
     meta: dict[str, Any] | None,
     notes: list[str],
 ) -> None:
-    """``agent``'s recording in ``path``: its first, a later segment of its run, or a
-    second recording of it (skipped, with a note)."""
+    """``agent``'s recording ``file`` (its ``segment``, 1 for a run's first): its first,
+    a later segment of its run, or a second recording of it (skipped, with a note)."""
     rec = agents.get(agent)
     if rec is None:
-        agents[agent] = _describe(agent, messages, path.name, meta)
-    elif segment_of(path) > len(rec.segments):
-        rec.add_segment(messages, path.name)
+        agents[agent] = rec = _describe(agent, messages, file, meta)
+        rec.metadata = metadata
+    elif segment > len(rec.segments):
+        rec.add_segment(messages, file)
     else:
-        notes.append(f"{path.name}: a second recording of {agent}; skipped")
+        notes.append(f"{file}: a second recording of {agent}; skipped")
+
+
+def _metadata(path: Path) -> dict[str, dict[str, str]]:
+    """A recording's metadata records; none for an old or damaged one."""
+    try:
+        return read_metadata(path)
+    except Exception:  # mcap raises many kinds on a cut file
+        return {}
 
 
 def _read_meta(run_json: Path, notes: list[str]) -> dict[str, Any] | None:
     """The demo's run.json as a dict; None (and a note) if missing or unreadable."""
     if not run_json.exists():
+        return parse_meta(None, notes)
+    try:
+        text = run_json.read_text(encoding="utf-8")
+    except OSError as error:
+        notes.append(f"run.json unreadable ({error}); ignored")
+        return None
+    return parse_meta(text, notes)
+
+
+def parse_meta(text: str | None, notes: list[str]) -> dict[str, Any] | None:
+    """run.json's text as a dict; None (and a note) if missing (``None``) or not a JSON
+    object."""
+    if text is None:
         notes.append("no run.json: roles from the recordings, no emulated link to compare with")
         return None
     try:
-        loaded = json.loads(run_json.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as error:
+        loaded = json.loads(text)
+    except json.JSONDecodeError as error:
         notes.append(f"run.json unreadable ({error}); ignored")
         return None
     if not isinstance(loaded, dict):

@@ -31,6 +31,13 @@ two fields, log time from publish time, ``/tf`` and ``/pose`` again from
 placed by their log time through the agent's wall-clock-to-own-clock line, whose
 largest residual is added to their bound.
 
+A later segment of an agent's run (``<lab>-<name>.seg2.mcap``..., recorded after a
+rejoin, :mod:`federation.report.load`) is that agent's: its own clock map (the agent's
+process started again), the same topic names on channels of their own whose metadata
+says ``segment`` (and ``source_file``), its metadata records named
+``LAB/NAME.segN RECORD``, and a Log line on ``/LAB/NAME/log`` at its first message
+stating the gap since the segment before, on reference time.
+
 Streaming: a first pass reads each file's ``/reference``, ``/status``, ``/control`` and
 ``/sync/exchange`` and keeps the offset estimate thinned (:class:`Thinned`: points only
 where a line through them would leave ``THIN_S``), one number per status line and the
@@ -66,7 +73,7 @@ from mcap.writer import Writer
 from federation.core.channels import FOXGLOVE_CHANNELS, Channel
 from federation.report import mergeview as view
 from federation.report.analysis import Clock, clock_map
-from federation.report.load import agent_from_filename
+from federation.report.load import MERGE_METADATA, agent_from_filename, is_merged, segment_of
 from federation.report.status import clock_line
 from federation.runtime.mcapfile import CHUNK_SIZE, as_metadata, is_finished
 from schemas.config import ConfigError
@@ -84,9 +91,9 @@ __all__ = [
     "write_merged",
 ]
 
-MERGE_METADATA = "fedlab.merge"
-"""Name of the merged file's metadata record: the epoch and its uncertainty, the
-reference agent, the run's start, what log and publish times mean, counts, notes."""
+# MERGE_METADATA (federation.report.load): the name of the merged file's metadata
+# record: the epoch and its uncertainty, the reference agent, the run's start, what log
+# and publish times mean, counts, notes.
 REORDER_S = 2.0  # s a message is held to be ordered by reference time
 THIN_S = 0.5e-6  # s, half-width of the corridor the offset points are thinned within
 STAMP_FIELDS: dict[str, str] = {
@@ -160,6 +167,7 @@ class AgentClock:
 
     agent: str
     path: Path
+    segment: int = 1  # 1: the run's first recording; 2...: after each rejoin
     reference: str | None = None  # the reference agent its statuses name
     source: str = "none"  # "reference" (its own clock), "estimate" (/reference), "exchanges"
     t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # own clock, s
@@ -179,6 +187,11 @@ class AgentClock:
     notes: list[str] = field(default_factory=list)
     skipped: int = 0  # its /tf and /pose messages, left out (from /pose/sent again)
 
+    @property
+    def label(self) -> str:
+        """``LAB/NAME``, or ``LAB/NAME.segN`` for a later segment: its records' prefix."""
+        return self.agent if self.segment == 1 else f"{self.agent}.seg{self.segment}"
+
     def to_reference(self, t: float) -> float:
         """Own clock ``t`` (s) on reference time (s)."""
         if not self.t.size:
@@ -197,6 +210,12 @@ class AgentClock:
         near = [b for b in near if math.isfinite(b)]
         return max(near) + 2 * THIN_S if near else None
 
+    def _size(self) -> int | None:
+        try:
+            return self.path.stat().st_size
+        except OSError:
+            return None
+
     def from_wall(self, wall_ns: int) -> float | None:
         """Own clock (s) at a log time (host wall clock, ns), by the wall line."""
         if self.wall is None:
@@ -207,7 +226,8 @@ class AgentClock:
     def describe(self) -> dict[str, Any]:
         """As a metadata record's data (JSON-ready)."""
         return {
-            "file": self.path.name, "reference": self.reference, "source": self.source,
+            "file": self.path.name, "segment": self.segment, "size_bytes": self._size(),
+            "reference": self.reference, "source": self.source,
             "offset_points": json.dumps([self.t.tolist(), self.offset.tolist()]),
             "bounds": json.dumps([self.status_t, [_number(b) for b in self.status_bound]]),
             "wall_line": json.dumps(self.wall), "wall_residual_s": self.wall_residual,
@@ -287,7 +307,7 @@ class _Survey:
 def survey(path: Path) -> AgentClock:
     """The first pass over one recording: who recorded it, its offset estimate of the
     reference clock (thinned), its status lines' bounds, wall and host times."""
-    clock = AgentClock(agent_from_filename(path), path)
+    clock = AgentClock(agent_from_filename(path), path, segment_of(path))
     gather = _Survey(clock)
     handlers = {
         Channel.REFERENCE: gather.reference, Channel.STATUS: gather.status,
@@ -352,7 +372,7 @@ def epoch(clocks: Sequence[AgentClock], notes: list[str]) -> Epoch:
         if c.source == "none" or not c.status_t:
             continue
         zeros = [w - c.to_reference(t) for t, w in zip(c.status_t, c.status_wall, strict=True)]
-        hosts[c.agent] = statistics.median(zeros)
+        hosts[c.label] = statistics.median(zeros)
         scatter = max(scatter, (max(zeros) - min(zeros)) / 2)
     if not hosts:
         notes.append("no status line: the epoch's UTC is unknown (log time 0 is the start)")
@@ -376,6 +396,7 @@ class MergeResult:
     skipped: int = 0  # a recording's /tf and /pose (rebuilt from /pose/sent)
     notes: list[str] = field(default_factory=list)
     peer_topics: list[str] = field(default_factory=list)
+    gaps: list[dict[str, Any]] = field(default_factory=list)  # between an agent's segments
 
     def metadata(self) -> dict[str, str]:
         return as_metadata({
@@ -390,7 +411,7 @@ class MergeResult:
             "appended_fields": "t_ref,t_ref_bound (s; the last two of each JSON message)",
             "messages_in": self.messages_in, "messages_out": self.messages_out,
             "late": self.late, "derived_skipped": self.skipped,
-            "notes": json.dumps(self.notes),
+            "segment_gaps": json.dumps(self.gaps), "notes": json.dumps(self.notes),
         })  # fmt: skip
 
 
@@ -473,7 +494,8 @@ class _Output:
     def __init__(self, writer: Writer):
         self.writer = writer
         self.schemas: dict[Any, int] = {}
-        self.channels: dict[str, int] = {}
+        self.channels: dict[Any, int] = {}  # by topic (or topic and segment)
+        self.segment_end: dict[tuple[str, int], int] = {}  # (agent, segment): last log time
         self.last = -1
         self.late = 0
         self.written = 0
@@ -483,10 +505,13 @@ class _Output:
             self.schemas[key] = self.writer.register_schema(name, encoding, data)
         return self.schemas[key]
 
-    def channel(self, topic: str, encoding: str, schema_id: int, meta: dict[str, str]) -> int:
-        if topic not in self.channels:
-            self.channels[topic] = self.writer.register_channel(topic, encoding, schema_id, meta)
-        return self.channels[topic]
+    def channel(
+        self, topic: str, encoding: str, schema_id: int, meta: dict[str, str], key: Any = None
+    ) -> int:
+        key = topic if key is None else key
+        if key not in self.channels:
+            self.channels[key] = self.writer.register_channel(topic, encoding, schema_id, meta)
+        return self.channels[key]
 
     def write(self, channel_id: int, ns: int, data: bytes, publish: int, seq: int = 0) -> None:
         if ns < self.last:
@@ -526,9 +551,15 @@ def _source_schema(schema: Schema | None) -> tuple[str, str, bytes]:
     return schema.name, schema.encoding, json.dumps(loaded).encode()
 
 
-def merge(paths: Sequence[Path], writer: Writer, run_json: str | None = None) -> MergeResult:
-    """Merge the recordings ``paths`` (one per agent) into ``writer`` (started, not
-    finished), on reference time (see the module's text).
+def merge(
+    paths: Sequence[Path],
+    writer: Writer,
+    run_json: str | None = None,
+    experiment_json: str | None = None,
+) -> MergeResult:
+    """Merge the recordings ``paths`` (one per agent and segment) into ``writer``
+    (started, not finished), on reference time (see the module's text); ``run.json``
+    and ``experiment.json``'s text, if given, become metadata records of those names.
 
     Raises
     ------
@@ -549,13 +580,16 @@ def merge(paths: Sequence[Path], writer: Writer, run_json: str | None = None) ->
     if not mapped:
         raise ConfigError("no recording maps to reference time")
     when = epoch(mapped, notes)
-    result = MergeResult([c.agent for c in mapped], reference, when, notes=notes)
+    agents = list(dict.fromkeys(c.agent for c in mapped))  # an agent's segments: one
+    result = MergeResult(agents, reference, when, notes=notes)
     for c in clocks:
-        writer.add_metadata(f"{c.agent} clock", as_metadata(c.describe()))
+        writer.add_metadata(f"{c.label} clock", as_metadata(c.describe()))
         for name, record in c.metadata.items():
-            writer.add_metadata(f"{c.agent} {name}", record)
+            writer.add_metadata(f"{c.label} {name}", record)
     if run_json is not None:
         writer.add_metadata("run.json", {"json": run_json})
+    if experiment_json is not None:
+        writer.add_metadata("experiment.json", {"json": experiment_json})
     out = _Output(writer)
     before: dict[str, dict[str, Any]] = {}
     streams = [_mapped(c, i, when, notes) for i, c in enumerate(mapped)]
@@ -565,6 +599,11 @@ def merge(paths: Sequence[Path], writer: Writer, run_json: str | None = None) ->
     result.messages_out, result.late = out.written, out.late
     result.skipped = sum(c.skipped for c in mapped)
     result.messages_in += result.skipped
+    for gap in result.gaps:
+        notes.append(
+            f"{gap['agent']}: segment {gap['segment']} ({gap['file']}) begins after a gap of "
+            f"{gap['gap_s']:.3f} s on reference time with no recording"
+        )
     writer.add_metadata(MERGE_METADATA, result.metadata())
     return result
 
@@ -600,15 +639,21 @@ def _write(
     """One recorded message, namespaced, and what Foxglove shows of it."""
     agent, topic, ns = clock.agent, item.channel.topic, item.ns
     publish, decoded = item.message.log_time, item.decoded
+    if (agent, clock.segment) not in out.segment_end:
+        _segment_begins(out, clock, ns, publish, result)
+    out.segment_end[(agent, clock.segment)] = ns
     schema_id = out.schemas.get((agent, item.channel.schema_id))
     if schema_id is None:
         name, encoding, data = _source_schema(item.schema)
         schema_id = out.schema((agent, item.channel.schema_id), name, encoding, data) if name else 0
     meta = dict(item.channel.metadata) | {
-        "agent": agent, "source_topic": topic,
+        "agent": agent, "source_topic": topic, "segment": str(clock.segment),
         "stamp_field": STAMP_FIELDS.get(topic, "t_exec"), "source_file": clock.path.name,
     }  # fmt: skip
-    channel = out.channel(f"/{agent}{topic}", item.channel.message_encoding, schema_id, meta)
+    channel = out.channel(
+        f"/{agent}{topic}", item.channel.message_encoding, schema_id, meta,
+        key=(f"/{agent}{topic}", clock.segment),
+    )  # fmt: skip
     out.write(channel, ns, item.data, publish, item.message.sequence)
     if decoded is None:
         return
@@ -621,6 +666,30 @@ def _write(
         out.foxglove(f"/{agent}/log", view.control_log(agent, decoded, ns), ns, publish, agent)
     elif topic == Channel.STATUS:
         _write_status(out, clock, decoded, ns, publish, before, result)
+
+
+def _segment_begins(
+    out: _Output, clock: AgentClock, ns: int, publish: int, result: MergeResult
+) -> None:
+    """A later segment's first message: a Log line on the gap since the segment before
+    (reference time, s), and the gap in the result."""
+    if clock.segment == 1:
+        return
+    ends = [
+        end for (a, k), end in out.segment_end.items() if a == clock.agent and k < clock.segment
+    ]
+    gap = (ns - max(ends)) / 1e9 if ends else None
+    result.gaps.append({
+        "agent": clock.agent, "segment": clock.segment, "file": clock.path.name,
+        "from_log_time_ns": max(ends) if ends else None, "to_log_time_ns": ns, "gap_s": gap,
+    })  # fmt: skip
+    text = (
+        f"segment {clock.segment} ({clock.path.name}) begins: no recording for "
+        + ("an unknown time" if gap is None else f"{gap:.3f} s")
+        + " since the segment before (the agent rejoined)"
+    )
+    out.foxglove(f"/{clock.agent}/log", view.log(clock.agent, ns, text, warning=True), ns,
+                 publish, clock.agent)  # fmt: skip
 
 
 def _write_status(
@@ -667,31 +736,29 @@ def write_merged(run_dir: str | Path, out: str | Path | None = None) -> tuple[Me
         raise ConfigError(f"{directory}: no such run directory")
     target = Path(out) if out is not None else directory / "merged.mcap"
     paths = [p for p in sorted(directory.glob("*.mcap")) if p.resolve() != target.resolve()]
-    paths = [p for p in paths if not _is_merged(p)]
+    paths = [p for p in paths if not is_merged(p)]
     if not paths:
         raise ConfigError(f"{directory}: no MCAP recordings (*.mcap) in this run directory")
-    run_json = directory / "run.json"
-    text = run_json.read_text(encoding="utf-8") if run_json.is_file() else None
+    texts = [_text(directory / name) for name in ("run.json", "experiment.json")]
     partial = target.with_name(target.name + ".partial")
     with partial.open("wb") as sink:
-        result = _write_file(paths, sink, text)
+        result = _write_file(paths, sink, *texts)
     partial.replace(target)
     layout = target.with_name(target.stem + ".layout.json")
     layout.write_text(view.layout(result.agents, result.peer_topics) + "\n", encoding="utf-8")
     return result, layout
 
 
-def _write_file(paths: Sequence[Path], sink: IO[bytes], run_json: str | None) -> MergeResult:
+def _text(path: Path) -> str | None:
+    """A run folder's JSON file's text (None: there is none), kept as it is."""
+    return path.read_text(encoding="utf-8") if path.is_file() else None
+
+
+def _write_file(
+    paths: Sequence[Path], sink: IO[bytes], run_json: str | None, experiment_json: str | None
+) -> MergeResult:
     writer = Writer(sink, chunk_size=4 * CHUNK_SIZE)
     writer.start(profile="", library="fedlab merge")
-    result = merge(paths, writer, run_json)
+    result = merge(paths, writer, run_json, experiment_json)
     writer.finish()  # type: ignore[no-untyped-call]
     return result
-
-
-def _is_merged(path: Path) -> bool:
-    """Whether ``path`` is a merged file (its ``fedlab.merge`` record), not a recording."""
-    if not is_finished(path):
-        return False
-    with path.open("rb") as f:
-        return any(m.name == MERGE_METADATA for m in make_reader(f).iter_metadata())

@@ -7,7 +7,7 @@ paper's (``docs/paper.md``, numbers from :mod:`federation.core.paper`).
 
 from __future__ import annotations
 
-from pathlib import Path
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -143,16 +143,11 @@ def run_description(run: Run) -> dict[str, Any]:
     """The run as its recordings describe themselves (MCAP metadata ``fedlab.run``):
     run id, experiment, versions, date, each agent's command line; and whether the run
     was cut short (its run time never reached its duration)."""
-    from federation.runtime.recorder import read_metadata
-
     described: dict[str, dict[str, str]] = {}
     for name, rec in run.agents.items():
-        try:
-            meta = read_metadata(Path(run.directory) / rec.file).get("fedlab.run")
-        except Exception:  # an old or damaged recording: no metadata
-            meta = None
+        meta = rec.metadata.get("fedlab.run")  # its first segment's
         if meta:
-            described[name] = meta
+            described[name] = dict(meta)
     for name, meta in described.items():  # roles as the agents recorded them
         rec = run.agents[name]
         if rec.latency_compensation is None and meta.get("latency_compensation") in (
@@ -235,7 +230,7 @@ def _experiment_name(toml_text: str) -> str | None:
 
 def summarize(run: Run, sync_phase: float = paper.SYNC_PHASE) -> dict[str, Any]:
     """Everything ``summary.json`` holds; seconds, degrees and counts named in the keys."""
-    run = Run(run.agents, run.meta, list(run.notes), run.directory)  # notes: the caller's stay
+    run = dataclasses.replace(run, notes=list(run.notes))  # notes: the caller's stay
     described = run_description(run)
     pairs = sync_pairs(run)
     follow_list = follows(run)
