@@ -93,9 +93,11 @@ class Run:
     directory: str = ""
     sources: list[str] = field(default_factory=list)
     """The files read, by name: the per-agent recordings, or the one merged file."""
-    experiment: dict[str, Any] | None = None
-    """The run's ``experiment.json`` as the merged file carries it (None: read from
-    ``directory``, or none)."""
+    from_merged: bool = False
+    """Whether it was read from a merged file (:mod:`federation.report.frommerged`)."""
+    experiment_json: str | None = None
+    """The run's ``experiment.json``'s text as a merged file carries it (None: read
+    from ``directory``, if there)."""
 
     @property
     def leader(self) -> str | None:

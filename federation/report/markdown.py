@@ -138,12 +138,28 @@ def _headline(followers: list[dict[str, Any]]) -> list[str]:
     return [*lines, ""]
 
 
+def _source_line(source: dict[str, Any]) -> str:
+    """Which files every figure here was computed from."""
+    files = ", ".join(f"`{name}`" for name in source.get("files") or []) or "unknown"
+    if source.get("kind") == "merged":
+        return (
+            f"Source: the merged run {files} (fedlab merge, on reference time): the figures, "
+            "summary.json and that file are one source. `--source recordings` reads the "
+            "per-agent recordings instead."
+        )
+    return (
+        f"Source: the per-agent recordings {files}. Once the run is merged "
+        "(fedlab merge RUN_DIR), the report reads the merged file."
+    )
+
+
 def markdown(summary: dict[str, Any], meta: dict[str, Any] | None) -> str:
     """report.md: the run, the table beside the paper, the figures and the notes."""
     run_name = Path(summary["run_dir"]).name or summary["run_dir"]
     described = summary.get("run") or {}
     lines = [f"# fedlab run report: {described.get('run_id') or run_name}", ""]
     lines += _run_lines(described)
+    lines += [_source_line(summary.get("source") or {}), ""]
     lines += _headline(summary.get("followers") or [])
     if summary.get("command"):
         lines += [f"Command: `{summary['command']}`", ""]

@@ -68,7 +68,13 @@ def experiment_of(run: Run) -> ExperimentConfig | None:
     ConfigError naming the file and the field when it does not load."""
     data = (run.meta or {}).get("experiment")
     source = "run.json: experiment"
-    if not isinstance(data, dict) and run.directory:
+    if not isinstance(data, dict) and run.experiment_json is not None:
+        source = f"{', '.join(run.sources)}: experiment.json"  # the merged file's copy
+        try:
+            data = json.loads(run.experiment_json)
+        except ValueError as error:
+            raise ConfigError(f"{source}: not JSON: {error}") from None
+    elif not isinstance(data, dict) and run.directory:
         path = Path(run.directory) / "experiment.json"
         if path.is_file():
             source = str(path)

@@ -36,6 +36,7 @@ __all__ = [
     "compensation_label",
     "fmt",
     "follow_summary",
+    "source_of",
     "summarize",
     "summary_table",
     "sync_summary",
@@ -226,6 +227,12 @@ def _experiment_name(toml_text: str) -> str | None:
         if sep and key.strip() == "name":
             return value.split("#", 1)[0].strip().strip('"')
     return None
+
+
+def source_of(run: Run) -> dict[str, Any]:
+    """The files a report was made from: ``merged`` (one merged file) or ``recordings``
+    (one per agent and segment), by name, in the run folder."""
+    return {"kind": "merged" if run.from_merged else "recordings", "files": list(run.sources)}
 
 
 def summarize(run: Run, sync_phase: float = paper.SYNC_PHASE) -> dict[str, Any]:
