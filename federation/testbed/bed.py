@@ -5,7 +5,9 @@ started in them stopped by pid and removed, even on failure.
 namespaces of :mod:`federation.testbed.topology` (names prefixed per testbed, so
 two testbeds never meet), starts the packet stage in the WAN namespace and
 returns; ``bed.fedlab("rome", "router-rome", [...])`` runs a fedlab command in a
-namespace (``Testbed(..., rome_hosts=2)`` adds a second host, ``rome2``, on Rome's
+namespace, ``binds=[(DIR / "rome", ROOT)]`` with ``DIR/rome`` seen at ``ROOT`` by that
+process alone, as a lab installs its generated folder (``Testbed(..., rome_hosts=2)``
+adds a second host, ``rome2``, on Rome's
 lab network); ``bed.cut()`` / ``bed.restore()`` cut the WAN; on exit every process
 is stopped by pid (SIGTERM, then SIGKILL) and every namespace deleted. A
 finalizer deletes the namespaces too if the object is dropped without ``close``.
@@ -43,12 +45,14 @@ from federation.testbed.topology import (
 
 __all__ = [
     "PREFIX",
+    "Binds",
     "Testbed",
     "TestbedError",
     "leftover_namespaces",
     "missing",
     "probe_tcp",
     "raise_priority",
+    "with_binds",
 ]
 
 PREFIX = "fltb"
@@ -56,6 +60,9 @@ PREFIX = "fltb"
 
 _counter = itertools.count()
 _STAGE = "stage"  # the packet stage's process name
+
+Binds = Sequence[tuple[str | Path, str | Path]]
+"""Pairs of (folder, where a process sees it): see :func:`with_binds`."""
 
 
 class TestbedError(RuntimeError):
@@ -231,30 +238,47 @@ class Testbed:
             self._made.clear()
 
     # -- running things --------------------------------------------------------------
-    def run(self, lab: str, *cmd: str, stdin: str | None = None) -> str:
-        """Run a command in ``lab``'s namespace to completion; its output."""
-        return _run(["ip", "netns", "exec", self.ns[lab], *cmd], stdin=stdin)
+    def run(
+        self,
+        lab: str,
+        *cmd: str,
+        stdin: str | None = None,
+        timeout: float = 10.0,
+        binds: Binds = (),
+    ) -> str:
+        """Run a command in ``lab``'s namespace to completion (at most ``timeout`` s);
+        its output. ``binds``: as :meth:`spawn`."""
+        argv = ["ip", "netns", "exec", self.ns[lab], *with_binds(binds, cmd)]
+        return _run(argv, stdin=stdin, timeout=timeout)
 
     def nft(self, lab: str, ruleset: str) -> None:
         self.run(lab, "nft", "-f", "-", stdin=ruleset)
 
-    def spawn(self, lab: str, name: str, argv: Sequence[str]) -> subprocess.Popen[bytes]:
+    def spawn(
+        self, lab: str, name: str, argv: Sequence[str], binds: Binds = ()
+    ) -> subprocess.Popen[bytes]:
         """Start ``argv`` in ``lab``'s namespace as a tracked process (``ip netns exec``
-        execs the command, so the pid is the command's own), at niceness
+        execs the command, so the pid is the command's own; ``binds``, pairs of
+        (folder, where the process sees it), are mounted for it alone:
+        :func:`with_binds`), at niceness
         :data:`LAB_NICE`: a lab's routers and agents have their host's cores to
         themselves, so on a host shared with other work (parallel tests) they run
         first, and what the testbed measures is the path, not the neighbours' load (at
         the default niceness, four test workers on two cores pause a leader between
         poses long enough to hold its follower on a clean path). Threads the process
         starts later inherit it."""
-        proc = self.fleet.spawn(name, ["ip", "netns", "exec", self.ns[lab], *argv])
+        proc = self.fleet.spawn(
+            name, ["ip", "netns", "exec", self.ns[lab], *with_binds(binds, argv)]
+        )
         with contextlib.suppress(OSError):  # not root: as it is
             os.setpriority(os.PRIO_PROCESS, proc.pid, LAB_NICE)
         return proc
 
-    def fedlab(self, lab: str, name: str, args: Sequence[str]) -> subprocess.Popen[bytes]:
-        """Start ``fedlab ARGS`` in ``lab``'s namespace."""
-        return self.spawn(lab, name, [sys.executable, "-m", "federation", *args])
+    def fedlab(
+        self, lab: str, name: str, args: Sequence[str], binds: Binds = ()
+    ) -> subprocess.Popen[bytes]:
+        """Start ``fedlab ARGS`` in ``lab``'s namespace (``binds``: as :meth:`spawn`)."""
+        return self.spawn(lab, name, [sys.executable, "-m", "federation", *args], binds)
 
     def stop(self, name: str) -> int | None:
         return self.fleet.stop(name)
@@ -321,6 +345,26 @@ def raise_priority(pid: int) -> str:
         os.setpriority(os.PRIO_PROCESS, pid, STAGE_NICE)
         return "nice"
     return "normal"
+
+
+def with_binds(binds: Binds, argv: Sequence[str]) -> list[str]:
+    """``argv`` preceded by a shell that bind-mounts each (folder, target) of ``binds``
+    and then execs it (the pid stays the command's own). Run under ``ip netns exec``,
+    which gives the command a mount namespace of its own whose mounts never propagate
+    back: the host and every other process keep seeing what they saw. A folder that
+    cannot be mounted stops the command before it starts, saying which (exit code 97)."""
+    if not binds:
+        return list(argv)
+    for source, target in binds:
+        if not Path(source).is_dir() or not Path(target).is_dir():
+            raise TestbedError(f"bind {source} on {target}: both must be existing folders")
+    script = (
+        'while [ "$1" != -- ]; do mount --bind "$1" "$2" '
+        '|| { echo "testbed: cannot bind $1 on $2" >&2; exit 97; }; shift 2; done; '
+        'shift; exec "$@"'
+    )
+    pairs = [str(p) for pair in binds for p in pair]
+    return ["sh", "-c", script, "sh", *pairs, "--", *argv]
 
 
 def _stage_flags(p: PacketOptions, prefix: str) -> list[str]:

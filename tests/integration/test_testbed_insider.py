@@ -1,0 +1,375 @@
+"""The insider's attacks on the generated deployment, in the network testbed (issue 45).
+
+``fedlab deploy generate`` writes the federation from one file naming the testbed's
+addresses: Kiruna's router listens on its public address (TLS, and QUIC for the lab
+link), Rome's router is on Rome's lab network behind the NAT and dials Kiruna. Each
+lab's processes see their lab's generated folder at the root the files name (a bind
+mount of their own, as a lab installs it at /etc/fedlab) and run from those files
+alone: both routers, the leader ``kiruna/knatte`` and the follower ``rome/pinocchio``,
+in a run started by Kiruna's operator. The insider ``kiruna/evil`` (its own valid
+Kiruna certificate, shared memory turned back on in its own config) is a process in
+Kiruna's namespace; Rome's operator watches the insider's keys from Rome.
+
+1. Ten sessions one after another, each sending 1 MB sync queries to the leader and
+   1 MB puts on the insider's own pose and status keys at 50 Hz for ``FLOOD_S``
+   seconds: the Kiruna router and the leader grow by at most 10 MB each (RSS from
+   /proc, before and after a settle); no query is answered, the leader counts none
+   (none reached it) and the packet stage carries none of it across the WAN.
+2. The insider publishing 1 MB poses at 50 Hz on its own pose key, with poses of the
+   largest size passed at 500 Hz and statuses of the largest size at 100 Hz: Rome
+   receives nothing over the size caps, and the insider's share of the WAN stays
+   under the cap docs/deploy.md states (``limits.pose_rate_cap x 1 KiB +
+   limits.status_rate_cap x limits.status_limit`` a second), counted by Rome's
+   subscriber and, with the packets' headers, at the packet stage.
+3. Through both, the follower keeps syncing and is never held.
+
+``FLOOD_S`` is 1 s a session here (the whole file takes about a minute);
+``FEDLAB_INSIDER_FLOOD_S=2 pytest -s tests/integration/test_testbed_insider.py`` floods
+for the issue's 2 s. Figures are printed with ``-s``. Needs root, nftables and
+/dev/net/tun; skips saying which is missing. Every process is stopped by pid and every
+namespace removed (checked).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from insider import EVIL, rss_mb
+from loopback import FOLLOWER, LEADER, Agent
+
+from federation.core.linkwatch import MAX_STALE
+from federation.deploy import limits
+from federation.fleet.launch import wait_for
+from federation.link.packet import PacketOptions
+from federation.testbed import ADDR, PREFIX, Testbed, leftover_namespaces, missing
+from schemas.federation import load_federation
+
+WHY = missing()
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.scenario,
+    pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
+]
+
+INSIDER = Path(__file__).with_name("insider.py")
+PORT = 7447
+SESSIONS = 10
+FLOOD_S = float(os.environ.get("FEDLAB_INSIDER_FLOOD_S", "1"))  # per session; the issue: 2
+FLOOD_RATE = 50.0  # rounds a second: a 1 MB query, a 1 MB pose and a 1 MB status each
+PUBLISH_S = 4.0
+GROWTH_MB = 10.0
+ONE_WAY = 0.040  # s, the paper's path
+WAN = PacketOptions(delay=ONE_WAY, jitter=0.003)
+
+
+def federation_toml(runs: Path) -> str:
+    """Kiruna public (certificates), Rome behind its NAT (passwords) dialling Kiruna;
+    each agent records its runs under ``runs`` and locks its sync after 2 s."""
+
+    def agent(name: str, role: str, more: str = "") -> str:
+        return (
+            f'agents.{name} = {{ role = "{role}"{more}, runs_dir = "{runs / name}", '
+            "settings = { sync_window = 2.0 } }"
+        )
+
+    return f"""
+federation = "default"
+
+[labs.kiruna]
+auth = "certificate"
+listen = ["tls/{ADDR.kiruna}:{PORT}"]
+endpoint = "tls/{ADDR.kiruna}:{PORT}"
+operators = ["ctl"]
+{agent("knatte", "leader")}
+agents.evil = {{ role = "member" }}
+
+[labs.rome]
+auth = "password"
+listen = ["tls/{ADDR.rome}:{PORT}"]
+agent_endpoint = "tls/{ADDR.rome}:{PORT}"
+dial = ["kiruna"]
+operators = ["ctl"]
+{agent("pinocchio", "follower", f', follow = "{LEADER}"')}
+"""
+
+
+@dataclass
+class Deployment:
+    """The generated folders (``dir/<lab>``) and the root their files name."""
+
+    dir: Path
+    root: Path
+
+    def binds(self, lab: str) -> list[tuple[Path, Path]]:
+        """Lab ``lab``'s folder installed at the root, for its processes alone."""
+        return [(self.dir / lab, self.root)]
+
+    def installed(self, *parts: str) -> str:
+        """A generated file as a lab's process sees it."""
+        return str(self.root.joinpath(*parts))
+
+
+def generate(tmp: Path) -> Deployment:
+    source = tmp / "federation.toml"
+    runs = tmp / "runs"
+    source.write_text(federation_toml(runs))
+    root = tmp / "root"
+    root.mkdir()
+    done = subprocess.run(
+        [sys.executable, "-m", "federation", "deploy", "generate", str(source),
+         "--out", str(tmp / "fed"), "--root", str(root)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    return Deployment(tmp / "fed", root)
+
+
+@pytest.fixture(autouse=True)
+def no_leaks() -> Iterator[None]:
+    """A test that leaves a namespace of this process behind fails."""
+    mine = f"{PREFIX}{os.getpid()}x"
+    yield
+    assert leftover_namespaces(mine) == []
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    try:
+        data: dict[str, Any] = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data
+
+
+def wait_exit(bed: Testbed, name: str, timeout: float) -> None:
+    """Wait for process ``name`` to end by itself with code 0, or fail with its log."""
+    proc = bed.fleet.procs[name]
+    try:
+        code = proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        raise AssertionError(
+            f"{name} still running after {timeout} s\n{bed.log(name)[-2000:]}"
+        ) from None
+    assert code == 0, f"{name} exited with {code}\n{bed.log(name)[-3000:]}"
+
+
+def stage_bytes(bed: Testbed, after: float) -> tuple[float, int]:
+    """The stage's first counters written after host monotonic time ``after`` (it
+    writes them every second): (the stage's clock, bytes it carried towards Rome)."""
+    wall = time.time() - (time.monotonic() - after)  # the file's time is wall clock
+    snaps: list[dict[str, Any]] = []
+
+    def written() -> bool:
+        if bed.stats_path.stat().st_mtime < wall:
+            return False
+        snaps[:] = [bed.stage_stats()]
+        return bool(snaps[0])
+
+    assert wait_for(written, 5.0, 0.05), f"the stage wrote no counters: {bed.log('stage')[-1000:]}"
+    return float(snaps[0]["seconds"]), int(snaps[0]["backward"]["bytes"])
+
+
+def status_figures(lines: list[dict[str, Any]], since: float, until: float) -> dict[str, Any]:
+    """The follower's holds, sync progress and pose age between two host times."""
+    window = [line for line in lines if since <= line["host_monotonic"] <= until]
+    samples = [
+        (line["host_monotonic"], line["peers"].get(LEADER, {}).get("samples", 0)) for line in window
+    ]
+    gaps, last_t, last_n = [], since, None
+    for t, n in samples:
+        if last_n is None or n > last_n:
+            gaps.append(t - last_t)
+            last_t, last_n = t, n
+    gaps.append(until - last_t)
+    ages = [line["pose_age"] for line in window if line.get("pose_age") is not None]
+    return {
+        "lines": len(window),
+        "holds": sorted({str(line["hold"]) for line in window if line["hold"] is not None}),
+        "modes": sorted({line["mode"] for line in window}),
+        "exchanges": samples[-1][1] - samples[0][1] if samples else 0,
+        "longest_without_exchange_s": max(gaps),
+        "pose_age_max_ms": max(ages) * 1e3 if ages else None,
+    }
+
+
+def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path) -> None:
+    dep = generate(tmp_path)
+    fed = load_federation(tmp_path / "federation.toml")
+    status_cap = limits.status_limit(fed)
+    evil_settings = fed.labs["kiruna"].agents["evil"].settings
+    pose_hz, status_hz = limits.pose_rate_cap(evil_settings), limits.status_rate_cap(evil_settings)
+    cap = pose_hz * limits.SMALL_LIMIT + status_hz * status_cap  # bytes/s, docs/deploy.md
+    kiruna, rome = dep.binds("kiruna"), dep.binds("rome")
+    watched = tmp_path / "watched.json"
+    t0 = time.monotonic()
+    with Testbed(tmp_path, WAN, kiruna_ports=("tcp/7447", "udp/7447")) as bed:
+        bed.fedlab(
+            "kiruna",
+            "router-kiruna",
+            ["router", "-c", dep.installed("routers", "kiruna.json5")],
+            kiruna,
+        )
+        bed.fedlab(
+            "rome", "router-rome", ["router", "-c", dep.installed("routers", "rome.json5")], rome
+        )
+        agents = {}
+        for who, lab, binds in ((LEADER, "kiruna", kiruna), (FOLLOWER, "rome", rome)):
+            name = who.split("/")[1]
+            status = tmp_path / f"{name}.jsonl"
+            bed.fedlab(
+                lab, name,
+                ["agent", "--agent-config", dep.installed("agents", f"{name}.toml"),
+                 "-c", dep.installed("agents", f"{name}.json5"),
+                 "--status-json", str(status), "--status-period", "0.25"],
+                binds,
+            )  # fmt: skip
+            agents[who] = Agent(bed.fleet, name, [], who=who, status=status)
+        leader, follower = agents[LEADER], agents[FOLLOWER]
+        bed.spawn(
+            "rome", "watcher",
+            [sys.executable, str(INSIDER), "watch", dep.installed("operators", "ctl.json5"),
+             str(watched), f"{EVIL}/**"],
+            rome,
+        )  # fmt: skip
+        for agent in agents.values():
+            agent.until(
+                lambda line: (
+                    (line.get("ready") or {}).get("reference_locked", True)
+                    and (line.get("ready") or {}).get("recording")
+                ),
+                timeout=40,
+                what="locked on the reference clock and recording",
+            )
+        assert wait_for(lambda: read_json(watched).get("ready"), 20.0), bed.log("watcher")[-2000:]
+        # Kiruna's operator starts a run: the follower follows the leader's pose.
+        bed.fedlab(
+            "kiruna", "ctl",
+            ["ctl", "start", "--duration", "600", "--in", "1.5", "--json",
+             "-c", dep.installed("operators", "ctl.json5")],
+            kiruna,
+        )  # fmt: skip
+        wait_exit(bed, "ctl", 60.0)
+        follower.until(
+            lambda line: line["mode"] == "running" and line["hold"] is None, 20, "following"
+        )
+        ready_after = time.monotonic() - t0
+
+        # The WAN's own traffic, to set the attacks' bytes against.
+        base_t0, base_b0 = stage_bytes(bed, time.monotonic())
+        time.sleep(3.0)  # a span of the stage's counters, not a wait for an event
+        base_t1, base_b1 = stage_bytes(bed, time.monotonic())
+        baseline = (base_b1 - base_b0) / (base_t1 - base_t0)  # bytes/s towards Rome
+
+        # 1. Ten sessions flooding.
+        pids = {
+            name: bed.fleet.procs[name].pid
+            for name in ("router-kiruna", "knatte", "router-rome", "pinocchio")
+        }
+        before = {name: rss_mb(pid) for name, pid in pids.items()}
+        served_before = leader.latest()["counters"].get("sync_requests_served", 0)
+        flooded = tmp_path / "flood.json"
+        flood_start = time.monotonic()
+        wan_t0, wan_b0 = stage_bytes(bed, flood_start)
+        bed.spawn(
+            "kiruna", "flood",
+            [sys.executable, str(INSIDER), "flood", dep.installed("agents", "evil.json5"),
+             str(flooded), "--sessions", str(SESSIONS), "--seconds", f"{FLOOD_S:g}",
+             "--rate", f"{FLOOD_RATE:g}"],
+            kiruna,
+        )  # fmt: skip
+        wait_exit(bed, "flood", SESSIONS * (FLOOD_S + 5) + 30)
+        flood_end = time.monotonic()
+        wan_t1, wan_b1 = stage_bytes(bed, flood_end)
+        # Settled: the follower's status lines from a second after the flood.
+        follower.until(lambda line: line["host_monotonic"] > flood_end + 1.0, 10, "after the flood")
+        after = {name: rss_mb(pid) for name, pid in pids.items()}
+        growth = {name: after[name] - before[name] for name in pids}
+        flood = read_json(flooded)
+        crossed_in_flood = (wan_b1 - wan_b0) - baseline * (wan_t1 - wan_t0)
+
+        # 2. Oversized and largest-passed samples on the insider's own keys.
+        published = tmp_path / "publish.json"
+        bed.spawn(
+            "kiruna", "publish",
+            [sys.executable, str(INSIDER), "publish", dep.installed("agents", "evil.json5"),
+             str(published), "--seconds", f"{PUBLISH_S:g}", "--status-bytes", str(status_cap)],
+            kiruna,
+        )  # fmt: skip
+        wait_exit(bed, "publish", PUBLISH_S + 30)
+        pub = read_json(published)
+        pub_t0, pub_b0 = stage_bytes(bed, pub["started"])
+        pub_t1, pub_b1 = stage_bytes(bed, pub["ended"] + 1.0)  # what was still on its way
+        attacks_end = time.monotonic()
+        # Rome's subscriber has saved what arrived until a second after the last put.
+        assert wait_for(lambda: read_json(watched).get("at", 0) > pub["ended"] + 1.0, 5.0)
+        seen = read_json(watched)["keys"]
+        follower.until(lambda line: line["host_monotonic"] > attacks_end, 5, "after the attacks")
+        calm = status_figures(follower.lines(), flood_start - 3.0, flood_start)
+        held = status_figures(follower.lines(), flood_start, attacks_end)
+        line = leader.latest()
+
+    # Every process ended on SIGTERM at the testbed's close, none killed or crashed before.
+    exits = {name: proc.returncode for name, proc in bed.fleet.procs.items()}
+    took = time.monotonic() - t0
+
+    sent = sum(s["rounds"] for s in flood["sessions"])
+    answered = sum(s["replies"] for s in flood["sessions"])
+    timeouts = sum(s["errors"] for s in flood["sessions"])
+    poses, statuses = seen.get("pose", {}), seen.get("status", {})
+    span = pub["ended"] - pub["started"]
+    arrivals = [t for k in ("pose", "status") for t, _ in seen.get(k, {}).get("arrivals", [])]
+    rome_bytes = poses.get("bytes", 0) + statuses.get("bytes", 0)
+    sync_counters = {k: v for k, v in line["counters"].items() if "sync" in k}
+    wan_rate = ((pub_b1 - pub_b0) - baseline * (pub_t1 - pub_t0)) / span
+    print(
+        f"\nready in {ready_after:.1f} s; WAN baseline {baseline / 1024:.1f} KiB/s towards Rome"
+        f"\n{SESSIONS} sessions x {FLOOD_S:g} s x (1 MB sync query, 1 MB pose, 1 MB status) at "
+        f"{FLOOD_RATE:g} Hz: {sent} rounds, {answered} answered, {timeouts} timeouts; growth "
+        + ", ".join(f"{n} {g:+.1f} MB (from {before[n]:.0f})" for n, g in growth.items())
+        + f"; WAN beyond baseline during the flood {crossed_in_flood / 1024:+.1f} KiB"
+        f"\npublished in {span:.2f} s: {json.dumps(pub['sent'])}; Rome received pose "
+        f"{poses.get('count', 0)} (largest {poses.get('largest', 0)} B), status "
+        f"{statuses.get('count', 0)} (largest {statuses.get('largest', 0)} B): "
+        f"{rome_bytes / span / 1024:.1f} KiB/s; at the stage beyond baseline "
+        f"{wan_rate / 1024:.1f} KiB/s; cap {cap / 1024:.1f} KiB/s "
+        f"({pose_hz:g} x {limits.SMALL_LIMIT} B + {status_hz:g} x {status_cap} B)"
+        f"\nfollower before: {json.dumps(calm)}\nfollower during: {json.dumps(held)}"
+        f"\nleader's sync counters {json.dumps(sync_counters)}"
+        f"; whole test {took:.1f} s"
+    )
+
+    # 1. Ten sessions, each flooding; memory bounded; nothing answered, nothing crossed.
+    assert flood["finished"] and len(flood["sessions"]) == SESSIONS, flood
+    assert all(s["rounds"] >= 0.5 * FLOOD_RATE * FLOOD_S for s in flood["sessions"]), flood
+    assert growth["router-kiruna"] <= GROWTH_MB and growth["knatte"] <= GROWTH_MB, growth
+    assert answered == 0 and timeouts == sent, (answered, timeouts, sent)  # dropped at Kiruna
+    assert line["counters"].get("sync_requests_oversized", 0) == 0  # none reached the leader
+    assert line["counters"].get("sync_requests_served", 0) > served_before
+    assert crossed_in_flood < 1_000_000, crossed_in_flood  # not one 1 MB message
+
+    # 2. Nothing over the size caps in Rome; the insider's share of the WAN under the cap.
+    assert pub["sent"]["pose_1mb"] >= 0.5 * 50 * PUBLISH_S, pub
+    assert poses.get("largest", 0) <= limits.SMALL_LIMIT, poses.get("largest")
+    assert statuses.get("largest", 0) <= status_cap, statuses.get("largest")
+    assert poses.get("count", 0) >= 0.5 * pose_hz * span, "the cap's poses did not cross"
+    # Downsampling passes one message per 1/cap s, the first at once.
+    allowed = (pose_hz * span + 2) * limits.SMALL_LIMIT + (status_hz * span + 2) * status_cap
+    assert rome_bytes <= allowed, (rome_bytes, allowed)
+    assert arrivals and max(arrivals) <= pub["ended"] + 1.0
+    # At the stage, with the headers of QUIC, UDP and IP around each message.
+    assert wan_rate <= 1.25 * allowed / span, (wan_rate, allowed / span)
+
+    # 3. The follower: syncing throughout, never held, never on a stale pose.
+    assert held["holds"] == [] and held["modes"] == ["running"], held
+    assert held["longest_without_exchange_s"] < 1.0, held
+    assert held["pose_age_max_ms"] is not None
+    assert held["pose_age_max_ms"] < (ONE_WAY + MAX_STALE) * 1e3, held
+    assert set(exits.values()) == {0}, exits
