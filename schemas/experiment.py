@@ -14,6 +14,10 @@ Every lab runs its agent with the same file (``fedlab agent --experiment FILE
   emulated relative measurements (``[relative_sensor]``).
 
 ``[frames.LAB]`` places each lab's table in the common frame (default: identity).
+
+``stand_in = { agent = "rome/knatte-twin", preset = "knatte", after = 2.0 }`` names a
+stand-in for the leader (:mod:`federation.core.standin`): a simulated twin that takes
+the leader's role when the leader is silent for ``after`` s.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
+from federation.core.standin import Terms
 from schemas.config import AgentRef, ManeuverConfig, RejoinPolicy, _Model, _name, load_model
 from schemas.scenario import (
     AdaptiveConfig,
@@ -35,7 +40,7 @@ from schemas.scenario import (
     ScenarioPart,
 )
 
-__all__ = ["ExperimentConfig", "Participant", "load_experiment", "stricter"]
+__all__ = ["ExperimentConfig", "Participant", "StandIn", "load_experiment", "stricter"]
 
 
 class Participant(_Model):
@@ -58,6 +63,26 @@ class Participant(_Model):
         description="whether it joins a run under way when (re)started: auto, operator (after "
         "fedlab ctl admit), never; none: operator for a real platform, auto for a simulated "
         "one (the experiment's rejoin, if stricter, wins)",
+    )
+
+
+LEASE = Terms().lease
+"""s: the role's lease (:mod:`federation.core.standin`), the least ``after`` may be."""
+
+
+class StandIn(_Model):
+    """A stand-in for the experiment's leader: a simulated twin that any lab hosts."""
+
+    agent: AgentRef = Field(description="LAB/NAME the twin runs under (not a participant)")
+    preset: Literal["knatte", "pinocchio"] = Field(
+        description="the platform preset the twin flies: the leader's"
+    )
+    after: float = Field(
+        2.0,
+        ge=LEASE,
+        le=60,
+        description=f"seconds the leader must be silent before the twin takes its role "
+        f"(at least the role's lease, {LEASE} s)",
     )
 
 
@@ -96,6 +121,9 @@ class ExperimentConfig(_Model):
         "after fedlab ctl admit), never; each participant's own (its platform's default: "
         "operator for a real one) applies if stricter",
     )
+    stand_in: StandIn | None = Field(
+        None, description="a simulated twin that takes the leader's role when it is lost"
+    )
     participants: list[Participant] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -103,6 +131,7 @@ class ExperimentConfig(_Model):
         names = [p.agent for p in self.participants]
         self._check_roles(names)
         self._check_frames()
+        self._check_stand_in(names)
         if self.kind == "formation":
             self._check_formation(names)
         elif self.kind == "docking":
@@ -133,6 +162,20 @@ class ExperimentConfig(_Model):
                 raise ValueError(f"{p.agent} follows {p.follow}, who does not take part")
             if p.adaptive_gains and p.role != "follower":
                 raise ValueError(f"{p.agent}: adaptive_gains applies to a follower only")
+
+    def _check_stand_in(self, names: list[str]) -> None:
+        """A stand-in takes part under a name of its own, in attitude tracking, for a
+        leader that someone follows."""
+        stand_in = self.stand_in
+        if stand_in is None:
+            return
+        if stand_in.agent in names:
+            raise ValueError(f"stand_in.agent: {stand_in.agent} is a participant already")
+        if self.kind != "attitude-tracking":
+            raise ValueError(f"stand_in: a {self.kind} experiment has no leader to stand in for")
+        leader = str(self.leader)
+        if not any(p.follow == leader for p in self.participants):
+            raise ValueError(f"stand_in: nobody follows the leader {leader}")
 
     def _check_frames(self) -> None:
         """A frame is given only for a lab that takes part."""

@@ -313,6 +313,14 @@ def _experiment_part(
         raise ConfigError(f"{path}: give the agent's lab and name (--lab, --name) to pick its part")
     me = AgentId(lab, name)
     part = experiment.participant(me)
+    stand_in = experiment.stand_in
+    if part is None and stand_in is not None and stand_in.agent == str(me):
+        # The role's rules exist (federation.core.standin), the agent that keeps them does
+        # not: a twin started here would fly nothing safely, so none is started.
+        raise ConfigError(
+            f"{path}: {me} is the experiment's stand-in (stand_in.agent): the agent runtime "
+            f"does not host a stand-in yet; followers of {experiment.leader} hold when it is lost"
+        )
     if part is None:
         names = ", ".join(p.agent for p in experiment.participants)
         raise ConfigError(f"{path}: {me} does not take part (participants: {names})")
