@@ -38,10 +38,17 @@ def _error(t: float) -> float:
 
 
 def _record(
-    path: Path, agent: str, steps: int, wall_off: float = 0.0, pad: int = 0, dt: float = 0.02
+    path: Path,
+    agent: str,
+    steps: int,
+    wall_off: float = 0.0,
+    pad: int = 0,
+    dt: float = 0.02,
+    first: int = 0,
 ) -> None:
     """A recording as the recorder writes it: JSON channels with their schemas, log time
-    the host's wall clock (``wall_off`` s off UTC) a millisecond after each stamp."""
+    the host's wall clock (``wall_off`` s off UTC) a millisecond after each stamp; steps
+    ``first`` to ``steps`` (a later segment, from its ``rejoined`` event, if ``first``)."""
     rome = agent == ROME
     ahead = ROME_AHEAD if rome else 0.0
     with path.open("wb") as f:
@@ -60,7 +67,7 @@ def _record(
             ns = round((WALL + wall_off + t_ref + 0.001) * 1e9)
             writer.add_message(ids[topic], ns, json.dumps(message).encode(), ns)
 
-        for k in range(steps):
+        for k in range(first, steps):
             t = k * dt  # reference time
             own, host = t + ahead, 1000.0 + t
             heading = 0.3 * math.sin(0.5 * max(t - START, 0.0))
@@ -86,6 +93,10 @@ def _record(
                     "workspace": {"frame": {"origin": [1.0, 2.0], "rotation_deg": 90.0},
                                   "area": [-1.0, 1.0, -1.0, 1.0]},
                 })  # fmt: skip
+            if first and k == first:
+                put("/control", t, {"event": "rejoined", "command": None, "run_time": t - START,
+                                    "t_exec": own, "host_monotonic": host, "mode": "running",
+                                    "detail": ""})  # fmt: skip
             if abs(t - START) < dt / 2:
                 put("/control", t, {"event": "started", "command": None, "at": START,
                                     "t_exec": own, "t_sim": START, "host_monotonic": host,
@@ -257,3 +268,51 @@ def test_memory_does_not_grow_with_the_run(tmp_path: Path) -> None:
         peaks.append(peak)
     assert peaks[1] < 40.0
     assert peaks[1] < 1.25 * peaks[0]
+
+
+def _rejoined_run(folder: Path) -> None:
+    """Kiruna flies 20 s; Rome flies 0 to 8 s, is killed, and rejoins at 12 s (its
+    second segment, ``rome-pinocchio.seg2.mcap``): 4 s of reference time unrecorded."""
+    folder.mkdir()
+    _record(folder / "kiruna-knatte.mcap", KIRUNA, 1000)
+    _record(folder / "rome-pinocchio.mcap", ROME, 400, wall_off=3.0)
+    _record(folder / "rome-pinocchio.seg2.mcap", ROME, 1000, wall_off=3.0, first=600)
+
+
+def test_a_later_segment_is_the_same_agent_with_its_gap_shown(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    _rejoined_run(run)
+    result, layout = write_merged(run)
+    assert result.agents == [KIRUNA, ROME]  # one agent, not two
+    meta, messages = _read(run / "merged.mcap")
+    sent = {}  # segment -> (channel ids, their publish times)
+    for _s, channel, message in messages:
+        if channel.topic == f"/{ROME}/pose/sent":
+            assert channel.metadata["agent"] == ROME
+            seg = channel.metadata["segment"]
+            file = channel.metadata["source_file"]
+            assert file == {"1": "rome-pinocchio.mcap", "2": "rome-pinocchio.seg2.mcap"}[seg]
+            sent.setdefault(seg, []).append(message.log_time)
+    assert sorted(sent) == ["1", "2"] and len(sent["1"]) == 400 and len(sent["2"]) == 400
+    assert not {c for _s, c, _m in messages if ".seg" in c.topic}  # no topic of its own
+    # Its records: the first segment's under LAB/NAME, the second's under LAB/NAME.seg2.
+    assert meta[f"{ROME} clock"]["segment"] == "1"
+    assert meta[f"{ROME}.seg2 clock"]["segment"] == "2"
+    assert meta[f"{ROME}.seg2 clock"]["file"] == "rome-pinocchio.seg2.mcap"
+    assert f"{ROME}.seg2 fedlab.run" in meta
+    # The gap: from the first segment's last message to the second's first, on the log.
+    gaps = json.loads(meta[MERGE_METADATA]["segment_gaps"])
+    assert [(g["agent"], g["segment"]) for g in gaps] == [(ROME, 2)]
+    expected = (600 - 399) * 0.02  # s of reference time between the two sent poses
+    assert abs(gaps[0]["gap_s"] - expected) < 2 * BOUND
+    assert gaps[0]["to_log_time_ns"] == min(sent["2"])
+    assert gaps[0]["from_log_time_ns"] == max(sent["1"])
+    logs = [
+        (m.log_time, m.data)
+        for _s, c, m in messages
+        if c.topic == f"/{ROME}/log" and b"segment 2" in m.data
+    ]
+    assert len(logs) == 1 and logs[0][0] == min(sent["2"])
+    assert f"{gaps[0]['gap_s']:.3f} s".encode() in logs[0][1]
+    assert any("segment 2 (rome-pinocchio.seg2.mcap) begins after a gap" in n for n in result.notes)
+    assert layout.read_text().count(f"/{ROME}/pose/sent.heading") == 1

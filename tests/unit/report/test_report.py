@@ -496,4 +496,5 @@ def test_help_has_an_example(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         cli.main(["report", "--help"])
     out = capsys.readouterr().out
-    assert "Example:" in out and "fedlab report runs/" in out and "--out DIR" in out
+    assert "Examples:" in out and "fedlab report runs/" in out and "--out DIR" in out
+    assert "merged.mcap" in out and "--source" in out
