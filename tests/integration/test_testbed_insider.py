@@ -297,6 +297,7 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
 
         # 2. Oversized and largest-passed samples on the insider's own keys.
         published = tmp_path / "publish.json"
+        pub_t0, pub_b0 = stage_bytes(bed, time.monotonic())
         bed.spawn(
             "kiruna", "publish",
             [sys.executable, str(INSIDER), "publish", dep.installed("agents", "evil.json5"),
@@ -305,22 +306,24 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
         )  # fmt: skip
         wait_exit(bed, "publish", PUBLISH_S + 30)
         pub = read_json(published)
-        pub_t0, pub_b0 = stage_bytes(bed, pub["started"])
         pub_t1, pub_b1 = stage_bytes(bed, pub["ended"] + 1.0)  # what was still on its way
         attacks_end = time.monotonic()
         # Rome's subscriber has saved what arrived until a second after the last put.
         assert wait_for(lambda: read_json(watched).get("at", 0) > pub["ended"] + 1.0, 5.0)
         seen = read_json(watched)["keys"]
         follower.until(lambda line: line["host_monotonic"] > attacks_end, 5, "after the attacks")
-        calm = status_figures(follower.lines(), flood_start - 3.0, flood_start)
-        held = status_figures(follower.lines(), flood_start, attacks_end)
+        lines = follower.lines()
+        calm = status_figures(lines, flood_start - 3.0, flood_start)
+        in_flood = status_figures(lines, flood_start, flood_end)
+        held = status_figures(lines, flood_start, attacks_end)
         line = leader.latest()
 
     # Every process ended on SIGTERM at the testbed's close, none killed or crashed before.
     exits = {name: proc.returncode for name, proc in bed.fleet.procs.items()}
     took = time.monotonic() - t0
 
-    sent = sum(s["rounds"] for s in flood["sessions"])
+    rounds = [s["rounds"] for s in flood["sessions"]]
+    sent = sum(rounds)
     answered = sum(s["replies"] for s in flood["sessions"])
     timeouts = sum(s["errors"] for s in flood["sessions"])
     poses, statuses = seen.get("pose", {}), seen.get("status", {})
@@ -332,7 +335,8 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     print(
         f"\nready in {ready_after:.1f} s; WAN baseline {baseline / 1024:.1f} KiB/s towards Rome"
         f"\n{SESSIONS} sessions x {FLOOD_S:g} s x (1 MB sync query, 1 MB pose, 1 MB status) at "
-        f"{FLOOD_RATE:g} Hz: {sent} rounds, {answered} answered, {timeouts} timeouts; growth "
+        f"{FLOOD_RATE:g} Hz: {sent} rounds ({rounds}), {answered} answered, {timeouts} timeouts; "
+        "growth "
         + ", ".join(f"{n} {g:+.1f} MB (from {before[n]:.0f})" for n, g in growth.items())
         + f"; WAN beyond baseline during the flood {crossed_in_flood / 1024:+.1f} KiB"
         f"\npublished in {span:.2f} s: {json.dumps(pub['sent'])}; Rome received pose "
@@ -341,14 +345,18 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
         f"{rome_bytes / span / 1024:.1f} KiB/s; at the stage beyond baseline "
         f"{wan_rate / 1024:.1f} KiB/s; cap {cap / 1024:.1f} KiB/s "
         f"({pose_hz:g} x {limits.SMALL_LIMIT} B + {status_hz:g} x {status_cap} B)"
-        f"\nfollower before: {json.dumps(calm)}\nfollower during: {json.dumps(held)}"
+        f"\nfollower before: {json.dumps(calm)}\nduring the flood: {json.dumps(in_flood)}"
+        f"\nduring both attacks: {json.dumps(held)}"
         f"\nleader's sync counters {json.dumps(sync_counters)}"
         f"; whole test {took:.1f} s"
     )
 
     # 1. Ten sessions, each flooding; memory bounded; nothing answered, nothing crossed.
     assert flood["finished"] and len(flood["sessions"]) == SESSIONS, flood
-    assert all(s["rounds"] >= 0.5 * FLOOD_RATE * FLOOD_S for s in flood["sessions"]), flood
+    # Each session flooded for its seconds, at the rate its host let it (a 1 MB put
+    # waits for its fragments to be queued: on busy cores a round takes longer).
+    assert all(s["ended"] - s["started"] >= FLOOD_S and s["rounds"] > 0 for s in flood["sessions"])
+    assert sent >= 0.5 * SESSIONS * FLOOD_RATE * FLOOD_S, rounds
     assert growth["router-kiruna"] <= GROWTH_MB and growth["knatte"] <= GROWTH_MB, growth
     assert answered == 0 and timeouts == sent, (answered, timeouts, sent)  # dropped at Kiruna
     assert line["counters"].get("sync_requests_oversized", 0) == 0  # none reached the leader
