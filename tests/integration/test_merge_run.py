@@ -1,12 +1,16 @@
 """``fedlab merge`` after a short real two-lab run: the merged file reads with the mcap
 library and, read back from it alone, the follower's guidance reference trails the
-leader's sent heading as the report says from the per-agent files (within 1 ms)."""
+leader's sent heading as the report says from the per-agent files (within 1 ms); and
+``fedlab report`` made from the merged file equals the one made from the per-agent
+files, summary.json compared field by field (every field but ``source``, which names
+the files read)."""
 
 from __future__ import annotations
 
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -44,13 +48,14 @@ def test_a_merged_run_gives_the_reports_separation(labs: Labs, tmp_path: Path) -
     assert reported.returncode == 0, reported.stdout + reported.stderr
     summary = json.loads((tmp_path / "report" / "summary.json").read_text())
     expected = next(f for f in summary["followers"] if f["follower"] == FOLLOWER)
-    merged, took = fedlab("merge", str(run), "--out", str(tmp_path / "run.mcap"))
+    merged, took = fedlab("merge", str(run))
     print(merged.stdout, f"merge took {took:.2f} s")
     assert merged.returncode == 0, merged.stdout + merged.stderr
-    assert (tmp_path / "run.layout.json").exists()
+    assert (run / "merged.layout.json").exists()
+    _same_report_from_the_merged_file(run, summary, tmp_path / "report-merged")
 
     series: dict[str, list[tuple[float, dict[str, float]]]] = {}
-    with (tmp_path / "run.mcap").open("rb") as f:
+    with (run / "merged.mcap").open("rb") as f:
         reader = make_reader(f)
         meta = {m.name: m.metadata for m in reader.iter_metadata()}[MERGE_METADATA]
         epoch, start = int(meta["epoch_ns"]), float(meta["reference_start_s"])
@@ -69,3 +74,17 @@ def test_a_merged_run_gives_the_reports_separation(labs: Labs, tmp_path: Path) -
     print(f"separation: merged {separation}, report {expected['reference_separation_s']}")
     assert separation is not None and expected["reference_separation_s"] is not None
     assert abs(separation - expected["reference_separation_s"]) < 0.001
+
+
+def _same_report_from_the_merged_file(run: Path, expected: dict[str, Any], out: Path) -> None:
+    """``fedlab report RUN_DIR`` once merged reads the merged file and writes the
+    summary.json the per-agent files gave: every field equal, floats exactly."""
+    reported, _ = fedlab("report", str(run), "--out", str(out))
+    assert reported.returncode == 0, reported.stdout + reported.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert expected["source"]["kind"] == "recordings"
+    assert summary["source"] == {"kind": "merged", "files": ["merged.mcap"]}
+    assert summary["followers"] and summary["sync"]  # figures, not only empty lists
+    assert summary.keys() == expected.keys()
+    for key in expected.keys() - {"source"}:
+        assert summary[key] == expected[key], key
