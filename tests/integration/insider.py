@@ -39,6 +39,7 @@ __all__ = [
     "JUNK",
     "KNATTE_SYNC",
     "evil_config",
+    "give_up_after",
     "rss_mb",
     "write_json",
 ]
@@ -66,6 +67,7 @@ def evil_config(path: Path | str) -> zenoh.Config:
 
 
 def give_up_after(conf: zenoh.Config, ms: int = 5000) -> zenoh.Config:
+    """``conf`` failing within ``ms`` if its router is unreachable (an agent's waits)."""
     conf.insert_json5("connect/timeout_ms", str(ms))
     conf.insert_json5("connect/exit_on_failure", "true")
     return conf

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from insider import EVIL, JUNK, KNATTE_SYNC, evil_config, give_up_after, rss_mb
 from loopback import FOLLOWER, LEADER, Labs
 from test_trust import Federation, make_federation, start_agent, start_routers
 
@@ -30,27 +31,13 @@ pytestmark = pytest.mark.integration
 
 SESSIONS = 10
 ROUNDS = 25  # per session: 25 x (1 MB query, two 1 MB puts) at up to 50 Hz, 0.5 s
-JUNK = bytes(1_000_000)
-EVIL = "fedlab/default/kiruna/evil"
-KNATTE_SYNC = "fedlab/default/kiruna/knatte/sync"
 SMALL_PUTS = 500  # 100-byte poses at up to 500 Hz: five times the cap, for 1 s
 GROWTH_MB = 10.0
 
 
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise AssertionError(f"no VmRSS for pid {pid}")
-
-
 def open_evil(fed: Federation) -> zenoh.Session:
     """kiruna/evil's session from its generated config, shared memory turned back on."""
-    conf = zenoh.Config.from_file(str(fed.zenoh_config("kiruna/evil")))
-    conf.insert_json5("transport/shared_memory/enabled", "true")
-    conf.insert_json5("connect/timeout_ms", "5000")
-    conf.insert_json5("connect/exit_on_failure", "true")
-    return zenoh.open(conf)
+    return zenoh.open(evil_config(fed.zenoh_config("kiruna/evil")))
 
 
 class Watcher:
@@ -58,9 +45,7 @@ class Watcher:
 
     def __init__(self, fed: Federation):
         conf = zenoh.Config.from_file(str(fed.zenoh_config("rome/ctl", "operators")))
-        conf.insert_json5("connect/timeout_ms", "5000")
-        conf.insert_json5("connect/exit_on_failure", "true")
-        self.session = zenoh.open(conf)
+        self.session = zenoh.open(give_up_after(conf))
         self.lock = threading.Lock()
         self.sizes: dict[str, list[int]] = {}
         self.sub = self.session.declare_subscriber(f"{EVIL}/**", self._on)
