@@ -391,3 +391,18 @@ def test_the_property_test_would_notice_a_stand_in_that_claims_too_soon() -> Non
     object.__setattr__(keeper.terms, "after", 0.2)  # past Terms' own guard
     with pytest.raises(AssertionError, match="two hold the role"):
         fed.run(10.0, {at(5.0): ("cut", L)})
+
+
+def test_a_stand_in_restarted_while_holding_acknowledges_nothing_while_its_claim_counts() -> None:
+    # The leader cut off, the stand-in takes over and is killed; it restarts at once on
+    # the leader's side of a new partition, the followers on the other: the followers
+    # still count its previous life's open claim for up to a lease, so its new life
+    # acknowledges the leader only after its quiet period.
+    fed = quiet_federation()
+    fed.run(
+        14.0,
+        {at(5.0): ("cut", L), at(9.0): ("kill", S), at(9.1): ("cut", f"{L},{S}"),
+         at(9.15): ("start", S)},
+    )  # fmt: skip  # Federation.check asserts at every step
+    assert {h for τ, h in fed.holders if τ > 11.0} == {L}  # acknowledged after the quiet
+    assert min(τ for τ, h in fed.holders if τ > 9.0) >= 9.15 + TERMS.quiet - 1e-9
