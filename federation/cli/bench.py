@@ -1,4 +1,4 @@
-"""``fedlab bench sync|latency|scale|memory|network|scenarios``: benchmarks, beside
+"""``fedlab bench sync|latency|scale|memory|network|scenarios|merge``: benchmarks, beside
 baselines run alongside; ``fedlab bench table``: their headline figures from benchmarks/.
 
 Each parses its flags, runs :mod:`federation.bench` and prints a table (or ``--json``).
@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from federation.bench import latency, memory, scale, sync, table
+from federation.bench import merge as merge_bench
 from federation.cli.common import Formatter, Subparsers, positive
 
 __all__ = ["add", "run"]
@@ -21,7 +22,7 @@ __all__ = ["add", "run"]
 def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "bench",
-        help="benchmarks: sync accuracy, latency, scale, memory",
+        help="benchmarks: sync accuracy, latency, scale, memory, merge",
         formatter_class=Formatter,
         description="Benchmarks; each prints a table, or JSON with --json.",
         epilog=(
@@ -32,6 +33,7 @@ def add(sub: Subparsers) -> None:
             "  fedlab bench memory --agents 32 --agents 128 --json\n"
             "  fedlab bench network --scenario loss5 --transport multilink --seconds 60\n"
             "  fedlab bench scenarios --json > benchmarks/scenarios.json\n"
+            "  fedlab bench merge --size 2048 --json-out benchmarks/merge-2gib.json\n"
             "  fedlab bench table   # the README's table, from benchmarks/"
         ),
     )
@@ -42,6 +44,7 @@ def add(sub: Subparsers) -> None:
     _add_memory(benches)
     _add_network(benches)
     _add_scenarios(benches)
+    _add_merge(benches)
     _add_table(benches)
     p.set_defaults(func=run)
 
@@ -50,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark named by ``args.bench`` and print its results."""
     runs = {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}
     runs |= {"memory": _run_memory, "network": _run_network, "scenarios": _run_scenarios}
-    runs |= {"table": _run_table}
+    runs |= {"merge": _run_merge, "table": _run_table}
     return runs[args.bench](args)
 
 
@@ -553,6 +556,87 @@ def _transparency_table(rows: list[dict[str, Any]]) -> Any:
             "-" if r["median"] is None else f"{r['median']:.3f} ({r['min']:.3f} to {r['max']:.3f})",
         )
     return table
+
+
+# -- merge ---------------------------------------------------------------------------
+def _add_merge(benches: Subparsers) -> None:
+    p = benches.add_parser(
+        "merge",
+        help="peak memory and MiB/s of fedlab merge on a large synthetic run, beside a plain read",
+        formatter_class=Formatter,
+        description=(merge_bench.__doc__ or "").split("\n\n")[0],
+        epilog=(
+            "Examples:\n"
+            "  fedlab bench merge --size 64 --repeats 1\n"
+            "  fedlab bench merge --size 2048 --json-out benchmarks/merge-2gib.json"
+        ),
+    )
+    p.add_argument(
+        "--size", type=positive, default=merge_bench.DEFAULT_SIZE_MIB, metavar="MIB",
+        help="MiB of recordings in all, across the agents' files",
+    )  # fmt: skip
+    p.add_argument(
+        "--agents", type=_agents, default=merge_bench.DEFAULT_AGENTS, metavar="N",
+        help="agents recorded: a leader (the reference) and N-1 followers",
+    )  # fmt: skip
+    p.add_argument(
+        "--repeats", type=_agents_or_one, default=merge_bench.DEFAULT_REPEATS, metavar="N",
+        help="merges (each beside a baseline read) of the one run written",
+    )  # fmt: skip
+    p.add_argument("--seed", type=int, default=1, help="seed of the synthetic run")
+    p.add_argument(
+        "--budget", type=positive, default=merge_bench.BUDGET_MIB, metavar="MIB",
+        help="peak resident memory the merge may reach; past it the command fails (exit 1)",
+    )  # fmt: skip
+    p.add_argument(
+        "--dir", type=Path, default=None, metavar="DIR",
+        help="where the run's temporary folder is made (default: the system's temporary "
+        "folder); deleted afterwards",
+    )  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--json-out", type=Path, metavar="FILE", help="also write the JSON to FILE")
+
+
+def _run_merge(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console(stderr=True)
+    try:
+        result = merge_bench.run(
+            args.size, args.agents, args.repeats, args.seed, args.budget, args.dir,
+            progress=console.print,
+        )  # fmt: skip
+    except (ValueError, RuntimeError, OSError) as error:
+        print(f"fedlab bench merge: error: {error}", file=sys.stderr)
+        return 1
+    result["command"] = "fedlab bench merge " + " ".join(
+        f"--{k} {v}" for k, v in (("size", f"{args.size:g}"), ("agents", args.agents),
+                                   ("repeats", args.repeats), ("seed", args.seed),
+                                   ("budget", f"{args.budget:g}"))
+    )  # fmt: skip
+    text = json.dumps(result, indent=1)
+    if args.json_out is not None:
+        args.json_out.write_text(text + "\n", encoding="utf-8")
+    if args.json:
+        print(text)
+    else:
+        table = Table(title=f"fedlab merge, {result['run']['mib']:.0f} MiB of recordings")
+        for col in ("", "peak RSS (MiB)", "MiB/s", "wall (s)"):
+            table.add_column(col, justify="right")
+        for what in ("merge", "baseline"):
+            r = result[what]
+            table.add_row(
+                what, *(f"{r[k]['median']:.2f} ({r[k]['min']:.2f} to {r[k]['max']:.2f})"
+                        for k in ("peak_rss_mib", "mib_per_s", "wall_s")),
+            )  # fmt: skip
+        Console().print(table)
+    try:
+        merge_bench.check(result)
+    except merge_bench.BudgetExceeded as error:
+        print(f"fedlab bench merge: {error}", file=sys.stderr)
+        return 1
+    return 0
 
 
 # -- table ---------------------------------------------------------------------------
