@@ -87,6 +87,7 @@ __all__ = [
     "MergeResult",
     "Thinned",
     "merge",
+    "merge_folder",
     "survey",
     "write_merged",
 ]
@@ -741,12 +742,35 @@ def write_merged(run_dir: str | Path, out: str | Path | None = None) -> tuple[Me
         raise ConfigError(f"{directory}: no MCAP recordings (*.mcap) in this run directory")
     texts = [_text(directory / name) for name in ("run.json", "experiment.json")]
     partial = target.with_name(target.name + ".partial")
-    with partial.open("wb") as sink:
-        result = _write_file(paths, sink, *texts)
+    try:
+        with partial.open("wb") as sink:
+            result = _write_file(paths, sink, *texts)
+    except BaseException:  # no half-written file left; the recordings are untouched
+        partial.unlink(missing_ok=True)
+        raise
     partial.replace(target)
     layout = target.with_name(target.stem + ".layout.json")
     layout.write_text(view.layout(result.agents, result.peer_topics) + "\n", encoding="utf-8")
     return result, layout
+
+
+def merge_folder(run_dir: str | Path) -> dict[str, Any]:
+    """:func:`write_merged` into ``RUN_DIR/merged.mcap``, as a description (JSON-ready):
+    ``file``, ``layout``, ``agents``, ``reference``, ``messages``, ``epoch_utc``,
+    ``notes``; or, when the merge fails, ``error`` (what and why) and ``kept`` (the
+    recordings, untouched). It never raises for a merge that fails: ``fedlab collect``
+    reports it beside what it fetched."""
+    directory = Path(run_dir)
+    try:
+        result, layout = write_merged(directory)
+    except Exception as error:  # a merge that fails costs the merged file, never the run
+        kept = sorted(p.name for p in directory.glob("*.mcap") if p.name != "merged.mcap")
+        return {"error": f"{type(error).__name__}: {error}", "kept": kept}
+    return {
+        "file": str(directory / "merged.mcap"), "layout": str(layout), "agents": result.agents,
+        "reference": result.reference, "messages": result.messages_out,
+        "epoch_utc": result.metadata()["epoch_utc"], "notes": result.notes,
+    }  # fmt: skip
 
 
 def _text(path: Path) -> str | None:

@@ -1,8 +1,10 @@
 """``fedlab collect`` with real processes: a two-lab run's recordings gathered over two
 routers (and through the link emulator with 40 ms delay) give the same report as the
-original files; a corrupted or truncated chunk is fetched again; a partial download
-resumes; a 60 MB file is collected with bounded memory; the run of an agent killed
-mid-run is recovered when it starts again and collected, marked incomplete."""
+original files, read from the merged file collect writes beside them; a merge that
+fails is reported and leaves the recordings as fetched; a corrupted or truncated chunk
+is fetched again; a partial download resumes; a 60 MB file is collected with bounded
+memory; the run of an agent killed mid-run is recovered when it starts again and
+collected, marked incomplete."""
 
 from __future__ import annotations
 
@@ -31,16 +33,18 @@ pytestmark = pytest.mark.integration
 MB = 1 << 20
 
 
-def summary(run: Path, command: bool = False) -> dict[str, object]:
+def summary(run: Path, command: bool = False, source: str = "recordings") -> dict[str, object]:
     """The summary.json of ``run``'s report: with ``command`` as ``fedlab report`` writes it,
-    else written in this process (:func:`write_report`, what the command runs)."""
+    else written in this process (:func:`write_report`, what the command runs); read
+    from ``source`` (``merged``: the merged file, ``recordings``: the per-agent files)."""
     if command:
         done, _ = fedlab("report", str(run), "--out", str(run / "report"))
         assert done.returncode == 0, done.stdout + done.stderr
     else:
         write_report(run, run / "report")
     data: dict[str, object] = json.loads((run / "report" / "summary.json").read_text())
-    assert data.pop("run_dir") == str(run)  # the one thing that may differ
+    assert data.pop("run_dir") == str(run)  # the things that may differ
+    assert data.pop("source")["kind"] == source  # type: ignore[index]
     return data
 
 
@@ -90,7 +94,10 @@ def test_collect_gathers_a_two_lab_run_and_the_report_matches(
     assert set(result["files"]) == set(agents) and not result["missing"]
     for path in original.iterdir():
         assert sha256_file(out / path.name) == sha256_file(path), path.name
-    collected = summary(out, command=True)
+    merged = result["merged"]  # collect merged what it gathered
+    assert merged["file"] == str(out / "merged.mcap") and sorted(merged["agents"]) == sorted(agents)
+    assert (out / "merged.layout.json").exists()
+    collected = summary(out, command=True, source="merged")
     assert collected == summary(original)
     assert collected["agents"] and collected["sync"]  # a report with something in it
 
@@ -192,7 +199,7 @@ def test_a_recording_over_50_mb_is_collected_with_bounded_memory(
     leader = labs.leader(router, "--runs-dir", str(runs_dir(labs, LEADER)))
     leader.wait_status(timeout=20)
     base = [sys.executable, "-m", "federation", "collect"]
-    flags = ["-e", router.endpoint, "--timeout", "10"]
+    flags = ["-e", router.endpoint, "--timeout", "10", "--no-merge"]  # collect's memory only
     _, small = _peak_rss([*base, "small", "--out", str(tmp_path / "small"), *flags])
     _, large = _peak_rss([*base, "big", "--out", str(tmp_path / "big"), *flags])
     print(f"collect peak RSS: 1 MB run {small / MB:.1f} MB, 60 MB run {large / MB:.1f} MB")
@@ -200,6 +207,20 @@ def test_a_recording_over_50_mb_is_collected_with_bounded_memory(
         big / "kiruna-knatte.mcap"
     )
     assert large - small < 20 * MB  # one chunk at a time, not the file (60 MB)
+    assert not (tmp_path / "small" / "merged.mcap").exists()  # --no-merge
+
+    # Merged by default: random bytes are no recording, so the merge fails, says why,
+    # exits 1, and the file fetched stays as it was.
+    failed, _ = fedlab("collect", "small", "--out", str(tmp_path / "merge"), *flags[:-1])
+    assert failed.returncode == 1, failed.stdout + failed.stderr
+    assert "merge failed: ConfigError: no recording's status names the reference agent" in (
+        " ".join(failed.stdout.split())
+    ), failed.stdout
+    assert "the recordings are kept as fetched (kiruna-knatte.mcap)" in failed.stdout
+    assert sha256_file(tmp_path / "merge" / "kiruna-knatte.mcap") == sha256_file(
+        runs_dir(labs, LEADER) / "small" / "kiruna-knatte.mcap"
+    )
+    assert sorted(p.name for p in (tmp_path / "merge").iterdir() if "merged" in p.name) == []
 
 
 def test_a_killed_agents_run_is_recovered_when_it_starts_again_and_collected(
