@@ -28,7 +28,10 @@ def add(sub: Subparsers) -> None:
             "start in UTC with its uncertainty; each JSON message gains t_ref and\n"
             "t_ref_bound (s), topics are namespaced /LAB/NAME/..., poses, events, holds and\n"
             "work areas are also in Foxglove's types, and a Foxglove layout is written\n"
-            "beside it (NAME.layout.json). Streams: memory does not grow with the run."
+            "beside it (NAME.layout.json). An agent's later segments (LAB-NAME.seg2.mcap...,\n"
+            "recorded after a rejoin) are that agent's, on its topics, with the gap logged.\n"
+            "fedlab report RUN_DIR then reads the merged file. Streams: memory does not grow\n"
+            "with the run."
         ),
         epilog=(
             "Examples:\n  fedlab merge runs/demo\n  fedlab merge runs/collected --out /tmp/run.mcap"
