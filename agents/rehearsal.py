@@ -30,7 +30,7 @@ import numpy as np
 
 from agents.docking import FINAL, ContactState, contact_state
 from agents.formation import slot_errors
-from agents.guidance import Reference, ReferenceManeuver, track_heading
+from agents.guidance import HeadingEstimator, Reference, ReferenceManeuver, track_heading
 from agents.scenario import ScenarioGuidance
 from agents.scenarios.docking import Docking
 from agents.simulated import SimulatedPlatform
@@ -394,7 +394,9 @@ def attitude_run(
 ) -> dict[str, Any]:
     """The paper's attitude-tracking experiment in simulated time: the leader flies its
     maneuver on run time, each follower tracks the heading it receives from the agent
-    it follows (dead-reckoned to now with ``compensate``), as the agent runtime does.
+    it follows (with ``compensate``, predicted to now by a
+    :class:`~agents.guidance.HeadingEstimator` with the maneuver as its input), as the
+    agent runtime does.
 
     Returns
     -------
@@ -413,6 +415,7 @@ def attitude_run(
 
     def guidance_of(agent: str) -> Callable[..., Reference]:
         followed = follows.get(agent)
+        estimator = HeadingEstimator()
 
         def guidance(
             t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
@@ -422,7 +425,8 @@ def attitude_run(
             got = others.get(followed)
             if got is None:
                 return Reference()
-            return Reference(*track_heading(PoseSample(*got), t, compensate=compensate))
+            sample = PoseSample(*got)
+            return Reference(*estimator.reference(sample, t, compensate, maneuver, run_time))
 
         return guidance
 

@@ -46,7 +46,7 @@ from typing import Any
 
 import zenoh
 
-from agents.guidance import Track, track_heading
+from agents.guidance import HeadingEstimator, Track
 from agents.platform import Platform, make_platform
 from agents.scenario import ScenarioGuidance, make_scenario
 from federation.core import keys, wire
@@ -129,6 +129,7 @@ class AgentRuntime:
         self.ref_id = wire.reference_id(str(self.reference))
         self.pose = wire.Pose()
         self.guidance = (0.0, 0.0)  # last heading and rate references
+        self.heading_estimator = HeadingEstimator()  # a follower's, over the followed samples
         # When they were computed: t_exec, host monotonic, t_sim, run time.
         self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
         self.safety = Safety(self.platform)  # every hold and release
@@ -410,7 +411,12 @@ class AgentRuntime:
             now = t_sim
         else:
             now = self.timebase.peer_time(self.follow, t_exec)
-        return track_heading(received, now, self.config.latency_compensation)
+        # The maneuver is the filter's input only while the run's time runs.
+        running = run_time is not None and self.run_state.mode == "running"
+        return self.heading_estimator.reference(
+            received, now, self.config.latency_compensation,
+            self.maneuver if running else None, run_time,
+        )  # fmt: skip
 
     def control_step(self) -> None:
         """Run state, watches, guidance and one platform step (the platform's rate)."""
