@@ -241,15 +241,36 @@ def run_demo(
         "command": " ".join(["fedlab", *sys.argv[1:]]) if sys.argv else "fedlab demo",
     }
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
-    from federation.report import write_report
-
-    progress.phase("writing the report from the recordings")
-    summary = write_report(out, out)
+    summary = _merge_and_report(out, progress, console)
     console.print(paper_table(summary))
     console.print(f"report.md, summary.json, figures and recordings in {out}")
     if interrupted:
         return 130
     return 0
+
+
+def _merge_and_report(out: Path, progress: DemoProgress, console: Console) -> dict[str, Any]:
+    """Merge the run into ``out/merged.mcap`` (for Foxglove, with its layout) and write
+    the report from it; a merge that fails is printed, and the report reads the
+    recordings."""
+    from rich.text import Text
+
+    from federation.report import write_report
+    from federation.report.merge import merge_folder
+
+    progress.phase("merging the recordings on reference time")
+    merged = merge_folder(out)
+    if "error" in merged:
+        console.print(Text(f"merge failed: {merged['error']}; the report reads the recordings",
+                           style="red"))  # fmt: skip
+    progress.phase("writing the report")
+    summary = write_report(out, out)
+    if "error" not in merged:
+        console.print(
+            f"merged run for Foxglove: {merged['file']} (layout {merged['layout']})",
+            highlight=False,
+        )
+    return summary
 
 
 def _find(rows: list[dict[str, Any]], **match: str) -> dict[str, Any]:
@@ -443,10 +464,7 @@ def run_scenario_demo(
         "wall_s": time.monotonic() - started,
     }
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
-    from federation.report import write_report
-
-    progress.phase("writing the report from the recordings")
-    summary = write_report(out, out)
+    summary = _merge_and_report(out, progress, console)
     console.print(scenario_table(summary))
     console.print(f"report.md, summary.json, figures and recordings in {out}")
     return 130 if interrupted else 0
