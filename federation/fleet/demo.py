@@ -243,10 +243,20 @@ def run_demo(
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
     summary = _merge_and_report(out, progress, console)
     console.print(paper_table(summary))
-    console.print(f"report.md, summary.json, figures and recordings in {out}")
+    console.print(_written(out, summary), highlight=False)
     if interrupted:
         return 130
     return 0
+
+
+def _written(out: Path, summary: dict[str, Any]) -> str:
+    """What the demo left in ``out``, the merged file named when the report read it."""
+    if (summary.get("source") or {}).get("kind") == "merged":
+        return (
+            f"report.md, summary.json, figures, recordings and the merged run in {out} "
+            "(merged.mcap: open it in Foxglove with its layout merged.layout.json)"
+        )
+    return f"report.md, summary.json, figures and recordings in {out}"
 
 
 def _merge_and_report(out: Path, progress: DemoProgress, console: Console) -> dict[str, Any]:
@@ -466,7 +476,7 @@ def run_scenario_demo(
     (out / "run.json").write_text(json.dumps(run, indent=1) + "\n")
     summary = _merge_and_report(out, progress, console)
     console.print(scenario_table(summary))
-    console.print(f"report.md, summary.json, figures and recordings in {out}")
+    console.print(_written(out, summary), highlight=False)
     return 130 if interrupted else 0
 
 
