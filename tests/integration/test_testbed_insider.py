@@ -372,7 +372,8 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     allowed = (pose_hz * span + 2) * limits.SMALL_LIMIT + (status_hz * span + 2) * status_cap
     assert rome_bytes <= allowed, (rome_bytes, allowed)
     assert arrivals and max(arrivals) <= pub["ended"] + 1.0
-    # At the stage, with the headers of QUIC, UDP and IP around each message.
+    # At the stage, with the headers of QUIC, UDP and IP around each message (7 to 8 %
+    # more than the payload in four runs): a quarter more at most.
     assert wan_rate <= 1.25 * allowed / span, (wan_rate, allowed / span)
 
     # 3. The follower: syncing throughout, never held, never on a stale pose.
