@@ -132,9 +132,11 @@ class HeadingFilter:
     # acceleration beyond its maneuver's, as white noise (its spectral density)
     horizon: float = 1.0  # s: no prediction reaches further past the last sample
     restart_after: float = 1.0  # s: a sample this far from the filter's time starts it afresh
+    rate_gate: float = 5.0  # sigmas: a shared rate further than this from the filter's
+    # prediction is not taken (its heading is): a rate its headings do not show
 
     def __post_init__(self) -> None:
-        for name in ("heading_noise", "rate_noise", "acceleration_noise", "horizon"):
+        for name in ("heading_noise", "rate_noise", "acceleration_noise", "horizon", "rate_gate"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"HeadingFilter.{name} must be a positive number, not {value!r}")
@@ -176,7 +178,10 @@ class HeadingEstimator:
     finite (NaN), on which the GNC chain closes every valve (``nonfinite``), and leaves
     the filter as it was; a sample older than the filter's time (a reordered or repeated
     one) is not taken; a sample more than ``restart_after`` from the filter's time (a
-    gap, a sender's restart) starts the filter afresh from it. Without a maneuver
+    gap, a sender's restart) starts the filter afresh from it; a shared rate more than
+    ``rate_gate`` sigmas from the predicted one (50 rad/s from a sender whose headings
+    stand still) is left out of the update and its heading taken alone, so a rate its
+    headings do not show never drags the heading reference on. Without a maneuver
     (``profile`` None: before or outside a run) the model is a constant rate.
     """
 
@@ -186,6 +191,7 @@ class HeadingEstimator:
         self.x = (0.0, 0.0)  # heading (rad, wrapped), rate (rad/s)
         self.p = (0.0, 0.0, 0.0)  # covariance: var heading, covariance, var rate
         self.restarts = 0  # times the filter started afresh from a sample
+        self.rates_rejected = 0  # samples whose rate was not taken (rate_gate)
 
     def reset(self) -> None:
         """Forget every sample: the next one starts the filter."""
@@ -239,17 +245,22 @@ class HeadingEstimator:
             return
         (heading, rate), (a, b, d) = self._predict(self.x, self.p, self.t, t, profile, shift)
         r1, r2 = c.heading_noise**2, c.rate_noise**2
-        det = (a + r1) * (d + r2) - b * b
-        k11, k12 = (a * (d + r2) - b * b) / det, b * r1 / det
-        k21, k22 = b * r2 / det, (d * (a + r1) - b * b) / det
         v1, v2 = wrap_angle(z_heading - heading), z_rate - rate
-        heading += k11 * v1 + k12 * v2
-        rate += k21 * v1 + k22 * v2
-        # P = (I - K) P, kept symmetric.
-        a1 = (1 - k11) * a - k12 * b
-        b1 = (1 - k11) * b - k12 * d
-        d1 = -k21 * b + (1 - k22) * d
-        self.t, self.x, self.p = t, (wrap_angle(heading), rate), (a1, b1, d1)
+        if v2 * v2 > c.rate_gate**2 * (d + r2):  # the heading alone: H = [1, 0]
+            self.rates_rejected += 1
+            s = a + r1
+            k1, k2 = a / s, b / s
+            heading, rate = heading + k1 * v1, rate + k2 * v1
+            p = (a * r1 / s, b * r1 / s, d - b * b / s)
+        else:
+            det = (a + r1) * (d + r2) - b * b
+            k11, k12 = (a * (d + r2) - b * b) / det, b * r1 / det
+            k21, k22 = b * r2 / det, (d * (a + r1) - b * b) / det
+            heading += k11 * v1 + k12 * v2
+            rate += k21 * v1 + k22 * v2
+            # P = (I - K) P, symmetric.
+            p = ((1 - k11) * a - k12 * b, (1 - k11) * b - k12 * d, -k21 * b + (1 - k22) * d)
+        self.t, self.x, self.p = t, (wrap_angle(heading), rate), p
 
     def _predict(
         self,

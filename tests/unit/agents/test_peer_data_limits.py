@@ -12,7 +12,7 @@ import pytest
 
 from agents.docking import DockingGuidance
 from agents.formation import FormationGuidance
-from agents.guidance import track_heading
+from agents.guidance import HeadingEstimator, ReferenceManeuver, track_heading
 from agents.simulated import SimulatedPlatform
 from agents.workspace import Frame, FramedPlatform
 from federation.core.counters import Count
@@ -95,13 +95,19 @@ def test_a_docking_target_that_jumps_ends_the_final_approach() -> None:
     assert guidance.counters["target_jumps"] >= 1
 
 
-def test_a_leaders_shared_rate_does_not_spin_the_follower_past_its_limit() -> None:
+@pytest.mark.parametrize("reference", ["dead reckoning", "estimator"])
+def test_a_leaders_shared_rate_does_not_spin_the_follower_past_its_limit(reference: str) -> None:
     # The leader's omega was the rate reference, checked only for being finite: 50 rad/s
     # spun a follower to its gyro's limit, then it kept spinning with valves shut.
     platform = SimulatedPlatform(KNATTE, seed=1, disturbance=False)
+    estimator = HeadingEstimator()
     for i in range(3000):
         t = i * 0.01
-        heading, rate = track_heading(PoseSample(t, Pose(omega=50.0 if t >= 5 else 0.0)), now=t)
+        sample = PoseSample(t, Pose(omega=50.0 if t >= 5 else 0.0))
+        if reference == "estimator":
+            heading, rate = estimator.reference(sample, t, True, ReferenceManeuver(), t)
+        else:
+            heading, rate = track_heading(sample, now=t)
         platform.step(t, heading, rate)
         assert platform.truth is not None and abs(platform.truth.omega) <= KNATTE.max_rate
 
