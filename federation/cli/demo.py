@@ -24,7 +24,9 @@ def add(sub: Subparsers) -> None:
             f" simulated PINOCCHIO following with its clock {paper.CLOCK_OFFSET} s off; a"
             f" synchronized start, the paper's maneuver ({paper.MANEUVER_STILL:g} s still,"
             f" {paper.MANEUVER_AMPLITUDE_DEG:g} degrees and back in {paper.MANEUVER_DURATION:g} s),"
-            " then the report (report.md, summary.json, figures) beside the paper's numbers.",
+            " then the run merged into one file on reference time (merged.mcap and its"
+            " Foxglove layout) and the report from it (report.md, summary.json, figures)"
+            " beside the paper's numbers.",
             width=88,
         ),
         epilog=(
