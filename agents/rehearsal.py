@@ -30,7 +30,7 @@ import numpy as np
 
 from agents.docking import FINAL, ContactState, contact_state
 from agents.formation import slot_errors
-from agents.guidance import HeadingEstimator, Reference, ReferenceManeuver, track_heading
+from agents.guidance import HeadingEstimator, Reference, ReferenceManeuver
 from agents.scenario import ScenarioGuidance
 from agents.scenarios.docking import Docking
 from agents.simulated import SimulatedPlatform
@@ -467,8 +467,9 @@ def adaptive_run(
     still: float = 5.0,
 ) -> dict[str, Any]:
     """A leader flies the raised-cosine maneuver (``amplitude_deg`` out and back in
-    ``maneuver_s``); a follower tracks the heading it receives (latency compensated),
-    with its preset's gains (``adaptive`` None) or scheduled ones.
+    ``maneuver_s``); a follower tracks the heading it receives (latency compensated: a
+    :class:`~agents.guidance.HeadingEstimator` with the maneuver as its input, as the
+    agent runtime does), with its preset's gains (``adaptive`` None) or scheduled ones.
 
     Returns the follower's heading error against the leader (truth, RMS and max, deg,
     over the maneuver), its valve-open time (s) and the scale its gains reached."""
@@ -486,6 +487,8 @@ def adaptive_run(
     ) -> Reference:
         return Reference(*maneuver(run_time)) if run_time is not None else Reference()
 
+    estimator = HeadingEstimator()
+
     def follow_guidance(
         t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
     ) -> Reference:
@@ -494,7 +497,7 @@ def adaptive_run(
             return Reference()
         if gains is not None:
             gains.observe(got[0], got[1].omega)
-        return Reference(*track_heading(PoseSample(*got), t, compensate=True))
+        return Reference(*estimator.reference(PoseSample(*got), t, True, maneuver, run_time))
 
     members = [_Member("leader", lead, lead_guidance), _Member("follower", follow, follow_guidance)]
     _links(members, delay, 0.002, seed)
