@@ -39,6 +39,7 @@ import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -177,6 +178,13 @@ def stage_bytes(bed: Testbed, after: float) -> tuple[float, int]:
     return float(snaps[0]["seconds"]), int(snaps[0]["backward"]["bytes"])
 
 
+def locked_and_recording(agent: Agent) -> bool:
+    """The agent's last status line says it may start: its reference clock locked, recording."""
+    line = agent.last()
+    ready = (line or {}).get("ready") or {}
+    return bool(line and ready.get("reference_locked", True) and ready.get("recording"))
+
+
 def status_figures(lines: list[dict[str, Any]], since: float, until: float) -> dict[str, Any]:
     """The follower's holds, sync progress and pose age between two host times."""
     window = [line for line in lines if since <= line["host_monotonic"] <= until]
@@ -240,13 +248,9 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
             rome,
         )  # fmt: skip
         for agent in agents.values():
-            agent.until(
-                lambda line: (
-                    (line.get("ready") or {}).get("reference_locked", True)
-                    and (line.get("ready") or {}).get("recording")
-                ),
-                timeout=40,
-                what="locked on the reference clock and recording",
+            assert wait_for(partial(locked_and_recording, agent), 40.0), (
+                f"{agent.who} not locked on the reference clock and recording within 40 s; "
+                f"last status {agent.last()}\n{bed.log(agent.name)[-3000:]}"
             )
         assert wait_for(lambda: read_json(watched).get("ready"), 20.0), bed.log("watcher")[-2000:]
         # Kiruna's operator starts a run: the follower follows the leader's pose.
