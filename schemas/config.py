@@ -98,7 +98,10 @@ class AgentConfig(_Model):
     federation: Annotated[str, _name("federation name")] = DEFAULT_FEDERATION
     lab: Annotated[str, base.LAB_NAME]
     name: Annotated[str, _name("agent name")]
-    role: Literal["leader", "follower", "member"]
+    role: Literal["leader", "follower", "member", "stand-in"] = Field(
+        description="leader, follower or member; stand-in: an experiment's stand-in for its "
+        "leader (a simulated twin of its preset, from --experiment: stand_in.agent)"
+    )
     follow: AgentRef | None = Field(None, description="LAB/NAME of the agent a follower tracks")
     reference: AgentRef | None = Field(
         None,
@@ -243,6 +246,18 @@ class AgentConfig(_Model):
             raise ValueError("a follower needs 'follow' (LAB/NAME of the agent to track)")
         if self.follow == me:
             raise ValueError(f"agent {me} cannot follow itself")
+        if self.role == "stand-in" and (
+            self.experiment is None or self.reference is None or self.follow is not None
+        ):
+            raise ValueError(
+                "a stand-in takes its part from its experiment (--experiment, stand_in.agent): "
+                "its reference is the leader and it follows nobody"
+            )
+        if self.role == "stand-in" and platform_kind(self.platform)[0].kind != DEFAULT_KIND:
+            raise ValueError(
+                f"platform {self.platform}: a stand-in is a simulated twin of the leader's "
+                "preset (stand_in.preset), never another kind of platform"
+            )
         if self.sync_with and self.sync_all:
             raise ValueError(
                 "sync_with and sync_all together: sync_with names the agents queried, "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -126,7 +126,7 @@ class Status(BaseModel):
 
     agent: str = Field(description="LAB/NAME")
     federation: str
-    role: Literal["leader", "follower", "member"]
+    role: Literal["leader", "follower", "member", "stand-in"]
     reference: str = Field(description="LAB/NAME whose clock is the simulation time")
     t_exec: float = Field(description="own execution clock, s")
     host_monotonic: float = Field(description="host monotonic clock read with t_exec, s")
@@ -202,6 +202,12 @@ class Status(BaseModel):
         description="the run under way it joins once an operator admits it (fedlab ctl admit "
         "LAB/NAME); none: it waits for no admit",
     )
+    claim: dict[str, Any] | None = Field(
+        None,
+        description="an experiment with a stand-in: this agent's last role message "
+        "(federation.core.standin.Claim: holding, epoch, until, follows, why...); none: "
+        "it keeps no role",
+    )
 
 
 class RunTransition(BaseModel):
@@ -222,8 +228,10 @@ class Command(BaseModel):
     """Execution control, published on ``fedlab/<federation>/control`` (JSON).
 
     ``admit`` lets the agents it names (``participants``) rejoin a run under way when
-    their rejoin policy is ``operator`` (:mod:`federation.core.rejoin`); it does nothing
-    to a run state.
+    their rejoin policy is ``operator`` (:mod:`federation.core.rejoin`); ``handback``
+    hands the leader's role back to the leader it names (:mod:`federation.core.standin`:
+    its stand-in releases the role, the deposed leader asks again). Neither changes a
+    run state.
 
     Modelled on SpaceFOM's run/freeze/shutdown modes. ``at`` is a reference
     (simulation) time: every agent acts when its own synchronized clock reaches
@@ -235,7 +243,7 @@ class Command(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    command: Literal["start", "freeze", "resume", "abort", "reset", "admit"]
+    command: Literal["start", "freeze", "resume", "abort", "reset", "admit", "handback"]
     at: float | None = Field(None, allow_inf_nan=False, description="reference time, s")
     seq: int = Field(description="the issuer's command number, 1, 2, 3...; repeats are ignored")
     issued_at: float | None = Field(
@@ -258,13 +266,15 @@ class Command(BaseModel):
         max_length=4096,
         description="LAB/NAME of every agent a start, freeze, resume, reset or admit is for: "
         "an agent not named ignores it (an abort is for every agent); none: every agent (an "
-        "admit names its agents)",
+        "admit names its agents; a handback its one leader, which its stand-in also hears)",
     )
 
     @model_validator(mode="after")
     def _admit_names(self) -> Command:
         if self.command == "admit" and not self.participants:
             raise ValueError("an admit names the agents it admits (participants)")
+        if self.command == "handback" and (not self.participants or len(self.participants) != 1):
+            raise ValueError("a handback names the one leader it hands the role back to")
         return self
 
     def not_for(self, agent: str) -> str | None:

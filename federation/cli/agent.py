@@ -315,12 +315,21 @@ def _experiment_part(
     part = experiment.participant(me)
     stand_in = experiment.stand_in
     if part is None and stand_in is not None and stand_in.agent == str(me):
-        # The role's rules exist (federation.core.standin), the agent that keeps them does
-        # not: a twin started here would fly nothing safely, so none is started.
-        raise ConfigError(
-            f"{path}: {me} is the experiment's stand-in (stand_in.agent): the agent runtime "
-            f"does not host a stand-in yet; followers of {experiment.leader} hold when it is lost"
-        )
+        # The leader's stand-in: a twin of its preset (federation.runtime.agent.role) that
+        # joins every run under way (rejoin auto) to know its time, and flies only while
+        # it holds the leader's role.
+        return {
+            "federation": experiment.federation,
+            "role": "stand-in",
+            "platform": stand_in.preset,
+            "reference": str(experiment.leader),
+            "maneuver": experiment.maneuver.model_dump(),
+            "wait_start": True,
+            "experiment": str(path),
+            "run_duration": experiment.duration,
+            "rejoin": "auto",
+            **({} if record else {"runs_dir": "runs"}),
+        }, True
     if part is None:
         names = ", ".join(p.agent for p in experiment.participants)
         raise ConfigError(f"{path}: {me} does not take part (participants: {names})")

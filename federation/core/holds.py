@@ -27,7 +27,7 @@ arbitrary sequences of triggers:
    under way joined, :mod:`federation.core.rejoin`) lifts ``waiting`` and ``reset`` as
    a start does, and nothing else: a fault or a condition standing still holds.
 5. Conditions lift on their own when they clear: a stale link, a contested peer, a
-   lost router.
+   lost router, the leader's role not held (:mod:`federation.core.standin`).
 
 Pure: no clock, no I/O, no threads. The caller (the agent's
 :class:`~federation.runtime.agent.safety.Safety`) feeds it triggers under one lock and
@@ -66,6 +66,7 @@ class Hold(StrEnum):
     CONTESTED = "contested"
     NO_ROUTER = "no_router"
     STALE = "stale"
+    ROLE = "role"
     SOURCE_STALE = "source_stale"
     ENDED = "ended"
     WAITING = "waiting"
@@ -92,6 +93,10 @@ class Trigger(Enum):
     ROUTER_BACK = "router_back"
     SOURCE_STALE = "source_stale"
     SOURCE_FRESH = "source_fresh"
+    ROLE_LOST = "role_lost"
+    """The leader's role (federation.core.standin) is not held by this agent (a leader)
+    nor by one it follows (a follower)."""
+    ROLE_HELD = "role_held"
     # Faults.
     FIX_RESTARTED = "fix_restarted"
     NAME_TAKEN = "name_taken"
@@ -162,6 +167,10 @@ RULES: tuple[Rule, ...] = (
     _rule(Hold.STALE,       T.LINK_STALE,     (T.LINK_RESUMED,),               R.ON_ITS_OWN, True,
           "the followed pose is stale; lifted once it flows again and a sync exchange "
           "completed since"),
+    _rule(Hold.ROLE,        T.ROLE_LOST,      (T.ROLE_HELD,),                  R.ON_ITS_OWN, True,
+          "an experiment with a stand-in: the leader does not hold the leader's role "
+          "(unacknowledged by the stand-in, lapsed, or deposed until fedlab ctl handback), "
+          "or a follower sees no agent hold it; lifted once it holds it (follows its holder)"),
     _rule(Hold.SOURCE_STALE, T.SOURCE_STALE,   (T.SOURCE_FRESH,),               R.ON_ITS_OWN, True,
           "the platform's own pose source (a ROS 2 bridge's odometry) is stale: no pose "
           "is published; lifted once it flows again"),

@@ -84,6 +84,10 @@ class RunControl:
         self.experiment: str | None = None  # the experiment the run's start named
         # An operator's admit: why it is refused, or None (the agent's rejoin takes it).
         self.admit: Callable[[], str | None] = lambda: "this agent rejoins no run"
+        # An operator's handback to a leader (the role's): whether it concerns this agent
+        # (its leader or stand-in), and why it changed nothing, or None.
+        self.handback_concerns: Callable[[str], bool] = lambda leader: False
+        self.handback: Callable[[str, float], str | None] = lambda leader, t: "no role kept"
         # The run (id, start) the scenario's guidance is for; a new one is begun on the
         # loop's thread at its next step, not under a reference it is computing.
         self._scenario_run: tuple[str | None, float | None] | None = None
@@ -183,6 +187,15 @@ class RunControl:
         verdict = self.gate.admit(command.command, command.issuer, command.seq)
         if not self._admitted(command, verdict):
             return None
+        if command.command == "handback":  # the leader's and its stand-in's business
+            assert command.participants
+            leader = command.participants[0]
+            if not self.handback_concerns(leader):
+                return None
+            refused = self.handback(leader, t_exec)
+            if refused is None:
+                return []
+            return [Event("ignored", self.owner.sim_time(t_exec), refused)]
         refused = self._not_mine(command)
         if refused is None and command.command == "start":
             refused = self.recordings.recorded_before(command.run_id)

@@ -101,6 +101,7 @@ class Reporter:
         self.publisher: Any = None  # the status publisher, declared at start
         # The status's rejoin and admit_run fields (the agent's rejoin gives them).
         self.rejoin_report: Callable[[], dict[str, str | None]] = dict
+        self.role_report: Callable[[], dict[str, object]] = dict  # the status's claim
 
     def count(self, name: Count) -> None:
         """Bump a counter; callbacks may run on several Zenoh threads at once."""
@@ -147,6 +148,7 @@ class Reporter:
             counters=owner.counter_snapshot(), contested=self.intake.contested(host),
             workspace=None if owner.scenario is None else owner.scenario.workspace(),
             loop=self.loop_stats(), **self.commands.transitions(), **self.rejoin_report(),
+            **self.role_report(),
         )  # fmt: skip
 
     def readiness(self, t_exec: float) -> Readiness:

@@ -64,6 +64,8 @@ from federation.runtime.agent.peers import Peer, PeerTable
 from federation.runtime.agent.recordings import Recordings
 from federation.runtime.agent.rejoining import Rejoining
 from federation.runtime.agent.reporting import Reporter
+from federation.runtime.agent.role import RoleKeeping
+from federation.runtime.agent.twin import Twin
 from federation.runtime.agent.watches import Watches
 from federation.runtime.clock import ExecClock
 from federation.runtime.collect import RecordingServer
@@ -79,6 +81,7 @@ from federation.runtime.session import undeclare_all
 from federation.runtime.syncglue import Served, serve_query
 from schemas.config import AgentConfig
 from schemas.messages import CommandOutcome, Readiness, Status
+from schemas.platform import load_platform
 
 __all__ = ["AgentRuntime"]
 
@@ -105,6 +108,8 @@ class AgentRuntime:
         self.links = links if links is not None else SyncLinks()
         self.me = config.agent
         self.clock = clock or ExecClock(config.clock_offset, config.clock_drift_ppm)
+        if platform is None and config.role == "stand-in":  # nothing to move until it claims
+            platform = Twin(load_platform(config.platform), config.seed)
         self.platform: Platform = platform or make_platform(
             config.platform, config.seed, rate=config.pose_rate, preset=config.platform_preset
         )
@@ -144,6 +149,12 @@ class AgentRuntime:
         self.rejoining = Rejoining(self, self.commands)  # a run under way joined
         self.commands.admit = self.rejoining.admit
         self.reporter.rejoin_report = self.rejoining.report
+        # The leader's role, in an experiment with a stand-in (federation.core.standin).
+        self.role = RoleKeeping(self, self.peer_table, self.commands, self.rejoining)
+        self.commands.handback = self.role.handback
+        self.commands.handback_concerns = self.role.concerns
+        self.reporter.role_report = self.role.report
+        self.role.switched = self.heading_estimator.reset
         self.recording_server: RecordingServer | None = None
         self._clock_stepped = False
         self._pose_sn = 0  # sequence number in the pose samples' source info
@@ -270,6 +281,7 @@ class AgentRuntime:
         self._declared += [self._pose_pub, self.reporter.publisher]
         self._pose_pub_id = self._pose_pub.id  # read once: each read builds a new object
         self._subscribe_poses()
+        self._declared += self.role.start(s)
         self._declared.append(
             s.declare_subscriber(
                 keys.control_key(fed), callback(self.commands.on_control, indirect=False)
@@ -309,6 +321,17 @@ class AgentRuntime:
         watched = keys.all_of(cfg.federation, "pose") if cfg.watch_all else None
         if watched is None and self.follow is not None:
             watched = self.key(self.follow, "pose")
+        role = self.role
+        if watched is not None and not cfg.watch_all and role.kind == "follower":
+            # The leader's and its stand-in's poses: the holder's alone count (follow).
+            assert role.stand_in is not None
+            for key in (watched, self.key(role.stand_in, "pose")):
+                self._declared.append(
+                    self.session.declare_subscriber(
+                        key, zenoh.handlers.Callback(self.intake.on_pose_sample, indirect=False)
+                    )
+                )
+            return
         if watched is None or self.intake.join_feed(watched):
             return
         self._declared.append(
@@ -399,7 +422,7 @@ class AgentRuntime:
         """Guidance: the leader's maneuver on run time, or the followed heading
         (``t_sim``: simulation time at ``t_exec``, if known: the followed agent's clock
         when it is the reference, so not estimated twice in one step)."""
-        if self.config.role == "leader":
+        if self.config.role in ("leader", "stand-in"):
             return (0.0, 0.0) if run_time is None else self.maneuver(run_time)
         if self.config.role == "member":
             return 0.0, 0.0  # its pose source decides where it goes
@@ -431,6 +454,7 @@ class AgentRuntime:
             self.commands.apply(events, t_exec, host)
             if any(e.kind in ("frozen", "resumed") for e in events):
                 self.commands.status_now = True  # ctl waits to see it applied
+        self.role.step(t_exec, host, t_sim)  # before the link's watch: whom it follows
         self.watches.step(t_exec, host)
         restored = self.safety.enforce()  # a step never runs free while a hold stands
         if restored is not None:
@@ -446,8 +470,10 @@ class AgentRuntime:
             self._scenario_reference(t_exec, t_sim, run_time)
         if self.run_state.mode == "running":  # a rejoined platform captures its reference
             self.guidance = self.rejoining.guidance(*self.guidance, host)
+            self.guidance = self.role.guidance(*self.guidance, host)  # and after a switch
         else:
             self.rejoining.pause(host)
+            self.role.pause(host)
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         self.watches.watch_area(t_exec, host)
@@ -524,7 +550,8 @@ class AgentRuntime:
                     "rate_ref": self.guidance[1], "mode": self.run_state.mode,
                     "valves_open": sum(self.platform.valves),
                 }
-                | ({} if self.scenario is None else self.scenario.fields()),
+                | ({} if self.scenario is None else self.scenario.fields())
+                | ({"holder": self.role.holder()} if self.role.active else {}),
             )  # fmt: skip
         truth = self.platform.truth if Channel.TRUTH in recorded else None
         if truth is not None:

@@ -46,6 +46,7 @@ class AgentServices(Protocol):
     safety: Safety
     timebase: TimeBase[AgentId]
     pose: wire.Pose
+    guidance: tuple[float, float]
     maneuver: Callable[[float], tuple[float, float]]
 
     @property

@@ -1,0 +1,186 @@
+"""A stand-in for a lost leader, with real processes over two routers and the link
+emulator (40 ms one way): the leader (kiruna/knatte), its follower (rome/pinocchio)
+and the experiment's stand-in (rome/twin, a twin of knatte's preset). The leader is
+killed (SIGKILL) mid-run; the stand-in takes the role over and flies; the follower
+follows it without a step in its reference beyond its platform's limits and flies the
+run to its end. An outside subscriber captures every role message and status: at no
+instant do two agents claim the role."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from lifecycle import fedlab
+from loopback import FOLLOWER, LEADER, Agent, LabPair, Labs, Tap
+
+from federation.core import keys
+from federation.core.angles import wrap_angle
+from federation.runtime.agent.rejoining import limits_of
+from federation.runtime.recorder import read_messages
+
+pytestmark = pytest.mark.integration
+
+TWIN = "rome/twin"
+RUN = 14.0  # s of run time
+KILL_AT = 4.0  # s of run time at which the leader is killed
+AFTER = 1.5  # s of the leader's silence before the stand-in claims
+LOCKED = 25.0  # s: three agents start on shared cores, then their estimates lock
+
+
+def _experiment(path: Path) -> Path:
+    path.write_text(
+        f'name = "standin"\nduration = {RUN}\nstart_delay = 1.5\n'
+        f'stand_in = {{ agent = "{TWIN}", preset = "knatte", after = {AFTER} }}\n'
+        "[maneuver]\nstill = 1.0\nduration = 10.0\namplitude_deg = 20.0\n"
+        f'[[participants]]\nagent = "{LEADER}"\nrole = "leader"\nplatform = "knatte"\n'
+        f'[[participants]]\nagent = "{FOLLOWER}"\nrole = "follower"\nplatform = "pinocchio"\n'
+        f'follow = "{LEADER}"\n',
+        encoding="utf-8",
+    )
+    return path
+
+
+def _agents(labs: Labs, pair: LabPair, experiment: Path) -> dict[str, Agent]:
+    """The three agents, the follower recording to one file."""
+    at = {LEADER: pair.kiruna, FOLLOWER: pair.rome, TWIN: pair.rome}
+    return {
+        who: labs.agent(
+            who,
+            at[who],
+            "--experiment",
+            str(experiment),
+            "--sync-window",
+            "1",
+            record=who == FOLLOWER,
+        )
+        for who in (LEADER, FOLLOWER, TWIN)
+    }
+
+
+def _claims(tap: Tap[tuple[float, dict[str, Any]]]) -> list[tuple[float, dict[str, Any]]]:
+    """Every claim captured (role messages and statuses' ``claim``), with its receipt."""
+    out = []
+    for arrived, data in tap.received():
+        claim = data.get("claim") if "claim" in data or "mode" in data else data
+        if isinstance(claim, dict) and "holding" in claim:
+            out.append((arrived, claim))
+    return out
+
+
+def _never_two(claims: list[tuple[float, dict[str, Any]]]) -> dict[str, list[float]]:
+    """Each agent's first and last holding instants (its ``at``, reference time), judged
+    never to overlap another's: a claim held at ``at`` counts up to its ``until``
+    (open: ``at``) and no other agent's held claim lies in that span."""
+    held: dict[str, list[tuple[float, float]]] = {}
+    for _, c in claims:
+        if c["holding"]:
+            end = c["until"] if c["until"] is not None else c["at"]
+            held.setdefault(c["agent"], []).append((c["at"], max(end, c["at"])))
+    spans = {a: [min(s for s, _ in v), max(e for _, e in v)] for a, v in held.items()}
+    names = sorted(spans)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            (a0, a1), (b0, b1) = spans[a], spans[b]
+            assert a1 < b0 or b1 < a0, f"{a} held over {spans[a]}, {b} over {spans[b]}"
+    return spans
+
+
+def test_the_stand_in_takes_over_a_killed_leader_and_the_follower_finishes(
+    labs: Labs, tmp_path: Path
+) -> None:
+    pair = labs.pair(link=["--delay-ms", "40"])
+    experiment = _experiment(tmp_path / "exp.toml")
+    fed = keys.DEFAULT_FEDERATION
+    decode = lambda raw: (time.monotonic(), json.loads(raw))  # noqa: E731
+    agents = _agents(labs, pair, experiment)
+    leader, follower, twin = agents[LEADER], agents[FOLLOWER], agents[TWIN]
+    twin.wait_status(LOCKED)  # its router is up: the outside subscriber dials it
+    roles = Tap(pair.rome.endpoint, keys.all_of(fed, "role"), decode)
+    statuses = Tap(pair.rome.endpoint, keys.all_of(fed, "status"), decode)
+    try:
+        # Before any run: the stand-in acknowledges the leader, who holds; the follower
+        # follows it (no role hold), its estimate locked.
+        follower.until(
+            lambda s: (s.get("claim") or {}).get("follows") == LEADER
+            and (s.get("ready") or {}).get("reference_locked") and s["hold"] == "waiting",
+            timeout=LOCKED, what="following the leader, locked, waiting",
+        )  # fmt: skip
+        twin.until(lambda s: (s.get("claim") or {}).get("ack"), timeout=10, what="acknowledging")
+        started, _ = fedlab(
+            "ctl", "start", "--experiment", str(experiment), "--run-id", "standin",
+            "-e", pair.kiruna.endpoint,
+        )  # fmt: skip
+        assert started.returncode == 0, started.stdout + started.stderr
+        twin.until(lambda s: s["mode"] == "running", timeout=10, what="the twin in the run")
+        line = follower.until(
+            lambda s: (s.get("run_time") or 0.0) >= KILL_AT and s["hold"] is None,
+            timeout=15, what=f"flying at run time {KILL_AT} s",
+        )  # fmt: skip
+        leader.kill()
+        killed_at = line["run_time"]
+
+        took = twin.until(
+            lambda s: (s.get("claim") or {}).get("holding"), timeout=10, what="claimed"
+        )
+        print(f"leader killed at run time {killed_at:.2f} s; the twin: {took['claim']['why']}")
+        assert took["claim"]["epoch"] == 2
+        flying = follower.until(
+            lambda s: (s.get("claim") or {}).get("follows") == TWIN and s["hold"] is None,
+            timeout=10, what="following the twin, released",
+        )  # fmt: skip
+        print(f"the follower follows {TWIN} from run time {flying['run_time']:.2f} s")
+        done = follower.until(lambda s: s["mode"] == "done", timeout=RUN + 5, what="done")
+        assert done["run_time"] == pytest.approx(RUN) and done["follow"] == TWIN
+        twin_done = twin.until(lambda s: s["mode"] == "done", timeout=5, what="the twin done")
+        assert twin_done["claim"]["holding"]
+        follower.stop()
+    finally:
+        roles.close()
+        statuses.close()
+
+    claims = _claims(roles) + _claims(statuses)
+    spans = _never_two(claims)
+    print(f"holding spans (reference time): {spans}; {len(claims)} claims captured")
+    assert set(spans) == {LEADER, TWIN} and spans[LEADER][1] < spans[TWIN][0]
+    # Every claim the follower sent follows one agent or none, and only a holder.
+    follows = {c["follows"] for _, c in claims if c["agent"] == FOLLOWER}
+    assert follows <= {LEADER, TWIN, None}, follows
+
+    # The follower's reference: no step beyond its platform's limits, the holder named.
+    refs = [
+        r for r in read_messages(follower.record, ["/reference"])["/reference"]
+        if r["run_time"] is not None and r["mode"] == "running"
+    ]  # fmt: skip
+    limits = limits_of("pinocchio", None)
+    holders = [r.get("holder") for r in refs]
+    switch = holders.index(TWIN)
+    lost = max(i for i, h in enumerate(holders[:switch]) if h == LEADER)
+    # From the leader's last sample to 1 s into the twin's: the switch is captured.
+    window = [
+        i for i in range(lost, len(refs) - 1)
+        if refs[i]["host_monotonic"] < refs[switch]["host_monotonic"] + 1.0
+    ]  # fmt: skip
+    worst_rate = worst_accel = 0.0
+    for i, (a, b) in enumerate(itertools.pairwise(refs)):
+        dt = b["host_monotonic"] - a["host_monotonic"]
+        if dt <= 0:
+            continue
+        worst_rate = max(worst_rate, abs(wrap_angle(b["heading_ref"] - a["heading_ref"])) / dt)
+        if i in window:
+            worst_accel = max(worst_accel, abs(b["rate_ref"] - a["rate_ref"]) / dt)
+    print(
+        f"{len(refs)} reference samples; steepest {math.degrees(worst_rate):.2f} deg/s "
+        f"(limit {math.degrees(limits.max_rate):.2f}), {math.degrees(worst_accel):.2f} deg/s^2 "
+        f"(limit {math.degrees(limits.max_accel):.2f}) around the switch; "
+        f"holders {sorted(set(map(str, holders)))}"
+    )
+    # A step would be a jump over one sample: 0.05 s apart, any jump over 1.4 deg.
+    assert worst_rate <= limits.max_rate * 1.05
+    assert worst_accel <= limits.max_accel * 1.05
+    assert all(h != LEADER for h in holders[switch:])  # never back to a dead leader
