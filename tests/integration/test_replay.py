@@ -1,7 +1,9 @@
-"""``fedlab replay`` against a live run on loopback: a leader's short run is recorded,
-then replayed as a ghost that a live follower tracks. The follower receives the
-ghost's poses stamped on the live reference clock, its reference trails the recorded
-heading by a few ms at most, the ghost's status says it is a replay, and a second
+"""``fedlab replay`` against a live run on loopback: a leader and a follower fly the
+paper's maneuver live, both recorded; the leader's recording is then replayed as a
+ghost that a new live follower tracks. The follower receives the ghost's poses
+stamped on the live reference clock, its reference trails the recorded heading by a
+few ms at most, its heading's RMS error from the leader's is within 1.5 times the one
+it had against the live leader, the ghost's status says it is a replay, and a second
 replay under the live ghost's name is refused (exit 2)."""
 
 from __future__ import annotations
@@ -26,15 +28,50 @@ from federation.runtime.replayfile import Recording
 pytestmark = pytest.mark.integration
 
 
-def experiment(path: Path, agent: str, duration: float) -> Path:
-    """A one-participant experiment: ``agent`` leads (its clock is reference time)."""
+MOVING = (0.7, 3.8)  # s of run time the leader turns in (the maneuver's still 0.5 s before)
+
+
+def experiment(path: Path, agent: str, duration: float, follower: str | None = None) -> Path:
+    """An experiment ``agent`` leads (its clock is reference time); ``follower``, if
+    given, follows it."""
+    follows = (
+        f'[[participants]]\nagent = "{follower}"\nrole = "follower"\nplatform = "pinocchio"\n'
+        f'follow = "{agent}"\n'
+        if follower
+        else ""
+    )
     path.write_text(
         f'name = "replay"\nduration = {duration}\nstart_delay = 1.0\n'
         "[maneuver]\nstill = 0.5\nduration = 10.0\namplitude_deg = 20.0\n"
-        f'[[participants]]\nagent = "{agent}"\nrole = "leader"\nplatform = "knatte"\n',
+        f'[[participants]]\nagent = "{agent}"\nrole = "leader"\nplatform = "knatte"\n' + follows,
         encoding="utf-8",
     )
     return path
+
+
+def ready(line: dict[str, Any]) -> bool:
+    """Waiting for a start, its platform's fix taken and the reference clock locked."""
+    checks = line.get("ready") or {}
+    return (
+        line["mode"] == "waiting"
+        and bool(checks.get("platform"))
+        and bool(checks.get("reference_locked"))
+    )
+
+
+def heading_rms_deg(follower: Path, leader: Path) -> float:
+    """RMS (deg) of the follower's heading sent minus the leader's at the same run time,
+    over the maneuver (``MOVING``), from the two recordings."""
+    led = list(Recording(leader, LEADER).poses())
+    flown = [p for p in Recording(follower, FOLLOWER).poses() if p.run_time is not None]
+    t_led = np.array([p.run_time for p in led])
+    h_led = np.unwrap([p.pose.heading for p in led])
+    t = np.array([p.run_time for p in flown])
+    h = np.unwrap([p.pose.heading for p in flown])
+    inside = (t >= MOVING[0]) & (t <= MOVING[1])
+    assert inside.sum() > 40, f"{follower.name}: {inside.sum()} poses in the maneuver"
+    error = h[inside] - np.interp(t[inside], t_led, h_led)
+    return float(np.degrees(np.sqrt(np.mean(error**2))))
 
 
 def start(exp: Path, run_id: str, endpoint: str) -> None:
@@ -83,23 +120,30 @@ class Heard:
 
 def test_a_replayed_leader_drives_a_live_follower(labs: Labs, tmp_path: Path) -> None:
     router = labs.router("kiruna")
-    # A short recorded run of the leader.
-    leader = labs.agent(
-        LEADER, router, "--experiment", str(experiment(tmp_path / "rec.toml", LEADER, 4.0)),
-        record=True,
+    # A short live run, both recorded: the leader's recording is the one replayed.
+    exp = experiment(tmp_path / "rec.toml", LEADER, 4.0, follower=FOLLOWER)
+    leader = labs.agent(LEADER, router, "--experiment", str(exp), record=True)
+    live = labs.agent(
+        FOLLOWER, router, "--experiment", str(exp), "--sync-window", "2",
+        role="follower", follow=LEADER, record=True,
     )  # fmt: skip
-    leader.until(lambda s: s["mode"] == "waiting", timeout=10, what="waiting")
-    start(tmp_path / "rec.toml", "recorded", router.endpoint)
-    leader.until(lambda s: s["mode"] == "done", timeout=10, what="done")
-    assert leader.stop() == 0
+    for agent in (leader, live):  # a start needs both platforms' fix and a locked estimate
+        agent.until(ready, timeout=15, what="ready")
+    start(exp, "recorded", router.endpoint)
+    for agent in (leader, live):
+        agent.until(lambda s: s["mode"] == "done", timeout=10, what="done")
+    assert leader.stop() == 0 and live.stop() == 0
     recorded = list(Recording(leader.record, LEADER).poses())
     assert recorded and recorded[-1].run_time > 3.5
+    # Read now: the follower flown against the replay records to the same file.
+    against_live = heading_rms_deg(live.record, leader.record)
 
-    # Live: a follower of the recorded leader's name, its own clock the reference.
+    # Live: a follower of the recorded leader's name, its own clock the reference, on the
+    # platform it flew against the live leader.
     config = tmp_path / "follower.toml"
     config.write_text(
         f'lab = "rome"\nname = "pinocchio"\nrole = "follower"\nfollow = "{LEADER}"\n'
-        f'reference = "{FOLLOWER}"\n',
+        f'reference = "{FOLLOWER}"\nplatform = "pinocchio"\n',
         encoding="utf-8",
     )
     follower = labs.agent(
@@ -153,11 +197,18 @@ def test_a_replayed_leader_drives_a_live_follower(labs: Labs, tmp_path: Path) ->
     reference = [
         m for m in read_messages(follower.record)["/reference"] if m.get("run_time") is not None
     ]
-    moving = (0.7, 3.8)
     trail = best_shift(
         [m["run_time"] for m in reference], np.unwrap([m["heading_ref"] for m in reference]),
-        times, np.unwrap(heading), moving,
+        times, np.unwrap(heading), MOVING,
     )  # fmt: skip
     assert trail is not None
     print(f"follower reference trails the recorded heading by {trail * 1e3:.2f} ms")
     assert abs(trail) < 0.005
+    # The same leader's maneuver, live and replayed: the follower tracks both alike.
+    against_replay = heading_rms_deg(follower.record, leader.record)
+    ratio = against_replay / against_live
+    print(
+        f"follower heading RMS error over the maneuver: {against_live:.4f} deg against the "
+        f"live leader, {against_replay:.4f} deg against its replay (ratio {ratio:.3f})"
+    )
+    assert against_replay <= 1.5 * against_live
