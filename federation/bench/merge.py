@@ -13,14 +13,16 @@ deterministic from ``seed`` (log times included) and stops once its files hold
 ``size`` bytes in all.
 
 Each repeat then runs two child processes on the same files, one after the other: the
-merge (``python -m federation merge RUN_DIR --out FILE``, the command itself) and the
+merge (``fedlab merge RUN_DIR --out FILE``: :func:`federation.cli.main` in a fresh
+interpreter) and the
 baseline, a plain streaming read of every message of every file with the mcap library
 (``make_reader(...).iter_messages(log_time_order=True)``, what the merge's second pass
-reads). Of each: the peak resident memory (``ru_maxrss`` of that child alone, from
-``os.wait4``), its resident memory sampled from ``/proc`` over the run (the largest of
-each tenth of the run: a merge whose memory grows with the messages read shows it
-there), the wall time and MiB/s (recordings' bytes read over wall time). The files
-were just written: both read them from the page cache.
+reads). Of each: the peak resident memory (``VmHWM`` as the child ends: its own since
+``exec``; ``ru_maxrss`` would also count the parent's pages it was forked with), its
+resident memory sampled from ``/proc`` over the run (the largest of each tenth of the
+run: a merge whose memory grows with the messages read shows it there), the wall time
+and MiB/s (the recordings' bytes over the wall time). The files were just written:
+both read them from the page cache.
 
 The budget (:data:`BUDGET_MIB`) is fixed, not a share of the run's size: the merge
 keeps, per agent, a reorder window of ``REORDER_S`` of its messages, the offset
