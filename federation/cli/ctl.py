@@ -37,7 +37,7 @@ def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "ctl",
         help="start, freeze, resume, abort or reset a run; admit an agent into one under "
-        "way; status: who is ready",
+        "way; hand the leader's role back; status: who is ready",
         formatter_class=Formatter,
         description=(
             "start checks every participant first (present, waiting, synchronized with the\n"
@@ -53,7 +53,9 @@ def add(sub: Subparsers) -> None:
             "delays they report): every agent freezes (resumes) at that instant, at the same\n"
             "run time (one receiving a resume over 1 s late ignores it; a freeze late freezes\n"
             "at once). admit LAB/NAME lets an agent (re)started mid-run whose rejoin policy is\n"
-            "operator join the run under way. status prints the preflight table (and who\n"
+            "operator join the run under way. handback LAB/NAME hands the leader's role back\n"
+            "to a leader its stand-in deposed (it holds until then) and waits until it holds\n"
+            "it again. status prints the preflight table (and who\n"
             "waits to be admitted). Exit code 1\n"
             "if an agent did not confirm (the table says why) or the router is unreachable."
         ),
@@ -67,15 +69,16 @@ def add(sub: Subparsers) -> None:
             "      -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl abort -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl admit rome/pinocchio -e tcp/127.0.0.1:7447\n"
+            "  fedlab ctl handback kiruna/knatte -e tcp/127.0.0.1:7447\n"
             "  fedlab ctl reset --experiment deploy/experiments/attitude-tracking.toml \\\n"
             "      -e tcp/127.0.0.1:7447"
         ),
     )
     p.add_argument(
         "action",
-        choices=[*control.ACTIONS, "admit", "status"],
+        choices=[*control.ACTIONS, "admit", "handback", "status"],
         help="start, freeze or resume at a common instant; abort, reset on receipt; admit "
-        "LAB/NAME into the run under way; status",
+        "LAB/NAME into the run under way; handback LAB/NAME (the leader); status",
     )
     p.add_argument(
         "agents",
@@ -83,7 +86,8 @@ def add(sub: Subparsers) -> None:
         type=agent_id,
         metavar="LAB/NAME",
         help="admit: the agents to let rejoin the run under way (their rejoin policy is "
-        "operator, a real platform's default; ctl status shows who waits for it)",
+        "operator, a real platform's default; ctl status shows who waits for it); handback: "
+        "the one leader to hand its role back to",
     )
     p.add_argument("--experiment", type=Path, metavar="FILE", help="experiment file (TOML)")
     add_federation_flag(p, "federation name (an experiment's own wins)")
@@ -168,11 +172,17 @@ def run(args: argparse.Namespace) -> int:
 
     console = Console(stderr=args.json, width=max(Console().width, 120))
     experiment = load_experiment(args.experiment) if args.experiment else None
-    if args.agents and args.action != "admit":
-        console.print(f"[red]{args.action} names no agents (only admit does)[/red]")
+    if args.agents and args.action not in ("admit", "handback"):
+        console.print(f"[red]{args.action} names no agents (only admit and handback do)[/red]")
         return 2
     if args.action == "admit" and not args.agents:
         console.print("[red]admit names the agents to admit: fedlab ctl admit LAB/NAME[/red]")
+        return 2
+    if args.action == "handback" and len(args.agents) != 1:
+        console.print(
+            "[red]handback names the one leader to hand the role back to: "
+            "fedlab ctl handback LAB/NAME[/red]"
+        )
         return 2
     session = open_session(args, stop_on_signals())
     if session is None:
@@ -180,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
     with session:
         if args.action == "admit":
             return run_admit(args, session, experiment, console)
+        if args.action == "handback":
+            return run_handback(args, session, experiment, console)
         if args.action == "status":
             rows = control.status(
                 session, federation=args.federation, experiment=experiment,
@@ -246,6 +258,33 @@ def run_admit(args: argparse.Namespace, session: Any, experiment: Any, console: 
         at = "" if joined is None else f"{joined:.3f} s"
         table.add_row(agent, mode, at, result.reasons.get(agent, ""))
     console.print(table)
+    return 0 if result.ok else 1
+
+
+def run_handback(args: argparse.Namespace, session: Any, experiment: Any, console: Any) -> int:
+    """``fedlab ctl handback LAB/NAME``: whether the leader holds its role again, and why
+    not."""
+    from federation.runtime.handback import handback
+    from federation.runtime.session import ConnectError
+
+    federation = experiment.federation if experiment is not None else args.federation
+    try:
+        result = handback(
+            session, args.agents[0], federation=federation, wait=max(args.wait, 3.0),
+            discover=args.discover, progress=console.print,
+        )  # fmt: skip
+    except ConnectError as error:
+        console.print(f"[red]{error}[/red]")
+        return 1
+    if args.json:
+        print(json.dumps(result.as_json(), indent=1))
+    elif result.ok:
+        console.print(
+            f"{result.leader} holds the leader's role again (epoch {result.epoch}; "
+            f"{result.stand_in or 'its stand-in'} released it) after {result.elapsed:.2f} s"
+        )
+    else:
+        console.print(f"[red]{result.leader} does not hold the role: {result.why}[/red]")
     return 0 if result.ok else 1
 
 

@@ -276,6 +276,17 @@ class Keeper:
             self.acked = ack.at if self.acked is None else max(self.acked, ack.at)
         self.top = max(self.top, claim.top, claim.epoch)
 
+    def time_restarted(self) -> None:
+        """Reference time began afresh (the reference's clock restarted, so it reads
+        earlier than before): the instants heard are on another time base. They are
+        forgotten, epochs kept: a stand-in hears the leader ask again before it may
+        claim and keeps its quiet period again before it acknowledges; a leader asks
+        for a new acknowledgement. Each only waits longer: exclusivity holds."""
+        self.heard, self.heard_epoch, self.acked, self.born = None, 0, None, None
+        if self.release_at is not None:
+            self.release_at = None
+            self.holding, self.why = False, "released the role: reference time began afresh"
+
     def hand_back(self, to: str, now: float | None) -> str | None:
         """An operator hands the role back to ``to``: why it changes nothing here, or
         None."""

@@ -4,7 +4,8 @@ and the experiment's stand-in (rome/twin, a twin of knatte's preset). The leader
 killed (SIGKILL) mid-run; the stand-in takes the role over and flies; the follower
 follows it without a step in its reference beyond its platform's limits and flies the
 run to its end. An outside subscriber captures every role message and status: at no
-instant do two agents claim the role."""
+instant do two agents claim the role. The leader started again comes back deposed and
+held until ``fedlab ctl handback``, after which it holds the role and the twin none."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from lifecycle import fedlab
+from lifecycle import fedlab, runs_dir
 from loopback import FOLLOWER, LEADER, Agent, LabPair, Labs, Tap
 
 from federation.core import keys
@@ -27,8 +28,8 @@ from federation.runtime.recorder import read_messages
 pytestmark = pytest.mark.integration
 
 TWIN = "rome/twin"
-RUN = 14.0  # s of run time
-KILL_AT = 4.0  # s of run time at which the leader is killed
+RUN = 10.0  # s of run time
+KILL_AT = 3.0  # s of run time at which the leader is killed
 AFTER = 1.5  # s of the leader's silence before the stand-in claims
 LOCKED = 25.0  # s: three agents start on shared cores, then their estimates lock
 
@@ -49,6 +50,7 @@ def _experiment(path: Path) -> Path:
 def _agents(labs: Labs, pair: LabPair, experiment: Path) -> dict[str, Agent]:
     """The three agents, the follower recording to one file."""
     at = {LEADER: pair.kiruna, FOLLOWER: pair.rome, TWIN: pair.rome}
+    runs = {who: ("--runs-dir", str(runs_dir(labs, who))) for who in (LEADER, TWIN)}
     return {
         who: labs.agent(
             who,
@@ -57,6 +59,7 @@ def _agents(labs: Labs, pair: LabPair, experiment: Path) -> dict[str, Agent]:
             str(experiment),
             "--sync-window",
             "1",
+            *runs.get(who, ()),
             record=who == FOLLOWER,
         )
         for who in (LEADER, FOLLOWER, TWIN)
@@ -73,17 +76,19 @@ def _claims(tap: Tap[tuple[float, dict[str, Any]]]) -> list[tuple[float, dict[st
     return out
 
 
-def _never_two(claims: list[tuple[float, dict[str, Any]]]) -> dict[str, list[float]]:
-    """Each agent's first and last holding instants (its ``at``, reference time), judged
-    never to overlap another's: a claim held at ``at`` counts up to its ``until``
-    (open: ``at``) and no other agent's held claim lies in that span."""
+def _never_two(
+    claims: list[tuple[float, dict[str, Any]]], on_one_time_base: set[str]
+) -> dict[str, list[float]]:
+    """Each agent's holding span per epoch (``AGENT#EPOCH``: its first ``at`` to its last
+    ``until``, or ``at`` when open; reference time), judged never to overlap another's
+    among ``on_one_time_base`` (a restarted reference counts its time afresh)."""
     held: dict[str, list[tuple[float, float]]] = {}
     for _, c in claims:
         if c["holding"]:
             end = c["until"] if c["until"] is not None else c["at"]
-            held.setdefault(c["agent"], []).append((c["at"], max(end, c["at"])))
+            held.setdefault(f"{c['agent']}#{c['epoch']}", []).append((c["at"], max(end, c["at"])))
     spans = {a: [min(s for s, _ in v), max(e for _, e in v)] for a, v in held.items()}
-    names = sorted(spans)
+    names = sorted(a for a in spans if a in on_one_time_base)
     for i, a in enumerate(names):
         for b in names[i + 1 :]:
             (a0, a1), (b0, b1) = spans[a], spans[b]
@@ -140,14 +145,48 @@ def test_the_stand_in_takes_over_a_killed_leader_and_the_follower_finishes(
         twin_done = twin.until(lambda s: s["mode"] == "done", timeout=5, what="the twin done")
         assert twin_done["claim"]["holding"]
         follower.stop()
+
+        # The leader started again: it sees epoch 2 and is deposed, held, saying how it
+        # comes back; after the handback it holds epoch 3 and the twin holds nothing.
+        begun = time.monotonic()
+        leader.start()
+        deposed = leader.until(
+            lambda s: s["host_monotonic"] > begun
+            and (s.get("claim") or {}).get("why", "").startswith("deposed"),
+            timeout=20, what="deposed",
+        )  # fmt: skip
+        assert deposed["hold"] == "role" and not deposed["claim"]["holding"]
+        assert f"fedlab ctl handback {LEADER}" in deposed["claim"]["why"]
+        handed, took_s = fedlab("ctl", "handback", LEADER, "-e", pair.kiruna.endpoint)
+        print(handed.stdout.strip())
+        assert handed.returncode == 0, handed.stdout + handed.stderr
+        assert "holds the leader's role again (epoch 3" in handed.stdout
+        back = leader.until(
+            lambda s: (s.get("claim") or {}).get("holding"), timeout=5, what="holds again"
+        )
+        assert back["claim"]["epoch"] == 3
+        released = twin.until(
+            lambda s: not s["claim"]["holding"] and (s["claim"]["ack"] or {}).get("epoch") == 3,
+            timeout=5, what="the twin released, acknowledging epoch 3",
+        )  # fmt: skip
+        print(f"handed back in {took_s:.2f} s: {released['claim']['why']}")
     finally:
         roles.close()
         statuses.close()
 
     claims = _claims(roles) + _claims(statuses)
-    spans = _never_two(claims)
+    first, second, third = f"{LEADER}#1", f"{TWIN}#2", f"{LEADER}#3"
+    spans = _never_two(claims, {first, second})
     print(f"holding spans (reference time): {spans}; {len(claims)} claims captured")
-    assert set(spans) == {LEADER, TWIN} and spans[LEADER][1] < spans[TWIN][0]
+    assert set(spans) == {first, second, third}
+    assert spans[first][1] < spans[second][0] < spans[second][1]
+    # The restarted leader counts reference time afresh: epochs 2 and 3 are ordered as
+    # the outside subscriber received them.
+    received = {
+        key: [t for t, c in claims if c["holding"] and f"{c['agent']}#{c['epoch']}" == key]
+        for key in (second, third)
+    }
+    assert max(received[second]) < min(received[third])
     # Every claim the follower sent follows one agent or none, and only a holder.
     follows = {c["follows"] for _, c in claims if c["agent"] == FOLLOWER}
     assert follows <= {LEADER, TWIN, None}, follows
@@ -159,6 +198,7 @@ def test_the_stand_in_takes_over_a_killed_leader_and_the_follower_finishes(
     ]  # fmt: skip
     limits = limits_of("pinocchio", None)
     holders = [r.get("holder") for r in refs]
+    assert LEADER in holders and TWIN in holders
     switch = holders.index(TWIN)
     lost = max(i for i, h in enumerate(holders[:switch]) if h == LEADER)
     # From the leader's last sample to 1 s into the twin's: the switch is captured.

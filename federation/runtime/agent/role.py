@@ -113,6 +113,7 @@ class RoleKeeping:
         self.leader_pose: wire.PoseSample | None = None  # a stand-in's: the last shared
         self.capture: Capture | None = None
         self._last_host: float | None = None
+        self._last_t_sim: float | None = None  # reference time at the last step
         # Called when a follower follows another agent: its samples are on another
         # clock, so what was estimated from the last one's is forgotten.
         self.switched: Callable[[], None] = lambda: None
@@ -198,6 +199,10 @@ class RoleKeeping:
         if self.kind is None:
             return
         bound = self.bound(t_exec)
+        if t_sim is not None:
+            last, self._last_t_sim = self._last_t_sim, t_sim
+            if last is not None and t_sim < last - self.terms.skew:
+                self._time_restarted(last, t_sim)
         with self._lock:
             news, self._news = self._news, []
             heard = tuple(self._heard.values())
@@ -233,6 +238,18 @@ class RoleKeeping:
         if host >= self._next_send and self._publisher is not None:
             self._next_send = host + PERIOD
             self._publisher.put(json.dumps(claim.as_dict()))
+
+    def _time_restarted(self, last: float, now: float) -> None:
+        """Reference time went back (the reference restarted): every instant heard is on
+        another time base, forgotten (:meth:`~federation.core.standin.Keeper.time_restarted`)."""
+        log.warning(
+            "role: reference time went back from %.3f to %.3f s: claims heard forgotten", last, now
+        )
+        with self._lock:
+            self._heard.clear()
+            self._news.clear()
+            if self.keeper is not None:
+                self.keeper.time_restarted()
 
     def _hold(self, held: bool, t_exec: float, host: float, why: str) -> bool:
         """The ``role`` hold set (``held``) or lifted; True if it was just lifted."""
