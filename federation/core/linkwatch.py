@@ -1,8 +1,8 @@
 """The link watch: safe hold while the followed pose is stale, with a threshold
 measured on the link; poses too old to steer by; peers alive but silent. Free of I/O.
 
-A follower steers by the poses it receives, dead-reckoned over short gaps
-(:func:`agents.guidance.track_heading`). When they stop coming, steering on the
+A follower steers by the poses it receives, predicted over short gaps
+(:class:`agents.guidance.HeadingEstimator`). When they stop coming, steering on the
 last one would fly blind, so it holds every valve closed:
 
 - **hold** once no pose has arrived for more than the threshold :math:`T`
