@@ -165,6 +165,17 @@ def preflight_table(rows: list[Row], title: str) -> Any:
     return table
 
 
+def _agents_wrong(action: str, agents: list[Any]) -> str | None:
+    """Why the agents named do not fit ``action`` (None: they do)."""
+    if agents and action not in ("admit", "handback"):
+        return f"{action} names no agents (only admit and handback do)"
+    if action == "admit" and not agents:
+        return "admit names the agents to admit: fedlab ctl admit LAB/NAME"
+    if action == "handback" and len(agents) != 1:
+        return "handback names one leader: fedlab ctl handback LAB/NAME"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -172,17 +183,9 @@ def run(args: argparse.Namespace) -> int:
 
     console = Console(stderr=args.json, width=max(Console().width, 120))
     experiment = load_experiment(args.experiment) if args.experiment else None
-    if args.agents and args.action not in ("admit", "handback"):
-        console.print(f"[red]{args.action} names no agents (only admit and handback do)[/red]")
-        return 2
-    if args.action == "admit" and not args.agents:
-        console.print("[red]admit names the agents to admit: fedlab ctl admit LAB/NAME[/red]")
-        return 2
-    if args.action == "handback" and len(args.agents) != 1:
-        console.print(
-            "[red]handback names the one leader to hand the role back to: "
-            "fedlab ctl handback LAB/NAME[/red]"
-        )
+    wrong = _agents_wrong(args.action, args.agents)
+    if wrong is not None:
+        console.print(f"[red]{wrong}[/red]")
         return 2
     session = open_session(args, stop_on_signals())
     if session is None:

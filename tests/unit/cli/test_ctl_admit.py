@@ -31,8 +31,10 @@ def _no_session(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     ("argv", "why"),
     [
         (["ctl", "admit"], "admit names the agents to admit"),
-        (["ctl", "start", "rome/p"], "start names no agents (only admit does)"),
+        (["ctl", "start", "rome/p"], "start names no agents (only admit and handback do)"),
         (["ctl", "abort", "rome/p"], "abort names no agents"),
+        (["ctl", "handback"], "handback names one leader: fedlab ctl handback LAB/NAME"),
+        (["ctl", "handback", "rome/p", "kiruna/k"], "handback names one leader"),
     ],
 )
 def test_only_admit_names_agents_and_it_must(
@@ -67,3 +69,13 @@ def test_preflight_s_table_says_who_waits_to_be_admitted() -> None:
     assert "waiting: to be admitted to r1 (ctl admit)" in admitted
     running = next(line for line in text.splitlines() if "kiruna/k" in line)
     assert "admitted" not in running
+
+
+def test_a_handback_is_confirmed_by_the_leader_holding_a_newer_epoch() -> None:
+    from federation.runtime.handback import holds_role
+
+    held = {"claim": {"kind": "leader", "holding": True, "epoch": 3}}
+    assert holds_role(held) == 3 and holds_role(held, above=2) == 3
+    assert holds_role(held, above=3) is None  # the epoch it held before: not handed back
+    assert holds_role({"claim": {"holding": False, "epoch": 4}}) is None
+    assert holds_role({"claim": None}) is None and holds_role(None) is None
