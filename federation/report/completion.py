@@ -15,6 +15,13 @@ the rest of the run as a new segment. Each segment runs from its ``started`` (ru
 time 0) or ``rejoined`` event to the largest run time it recorded; between two
 segments is a gap, of run time the agent did not fly. A participant with a gap is not
 complete either, even if it ended ``done``: it flew the run's end, not all of it.
+
+In an experiment with a stand-in (:mod:`federation.core.standin`), an agent's
+``/reference`` rows name the holder of the leader's role its reference came from
+(``holder``: the leader, its stand-in, or none). The run time during which that holder
+was neither the leader nor nobody is a stand-in period (``stand_in_s``: [from, to,
+holder]): a follower's figures then are against the stand-in, and the stand-in's own
+rows mark the time it flew the leader's role.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ __all__ = [
     "incomplete_notes",
     "participants",
     "segments",
+    "stand_in_periods",
     "summary_lines",
 ]
 
@@ -76,11 +84,31 @@ def gaps(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return [(a[1], b[0]) for a, b in itertools.pairwise(spans) if b[0] > a[1]]
 
 
-def completion(rec: AgentRecording) -> dict[str, Any]:
+def stand_in_periods(rec: AgentRecording, leader: str | None) -> list[list[Any]] | None:
+    """The run time ``rec``'s reference came from a holder of the leader's role other
+    than ``leader`` (and none), [from, to, holder] in order: consecutive ``/reference``
+    rows of one holder make one period. None: its rows name no holder (no stand-in)."""
+    rows = [
+        r for r in rec.channel(Channel.REFERENCE)
+        if "holder" in r and r.get("mode") in _RUN_MODES and _numbers([r.get("run_time")])
+    ]  # fmt: skip
+    if not rows:
+        return None
+    periods: list[list[Any]] = []
+    for holder, run in itertools.groupby(rows, key=lambda r: r.get("holder")):
+        times = _numbers([r.get("run_time") for r in run])
+        if holder is not None and holder != leader:
+            periods.append([min(times), max(times), str(holder)])
+    return periods
+
+
+def completion(rec: AgentRecording, leader: str | None = None) -> dict[str, Any]:
     """One participant: ``reached_s`` (run time reached, None if it never ran),
     ``complete`` (its run ended ``done`` with no gap), ``ended`` (``done``, ``aborted``,
     or ``stopped early``: no end recorded), ``segments_s`` (the run time each segment
-    flew, [from, to] s) and ``gaps_s`` (the run time between them, [from, to] s)."""
+    flew, [from, to] s), ``gaps_s`` (the run time between them, [from, to] s) and, if
+    its reference names the role's holder, ``stand_in_s`` (:func:`stand_in_periods`
+    with the run's ``leader``)."""
     control = rec.channel(Channel.CONTROL)
     numbers = _reached(rec.messages)
     ends = [str(e["event"]) for e in control if e.get("event") in ENDS]
@@ -93,7 +121,12 @@ def completion(rec: AgentRecording) -> dict[str, Any]:
         "ended": ended,
         "segments_s": [list(span) for span in spans],
         "gaps_s": [list(hole) for hole in holes],
-    }
+    } | _stand_in(rec, leader)
+
+
+def _stand_in(rec: AgentRecording, leader: str | None) -> dict[str, Any]:
+    periods = stand_in_periods(rec, leader)
+    return {} if periods is None else {"stand_in_s": periods}
 
 
 NO_RECORDING: dict[str, Any] = {
@@ -117,19 +150,28 @@ def participants(run: Run) -> dict[str, dict[str, Any]]:
     """:func:`completion` of every participant (one without a recording: ``ended``
     ``no recording``, never complete)."""
     out: dict[str, dict[str, Any]] = {}
+    leader = run.leader
     for agent in _named(run):
         rec = run.agents.get(agent)
         if rec is None:
             out[agent] = dict(NO_RECORDING)
         else:
-            out[agent] = completion(rec)
+            out[agent] = completion(rec, leader)
     return out
 
 
 def incomplete_notes(parts: dict[str, dict[str, Any]]) -> list[str]:
     """A note for each participant that ran but did not complete: its figures are of
-    the part it flew."""
-    notes = []
+    the part it flew; and one for each that flew stand-in periods: whose reference it
+    then had."""
+    notes = [
+        f"{agent}'s reference came from the stand-in {holder} from {a:.1f} to {b:.1f} s "
+        "of run time (the leader lost): its figures then are against the stand-in"
+        if holder != agent
+        else f"{agent} held the leader's role from {a:.1f} to {b:.1f} s of run time"
+        for agent, part in parts.items()
+        for a, b, holder in part.get("stand_in_s") or []
+    ]
     for agent, part in parts.items():
         if part["complete"] or part["reached_s"] is None:
             continue
@@ -176,5 +218,9 @@ def summary_lines(parts: dict[str, dict[str, Any]], duration: float | None) -> l
             if holes
             else ""
         )
-        lines.append(f"{agent}: {shown}, {_how(entry)}{flown}")
+        stood = "".join(
+            f", stand-in {holder} {a:.1f} to {b:.1f} s"
+            for a, b, holder in entry.get("stand_in_s") or []
+        )
+        lines.append(f"{agent}: {shown}, {_how(entry)}{flown}{stood}")
     return lines
