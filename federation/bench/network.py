@@ -173,10 +173,14 @@ SCENARIOS = {
 
 
 # -- the outside subscriber ------------------------------------------------------------
-def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
+def count_samples(
+    endpoint: str, key: str, out: Path, seconds: float, config: str | None = None
+) -> None:
     """A raw zenoh-python client subscribing to ``key`` on ``endpoint``, as a third
     party would (Zenoh's default config, nothing of fedlab's): writes the samples
-    counted per key and per second to ``out`` (JSON) every second."""
+    counted per key and per second to ``out`` (JSON) every second. ``config``: a Zenoh
+    config file to open instead (``endpoint`` unused), for routers that admit only
+    known identities (the generated deployment's: an operator's config)."""
     import signal
     import threading
 
@@ -184,10 +188,13 @@ def count_samples(endpoint: str, key: str, out: Path, seconds: float) -> None:
 
     from federation.runtime.signals import stop_event
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
+    if config is not None:
+        conf = zenoh.Config.from_file(config)
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        conf.insert_json5("scouting/multicast/enabled", "false")
     counts: dict[str, int] = {}
     arrivals: list[float] = []
     lock = threading.Lock()
