@@ -38,7 +38,6 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -51,7 +50,17 @@ from federation.core.linkwatch import MAX_STALE
 from federation.deploy import limits
 from federation.fleet.launch import wait_for
 from federation.link.packet import PacketOptions
-from federation.testbed import ADDR, PREFIX, Testbed, leftover_namespaces, missing
+from federation.testbed import PREFIX, Testbed, deployment, leftover_namespaces, missing
+from federation.testbed.deployment import (
+    AGENTS,
+    KIRUNA_PORTS,
+    Deployment,
+    federation_toml,
+    locked_and_recording,
+    start_agent,
+    start_routers,
+    start_run,
+)
 from schemas.federation import load_federation
 
 WHY = missing()
@@ -62,7 +71,6 @@ pytestmark = [
 ]
 
 INSIDER = Path(__file__).with_name("insider.py")
-PORT = 7447
 SESSIONS = 10
 FLOOD_S = float(os.environ.get("FEDLAB_INSIDER_FLOOD_S", "1"))  # per session; the issue: 2
 FLOOD_RATE = 50.0  # rounds a second: a 1 MB query, a 1 MB pose and a 1 MB status each
@@ -72,66 +80,10 @@ ONE_WAY = 0.040  # s, the paper's path
 WAN = PacketOptions(delay=ONE_WAY, jitter=0.003)
 
 
-def federation_toml(runs: Path) -> str:
-    """Kiruna public (certificates), Rome behind its NAT (passwords) dialling Kiruna;
-    each agent records its runs under ``runs`` and locks its sync after 2 s."""
-
-    def agent(name: str, role: str, more: str = "") -> str:
-        return (
-            f'agents.{name} = {{ role = "{role}"{more}, runs_dir = "{runs / name}", '
-            "settings = { sync_window = 2.0 } }"
-        )
-
-    return f"""
-federation = "default"
-
-[labs.kiruna]
-auth = "certificate"
-listen = ["tls/{ADDR.kiruna}:{PORT}"]
-endpoint = "tls/{ADDR.kiruna}:{PORT}"
-operators = ["ctl"]
-{agent("knatte", "leader")}
-agents.evil = {{ role = "member" }}
-
-[labs.rome]
-auth = "password"
-listen = ["tls/{ADDR.rome}:{PORT}"]
-agent_endpoint = "tls/{ADDR.rome}:{PORT}"
-dial = ["kiruna"]
-operators = ["ctl"]
-{agent("pinocchio", "follower", f', follow = "{LEADER}"')}
-"""
-
-
-@dataclass
-class Deployment:
-    """The generated folders (``dir/<lab>``) and the root their files name."""
-
-    dir: Path
-    root: Path
-
-    def binds(self, lab: str) -> list[tuple[Path, Path]]:
-        """Lab ``lab``'s folder installed at the root, for its processes alone."""
-        return [(self.dir / lab, self.root)]
-
-    def installed(self, *parts: str) -> str:
-        """A generated file as a lab's process sees it."""
-        return str(self.root.joinpath(*parts))
-
-
 def generate(tmp: Path) -> Deployment:
-    source = tmp / "federation.toml"
-    runs = tmp / "runs"
-    source.write_text(federation_toml(runs))
-    root = tmp / "root"
-    root.mkdir()
-    done = subprocess.run(
-        [sys.executable, "-m", "federation", "deploy", "generate", str(source),
-         "--out", str(tmp / "fed"), "--root", str(root)],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stdout + done.stderr
-    return Deployment(tmp / "fed", root)
+    """The testbed's federation, each agent locking its sync after 2 s, generated."""
+    settings = {name: {"sync_window": 2.0} for name in AGENTS}
+    return deployment.generate(tmp, federation_toml(tmp / "runs", settings))
 
 
 @pytest.fixture(autouse=True)
@@ -178,11 +130,10 @@ def stage_bytes(bed: Testbed, after: float) -> tuple[float, int]:
     return float(snaps[0]["seconds"]), int(snaps[0]["backward"]["bytes"])
 
 
-def locked_and_recording(agent: Agent) -> bool:
-    """The agent's last status line says it may start: its reference clock locked, recording."""
-    line = agent.last()
-    ready = (line or {}).get("ready") or {}
-    return bool(line and ready.get("reference_locked", True) and ready.get("recording"))
+def ready(agent: Agent) -> bool:
+    """The agent's last status line says it may start: locked on the reference clock,
+    recording."""
+    return locked_and_recording(agent.last())
 
 
 def status_figures(lines: list[dict[str, Any]], since: float, until: float) -> dict[str, Any]:
@@ -218,27 +169,13 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     kiruna, rome = dep.binds("kiruna"), dep.binds("rome")
     watched = tmp_path / "watched.json"
     t0 = time.monotonic()
-    with Testbed(tmp_path, WAN, kiruna_ports=("tcp/7447", "udp/7447")) as bed:
-        bed.fedlab(
-            "kiruna",
-            "router-kiruna",
-            ["router", "-c", dep.installed("routers", "kiruna.json5")],
-            kiruna,
-        )
-        bed.fedlab(
-            "rome", "router-rome", ["router", "-c", dep.installed("routers", "rome.json5")], rome
-        )
+    with Testbed(tmp_path, WAN, kiruna_ports=KIRUNA_PORTS) as bed:
+        start_routers(bed, dep)
         agents = {}
-        for who, lab, binds in ((LEADER, "kiruna", kiruna), (FOLLOWER, "rome", rome)):
+        for who in (LEADER, FOLLOWER):
             name = who.split("/")[1]
             status = tmp_path / f"{name}.jsonl"
-            bed.fedlab(
-                lab, name,
-                ["agent", "--agent-config", dep.installed("agents", f"{name}.toml"),
-                 "-c", dep.installed("agents", f"{name}.json5"),
-                 "--status-json", str(status), "--status-period", "0.25"],
-                binds,
-            )  # fmt: skip
+            start_agent(bed, dep, name, status, ["--status-period", "0.25"])
             agents[who] = Agent(bed.fleet, name, [], who=who, status=status)
         leader, follower = agents[LEADER], agents[FOLLOWER]
         bed.spawn(
@@ -248,19 +185,13 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
             rome,
         )  # fmt: skip
         for agent in agents.values():
-            assert wait_for(partial(locked_and_recording, agent), 40.0), (
+            assert wait_for(partial(ready, agent), 40.0), (
                 f"{agent.who} not locked on the reference clock and recording within 40 s; "
                 f"last status {agent.last()}\n{bed.log(agent.name)[-3000:]}"
             )
         assert wait_for(lambda: read_json(watched).get("ready"), 20.0), bed.log("watcher")[-2000:]
         # Kiruna's operator starts a run: the follower follows the leader's pose.
-        bed.fedlab(
-            "kiruna", "ctl",
-            ["ctl", "start", "--duration", "600", "--in", "1.5", "--json",
-             "-c", dep.installed("operators", "ctl.json5")],
-            kiruna,
-        )  # fmt: skip
-        wait_exit(bed, "ctl", 60.0)
+        start_run(bed, dep, duration=600, start_in=1.5)
         follower.until(
             lambda line: line["mode"] == "running" and line["hold"] is None, 20, "following"
         )
