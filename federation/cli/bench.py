@@ -1,4 +1,5 @@
-"""``fedlab bench sync|latency|scale|memory|network|scenarios|merge``: benchmarks, beside
+"""``fedlab bench sync|latency|scale|memory|network|network-formation|scenarios|merge``:
+benchmarks, beside
 baselines run alongside; ``fedlab bench table``: their headline figures from benchmarks/.
 
 Each parses its flags, runs :mod:`federation.bench` and prints a table (or ``--json``).
@@ -9,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +34,7 @@ def add(sub: Subparsers) -> None:
             "  fedlab bench scale --agents 2 --agents 8 --seconds 20\n"
             "  fedlab bench memory --agents 32 --agents 128 --json\n"
             "  fedlab bench network --scenario loss5 --transport multilink --seconds 60\n"
+            "  fedlab bench network-formation --seconds 60 --repeats 3 --json-out FILE\n"
             "  fedlab bench scenarios --json > benchmarks/scenarios.json\n"
             "  fedlab bench merge --size 2048 --json-out benchmarks/merge-2gib.json\n"
             "  fedlab bench table   # the README's table, from benchmarks/"
@@ -43,6 +46,7 @@ def add(sub: Subparsers) -> None:
     _add_scale(benches)
     _add_memory(benches)
     _add_network(benches)
+    _add_network_formation(benches)
     _add_scenarios(benches)
     _add_merge(benches)
     _add_table(benches)
@@ -54,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     runs = {"sync": _run_sync, "latency": _run_latency, "scale": _run_scale}
     runs |= {"memory": _run_memory, "network": _run_network, "scenarios": _run_scenarios}
     runs |= {"merge": _run_merge, "table": _run_table}
+    runs |= {"network-formation": _run_network_formation}
     return runs[args.bench](args)
 
 
@@ -376,7 +381,8 @@ def _add_network(benches: Subparsers) -> None:
         epilog=(
             "Examples:\n"
             "  fedlab bench network --scenario loss5 --transport multilink --transport tcp\n"
-            "  fedlab bench network --seconds 60 --repeats 2 --json-out benchmarks/network.json"
+            "  fedlab bench network --seconds 60 --repeats 2 --json-out benchmarks/network.json\n"
+            "  fedlab bench network --deployment generated --scenario loss5 --repeats 3"
         ),
     )
     p.add_argument(
@@ -399,6 +405,12 @@ def _add_network(benches: Subparsers) -> None:
         help="a Zenoh setting for both routers and both agents, not the outside subscriber "
         "(repeatable), e.g. transport/unicast/lowlatency:true",
     )  # fmt: skip
+    p.add_argument(
+        "--deployment", choices=("bench", "generated"), default="bench",
+        help="bench: the bench's routers and agents with --transport's lab link; generated: "
+        "the files fedlab deploy generate writes (its lab link, access control, size and rate "
+        "limits; agents over TLS, a run started by ctl), without --transport or --cfg",
+    )  # fmt: skip
     p.add_argument("--repeats", type=int, default=1, metavar="N", help="runs per scenario")
     p.add_argument("--seed", type=int, default=1, help="the packet stage's first seed")
     p.add_argument(
@@ -415,7 +427,6 @@ def _run_network(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from federation.bench import network
     from federation.testbed import missing
 
     why = missing()
@@ -434,9 +445,7 @@ def _run_network(args: argparse.Namespace) -> int:
             document = {"command": command, "results": results}
             args.json_out.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
 
-    results = network.run(
-        names, transports, args.seconds, args.out, args.repeats, args.seed, args.cfg, save
-    )
+    results = _network_results(args, names, transports, save)
     save(results)
     document = {"command": command, "results": results}
     if args.json:
@@ -464,8 +473,157 @@ def _run_network(args: argparse.Namespace) -> int:
     return 0
 
 
+def _network_results(
+    args: argparse.Namespace,
+    names: list[str],
+    transports: list[str],
+    save: Callable[[list[dict[str, Any]]], None],
+) -> list[dict[str, Any]]:
+    """The runs of the bench's own deployment, or of the generated one."""
+    from federation.bench import network
+
+    if args.deployment == "bench":
+        return network.run(
+            names, transports, args.seconds, args.out, args.repeats, args.seed, args.cfg, save
+        )
+    if args.transport or args.cfg:
+        raise SystemExit(
+            "fedlab bench network: --deployment generated runs the generated files as they "
+            "are: its lab link is the one fedlab deploy generate writes, so --transport and "
+            "--cfg do not apply"
+        )
+    from federation.bench import generated
+
+    return generated.run(names, args.seconds, args.out, args.repeats, args.seed, save)
+
+
 def _num(value: float | None, digits: int = 1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
+
+
+# -- network-formation ---------------------------------------------------------------
+# A subcommand of its own rather than a `bench network` scenario: `network`'s scenarios
+# name paths for the attitude leader/follower pair, scored run by run; this one flies
+# another experiment (three labs) at several losses and scores each against a no-loss
+# run of the same invocation.
+def _loss(text: str) -> float:
+    """A loss fraction in [0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text}: a loss is a fraction from 0 to below 1")
+    return value
+
+
+def _add_network_formation(benches: Subparsers) -> None:
+    from federation.bench import formation_network
+
+    p = benches.add_parser(
+        "network-formation",
+        help="the formation across three labs in the network testbed under loss: its "
+        "transparency ratio; root",
+        formatter_class=Formatter,
+        description=(
+            "The formation experiment (three labs, three agents) in the network testbed:\n"
+            "Kiruna public, Rome and a third lab behind Rome's NAT and stateful firewall,\n"
+            "the paper's path (40 ms one way, 3 ms jitter) with random loss. Each loss\n"
+            "level is flown --repeats times, interleaved with runs at no loss; the ratio\n"
+            "is each repeat's formation error (slot error RMS, the report's figure) over\n"
+            "the same repeat's with no loss. Needs root, nftables and /dev/net/tun."
+        ),
+        epilog=(
+            "Examples:\n"
+            "  fedlab bench network-formation --seconds 20 --repeats 1\n"
+            "  fedlab bench network-formation --seconds 60 --repeats 3 \\\n"
+            "      --json-out benchmarks/network-formation-60s.json"
+        ),
+    )
+    p.add_argument(
+        "--loss", action="append", type=_loss, metavar="P",
+        help="loss fraction on the path, each way (repeatable; 0 is always flown as the "
+        "baseline; default: "
+        + ", ".join(f"{x:g}" for x in formation_network.LOSSES if x) + ")",
+    )  # fmt: skip
+    p.add_argument(
+        "--seconds", type=positive, default=60.0, metavar="S",
+        help="s of run time per run (the experiment's own: 90)",
+    )  # fmt: skip
+    p.add_argument(
+        "--repeats", type=_agents_or_one, default=3, metavar="N", help="runs per loss level"
+    )
+    p.add_argument("--seed", type=int, default=1, help="first repeat's seed (stage and noise)")
+    p.add_argument(
+        "--out", type=Path, default=Path("runs/bench-network-formation"), metavar="DIR",
+        help="run folder (one per run: loss<percent>-<repeat>)",
+    )  # fmt: skip
+    p.add_argument("--json-out", type=Path, metavar="FILE", help="also write the results here")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _run_network_formation(args: argparse.Namespace) -> int:
+    import shlex
+
+    from rich.console import Console
+
+    from federation.bench import formation_network
+    from federation.testbed import missing
+
+    why = missing()
+    if why is not None:
+        print(f"fedlab bench network-formation: error: {why}", file=sys.stderr)
+        return 1
+    losses = [0.0, *sorted({x for x in (args.loss or formation_network.LOSSES) if x > 0})]
+    command = shlex.join(["fedlab", *sys.argv[1:]])
+
+    def document(runs: list[dict[str, Any]]) -> dict[str, Any]:
+        return {"command": command, "runs": runs, "ratios": formation_network.ratios(runs)}
+
+    def save(runs: list[dict[str, Any]]) -> None:
+        if args.json_out is not None:  # after every run: a long bench keeps what it measured
+            args.json_out.parent.mkdir(parents=True, exist_ok=True)
+            text = json.dumps(document(runs), indent=1) + "\n"
+            args.json_out.write_text(text, encoding="utf-8")
+
+    progress = Console(stderr=True)
+
+    def step(runs: list[dict[str, Any]]) -> None:
+        r = runs[-1]
+        what = r.get("error") or f"slot error RMS {r['error_rms_m'] * 100:.2f} cm"
+        progress.print(f"loss {r['loss']:g}, repeat {r['repeat']}: {what}", highlight=False)
+        save(runs)
+
+    result = formation_network.run(args.seconds, args.repeats, args.out, losses, args.seed, step)
+    result = {"command": command, **result}
+    if args.json_out is not None:
+        args.json_out.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    if args.json:
+        print(json.dumps(result, indent=1))
+    else:
+        Console().print(_formation_table(result["ratios"]))
+    failed = [r for r in result["runs"] if "error" in r]
+    for r in failed:
+        print(f"loss {r['loss']:g}, repeat {r['repeat']}: failed: {r['error']}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _formation_table(rows: list[dict[str, Any]]) -> Any:
+    from rich.table import Table
+
+    table = Table(title="formation across the testbed: slot error under loss / with none")
+    for col in ("loss", "error, each repeat (cm)", "no loss (cm)", "ratio median (min to max)"):
+        table.add_column(col, justify="right")
+    for row in rows:
+        s = row["ratio_stats"]
+        table.add_row(
+            f"{row['loss']:.0%}",
+            ", ".join("-" if e is None else f"{e * 100:.2f}" for e in row["error_m"]),
+            ", ".join("-" if e is None else f"{e * 100:.2f}" for e in row["baseline_m"]),
+            "-" if s["median"] is None
+            else f"{s['median']:.3f} ({s['min']:.3f} to {s['max']:.3f})",
+        )  # fmt: skip
+    return table
 
 
 # -- scenarios -----------------------------------------------------------------------
