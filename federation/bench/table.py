@@ -38,6 +38,9 @@ FILES: dict[str, str] = {
     "network-sync-estimator-multilink-60s.json": (
         "(root) fedlab bench network --transport multilink ..."
     ),
+    "network-generated-loss5-60s.json": (
+        "(root) fedlab bench network --deployment generated --scenario loss5 --seconds 60 ..."
+    ),
     "scenarios.json": "fedlab bench scenarios --json",
 }
 """The current result of each benchmark, and the command that made it (the full command
@@ -196,6 +199,36 @@ def _network_rows(folder: Path) -> list[Row]:
     return out
 
 
+def _generated_rows(folder: Path) -> list[Row]:
+    """The generated deployment (its QUIC lab link, access control and limits), per loss."""
+    name = "network-generated-loss5-60s.json"
+    results = [r for r in _load(folder, name)["results"] if "error" not in r]
+    out: list[Row] = []
+    for loss in sorted({r["scenario"]["loss"] for r in results}):
+        runs = [r for r in results if r["scenario"]["loss"] == loss]
+        out.append(
+            (
+                f"network, 40 ms, {round(loss * 100)} % loss, generated deployment "
+                f"({', '.join(sorted({_link(e) for r in runs for e in r['lab_link']}))})",
+                "safe holds per 60 s; pose p99 (ms), each run",
+                ", ".join(str(r["holds"]) for r in runs)
+                + "; "
+                + ", ".join(f"{r['pose_latency_ms']['p99']:.0f}" for r in runs),
+                "",
+                name,
+            )
+        )
+    return out
+
+
+def _link(endpoint: str) -> str:
+    """A Zenoh endpoint's protocol and metadata: ``quic/HOST:PORT?mixed_rel=1`` is
+    ``quic mixed_rel=1``."""
+    scheme, _, rest = endpoint.partition("/")
+    metadata = rest.partition("#")[0].partition("?")[2]
+    return f"{scheme} {metadata}" if metadata else scheme
+
+
 def _scenario_rows(folder: Path) -> list[Row]:
     d = _load(folder, "scenarios.json")
     out: list[Row] = []
@@ -274,6 +307,7 @@ _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _scale_rows,
     _memory_rows,
     _network_rows,
+    _generated_rows,
     _scenario_rows,
     _transparency_rows,
 )
