@@ -50,9 +50,10 @@ first by :class:`federation.core.commands.CommandGate`):
    behind a cut link; acted on now, it would set platforms moving when no one chose).
    A resume with neither is ``ignored`` (ctl stamps every resume). A freeze acts on
    receipt however late, and without the reference time at the last one known.
-7. ``admit`` does nothing to a run state in any mode: it lets a waiting agent rejoin a
-   run under way, which :mod:`federation.core.rejoin` decides and :meth:`RunState.rejoin`
-   applies.
+7. ``admit`` and ``handback`` do nothing to a run state in any mode: an admit lets a
+   waiting agent rejoin a run under way, which :mod:`federation.core.rejoin` decides and
+   :meth:`RunState.rejoin` applies; a handback gives the leader's role back to a deposed
+   leader (:mod:`federation.core.standin`).
 
 What each command does in each mode and stage (rules 1 to 5 and 7 without their
 instants) is one table, :data:`COMMAND_RULES`. What a table cannot say, whether a command
@@ -175,7 +176,7 @@ checks may still refuse it), ``nothing`` (no event), or a refusal (``ignored``):
 ``busy`` (a run under way: abort first), ``after abort`` (reset first), ``wrong mode``,
 ``armed first`` (a freeze or resume is armed: it applies first)."""
 
-COMMANDS = ("start", "freeze", "resume", "abort", "reset", "admit")
+COMMANDS = ("start", "freeze", "resume", "abort", "reset", "admit", "handback")
 """Every command :class:`RunCommand` names, in the columns of :data:`COMMAND_RULES`."""
 
 # fmt: off
@@ -195,7 +196,8 @@ _RULE_ROWS: dict[Stage, tuple[Outcome, Outcome, Outcome, Outcome, Outcome, Outco
 COMMAND_RULES: dict[tuple[Stage, str], Outcome] = {
     (mode, command): outcome
     for mode, row in _RULE_ROWS.items()
-    for command, outcome in zip(COMMANDS, row, strict=True)
+    # handback, like admit: nothing in every stage (rule 7)
+    for command, outcome in zip(COMMANDS, (*row, "nothing"), strict=True)
 }
 """(stage, command) to what the command does in that stage: rules 1 to 5 and 7 of the
 module's docstring, without their instants."""
@@ -292,6 +294,7 @@ TIMING_CHECKS: dict[str, tuple[Check, ...]] = {
     "abort": (),
     "reset": (),
     "admit": (),  # nothing to a run state (rule 7)
+    "handback": (),  # likewise
 }
 """The checks a command passes, in this order, before its rule in :data:`COMMAND_RULES`
 applies (not after an abort: rule 3 answers first). A command not named here is

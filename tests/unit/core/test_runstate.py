@@ -448,7 +448,7 @@ EVERY_RULE = list(product(STAGES, COMMANDS))
 def documented_rule(mode: Stage, command: str) -> Outcome:
     """Rules 1 to 5 and 7 of the module's docstring, as they read there, without instants."""
     under_way = ("running", "freezing", "frozen", "resuming")
-    if command == "admit":  # rule 7
+    if command in ("admit", "handback"):  # rule 7
         return "nothing"
     if command == "abort":  # rule 1
         return "nothing" if mode == "aborted" else "abort"
