@@ -28,7 +28,10 @@ figure :mod:`federation.bench.transparency` flies in simulated time. The ratio
 of repeat :math:`k`'s error at loss :math:`p` to repeat :math:`k`'s error on the same
 path with no loss (same seeds, flown in the same invocation, the runs interleaved so a
 busy spell of the host falls on every loss level alike) is 1 when the loss does not
-show (:func:`ratios`).
+show (:func:`ratios`). The whole run's figure takes in its first seconds, where every
+platform comes back to its slot from wherever the wait before the start left it (KNATTE
+drifts on its tilted table); the same figure over the circle alone, from the end of the
+still and ramp phases (:func:`after_ramp`), gets its ratios beside it.
 """
 
 from __future__ import annotations
@@ -41,6 +44,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from federation.bench.network import PORT, TRANSPORTS, _router_args
 from federation.bench.transparency import ratio
@@ -60,6 +65,7 @@ __all__ = [
     "JITTER",
     "LOSSES",
     "RunFailed",
+    "after_ramp",
     "ratios",
     "run",
     "run_one",
@@ -140,6 +146,7 @@ def run_one(
         "jitter_s": JITTER,
         "error_rms_m": formation["error_rms_m"],
         "error_max_m": formation["error_max_m"],
+        "error_rms_after_ramp_m": after_ramp(formation, spec),
         "samples": formation["samples"],
         "per_platform": formation["per_platform"],
         "workspace": summary.get("workspace"),
@@ -149,6 +156,18 @@ def run_one(
         "stage": stage,
         **timing,
     }
+
+
+def after_ramp(formation: dict[str, Any], spec: dict[str, Any]) -> float | None:
+    """The report's formation error over the circle only: RMS of every platform's slot
+    error from the end of the formation's still and ramp phases (its ``series``);
+    None when the run ended before."""
+    f = spec["formation"]
+    begin = float(f.get("still", 0.0)) + float(f.get("ramp", 0.0))
+    t = np.asarray(formation["series"]["run_time_s"], dtype=float)
+    errors = np.array(list(formation["series"]["error_m"].values()), dtype=float)
+    kept = errors[:, t >= begin]
+    return float(np.sqrt(np.mean(kept**2))) if kept.size else None
 
 
 def _status(out: Path, spec: dict[str, Any]) -> dict[str, Path]:
@@ -284,10 +303,10 @@ def _spread(values: Sequence[float | None]) -> dict[str, float | None]:
     return {"median": statistics.median(got), "min": min(got), "max": max(got)}
 
 
-def ratios(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+def ratios(results: Sequence[dict[str, Any]], figure: str = "error_rms_m") -> list[dict[str, Any]]:
     """Per loss level above 0: each repeat's error at that loss over the same repeat's
     error with no loss (paired by ``repeat``; a repeat missing either has no ratio),
-    and their median, min and max.
+    and their median, min and max; the error is each result's ``figure``.
 
     ``results`` are run results (:func:`run_one`'s, with ``repeat``; a failed run has
     ``error`` instead of ``error_rms_m``). ValueError, naming the run, when a result
@@ -299,7 +318,7 @@ def ratios(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         key = (float(r["loss"]), int(r["repeat"]))
         if key in by:
             raise ValueError(f"result {i}: a second run at loss {key[0]:g}, repeat {key[1]}")
-        by[key] = r.get("error_rms_m")
+        by[key] = r.get(figure)
     repeats = sorted({k for _, k in by})
     out = []
     for loss in sorted({p for p, _ in by if p > 0}):
@@ -309,6 +328,7 @@ def ratios(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append(
             {
                 "loss": loss,
+                "figure": figure,
                 "repeats": repeats,
                 "baseline_m": baseline,
                 "error_m": errors,
@@ -351,4 +371,5 @@ def run(
         "repeats": repeats,
         "runs": results,
         "ratios": ratios(results),
+        "ratios_after_ramp": ratios(results, "error_rms_after_ramp_m"),
     }
