@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from federation import cli
-from federation.bench.formation_network import ratios
+from federation.bench.formation_network import after_ramp, ratios
 
 
 def _run(loss: float, repeat: int, error: float | None) -> dict[str, Any]:
@@ -66,6 +66,32 @@ def test_a_repeat_missing_at_one_loss_has_no_ratio_there() -> None:
     (row,) = ratios([_run(0.0, 0, 0.1), _run(0.0, 1, 0.1), _run(0.05, 1, 0.2)])
     assert row["error_m"] == [None, 0.2]
     assert row["ratio"] == [None, pytest.approx(2.0)]
+
+
+def test_ratios_of_another_figure_read_that_figure() -> None:
+    runs = [
+        {"loss": 0.0, "repeat": 0, "error_rms_m": 0.09, "error_rms_after_ramp_m": 0.010},
+        {"loss": 0.05, "repeat": 0, "error_rms_m": 0.09, "error_rms_after_ramp_m": 0.013},
+    ]
+    (whole,) = ratios(runs)
+    (circle,) = ratios(runs, "error_rms_after_ramp_m")
+    assert whole["ratio"] == pytest.approx([1.0]) and whole["figure"] == "error_rms_m"
+    assert circle["ratio"] == pytest.approx([1.3])
+    assert circle["figure"] == "error_rms_after_ramp_m"
+
+
+def test_after_ramp_is_the_rms_over_every_platform_from_the_end_of_the_ramp() -> None:
+    spec = {"formation": {"still": 1.0, "ramp": 1.0}}
+    formation = {
+        "series": {
+            "run_time_s": [0.0, 1.0, 1.9, 2.0, 3.0],
+            "error_m": {"a": [9.0, 9.0, 9.0, 3.0, 0.0], "b": [9.0, 9.0, 9.0, 4.0, 0.0]},
+        }
+    }
+    # From 2.0 s on: a's 3 and 0, b's 4 and 0; sqrt((9 + 0 + 16 + 0) / 4) = 2.5.
+    assert after_ramp(formation, spec) == pytest.approx(2.5)
+    short = {"series": {"run_time_s": [0.0, 1.5], "error_m": {"a": [1.0, 1.0]}}}
+    assert after_ramp(short, spec) is None  # the run ended before the circle
 
 
 def test_results_without_loss_or_repeat_or_twice_the_same_are_refused() -> None:
