@@ -161,7 +161,7 @@ def test_load_router_and_platform(tmp_path: Path) -> None:
         pytest.param({"clock_offset": "inf"}, "clock_offset", "finite", id="inf offset"),
         pytest.param({"clock_drift_ppm": 1e5}, "clock_drift_ppm", "less than", id="drift"),
         pytest.param({"estimator": '"max"'}, "estimator", "'mean' or 'median'", id="statistic"),
-        pytest.param({"role": '"boss"'}, "role", "'follower' or 'member'", id="role"),
+        pytest.param({"role": '"boss"'}, "role", "'member' or 'stand-in'", id="role"),
         pytest.param({"platform": '"rigid"'}, "platform", "kinematic", id="platform"),
         pytest.param({"lab": '"Kiruna"'}, "lab", "invalid lab name", id="uppercase lab"),
         pytest.param({"lab": '"kiruna/x"'}, "lab", "invalid lab name", id="slash lab"),
