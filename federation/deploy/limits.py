@@ -13,6 +13,8 @@ key            its messages                    limit
                 and an 8-byte send time
 ``status``     JSON: up to 7 KiB and 550 bytes :func:`status_limit`: 8 KiB and 640 bytes
                per peer it reports             per other agent of the federation
+``role``       JSON: a claim on the leader's   :data:`ROLE_LIMIT` (1 KiB)
+               role, about 400 bytes
 everything     collect's chunks and manifests, :func:`message_limit`: the federation's
 else           control commands, statuses      (a chunk and 64 KiB), or a status if larger
 =============  ==============================  =========================================
@@ -20,14 +22,15 @@ else           control commands, statuses      (a chunk and 64 KiB), or a status
 Zenoh's low-pass filter applies the smallest limit among the rules a key matches, to
 payload and attachment together, and drops a message over it silently at the router's
 ingress: the first router an oversized message meets is the last. Rates are capped per
-agent, at its own lab's router, for the two keys an agent publishes on its own:
+agent, at its own lab's router, for the keys an agent publishes on its own:
 :func:`pose_rate_cap` and :func:`status_rate_cap` (twice what its settings need, never
-under 100 and 10 Hz). A rate rule is one budget per transport and key, so each of a lab's
-agents gets rules naming its own keys: on its session they cap it alone, and on the lab
-link (where another lab's agents share one transport) they match nothing, since no other
-lab may write them. What crosses the link from one agent is thus at most
-``pose_rate_cap x 1 KiB + status_rate_cap x status_limit`` a second, plus its replies to
-the queries it is sent.
+under 100 and 10 Hz), :data:`ROLE_RATE_CAP` for its role messages. A rate rule is one
+budget per transport and key, so each of a lab's agents gets rules naming its own keys:
+on its session they cap it alone, and on the lab link (where another lab's agents share
+one transport) they match nothing, since no other lab may write them. What crosses the
+link from one agent is thus at most
+``pose_rate_cap x 1 KiB + status_rate_cap x status_limit + ROLE_RATE_CAP x ROLE_LIMIT``
+a second, plus its replies to the queries it is sent.
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ from schemas.federation import FederationFile
 
 __all__ = [
     "AGENT_TOPICS",
+    "ROLE_LIMIT",
+    "ROLE_RATE_CAP",
     "SMALL_LIMIT",
     "downsampling",
     "low_pass_filter",
@@ -47,13 +52,21 @@ __all__ = [
     "status_rate_cap",
 ]
 
-AGENT_TOPICS = ("pose", "sync", "status", "recordings")
+AGENT_TOPICS = ("pose", "sync", "status", "recordings", "role")
 """The keys under an agent's own (its liveliness token) that it writes: its pose, its
-sync queryable, its status and its recordings for ``fedlab collect``."""
+sync queryable, its status, its recordings for ``fedlab collect`` and its claims on the
+leader's role (in an experiment that names a stand-in)."""
+
+ROLE_RATE_CAP = 20.0
+"""Hz: role messages go every 0.1 s (``federation.core.standin.PERIOD``); twice that."""
 
 SMALL_LIMIT = 1024
 """Bytes of payload and attachment on a pose or sync key: the protocol's largest there
 is 80 (a pose and its stamp), the rest is room for a later field."""
+
+ROLE_LIMIT = SMALL_LIMIT
+"""Bytes of a role message: a claim's fields and its reason (about 400; 887 with names
+of 65 characters and a reason of 400)."""
 
 STATUS_BASE = 8192
 STATUS_PER_PEER = 640
@@ -112,6 +125,7 @@ def low_pass_filter(fed: FederationFile) -> list[dict[str, Any]]:
     return [
         rule("pose-and-sync", ["pose", "sync"], SMALL_LIMIT),
         rule("status", ["status"], status_limit(fed)),
+        rule("role", ["role"], ROLE_LIMIT),
         rule("everything", [], message_limit(fed)),
     ]
 
@@ -131,6 +145,7 @@ def downsampling(fed: FederationFile, lab: str) -> list[dict[str, Any]]:
                 "rules": [
                     {"key_expr": f"{own}/pose", "freq": pose_rate_cap(agent.settings)},
                     {"key_expr": f"{own}/status", "freq": status_rate_cap(agent.settings)},
+                    {"key_expr": f"{own}/role", "freq": ROLE_RATE_CAP},
                 ],
             }
         )

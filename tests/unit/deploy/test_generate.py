@@ -65,7 +65,7 @@ def test_each_agent_writes_only_its_own_keys_and_operators_only_control() -> Non
     # keys would otherwise carry whatever it likes across the lab link).
     own = "fedlab/default/kiruna/knatte"
     assert _writes(kiruna, "kiruna/knatte") == {
-        own, f"{own}/pose", f"{own}/sync", f"{own}/status", f"{own}/recordings"
+        own, f"{own}/pose", f"{own}/sync", f"{own}/status", f"{own}/recordings", f"{own}/role"
     }  # fmt: skip
     assert _writes(kiruna, "kiruna/ctl") == {"fedlab/default/control"}
     assert "fedlab/default/rome/pinocchio/**" not in _writes(rome, "rome/pinocchio")

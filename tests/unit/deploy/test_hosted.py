@@ -69,7 +69,7 @@ def acl(doc: dict[str, Any], who: str) -> tuple[set[str], set[str]]:
 
 
 def own(*agents: str) -> set[str]:
-    topics = ("pose", "sync", "status", "recordings")
+    topics = ("pose", "sync", "status", "recordings", "role")
     return {
         k
         for a in agents

@@ -10,9 +10,11 @@ from pathlib import Path
 import zenoh
 
 from federation.core import wire
+from federation.core.standin import PERIOD, Ack, Claim
 from federation.deploy import generate as gen
 from federation.deploy import limits
 from federation.runtime import collect
+from federation.runtime.agent.role import ROLE_TOPIC
 from schemas.federation import load_federation
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -20,7 +22,20 @@ EXAMPLE = ROOT / "deploy" / "federation.example.toml"
 
 
 def test_the_keys_an_agent_writes_are_the_protocols() -> None:
-    assert set(limits.AGENT_TOPICS) == {"pose", "sync", "status", collect.TOPIC}
+    assert set(limits.AGENT_TOPICS) == {"pose", "sync", "status", collect.TOPIC, ROLE_TOPIC}
+
+
+def test_a_role_message_fits_its_limit_and_rate() -> None:
+    """A claim with every field at its largest and a reason of 400 characters (the core's
+    reasons are sentences under 150, with two agents' names)."""
+    name = "a-lab-name-of-32-characters-long/an-agent-name-of-32-characters-lon"
+    claim = Claim(
+        agent=name, kind="stand-in", epoch=2**63, at=-1.2345678901234567e15,
+        holding=True, until=-1.2345678901234567e15, asking=True,
+        ack=Ack(name, 2**63, -1.2345678901234567e15), top=2**63, follows=name, why="x" * 400,
+    )  # fmt: skip
+    assert len(json.dumps(claim.as_dict())) <= limits.ROLE_LIMIT
+    assert limits.ROLE_RATE_CAP >= 2 / PERIOD
 
 
 def test_pose_and_sync_messages_fit_the_small_limit() -> None:
@@ -49,6 +64,7 @@ def test_every_generated_router_caps_sizes_and_its_own_agents_rates() -> None:
         assert sizes == {
             "pose-and-sync": limits.SMALL_LIMIT,
             "status": limits.status_limit(fed),
+            "role": limits.ROLE_LIMIT,
             "everything": limits.message_limit(fed),
         }
         assert all(r["flows"] == ["ingress"] for r in doc["low_pass_filter"])
@@ -56,7 +72,7 @@ def test_every_generated_router_caps_sizes_and_its_own_agents_rates() -> None:
         assert capped == {
             f"fedlab/default/{lab}/{name}/{topic}"
             for name in entry.agents
-            for topic in ("pose", "status")
+            for topic in ("pose", "status", "role")
         }  # its own agents only: nothing that arrives over the lab link
 
 
