@@ -6,7 +6,8 @@ was 200 to 214 ms and the follower was held 1 to 5 times a minute. Zenoh 1.10's 
 link with ``mixed_rel=1`` carries reliable messages (declarations, sync, status,
 control) on one encrypted stream and best-effort ones (pose) as datagrams of the same
 connection, so a pose never waits behind a lost packet: p99 88 to 112 ms and no stale
-hold in five 60 s runs (docs/deploy.md, "Pose under loss on the secure path"). QUIC
+hold in five 60 s runs of the bench's routers, 105 to 133 ms and none in three runs of
+the generated deployment itself on busier cores (docs/deploy.md). QUIC
 reads the same ``transport/link/tls`` settings, so the router's certificate, its name
 check and the access control by certificate name hold on it unchanged.
 
