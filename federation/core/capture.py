@@ -18,6 +18,15 @@ asked follows the braking curve :math:`\\omega_c = \\omega + \\mathrm{sign}(e)
 so the error closes without overshoot once the limits allow. Once within
 :data:`HEADING_TOL` and :data:`RATE_TOL` of the scenario it is captured: the scenario's
 reference passes through unchanged from then on.
+
+Safety: a target, a rate, a ``dt`` or a starting state that is not finite gives a
+reference that is not finite (NaN) and leaves the capture as it was; on it the GNC chain
+closes every valve (``nonfinite``). The limits alone would not: Python's ``min`` and
+``max`` pass a NaN error through as the largest rate allowed, a finite reference that
+turns the platform at ``max_rate`` toward nothing.
+
+A position reference (formation, docking) has its own capture,
+:class:`federation.core.track_capture.TrackCapture`.
 """
 
 from __future__ import annotations
@@ -59,10 +68,16 @@ class Capture:
         self.captured = False
 
     def step(self, target: float, target_rate: float, dt: float) -> tuple[float, float]:
-        """The reference ``dt`` s after the last one, toward the scenario's ``target``
-        heading (rad) and ``target_rate`` (rad/s) now."""
+        """The reference ``dt`` s (>= 0) after the last one, toward the scenario's
+        ``target`` heading (rad) and ``target_rate`` (rad/s) now; NaN for a non-finite
+        input (see the module)."""
         if self.captured:
             return target, target_rate
+        if not (
+            all(map(math.isfinite, (target, target_rate, dt, self.heading, self.rate)))
+            and dt >= 0.0
+        ):
+            return math.nan, math.nan  # the chain closes every valve on it
         lim = self.limits
         error = wrap_angle(target - self.heading)
         brake = math.copysign(math.sqrt(2.0 * lim.max_accel * abs(error)), error)
