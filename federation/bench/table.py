@@ -42,6 +42,9 @@ FILES: dict[str, str] = {
         "(root) fedlab bench network --deployment generated --scenario loss5 --seconds 60 ..."
     ),
     "scenarios.json": "fedlab bench scenarios --json",
+    "network-formation-60s.json": (
+        "(root) fedlab bench network-formation --seconds 60 --repeats 3 --json-out ..."
+    ),
 }
 """The current result of each benchmark, and the command that made it (the full command
 of each is in benchmarks/README.md, or inside the file)."""
@@ -301,6 +304,27 @@ def _transparency_rows(folder: Path) -> list[Row]:
     return out
 
 
+def _formation_network_rows(folder: Path) -> list[Row]:
+    """Per loss level: the formation's ratio in the testbed; the baseline is its error
+    with no loss, flown in the same invocation."""
+    name = "network-formation-60s.json"
+    d = _load(folder, name)
+    seconds = {r["seconds"] for r in d["runs"] if "seconds" in r}
+    out: list[Row] = []
+    for r in d["ratios"]:
+        out.append(
+            (
+                f"transparency, formation, testbed 40 ms, {r['loss'] * 100:g} % loss",
+                f"slot error with the loss / with none, same invocation, median (min to max) "
+                f"of {len(r['ratio'])} repeats of {'/'.join(f'{s:g}' for s in sorted(seconds))} s",
+                _ratio(r["ratio_stats"]),
+                _figure(r["baseline_m"], "m"),
+                name,
+            )
+        )
+    return out
+
+
 _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _sync_rows,
     _latency_rows,
@@ -310,6 +334,7 @@ _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _generated_rows,
     _scenario_rows,
     _transparency_rows,
+    _formation_network_rows,
 )
 
 
