@@ -14,9 +14,13 @@ The rules :func:`decide` keeps, each a row of :data:`CHECKS`, in order (the firs
 that refuses answers):
 
 1. ``never``: this agent's policy refuses every rejoin.
-2. Its guidance must be capturable: the capture (:mod:`federation.core.capture`)
-   brings a heading reference in without a step, not a formation's or docking's
-   position reference; an agent flying one does not rejoin (``uncapturable`` says why).
+2. Its guidance must be capturable without a step: a heading reference by
+   :mod:`federation.core.capture`, a formation's or docking's position reference (a
+   track) by :mod:`federation.core.track_capture`. What is left does not rejoin, and
+   ``uncapturable`` says why: a plug-in scenario's reference (no capture is known for
+   it), a drifting or turning docking target (its reference counts from where it stood
+   at the start), a docking chaser nearer the target than its hold point or whose way
+   there crosses the target's keep-out (it rejoins only before its final approach).
 3. Only an agent ``waiting`` rejoins (one armed, running, frozen, done or aborted
    takes its runs from commands).
 4. It must know the reference time now and pass its own preflight (its sync client
@@ -105,7 +109,8 @@ class Situation:
     unready: str | None = None
     """Why its preflight fails (None: it passes)."""
     uncapturable: str | None = None
-    """Why its reference cannot be captured without a step (None: it can)."""
+    """Why its reference cannot be captured without a step now (None: it can): the
+    runtime's answer, from its scenario and, for a docking chaser, where it is."""
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,31 @@
 """An agent (re)started while its run is under way: the run's announcements heard, the
 rejoin decided (:mod:`federation.core.rejoin`) and applied, and the joining platform's
-reference captured (:mod:`federation.core.capture`).
+reference captured (:mod:`federation.core.capture` for the heading,
+:mod:`federation.core.track_capture` for a formation's or docking's position).
 
 Every agent's status is heard (Zenoh's thread keeps only the newest announcement of
 each). While the agent waits, its loop asks :func:`~federation.core.rejoin.decide`
 every :data:`LOOK_PERIOD`; a decision to join is applied to the run state in one
 section under the safety lock (the supervisor hears ``run_rejoined``: it lifts
 ``waiting``, nothing else), and from the next step its heading reference is captured
-at bounded rate and acceleration until it meets the scenario's.
+at bounded rate and acceleration until it meets the scenario's; a formation's or
+docking's position reference (a track) is captured likewise at bounded speed and
+acceleration (:func:`track_limits_of`), while the run runs and while it is frozen (the
+frozen track is a point the platform holds: it is brought there, not stepped to).
+
+What stays uncapturable (:func:`uncapturable`, :meth:`Rejoining.keep_out`), each with
+why in the status's ``rejoin``:
+
+- a plug-in scenario's reference: no capture is known for what it asks;
+- a docking target that drifts or turns: its reference counts from where it stood at
+  the run's start, which a new process does not know (a still target starts from
+  where it is, as at a start);
+- a docking chaser before the final approach only: it rejoins while at least the hold
+  point's distance from the target (a fresh approach from where it is, then the hold's
+  settling and the final approach) and while its way to the hold point, with the
+  braking of its present velocity, keeps out of the target's keep-out
+  (:func:`federation.core.track_capture.docking_keep_out`); nearer, its earlier run
+  may have been in the final approach or at contact, and it stays waiting, held.
 """
 
 from __future__ import annotations
@@ -17,14 +35,16 @@ import logging
 import threading
 from typing import TYPE_CHECKING
 
-from federation.core import keys
+from agents.guidance import Track
+from federation.core import keys, wire
 from federation.core.capture import Capture, Limits
 from federation.core.holds import Trigger
 from federation.core.rejoin import Announcement, Decision, Situation, announcement, decide
+from federation.core.track_capture import BRAKE_SHARE, TrackCapture, TrackLimits, docking_keep_out
 from schemas.base import ConfigError
 from schemas.experiment import load_experiment
 from schemas.platform import PlatformConfig, load_platform
-from schemas.scenario import ScenarioPart
+from schemas.scenario import MAX_PATH_SPEED, ScenarioPart
 
 if TYPE_CHECKING:
     import zenoh
@@ -32,7 +52,15 @@ if TYPE_CHECKING:
     from federation.runtime.agent.commands import RunControl
     from federation.runtime.agent.services import AgentServices
 
-__all__ = ["LOOK_PERIOD", "MAX_STEP", "Rejoining", "limits_of", "uncapturable"]
+__all__ = [
+    "LOOK_PERIOD",
+    "MAX_STEP",
+    "TRACKED",
+    "Rejoining",
+    "limits_of",
+    "track_limits_of",
+    "uncapturable",
+]
 
 log = logging.getLogger("fedlab.agent")
 
@@ -43,25 +71,62 @@ MAX_STEP = 0.1
 between): it moves on no further than a control step or two would, never by a jump."""
 
 
-def uncapturable(scenario: ScenarioPart | None) -> str | None:
-    """Why an agent flying ``scenario`` cannot rejoin without a step in its reference:
-    the capture brings in a heading reference (attitude tracking, adaptive gains), not a
-    formation's or docking's position reference. None: it can."""
-    if scenario is None or scenario.kind == "attitude-tracking":
+TRACKED = frozenset({"formation", "docking"})
+"""Scenario kinds whose reference has a position (a track): captured by
+:class:`~federation.core.track_capture.TrackCapture` on a rejoin."""
+
+
+def uncapturable(scenario: ScenarioPart | None, me: str | None = None) -> str | None:
+    """Why agent ``me`` flying ``scenario`` cannot rejoin without a step in its
+    reference, as far as its settings tell (a chaser's place is judged at each look,
+    :meth:`Rejoining.keep_out`); None: it can. A heading reference (attitude tracking,
+    adaptive gains) and a formation's or docking's track have a capture; a plug-in
+    scenario's reference has none known, and a drifting or turning docking target's
+    counts from where it stood at the start, which a new process does not know."""
+    if scenario is None or scenario.kind in ("attitude-tracking", "formation"):
         return None
-    return f"{scenario.kind}: its position reference has no capture (it would step): no rejoin"
+    if scenario.kind != "docking":
+        return (
+            f"{scenario.kind}: a plug-in scenario's reference has no capture known (it "
+            "could step): no rejoin"
+        )
+    docking = scenario.docking
+    if (
+        docking is not None
+        and me == docking.target
+        and (docking.target_rate_deg != 0.0 or any(v != 0.0 for v in docking.target_drift))
+    ):
+        return (
+            "docking: a drifting or turning target's reference counts from where it stood "
+            "at the run's start, which a new process does not know: no rejoin"
+        )
+    return None
+
+
+def _preset(platform: str, preset: str | None) -> PlatformConfig:
+    """The platform's preset; knatte's for a platform with none (kinematic, a plug-in)."""
+    try:
+        return load_platform(preset or platform)
+    except (ConfigError, ValueError, OSError):
+        return load_platform("knatte")
 
 
 def limits_of(platform: str, preset: str | None) -> Limits:
-    """What a reference may ask of the platform: its preset's ``max_rate`` and its
-    operated torque over its inertia; knatte's for a platform with no preset
-    (kinematic, a plug-in)."""
-    config: PlatformConfig
-    try:
-        config = load_platform(preset or platform)
-    except (ConfigError, ValueError, OSError):
-        config = load_platform("knatte")
+    """What a heading reference may ask of the platform: its preset's ``max_rate`` and
+    its operated torque over its inertia; knatte's for a platform with no preset."""
+    config = _preset(platform, preset)
     return Limits(config.max_rate, config.torque / config.inertia)
+
+
+def track_limits_of(platform: str, preset: str | None) -> TrackLimits:
+    """What a position reference may ask of the platform: speed
+    :data:`~schemas.scenario.MAX_PATH_SPEED` (the fastest any scenario path may move: a
+    preset states no speed of its own) and acceleration its preset's operated thrust
+    (one thruster) over its mass, half a thruster pair's force, the deceleration its
+    area keeps in reserve too (:class:`agents.workspace.FramedPlatform`); knatte's for a
+    platform with no preset."""
+    config = _preset(platform, preset)
+    return TrackLimits(MAX_PATH_SPEED, config.thrust / config.mass)
 
 
 class Rejoining:
@@ -74,12 +139,14 @@ class Rejoining:
         self.policy = cfg.rejoin_policy
         self.experiment = None if cfg.experiment is None else load_experiment(cfg.experiment).name
         self.limits = limits_of(cfg.platform, cfg.platform_preset)
+        self.track_limits = track_limits_of(cfg.platform, cfg.platform_preset)
         self.admitted = False  # an operator's admit (fedlab ctl admit LAB/NAME)
         self._seen: dict[str, Announcement] = {}
         self._lock = threading.Lock()
         self._next_look = 0.0
         self.decision: Decision | None = None  # the last one, for status and preflight
         self.capture: Capture | None = None
+        self.track_capture: TrackCapture | None = None
         self._last_host: float | None = None
 
     def on_status(self, sample: zenoh.Sample) -> None:
@@ -103,7 +170,8 @@ class Rejoining:
         """While waiting, every :data:`LOOK_PERIOD`: decide, and join if so."""
         run = self.commands.run_state
         if run.mode not in ("running", "frozen"):
-            self.capture = None  # a run that ended (aborted, done) captures nothing more
+            # A run that ended (aborted, done) captures nothing more.
+            self.capture = self.track_capture = None
         if run.mode != "waiting":
             self.admitted = False  # an admit is for the run under way while it waits
             return
@@ -125,7 +193,7 @@ class Rejoining:
             me=str(self.owner.me), reference=str(self.owner.reference),
             experiment=self.experiment, mode=run.mode, policy=self.policy,
             admitted=self.admitted, now=t_sim, seen=seen, unready=unready,
-            uncapturable=uncapturable(self.owner.config.scenario),
+            uncapturable=self.keep_out(t_sim),
         )  # fmt: skip
         decision = decide(situation)
         if self.decision is None or decision.why != self.decision.why:
@@ -133,6 +201,31 @@ class Rejoining:
         self.decision = decision
         if decision.join:
             self._join(decision, t_exec, host)
+
+    def keep_out(self, t_sim: float | None) -> str | None:
+        """Why this agent's reference cannot be captured now (None: it can): its
+        settings' answer (:func:`uncapturable`), and a docking chaser judged where it is
+        against the target's fresh shared pose (see the module)."""
+        scenario = self.owner.config.scenario
+        me = str(self.owner.me)
+        why = uncapturable(scenario, me)
+        if why is not None or scenario is None or scenario.kind != "docking":
+            return why
+        docking = scenario.docking
+        if docking is None or me != docking.chaser:
+            return why
+        seen = self.owner.others().get(docking.target)
+        if seen is None or t_sim is None or abs(t_sim - seen[0]) > docking.lost_after:
+            return (
+                f"docking: no fresh pose of the target {docking.target} to judge the "
+                "keep-out by: no rejoin"
+            )
+        own, target = self.owner.pose, seen[1]
+        return docking_keep_out(
+            (own.x, own.y, own.vx, own.vy), (target.x, target.y, target.heading),
+            docking.contact_distance, docking.hold_distance,
+            BRAKE_SHARE * self.track_limits.max_accel,
+        )  # fmt: skip
 
     def _join(self, decision: Decision, t_exec: float, host: float) -> None:
         owner, commands = self.owner, self.commands
@@ -152,6 +245,9 @@ class Rejoining:
                     # already asks for no more than the platform's limits.
                     pose = owner.pose
                     self.capture = Capture(pose.heading, pose.omega, self.limits)
+                    scenario = owner.config.scenario
+                    if scenario is not None and scenario.kind in TRACKED:
+                        self.track_capture = self._track_from(pose)
                     self._last_host = host
             for event in events:
                 if event.kind == "rejoined":
@@ -159,14 +255,39 @@ class Rejoining:
         commands.apply(events, t_exec, host)
         commands.status_now = True
 
+    def _track_from(self, pose: wire.Pose) -> TrackCapture:
+        """A position capture that starts at the platform's estimate (common frame)."""
+        return TrackCapture(pose.x, pose.y, pose.vx, pose.vy, self.track_limits)
+
+    def _dt(self, host: float) -> float:
+        last, self._last_host = self._last_host, host
+        return 0.0 if last is None else min(MAX_STEP, max(0.0, host - last))
+
+    def _capture_track(self, capture: TrackCapture, dt: float) -> None:
+        """The owner's track this step (``owner.track``), captured in place. No track (a
+        docking chaser before its first measurement): nothing to capture, and the
+        capture starts afresh from the platform when one comes."""
+        owner = self.owner
+        track = owner.track
+        if track is None:
+            self.track_capture = self._track_from(owner.pose)
+            return
+        owner.track = Track(*capture.step(track, dt))
+        if capture.captured:
+            log.info("rejoin: position reference captured")
+            self.track_capture = None
+
     def guidance(self, heading: float, rate: float, host: float) -> tuple[float, float]:
         """The heading reference to fly: the scenario's, captured while a rejoin's
-        capture lasts."""
-        capture = self.capture
+        capture lasts; the owner's track (``owner.track``) captured alike, in place."""
+        capture, track_capture = self.capture, self.track_capture
+        if capture is None and track_capture is None:
+            return heading, rate
+        dt = self._dt(host)
+        if track_capture is not None:
+            self._capture_track(track_capture, dt)
         if capture is None:
             return heading, rate
-        last, self._last_host = self._last_host, host
-        dt = 0.0 if last is None else min(MAX_STEP, max(0.0, host - last))
         out = capture.step(heading, rate, dt)
         if capture.captured:
             log.info("rejoin: reference captured")
@@ -174,8 +295,13 @@ class Rejoining:
         return out
 
     def pause(self, host: float) -> None:
-        """A step not flown on the capture (the run frozen): it resumes from here."""
-        if self.capture is not None:
+        """A step not flown on the heading capture (the run frozen, or not running): it
+        resumes from here. A frozen run's track (the point the platform holds) is still
+        captured: the platform is brought to it, not stepped."""
+        track_capture = self.track_capture
+        if track_capture is not None and self.commands.run_state.mode == "frozen":
+            self._capture_track(track_capture, self._dt(host))
+        elif self.capture is not None or track_capture is not None:
             self._last_host = host
 
     def admit(self) -> str | None:

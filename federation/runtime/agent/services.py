@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Protocol
 if TYPE_CHECKING:
     import zenoh
 
+    from agents.guidance import Track
     from agents.interface import Platform
     from agents.scenario import ScenarioGuidance
     from federation.core import wire
@@ -47,6 +48,8 @@ class AgentServices(Protocol):
     timebase: TimeBase[AgentId]
     pose: wire.Pose
     guidance: tuple[float, float]
+    track: Track | None
+    """The position reference the platform flies this step (common frame; None: none)."""
     maneuver: Callable[[float], tuple[float, float]]
 
     @property
@@ -65,6 +68,8 @@ class AgentServices(Protocol):
     def event(self, kind: str, t_exec: float, host: float, detail: str) -> None: ...
 
     def sim_time(self, t_exec: float) -> float | None: ...
+
+    def others(self) -> dict[str, tuple[float, wire.Pose]]: ...
 
     def status(self) -> Status: ...
 

@@ -286,12 +286,23 @@ def test_never_says_so_while_waiting() -> None:
     assert r.last_status()["rejoin"] == "rejoin = never"
 
 
-def test_only_a_heading_reference_is_captured() -> None:
+def test_what_stays_uncapturable_says_why() -> None:
+    # A heading reference and a formation's or docking's track have a capture; a
+    # plug-in's reference and a drifting or turning docking target's do not.
     from federation.runtime.agent.rejoining import uncapturable
-    from schemas.scenario import ScenarioPart
+    from schemas.scenario import DockingConfig, ScenarioPart
 
     assert uncapturable(None) is None
     assert uncapturable(ScenarioPart(kind="attitude-tracking")) is None
-    for kind in ("formation", "docking"):
-        why = uncapturable(ScenarioPart.model_construct(kind=kind))
-        assert why is not None and "no rejoin" in why
+    assert uncapturable(ScenarioPart.model_construct(kind="formation")) is None
+    plugin = uncapturable(ScenarioPart.model_construct(kind="orbit"), ME)
+    assert plugin is not None and "plug-in" in plugin and "no rejoin" in plugin
+    still = DockingConfig(target=str(LEAD), chaser=ME)
+    drifting = DockingConfig(target=str(LEAD), chaser=ME, target_drift=(0.01, 0.0))
+    turning = DockingConfig(target=str(LEAD), chaser=ME, target_rate_deg=1.0)
+    for docking in (still, drifting, turning):  # a chaser is judged where it is
+        assert uncapturable(ScenarioPart(kind="docking", docking=docking), ME) is None
+    assert uncapturable(ScenarioPart(kind="docking", docking=still), str(LEAD)) is None
+    for docking in (drifting, turning):
+        why = uncapturable(ScenarioPart(kind="docking", docking=docking), str(LEAD))
+        assert why is not None and "drifting or turning target" in why
