@@ -28,6 +28,7 @@ from federation.testbed import PREFIX, leftover_namespaces, missing
 WHY = missing()
 pytestmark = [
     pytest.mark.integration,
+    pytest.mark.scenario,  # about 32 s: three routers and agents lock across the lossy path
     pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
 ]
 
