@@ -13,6 +13,16 @@ docking's position reference (a track) is captured likewise at bounded speed and
 acceleration (:func:`track_limits_of`), while the run runs and while it is frozen (the
 frozen track is a point the platform holds: it is brought there, not stepped to).
 
+A hold in a run under way (a stale link, however long: past the link's lease the
+followed agent leaves and comes back, its sync estimate starts afresh; a contest, a lost
+router, the leader's role) leaves the run running on its own clock, the platform held:
+it flies on once the hold lifts, at the run's present time. Its reference has moved on
+meanwhile (a leader turning at 0.1 rad/s for 30 s is 3 rad further), so the release
+goes through the same capture as a rejoin: heading and track from where the platform
+is, at bounded rate and acceleration (:meth:`Rejoining.after_hold`). A hold that
+stands at the run's start (``waiting``) is not one: the run's own start captures
+nothing.
+
 What stays uncapturable (:func:`uncapturable`, :meth:`Rejoining.keep_out`), each with
 why in the status's ``rejoin``:
 
@@ -148,6 +158,8 @@ class Rejoining:
         self.capture: Capture | None = None
         self.track_capture: TrackCapture | None = None
         self._last_host: float | None = None
+        self._flown = False  # the platform flew (released) in the run under way
+        self._held_since: float | None = None  # host monotonic a hold in it began
 
     def on_status(self, sample: zenoh.Sample) -> None:
         """Another agent's status (Zenoh's thread: never raises, keeps the newest)."""
@@ -172,6 +184,7 @@ class Rejoining:
         if run.mode not in ("running", "frozen"):
             # A run that ended (aborted, done) captures nothing more.
             self.capture = self.track_capture = None
+            self._flown, self._held_since = False, None
         if run.mode != "waiting":
             self.admitted = False  # an admit is for the run under way while it waits
             return
@@ -243,17 +256,40 @@ class Rejoining:
                     commands.experiment = joined.experiment
                     # The capture begins before the platform is released: its first step
                     # already asks for no more than the platform's limits.
-                    pose = owner.pose
-                    self.capture = Capture(pose.heading, pose.omega, self.limits)
-                    scenario = owner.config.scenario
-                    if scenario is not None and scenario.kind in TRACKED:
-                        self.track_capture = self._track_from(pose)
-                    self._last_host = host
+                    self._begin_capture(host)
             for event in events:
                 if event.kind == "rejoined":
                     owner.safety.apply_locked(Trigger.RUN_REJOINED)
         commands.apply(events, t_exec, host)
         commands.status_now = True
+
+    def _begin_capture(self, host: float) -> None:
+        """Capture the heading and, for a formation or docking, the track from where the
+        platform is now (its estimate, common frame)."""
+        pose = self.owner.pose
+        self.capture = Capture(pose.heading, pose.omega, self.limits)
+        scenario = self.owner.config.scenario
+        if scenario is not None and scenario.kind in TRACKED:
+            self.track_capture = self._track_from(pose)
+        self._last_host = host
+
+    def after_hold(self, host: float) -> None:
+        """At every step of a run under way (running or frozen): a release after a hold
+        that began once the platform had flown in it starts a capture from where the
+        platform is (see the module)."""
+        hold = self.owner.safety.hold
+        if hold is not None:
+            if self._flown and self._held_since is None:
+                self._held_since = host
+            return
+        if self._held_since is not None:
+            log.info(
+                "released after a %.1f s hold: reference captured from the platform",
+                host - self._held_since,
+            )
+            self._held_since = None
+            self._begin_capture(host)
+        self._flown = True
 
     def _track_from(self, pose: wire.Pose) -> TrackCapture:
         """A position capture that starts at the platform's estimate (common frame)."""
@@ -280,6 +316,7 @@ class Rejoining:
     def guidance(self, heading: float, rate: float, host: float) -> tuple[float, float]:
         """The heading reference to fly: the scenario's, captured while a rejoin's
         capture lasts; the owner's track (``owner.track``) captured alike, in place."""
+        self.after_hold(host)
         capture, track_capture = self.capture, self.track_capture
         if capture is None and track_capture is None:
             return heading, rate
@@ -298,8 +335,11 @@ class Rejoining:
         """A step not flown on the heading capture (the run frozen, or not running): it
         resumes from here. A frozen run's track (the point the platform holds) is still
         captured: the platform is brought to it, not stepped."""
+        frozen = self.commands.run_state.mode == "frozen"
+        if frozen:
+            self.after_hold(host)
         track_capture = self.track_capture
-        if track_capture is not None and self.commands.run_state.mode == "frozen":
+        if track_capture is not None and frozen:
             self._capture_track(track_capture, self._dt(host))
         elif self.capture is not None or track_capture is not None:
             self._last_host = host

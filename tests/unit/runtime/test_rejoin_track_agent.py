@@ -3,7 +3,10 @@
 driven by hand on simulated time: it rejoins, and the track it flies is captured from
 where its platform is onto the scenario's at the preset's speed and acceleration, with
 no step, then the scenario's passes through; a chaser inside its final approach, or
-with no pose of its target, stays waiting, held, every valve closed."""
+with no pose of its target, stays waiting, held, every valve closed. And a follower
+whose stale-link hold outlasted its link's lease: it flies on at the run's present time
+once poses and a sync exchange return, its reference captured from where its platform
+is rather than stepped to where the leader went meanwhile."""
 
 from __future__ import annotations
 
@@ -15,6 +18,7 @@ import pytest
 
 from agents.platform import make_platform
 from federation.core import keys, wire
+from federation.core.angles import wrap_angle
 from federation.core.keys import AgentId
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.clock import ExecClock
@@ -63,7 +67,13 @@ class _Sink:
 class Restarted:
     """An agent of a simulated knatte just (re)started in ``scenario``: waiting, held."""
 
-    def __init__(self, scenario: ScenarioPart, role: str = "member", target: bool = False):
+    def __init__(
+        self,
+        scenario: ScenarioPart | None,
+        role: str = "member",
+        target: bool = False,
+        turning: float = 0.0,
+    ):
         self.now = 1000.0
         self.clock = ExecClock(source=lambda: self.now)
         follow = {"follow": str(LEAD)} if role == "follower" else {}
@@ -80,7 +90,9 @@ class Restarted:
         self.statuses: list[str] = []
         self.agent.reporter.publisher = _Sink(self.statuses)
         self.agent.peer_seen(LEAD, True)
-        self.target = target  # the docking's target shares its pose (still at 0, 0)
+        self.target = target  # LEAD shares its pose: at 0, 0, turning at ``turning`` rad/s
+        self.turning = turning
+        self.cut = False  # LEAD's lab cut off: no pose, no sync
 
     def sync(self) -> None:
         link = self.agent.peers[LEAD].link
@@ -91,9 +103,11 @@ class Restarted:
 
     def step(self, dt: float = DT) -> None:
         self.now += dt
-        if self.target:
-            t = self.clock.now() + 0.005  # the target's clock
-            self.agent.latest_poses[LEAD] = wire.PoseSample(t, wire.Pose())
+        if self.target and not self.cut:
+            t = self.clock.now() + 0.005  # LEAD's clock
+            heading = wrap_angle(1.0 + self.turning * (t - 1000.0))
+            pose = wire.Pose(heading=heading, omega=self.turning)
+            self.agent.latest_poses[LEAD] = wire.PoseSample(t, pose)
             self.agent.pose_received_at[LEAD] = self.clock.now()
         self.agent.control_step()
 
@@ -251,3 +265,91 @@ def test_a_docking_chaser_without_its_target_s_pose_stays_waiting() -> None:
     decision = r.agent.rejoining.decision
     assert r.agent.run_state.mode == "waiting" and r.agent.platform.held
     assert decision is not None and "no fresh pose of the target rome/l" in decision.why
+
+
+# -- a hold that outlasted the link's watch ---------------------------------------
+def _flying_follower(turning: float) -> Restarted:
+    """A follower of LEAD (turning at ``turning`` rad/s) flying a 90 s run started by
+    ctl, released."""
+    r = Restarted(None, role="follower", target=True, turning=turning)
+    r.synced()
+    start = r.t_sim() + 0.2
+    r.agent.commands.on_control(_control("start", run_id="r1", at=start, duration=90.0))
+    for k in range(200):  # 2 s flown
+        r.step()
+        if k % 10 == 0:
+            r.sync()
+    assert r.agent.run_state.mode == "running" and r.agent.hold is None
+    return r
+
+
+def _cut(r: Restarted, seconds: float) -> None:
+    """LEAD's lab cut off for ``seconds``: no pose, no sync; past its lease (10 s here)
+    its liveliness token leaves, and comes back with the link."""
+    r.cut = True
+    for k in range(int(seconds / 0.05)):
+        r.step(0.05)
+        if k * 0.05 == 10.0:
+            r.agent.peer_seen(LEAD, False)
+    r.agent.peer_seen(LEAD, True)
+    r.cut = False
+
+
+def test_a_follower_whose_hold_outlasted_the_lease_flies_on_without_a_step() -> None:
+    r = _flying_follower(turning=0.1)
+    start_at = r.agent.run_state.start_at
+    r.turning = -0.1  # unseen, the leader turns the other way (the held platform coasts on)
+    _cut(r, 30.0)
+    assert r.agent.run_state.mode == "running" and r.agent.hold == "stale"
+    assert r.agent.platform.held and not any(r.agent.platform.valves)
+    held_heading = r.agent.pose.heading
+    limits = r.agent.rejoining.limits
+    released = None
+    prev = None
+    for k in range(1500):  # poses and sync again; 15 s
+        if k % 5 == 0:
+            r.sync()  # 5 ms of the clock on
+        before = r.now
+        r.step()
+        dt = r.now - before + (0.005 if k % 5 == 0 else 0.0)
+        heading, rate = r.agent.guidance
+        if released is None and r.agent.hold is None:
+            released = k * DT
+            # The first reference flown starts at the platform, not 3 rad on at the leader.
+            assert abs(wrap_angle(heading - held_heading)) < 0.05
+            assert r.agent.rejoining.capture is not None
+        elif released is not None and r.agent.rejoining.capture is not None:
+            assert prev is not None
+            assert abs(wrap_angle(heading - prev[0])) <= limits.max_rate * dt + 1e-9
+            assert abs(rate - prev[1]) <= limits.max_accel * dt + 1e-9
+        prev = (heading, rate)
+    assert released is not None, "never released"
+    print(f"released {released:.2f} s after the link came back")
+    state = r.agent.run_state
+    # The same run on the same clock: its run time is the reference time since its start.
+    assert state.mode == "running" and state.run_id == "r1" and state.start_at == start_at
+    assert state.run_time(r.t_sim()) == pytest.approx(r.t_sim() - start_at)
+    assert r.agent.rejoining.capture is None, "never captured"
+    leader = wrap_angle(1.0 - 0.1 * (r.clock.now() - 1000.0))
+    assert abs(wrap_angle(r.agent.guidance[0] - leader)) < 0.05  # on the leader's heading
+
+
+def test_a_hold_at_the_run_s_start_is_not_one_to_capture_from() -> None:
+    r = _flying_follower(turning=0.0)
+    assert r.agent.rejoining.capture is None  # the start's waiting hold captured nothing
+
+
+def test_a_run_that_ends_during_a_hold_captures_nothing_after() -> None:
+    r = _flying_follower(turning=0.1)
+    r.cut = True
+    for _ in range(20):
+        r.step(0.05)
+    assert r.agent.hold == "stale"
+    r.agent.commands.on_control(_control("abort"))
+    r.cut = False
+    for k in range(100):
+        r.step()
+        if k % 5 == 0:
+            r.sync()
+    assert r.agent.run_state.mode == "aborted" and r.agent.platform.held
+    assert r.agent.rejoining.capture is None
