@@ -19,9 +19,9 @@ router, the leader's role) leaves the run running on its own clock, the platform
 it flies on once the hold lifts, at the run's present time. Its reference has moved on
 meanwhile (a leader turning at 0.1 rad/s for 30 s is 3 rad further), so the release
 goes through the same capture as a rejoin: heading and track from where the platform
-is, at bounded rate and acceleration (:meth:`Rejoining.after_hold`). A hold that
-stands at the run's start (``waiting``) is not one: the run's own start captures
-nothing.
+is, at bounded rate and acceleration (:meth:`Rejoining.after_hold`); so does a
+platform held from its run's first step (a stale link at the start), released later.
+The run's own start captures nothing: ``waiting`` is lifted as it starts.
 
 What stays uncapturable (:func:`uncapturable`, :meth:`Rejoining.keep_out`), each with
 why in the status's ``rejoin``:
@@ -158,8 +158,7 @@ class Rejoining:
         self.capture: Capture | None = None
         self.track_capture: TrackCapture | None = None
         self._last_host: float | None = None
-        self._flown = False  # the platform flew (released) in the run under way
-        self._held_since: float | None = None  # host monotonic a hold in it began
+        self._held_since: float | None = None  # host monotonic a hold in the run began
 
     def on_status(self, sample: zenoh.Sample) -> None:
         """Another agent's status (Zenoh's thread: never raises, keeps the newest)."""
@@ -184,7 +183,7 @@ class Rejoining:
         if run.mode not in ("running", "frozen"):
             # A run that ended (aborted, done) captures nothing more.
             self.capture = self.track_capture = None
-            self._flown, self._held_since = False, None
+            self._held_since = None
         if run.mode != "waiting":
             self.admitted = False  # an admit is for the run under way while it waits
             return
@@ -275,11 +274,11 @@ class Rejoining:
 
     def after_hold(self, host: float) -> None:
         """At every step of a run under way (running or frozen): a release after a hold
-        that began once the platform had flown in it starts a capture from where the
-        platform is (see the module)."""
-        hold = self.owner.safety.hold
-        if hold is not None:
-            if self._flown and self._held_since is None:
+        seen in it starts a capture from where the platform is (see the module). The
+        start's ``waiting`` hold is lifted in the step the run starts, before any is
+        seen here."""
+        if self.owner.safety.hold is not None:
+            if self._held_since is None:
                 self._held_since = host
             return
         if self._held_since is not None:
@@ -289,7 +288,6 @@ class Rejoining:
             )
             self._held_since = None
             self._begin_capture(host)
-        self._flown = True
 
     def _track_from(self, pose: wire.Pose) -> TrackCapture:
         """A position capture that starts at the platform's estimate (common frame)."""
