@@ -45,6 +45,9 @@ FILES: dict[str, str] = {
     "network-formation-60s.json": (
         "(root) fedlab bench network-formation --seconds 60 --repeats 3 --json-out ..."
     ),
+    "merge-2gib.json": (
+        "fedlab bench merge --size 2048 --repeats 1 --json-out benchmarks/merge-2gib.json"
+    ),
 }
 """The current result of each benchmark, and the command that made it (the full command
 of each is in benchmarks/README.md, or inside the file)."""
@@ -304,6 +307,21 @@ def _transparency_rows(folder: Path) -> list[Row]:
     return out
 
 
+def _merge_rows(folder: Path) -> list[Row]:
+    d = _load(folder, "merge-2gib.json")
+    run, fed, base = d["run"], d["merge"], d["baseline"]
+    return [
+        (
+            f"merge, {run['mib'] / 1024:.2f} GiB run, {len(run['agents'])} agents",
+            f"peak RSS (MiB; budget {d['budget_mib']:g}); MiB/s; baseline: a plain mcap read",
+            f"{_summary(fed['peak_rss_mib'], fmt='{:.1f}')}"
+            f"{'' if d['within_budget'] else ' (over the budget)'}; {_summary(fed['mib_per_s'])}",
+            f"{_summary(base['peak_rss_mib'], fmt='{:.1f}')}; {_summary(base['mib_per_s'])}",
+            "merge-2gib.json",
+        )
+    ]
+
+
 def _formation_network_rows(folder: Path) -> list[Row]:
     """Per loss level: the formation's ratio in the testbed; the baseline is its error
     with no loss, flown in the same invocation."""
@@ -335,6 +353,7 @@ _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _scenario_rows,
     _transparency_rows,
     _formation_network_rows,
+    _merge_rows,
 )
 
 
