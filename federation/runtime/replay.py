@@ -221,7 +221,10 @@ class Replayer:
         self.mode = "replaying"
         due = self.plan.due(run_time)
         if due is not None:
-            self._publish(due.pose, t_exec, ref)
+            # Stamped at the instant it was recorded for, not when it leaves: a pose sent
+            # late (a busy host, the loop's step) says so by its age, as a live one does.
+            lag = max(0.0, run_time - due.run_time)
+            self._publish(due.pose, t_exec - lag, (ref[0] - lag, ref[1]))
         following = self.plan.next_due
         return MAX_STEP if following is None else following - run_time
 
