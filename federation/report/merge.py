@@ -55,27 +55,29 @@ import itertools
 import json
 import math
 import statistics
+import tempfile
+from array import array
 from bisect import bisect_right
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 import numpy as np
 from foxglove.messages import SceneUpdate
-from mcap.reader import NonSeekingReader, make_reader
+from mcap.exceptions import McapError
 from mcap.records import Channel as McapChannel
+from mcap.records import Header, Metadata, Schema
 from mcap.records import Message as McapMessage
-from mcap.records import Schema
+from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from federation.core.channels import FOXGLOVE_CHANNELS, Channel
 from federation.report import mergeview as view
 from federation.report.analysis import Clock, clock_map
-from federation.report.load import MERGE_METADATA, agent_from_filename, is_merged, segment_of
-from federation.report.status import clock_line
-from federation.runtime.mcapfile import CHUNK_SIZE, as_metadata, is_finished
+from federation.report.load import MERGE_METADATA, agent_from_filename, segment_of
+from federation.runtime.mcapfile import as_metadata
 from schemas.config import ConfigError
 
 __all__ = [
@@ -95,6 +97,11 @@ __all__ = [
 # MERGE_METADATA (federation.report.load): the name of the merged file's metadata
 # record: the epoch and its uncertainty, the reference agent, the run's start, what log
 # and publish times mean, counts, notes.
+MERGE_LIBRARY = "fedlab merge"  # the merged file's header's library: what marks it
+OUTPUT_CHUNK = 4 * 2**20
+"""Bytes (uncompressed) of a merged file's chunk. The writer keeps one index entry per
+chunk (a few KiB with its channels' offsets) until it writes the summary: larger
+chunks, fewer entries (about 1 KiB per MiB written)."""
 REORDER_S = 2.0  # s a message is held to be ordered by reference time
 THIN_S = 0.5e-6  # s, half-width of the corridor the offset points are thinned within
 STAMP_FIELDS: dict[str, str] = {
@@ -111,55 +118,154 @@ _SOURCE_NOTES = {
 _DERIVED = frozenset(FOXGLOVE_CHANNELS)  # a recording's /tf and /pose: from /pose/sent
 
 
+class _Series:
+    """Rows of ``width`` numbers (float64) appended in order of their first, kept in an
+    anonymous temporary file and read back a block of ``BLOCK`` rows at a time: the
+    memory it holds is two blocks and one number per block, whatever its length.
+
+    Block ``j`` is rows ``j * BLOCK`` to ``(j + 1) * BLOCK`` inclusive (one row shared
+    with the next), so a value between two rows is always inside one block, and an
+    interpolation or a search in it gives what one over every row would."""
+
+    BLOCK = 4096
+
+    def __init__(self, width: int):
+        self.width = width
+        self.n = 0
+        self.firsts: list[float] = []  # the first number of each block's first row
+        # Open as long as the series: close() closes it (deleted then).
+        self._file = tempfile.TemporaryFile()  # noqa: SIM115
+        self._buffer = array("d")  # rows appended, not yet in the file
+        self._cache: dict[int, list[np.ndarray]] = {}  # the last two blocks read, by column
+
+    def __len__(self) -> int:
+        return self.n
+
+    def append(self, *row: float) -> None:
+        if self.n % self.BLOCK == 0:
+            self.firsts.append(row[0])
+        self._buffer.extend(row)
+        self.n += 1
+        if len(self._buffer) >= self.BLOCK * self.width:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._buffer:
+            self._file.seek(0, 2)
+            self._file.write(self._buffer.tobytes())
+            del self._buffer[:]
+
+    def block(self, j: int) -> list[np.ndarray]:
+        """Block ``j``'s columns (contiguous arrays)."""
+        columns = self._cache.get(j)
+        if columns is None:
+            self._flush()
+            lo, hi = j * self.BLOCK, min((j + 1) * self.BLOCK, self.n - 1)
+            self._file.seek(lo * self.width * 8)
+            rows = np.frombuffer(self._file.read((hi - lo + 1) * self.width * 8), dtype=float)
+            table = rows.reshape(-1, self.width)
+            columns = [np.ascontiguousarray(table[:, i]) for i in range(self.width)]
+            if len(self._cache) >= 2:
+                del self._cache[next(iter(self._cache))]
+            self._cache[j] = columns
+        return columns
+
+    def _locate(self, t: float) -> int:
+        return max(0, bisect_right(self.firsts, t) - 1)
+
+    def interp(self, t: float, column: int = 1) -> float:
+        """``column`` at ``t`` of the first, linear between rows, as :func:`numpy.interp`
+        over every row gives it (the end rows' values outside them)."""
+        columns = self.block(self._locate(t))
+        return float(np.interp(t, columns[0], columns[column]))
+
+    def near(self, t: float, column: int) -> list[float]:
+        """``column`` of the rows ``k - 1`` and ``k`` that exist, ``k`` the number of rows
+        whose first is ``t`` or less (:func:`bisect.bisect_right` over every row)."""
+        j = self._locate(t)
+        columns = self.block(j)
+        k = int(np.searchsorted(columns[0], t, side="right"))
+        return [float(columns[column][i]) for i in (k - 1, k) if 0 <= i < len(columns[0])]
+
+    def rows(self) -> Iterator[list[np.ndarray]]:
+        """Every row once, as the columns of blocks in order."""
+        for j in range(len(self.firsts)):
+            columns = self.block(j)
+            last = j == len(self.firsts) - 1
+            yield columns if last else [c[:-1] for c in columns]
+
+    def column(self, i: int) -> np.ndarray:
+        """Column ``i`` of every row (loaded whole: for small series and tests)."""
+        parts = [columns[i] for columns in self.rows()]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def close(self) -> None:
+        self._file.close()
+        self._cache.clear()
+
+
 class Thinned:
     """Points ``(t, y)`` given in time order, kept only where needed: linear
     interpolation between kept points stays within ``2 * tolerance`` of every point
     given (the swinging door: a point is kept when no line from the last kept one
-    passes within ``tolerance`` of all since)."""
+    passes within ``tolerance`` of all since). The kept points go to a temporary file
+    (:class:`_Series`): it holds the last kept point and the corridor, nothing more."""
 
     def __init__(self, tolerance: float = THIN_S):
         self.tolerance = tolerance
-        self.t: list[float] = []
-        self.y: list[float] = []
-        self._last: tuple[float, float] | None = None
+        self.kept = _Series(2)
+        self._anchor: tuple[float, float] | None = None  # the last point kept
+        self._last: tuple[float, float] | None = None  # the last point given since
         self._low, self._high = -math.inf, math.inf
+        self._done = False
+
+    def __len__(self) -> int:
+        return len(self.kept) + (self._last is not None and not self._done)
 
     def add(self, t: float, y: float) -> None:
-        if not self.t:
-            self.t.append(t)
-            self.y.append(y)
+        if self._anchor is None:
+            self._anchor = (t, y)
+            self.kept.append(t, y)
             return
         last = self._last
-        if t <= (last[0] if last else self.t[-1]):
+        if t <= (last[0] if last else self._anchor[0]):
             return  # not later than the last point: out of order, dropped
         low, high = self._corridor(t, y)
         if low > high and last is not None:  # no line fits them all: keep the last
-            self.t.append(last[0])
-            self.y.append(last[1])
+            self._anchor = last
+            self.kept.append(*last)
             self._low, self._high = -math.inf, math.inf
             low, high = self._corridor(t, y)
         self._low, self._high = low, high
         self._last = (t, y)
 
     def _corridor(self, t: float, y: float) -> tuple[float, float]:
-        dt = t - self.t[-1]
-        low = (y - self.tolerance - self.y[-1]) / dt
-        high = (y + self.tolerance - self.y[-1]) / dt
+        assert self._anchor is not None
+        dt = t - self._anchor[0]
+        low = (y - self.tolerance - self._anchor[1]) / dt
+        high = (y + self.tolerance - self._anchor[1]) / dt
         return max(self._low, low), min(self._high, high)
 
+    def finish(self) -> _Series:
+        """The kept points and the last one given (no point may be added after)."""
+        if not self._done and self._last is not None:
+            self.kept.append(*self._last)
+        self._done = True
+        return self.kept
+
     def points(self) -> tuple[np.ndarray, np.ndarray]:
-        """The kept points and the last one given."""
-        t, y = list(self.t), list(self.y)
-        if self._last is not None:
-            t.append(self._last[0])
-            y.append(self._last[1])
-        return np.array(t, dtype=float), np.array(y, dtype=float)
+        """The kept points and the last one given, as arrays (loaded whole)."""
+        kept = self.finish()
+        return kept.column(0), kept.column(1)
 
 
 def _number(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
     return float(value) if math.isfinite(value) else None
+
+
+_T, _BOUND, _WALL, _HOST = range(4)  # a status line's row: own clock, bound, log time, host
 
 
 @dataclass
@@ -171,12 +277,11 @@ class AgentClock:
     segment: int = 1  # 1: the run's first recording; 2...: after each rejoin
     reference: str | None = None  # the reference agent its statuses name
     source: str = "none"  # "reference" (its own clock), "estimate" (/reference), "exchanges"
-    t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # own clock, s
-    offset: np.ndarray = field(default_factory=lambda: np.zeros(0))  # reference minus own, s
-    status_t: list[float] = field(default_factory=list)  # own clock of each status line
-    status_bound: list[float] = field(default_factory=list)  # its reference_bound (NaN: none)
-    status_wall: list[float] = field(default_factory=list)  # its log time, host wall clock, s
-    status_host: list[float] = field(default_factory=list)  # its host_monotonic
+    estimate: _Series | None = None  # (own clock, reference minus own) points, s
+    # Per status line: own clock, its reference_bound (NaN: none), its log time (host
+    # wall clock) and host_monotonic (NaN: none), s.
+    statuses: _Series = field(default_factory=lambda: _Series(4))
+    bound_max: float | None = None  # the largest reference_bound a status line states
     started: float | None = None  # reference time of its started event
     first: float | None = None  # its first own-clock stamp surveyed
     host: str | None = None  # the host that recorded it (fedlab.run metadata)
@@ -195,20 +300,20 @@ class AgentClock:
 
     def to_reference(self, t: float) -> float:
         """Own clock ``t`` (s) on reference time (s)."""
-        if not self.t.size:
+        if self.estimate is None or not self.estimate.n:
             return t
-        return t + float(np.interp(t, self.t, self.offset))
+        return t + self.estimate.interp(t)
 
     def bound(self, t: float) -> float | None:
         """Error bound (s) of :meth:`to_reference` at own clock ``t``; None where unknown
-        (before the agent's first estimate, or no status line said)."""
+        (before the agent's first estimate, or no status line said): the larger of the
+        status lines' either side, plus the interpolation's."""
         if self.source == "reference":
             return 0.0
-        if not self.t.size or t < self.t[0] or not self.status_t:
+        estimate = self.estimate
+        if estimate is None or not estimate.n or t < estimate.firsts[0] or not self.statuses.n:
             return None
-        k = bisect_right(self.status_t, t)
-        near = [self.status_bound[i] for i in (k - 1, k) if 0 <= i < len(self.status_t)]
-        near = [b for b in near if math.isfinite(b)]
+        near = [b for b in self.statuses.near(t, _BOUND) if math.isfinite(b)]
         return max(near) + 2 * THIN_S if near else None
 
     def _size(self) -> int | None:
@@ -225,29 +330,70 @@ class AgentClock:
         return a + b * wall_ns / 1e9
 
     def describe(self) -> dict[str, Any]:
-        """As a metadata record's data (JSON-ready)."""
+        """As a metadata record's data (JSON-ready): a summary of the clock; its points
+        are the ``/LAB/NAME/clock`` rows (``point`` true: the estimate's, linear
+        between; false: at a status line, with the bound)."""
+        points = self.estimate.n if self.estimate is not None else 0
         return {
             "file": self.path.name, "segment": self.segment, "size_bytes": self._size(),
             "reference": self.reference, "source": self.source,
-            "offset_points": json.dumps([self.t.tolist(), self.offset.tolist()]),
-            "bounds": json.dumps([self.status_t, [_number(b) for b in self.status_bound]]),
+            "offset_points": points, "status_lines": self.statuses.n,
+            "reference_bound_max_s": self.bound_max,
+            "clock_channel": f"/{self.agent}/clock",
             "wall_line": json.dumps(self.wall), "wall_residual_s": self.wall_residual,
             "host_truth_line": json.dumps(self.truth), "host": self.host,
             "started_ref_s": self.started, "thinning_bound_s": 2 * THIN_S,
         }  # fmt: skip
 
+    def close(self) -> None:
+        """Delete its temporary files."""
+        self.statuses.close()
+        if self.estimate is not None:
+            self.estimate.close()
 
-def _messages(path: Path, topics: list[str] | None, notes: list[str]) -> Iterator[Any]:
-    """(schema, channel, message) of a recording in log-time order; from a file not
-    finished (its agent killed), in file order up to the damage (a note says so)."""
+
+def _stream(
+    f: IO[bytes], topics: Sequence[str] | None, metadata: dict[str, dict[str, str]] | None
+) -> Iterator[tuple[Schema | None, McapChannel, McapMessage]]:
+    """(schema, channel, message) of an MCAP stream in file order, its metadata records
+    into ``metadata`` (if given). File order, not log-time order: ordering by log time
+    would load the file's whole chunk index (its summary)."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, McapChannel] = {}
+    wanted = None if topics is None else frozenset(topics)
+    for record in StreamReader(f).records:
+        if isinstance(record, McapMessage):
+            channel = channels.get(record.channel_id)
+            if channel is None:
+                raise ValueError(f"message on channel {record.channel_id}, never declared")
+            if wanted is None or channel.topic in wanted:
+                yield schemas.get(channel.schema_id), channel, record
+        elif isinstance(record, McapChannel):
+            channels[record.id] = record
+        elif isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Metadata) and metadata is not None:
+            metadata[record.name] = dict(record.metadata)
+
+
+def _messages(
+    path: Path,
+    topics: Sequence[str] | None,
+    notes: list[str],
+    metadata: dict[str, dict[str, str]] | None = None,
+) -> Iterator[tuple[Schema | None, McapChannel, McapMessage]]:
+    """(schema, channel, message) of a recording in file order (the recorder writes
+    them in log-time order); from a damaged file (its agent killed), up to the damage
+    (a note says so). ``metadata`` gets its metadata records if it reads to its end."""
+    records: dict[str, dict[str, str]] = {}
     with path.open("rb") as f:
-        if is_finished(path):
-            yield from make_reader(f).iter_messages(topics=topics, log_time_order=True)
-            return
-        try:  # file order: ordering a damaged file's messages would load them all
-            yield from NonSeekingReader(f).iter_messages(topics=topics, log_time_order=False)
+        try:
+            yield from _stream(f, topics, records)
         except Exception as error:  # mcap raises many kinds on damage
             notes.append(f"{path.name}: damaged ({type(error).__name__}); read up to it")
+            return
+    if metadata is not None:
+        metadata.update(records)
 
 
 class _Survey:
@@ -257,8 +403,6 @@ class _Survey:
         self.clock = clock
         self.own, self.exchanges = Thinned(), Thinned()
         self.references: Counter[str] = Counter()
-        self.wall_lines: list[dict[str, float]] = []
-        self.host_lines: list[dict[str, float]] = []
 
     def reference(self, t: float, data: dict[str, Any], log_time: int) -> None:
         t_sim = _number(data.get("t_sim"))
@@ -273,13 +417,13 @@ class _Survey:
             self.references[data["reference"]] += 1
         ready = data.get("ready")
         bound = _number(ready.get("reference_bound")) if isinstance(ready, dict) else None
-        clock.status_t.append(t)
-        clock.status_bound.append(math.nan if bound is None else bound)
-        clock.status_wall.append(log_time / 1e9)
-        self.wall_lines.append({"t_exec": t, "host_monotonic": log_time / 1e9})
+        if bound is not None:
+            clock.bound_max = bound if clock.bound_max is None else max(clock.bound_max, bound)
         host = _number(data.get("host_monotonic"))
-        if host is not None:
-            self.host_lines.append({"t_exec": t, "host_monotonic": host})
+        clock.statuses.append(
+            t, math.nan if bound is None else bound, log_time / 1e9,
+            math.nan if host is None else host,
+        )  # fmt: skip
 
     def control(self, t: float, data: dict[str, Any], log_time: int) -> None:
         at = _number(data.get("at"))
@@ -296,12 +440,18 @@ class _Survey:
         clock.reference = self.references.most_common(1)[0][0] if self.references else None
         if clock.reference == clock.agent:
             clock.source = "reference"
-        elif self.own.t:
-            clock.source, (clock.t, clock.offset) = "estimate", self.own.points()
-        elif self.exchanges.t:
-            clock.source, (clock.t, clock.offset) = "exchanges", self.exchanges.points()
-        clock.wall, clock.wall_residual = _line(self.wall_lines)
-        clock.truth, _ = _line(self.host_lines)
+        elif len(self.own):
+            clock.source, clock.estimate = "estimate", self.own.finish()
+        elif len(self.exchanges):
+            clock.source, clock.estimate = "exchanges", self.exchanges.finish()
+        for unused in (self.own, self.exchanges):
+            if unused.kept is not clock.estimate:
+                unused.kept.close()
+        t = clock.statuses.column(_T)
+        clock.wall, clock.wall_residual = _line(t, clock.statuses.column(_WALL))
+        host = clock.statuses.column(_HOST)
+        known = np.isfinite(host)
+        clock.truth, _ = _line(t[known], host[known])
         return clock
 
 
@@ -310,11 +460,11 @@ def survey(path: Path) -> AgentClock:
     reference clock (thinned), its status lines' bounds, wall and host times."""
     clock = AgentClock(agent_from_filename(path), path, segment_of(path))
     gather = _Survey(clock)
-    handlers = {
+    handlers: dict[str, Callable[[float, dict[str, Any], int], None]] = {
         Channel.REFERENCE: gather.reference, Channel.STATUS: gather.status,
         Channel.CONTROL: gather.control, Channel.SYNC_EXCHANGE: gather.exchange,
     }  # fmt: skip
-    for _schema, channel, message in _messages(path, list(_SURVEYED), clock.notes):
+    for _schema, channel, message in _messages(path, _SURVEYED, clock.notes, clock.metadata):
         try:
             data = json.loads(message.data)
         except ValueError:
@@ -326,20 +476,19 @@ def survey(path: Path) -> AgentClock:
             clock.first = t
         handlers[channel.topic](t, data, message.log_time)
     gather.finish()
-    if is_finished(path):
-        with path.open("rb") as f:
-            clock.metadata = {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
     clock.host = (clock.metadata.get("fedlab.run") or {}).get("host") or None
     return clock
 
 
-def _line(lines: list[dict[str, float]]) -> tuple[Clock | None, float]:
-    """The clock line through status lines (:func:`clock_line`) and its largest residual."""
-    if len(lines) < 2 or lines[0]["host_monotonic"] == lines[-1]["host_monotonic"]:
+def _line(t: np.ndarray, x: np.ndarray) -> tuple[Clock | None, float]:
+    """The clock line ``t = a + b * x`` through status lines and its largest residual
+    (fitted as :func:`federation.report.status.clock_line` fits it, on arrays)."""
+    if len(t) < 2 or x[0] == x[-1]:
         return None, 0.0
-    a, b = clock_line(lines)
-    residual = max(abs(m["t_exec"] - (a + b * m["host_monotonic"])) for m in lines)
-    return (a, b), residual
+    b, a = np.polyfit(x - x[0], t - t[0], 1)
+    line = (float(t[0] + a - b * x[0]), float(b))
+    residual = float(np.max(np.abs(t - (line[0] + line[1] * x))))
+    return line, residual
 
 
 @dataclass
@@ -370,11 +519,15 @@ def epoch(clocks: Sequence[AgentClock], notes: list[str]) -> Epoch:
     hosts: dict[str, float] = {}
     scatter = 0.0
     for c in clocks:
-        if c.source == "none" or not c.status_t:
+        if c.source == "none" or not c.statuses.n:
             continue
-        zeros = [w - c.to_reference(t) for t, w in zip(c.status_t, c.status_wall, strict=True)]
-        hosts[c.label] = statistics.median(zeros)
-        scatter = max(scatter, (max(zeros) - min(zeros)) / 2)
+        zeros = np.fromiter(
+            (w - c.to_reference(t) for columns in c.statuses.rows()
+             for t, w in zip(columns[_T].tolist(), columns[_WALL].tolist(), strict=True)),
+            dtype=float, count=c.statuses.n,
+        )  # fmt: skip
+        hosts[c.label] = float(np.median(zeros))
+        scatter = max(scatter, float(zeros.max() - zeros.min()) / 2)
     if not hosts:
         notes.append("no status line: the epoch's UTC is unknown (log time 0 is the start)")
         return Epoch(start, 0, None, {})
@@ -424,24 +577,38 @@ def _utc(ns: int) -> str:
 
 
 class _Item(NamedTuple):
-    """One message to write, ordered by its log time (ns; then agent and sequence)."""
+    """One message to write, ordered by its log time (ns; then agent and sequence);
+    or, with no channel, a point of the agent's offset estimate (``point``, own clock)."""
 
     ns: int
     agent: int
     seq: int
-    channel: McapChannel
+    channel: McapChannel | None
     schema: Schema | None
-    message: McapMessage
+    message: McapMessage | None
     data: bytes
     decoded: dict[str, Any] | None
+    point: float = math.nan
+
+
+def _points(clock: AgentClock) -> Iterator[float]:
+    """The own-clock times of the agent's offset estimate's points, in order."""
+    if clock.estimate is None:
+        return
+    for columns in clock.estimate.rows():
+        yield from columns[0].tolist()
 
 
 def _mapped(clock: AgentClock, index: int, epoch: Epoch, notes: list[str]) -> Iterator[_Item]:
     """One agent's messages with their reference log time, ordered within ``REORDER_S``
-    (its ``/tf`` and ``/pose`` left out and counted: ``/pose/sent`` gives them again)."""
+    (its ``/tf`` and ``/pose`` left out and counted: ``/pose/sent`` gives them again),
+    and its offset estimate's points, each once a message stamped at it or later is read
+    (both read in step: the estimate from its temporary file)."""
     held: list[_Item] = []
     window = round(REORDER_S * 1e9)
     counter = itertools.count()
+    points = _points(clock)
+    upcoming = next(points, None)
     for schema, channel, message in _messages(clock.path, None, notes):
         if channel.topic in _DERIVED:
             clock.skipped += 1
@@ -449,11 +616,14 @@ def _mapped(clock: AgentClock, index: int, epoch: Epoch, notes: list[str]) -> It
         decoded = _decoded(channel, message)
         stamped = STAMP_FIELDS.get(channel.topic, "t_exec")
         t = None if decoded is None else _number(decoded.get(stamped))
-        extra = 0.0
+        extra, own = 0.0, t is not None
         if t is None:
             t, extra = clock.from_wall(message.log_time), clock.wall_residual
             if t is None:
                 t, extra = clock.first or 0.0, math.inf
+        while own and upcoming is not None and upcoming <= t:
+            _push_point(held, clock, index, epoch, next(counter), upcoming)
+            upcoming = next(points, None)
         t_ref = clock.to_reference(t)
         data = message.data
         if decoded is not None:
@@ -465,8 +635,18 @@ def _mapped(clock: AgentClock, index: int, epoch: Epoch, notes: list[str]) -> It
                                    decoded))  # fmt: skip
         while held[0].ns <= ns - window:
             yield heapq.heappop(held)
+    while upcoming is not None:
+        _push_point(held, clock, index, epoch, next(counter), upcoming)
+        upcoming = next(points, None)
     while held:
         yield heapq.heappop(held)
+
+
+def _push_point(
+    held: list[_Item], clock: AgentClock, index: int, epoch: Epoch, seq: int, t: float
+) -> None:
+    ns = epoch.log_time(clock.to_reference(t))
+    heapq.heappush(held, _Item(ns, index, seq, None, None, None, b"", None, t))
 
 
 def _decoded(channel: McapChannel, message: McapMessage) -> dict[str, Any] | None:
@@ -567,8 +747,23 @@ def merge(
     ConfigError
         When no recording names a reference agent, or none maps to it.
     """
+    clocks: list[AgentClock] = []
+    try:
+        for p in paths:
+            clocks.append(survey(Path(p)))
+        return _merge(clocks, writer, run_json, experiment_json)
+    finally:
+        for c in clocks:
+            c.close()
+
+
+def _merge(
+    clocks: list[AgentClock],
+    writer: Writer,
+    run_json: str | None,
+    experiment_json: str | None,
+) -> MergeResult:
     notes: list[str] = []
-    clocks = [survey(Path(p)) for p in paths]
     for c in clocks:
         notes += c.notes
     named = Counter(c.reference for c in clocks if c.reference)
@@ -595,7 +790,7 @@ def merge(
     before: dict[str, dict[str, Any]] = {}
     streams = [_mapped(c, i, when, notes) for i, c in enumerate(mapped)]
     for item in heapq.merge(*streams):
-        result.messages_in += 1
+        result.messages_in += item.channel is not None  # a point of an estimate: not read
         _write(out, mapped[item.agent], item, before, result)
     result.messages_out, result.late = out.written, out.late
     result.skipped = sum(c.skipped for c in mapped)
@@ -637,7 +832,11 @@ def _write(
     before: dict[str, dict[str, Any]],
     result: MergeResult,
 ) -> None:
-    """One recorded message, namespaced, and what Foxglove shows of it."""
+    """One recorded message, namespaced, and what Foxglove shows of it; or a point of
+    the agent's offset estimate, as a clock row."""
+    if item.channel is None or item.message is None:
+        _clock_row(out, clock, item.point, item.ns, item.ns, point=True)
+        return
     agent, topic, ns = clock.agent, item.channel.topic, item.ns
     publish, decoded = item.message.log_time, item.decoded
     if (agent, clock.segment) not in out.segment_end:
@@ -713,13 +912,23 @@ def _write_status(
         out.foxglove("/tf", frame, ns, publish, agent)
     t = _number(decoded.get("t_exec"))
     if t is not None:
-        row = view.clock_row(t, clock.to_reference(t), clock.bound(t), _true_offset(clock, t))
-        out.json(f"/{agent}/clock", view.CLOCK_SCHEMA, row, ns, publish)
+        _clock_row(out, clock, t, ns, publish, point=False)
     for peer, row in view.peer_rows(decoded):
         topic_name = f"/{agent}/sync/{peer}"
         if topic_name not in out.channels:
             result.peer_topics.append(topic_name)
         out.json(topic_name, view.PEER_SCHEMA, row, ns, publish)
+
+
+def _clock_row(
+    out: _Output, clock: AgentClock, t: float, ns: int, publish: int, point: bool
+) -> None:
+    """A ``/LAB/NAME/clock`` row at own clock ``t``: a point of the estimate, or a status
+    line's."""
+    row = view.clock_row(
+        t, clock.to_reference(t), clock.bound(t), _true_offset(clock, t), point=point
+    )
+    out.json(f"/{clock.agent}/clock", view.CLOCK_SCHEMA, row, ns, publish)
 
 
 def write_merged(run_dir: str | Path, out: str | Path | None = None) -> tuple[MergeResult, Path]:
@@ -737,7 +946,7 @@ def write_merged(run_dir: str | Path, out: str | Path | None = None) -> tuple[Me
         raise ConfigError(f"{directory}: no such run directory")
     target = Path(out) if out is not None else directory / "merged.mcap"
     paths = [p for p in sorted(directory.glob("*.mcap")) if p.resolve() != target.resolve()]
-    paths = [p for p in paths if not is_merged(p)]
+    paths = [p for p in paths if not _is_merged(p)]
     if not paths:
         raise ConfigError(f"{directory}: no MCAP recordings (*.mcap) in this run directory")
     texts = [_text(directory / name) for name in ("run.json", "experiment.json")]
@@ -773,6 +982,17 @@ def merge_folder(run_dir: str | Path) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def _is_merged(path: Path) -> bool:
+    """Whether ``path`` is a merged file, by its header's library (``fedlab merge``): read
+    from its start, not from its summary (a recording's chunk index is megabytes)."""
+    try:
+        with path.open("rb") as f:
+            header = next(iter(StreamReader(f).records), None)
+    except (McapError, OSError, ValueError):
+        return False
+    return isinstance(header, Header) and header.library == MERGE_LIBRARY
+
+
 def _text(path: Path) -> str | None:
     """A run folder's JSON file's text (None: there is none), kept as it is."""
     return path.read_text(encoding="utf-8") if path.is_file() else None
@@ -781,8 +1001,8 @@ def _text(path: Path) -> str | None:
 def _write_file(
     paths: Sequence[Path], sink: IO[bytes], run_json: str | None, experiment_json: str | None
 ) -> MergeResult:
-    writer = Writer(sink, chunk_size=4 * CHUNK_SIZE)
-    writer.start(profile="", library="fedlab merge")
+    writer = Writer(sink, chunk_size=OUTPUT_CHUNK)
+    writer.start(profile="", library=MERGE_LIBRARY)
     result = merge(paths, writer, run_json, experiment_json)
     writer.finish()  # type: ignore[no-untyped-call]
     return result

@@ -22,7 +22,8 @@ topic                          schema                     from
                                                           and leaving
 ``/LAB/NAME/clock``            JSON (``CLOCK_SCHEMA``)    own clock, reference time, offset
                                                           estimate and its bound, the host
-                                                          truth where known
+                                                          truth where known: at each point
+                                                          of the estimate and each status
 ``/LAB/NAME/sync/PLAB/PNAME``  JSON (``PEER_SCHEMA``)     the agent's view of one peer (ms)
 =============================  =========================  ===============================
 """
@@ -96,6 +97,11 @@ CLOCK_SCHEMA: dict[str, Any] = {
         "bound_s": _NUMBER | {"description": "error bound of t_ref, s"},
         "true_offset_s": _NUMBER | {"description": "reference minus own, host truth, s"},
         "error_s": _NUMBER | {"description": "offset_s minus true_offset_s, s"},
+        "point": {
+            "type": "boolean",
+            "description": "a point of the estimate (linear between points); false: at a "
+            "status line",
+        },
     },
 }
 PEER_SCHEMA: dict[str, Any] = {
@@ -163,10 +169,11 @@ def control_log(agent: str, message: dict[str, Any], ns: int) -> Log:
 
 
 def clock_row(
-    t_exec: float, t_ref: float, bound: float | None, truth: float | None
-) -> dict[str, float | None]:
-    """A ``/LAB/NAME/clock`` message: own clock, reference time, the estimate, its bound
-    and (where known) the truth and the estimate's error."""
+    t_exec: float, t_ref: float, bound: float | None, truth: float | None, point: bool = False
+) -> dict[str, float | bool | None]:
+    """A ``/LAB/NAME/clock`` message: own clock, reference time, the estimate, its bound,
+    (where known) the truth and the estimate's error, and whether it is a point of the
+    estimate (``point``) or at a status line."""
     offset = t_ref - t_exec
     return {
         "t_exec": t_exec,
@@ -175,6 +182,7 @@ def clock_row(
         "bound_s": bound,
         "true_offset_s": truth,
         "error_s": None if truth is None else offset - truth,
+        "point": point,
     }
 
 
