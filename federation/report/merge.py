@@ -51,10 +51,12 @@ Foxglove's types and the layout: :mod:`federation.report.mergeview`.
 from __future__ import annotations
 
 import heapq
+import io
 import itertools
 import json
 import math
 import statistics
+import struct
 import tempfile
 from array import array
 from bisect import bisect_right
@@ -66,11 +68,13 @@ from typing import IO, Any, NamedTuple
 
 import numpy as np
 from foxglove.messages import SceneUpdate
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.records import Channel as McapChannel
-from mcap.records import Header, Metadata, Schema
+from mcap.records import Chunk, Header, Metadata, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import Writer
 
 from federation.core.channels import FOXGLOVE_CHANNELS, Channel
@@ -352,6 +356,10 @@ class AgentClock:
             self.estimate.close()
 
 
+_RECORD = struct.Struct("<BQ")  # a record's opcode and length
+_MESSAGE = struct.Struct("<HIQQ")  # a message's channel, sequence, log and publish time
+
+
 def _stream(
     f: IO[bytes], topics: Sequence[str] | None, metadata: dict[str, dict[str, str]] | None
 ) -> Iterator[tuple[Schema | None, McapChannel, McapMessage]]:
@@ -361,8 +369,10 @@ def _stream(
     schemas: dict[int, Schema] = {}
     channels: dict[int, McapChannel] = {}
     wanted = None if topics is None else frozenset(topics)
-    for record in StreamReader(f).records:
-        if isinstance(record, McapMessage):
+    for record in StreamReader(f, emit_chunks=True).records:
+        if isinstance(record, Chunk):
+            yield from _chunk(record, schemas, channels, wanted)
+        elif isinstance(record, McapMessage):
             channel = channels.get(record.channel_id)
             if channel is None:
                 raise ValueError(f"message on channel {record.channel_id}, never declared")
@@ -374,6 +384,42 @@ def _stream(
             schemas[record.id] = record
         elif isinstance(record, Metadata) and metadata is not None:
             metadata[record.name] = dict(record.metadata)
+
+
+def _chunk(
+    chunk: Chunk,
+    schemas: dict[int, Schema],
+    channels: dict[int, McapChannel],
+    wanted: frozenset[str] | None,
+) -> Iterator[tuple[Schema | None, McapChannel, McapMessage]]:
+    """A chunk's messages (its schemas and channels registered on the way), parsed with
+    one unpack a message: what the mcap library's reader does a field at a time, and a
+    message of a topic not ``wanted`` is skipped before its data is copied."""
+    stream, size = get_chunk_data_stream(chunk)
+    data = stream.read(size)
+    at = 0
+    while at < size:
+        opcode, length = _RECORD.unpack_from(data, at)
+        body, at = at + _RECORD.size, at + _RECORD.size + length
+        if at > size:
+            raise ValueError(f"a record of {length} bytes runs past its chunk's end")
+        if opcode == Opcode.MESSAGE:
+            channel_id, sequence, log_time, publish_time = _MESSAGE.unpack_from(data, body)
+            channel = channels.get(channel_id)
+            if channel is None:
+                raise ValueError(f"message on channel {channel_id}, never declared")
+            if wanted is None or channel.topic in wanted:
+                message = McapMessage(
+                    channel_id=channel_id, sequence=sequence, log_time=log_time,
+                    publish_time=publish_time, data=data[body + _MESSAGE.size : at],
+                )  # fmt: skip
+                yield schemas.get(channel.schema_id), channel, message
+        elif opcode == Opcode.CHANNEL:
+            channel = McapChannel.read(ReadDataStream(io.BytesIO(data[body:at])))
+            channels[channel.id] = channel
+        elif opcode == Opcode.SCHEMA:
+            schema = Schema.read(ReadDataStream(io.BytesIO(data[body:at])))
+            schemas[schema.id] = schema
 
 
 def _messages(
@@ -842,18 +888,10 @@ def _write(
     if (agent, clock.segment) not in out.segment_end:
         _segment_begins(out, clock, ns, publish, result)
     out.segment_end[(agent, clock.segment)] = ns
-    schema_id = out.schemas.get((agent, item.channel.schema_id))
-    if schema_id is None:
-        name, encoding, data = _source_schema(item.schema)
-        schema_id = out.schema((agent, item.channel.schema_id), name, encoding, data) if name else 0
-    meta = dict(item.channel.metadata) | {
-        "agent": agent, "source_topic": topic, "segment": str(clock.segment),
-        "stamp_field": STAMP_FIELDS.get(topic, "t_exec"), "source_file": clock.path.name,
-    }  # fmt: skip
-    channel = out.channel(
-        f"/{agent}{topic}", item.channel.message_encoding, schema_id, meta,
-        key=(f"/{agent}{topic}", clock.segment),
-    )  # fmt: skip
+    key = (f"/{agent}{topic}", clock.segment)
+    channel = out.channels.get(key)
+    if channel is None:
+        channel = _register(out, clock, item)
     out.write(channel, ns, item.data, publish, item.message.sequence)
     if decoded is None:
         return
@@ -866,6 +904,25 @@ def _write(
         out.foxglove(f"/{agent}/log", view.control_log(agent, decoded, ns), ns, publish, agent)
     elif topic == Channel.STATUS:
         _write_status(out, clock, decoded, ns, publish, before, result)
+
+
+def _register(out: _Output, clock: AgentClock, item: _Item) -> int:
+    """A recorded channel's channel (and schema) in the merged file: its topic under the
+    agent's name, its metadata saying whose, from which file and stamped how."""
+    assert item.channel is not None
+    agent, topic = clock.agent, item.channel.topic
+    schema_id = out.schemas.get((agent, item.channel.schema_id))
+    if schema_id is None:
+        name, encoding, data = _source_schema(item.schema)
+        schema_id = out.schema((agent, item.channel.schema_id), name, encoding, data) if name else 0
+    meta = dict(item.channel.metadata) | {
+        "agent": agent, "source_topic": topic, "segment": str(clock.segment),
+        "stamp_field": STAMP_FIELDS.get(topic, "t_exec"), "source_file": clock.path.name,
+    }  # fmt: skip
+    return out.channel(
+        f"/{agent}{topic}", item.channel.message_encoding, schema_id, meta,
+        key=(f"/{agent}{topic}", clock.segment),
+    )  # fmt: skip
 
 
 def _segment_begins(
