@@ -356,7 +356,10 @@ class AgentClock:
             self.estimate.close()
 
 
+_MAGIC = b"\x89MCAP0\r\n"
 _RECORD = struct.Struct("<BQ")  # a record's opcode and length
+_CHUNK = struct.Struct("<QQQII")  # a chunk's start, end, size, CRC; its compression's length
+_READ = frozenset({Opcode.CHUNK, Opcode.MESSAGE, Opcode.CHANNEL, Opcode.SCHEMA, Opcode.METADATA})
 _MESSAGE = struct.Struct("<HIQQ")  # a message's channel, sequence, log and publish time
 
 
@@ -364,30 +367,77 @@ def _stream(
     f: IO[bytes], topics: Sequence[str] | None, metadata: dict[str, dict[str, str]] | None
 ) -> Iterator[tuple[Schema | None, McapChannel, McapMessage]]:
     """(schema, channel, message) of an MCAP stream in file order, its metadata records
-    into ``metadata`` (if given). File order, not log-time order: ordering by log time
-    would load the file's whole chunk index (its summary)."""
+    into ``metadata`` (if given), up to its footer. File order, not log-time order:
+    ordering by log time would load the file's whole chunk index (its summary). The
+    records a merge does not use (indexes, statistics, attachments) are skipped unread.
+
+    Raises
+    ------
+    ValueError
+        When it is not MCAP, or ends before its footer (cut short).
+    """
+    if f.read(len(_MAGIC)) != _MAGIC:
+        raise ValueError("not an MCAP file (no magic at its start)")
     schemas: dict[int, Schema] = {}
     channels: dict[int, McapChannel] = {}
     wanted = None if topics is None else frozenset(topics)
-    for record in StreamReader(f, emit_chunks=True).records:
-        if isinstance(record, Chunk):
-            yield from _chunk(record, schemas, channels, wanted)
-        elif isinstance(record, McapMessage):
-            channel = channels.get(record.channel_id)
-            if channel is None:
-                raise ValueError(f"message on channel {record.channel_id}, never declared")
-            if wanted is None or channel.topic in wanted:
-                yield schemas.get(channel.schema_id), channel, record
-        elif isinstance(record, McapChannel):
-            channels[record.id] = record
-        elif isinstance(record, Schema):
-            schemas[record.id] = record
-        elif isinstance(record, Metadata) and metadata is not None:
-            metadata[record.name] = dict(record.metadata)
+    while True:
+        head = f.read(_RECORD.size)
+        if len(head) < _RECORD.size:
+            raise ValueError("the file ends before its footer (cut short)")
+        opcode, length = _RECORD.unpack(head)
+        if opcode == Opcode.FOOTER:
+            return
+        if opcode not in _READ or (opcode == Opcode.METADATA and metadata is None):
+            f.seek(length, io.SEEK_CUR)
+            continue
+        body = f.read(length)
+        if len(body) < length:
+            raise ValueError(f"a record of {length} bytes is cut short")
+        if opcode == Opcode.CHUNK:
+            yield from _chunk(_chunk_data(body), schemas, channels, wanted)
+        elif opcode == Opcode.MESSAGE:  # one outside a chunk
+            yield from _chunk(head + body, schemas, channels, wanted)
+        else:
+            _declare(opcode, body, schemas, channels, metadata)
+
+
+def _declare(
+    opcode: int,
+    body: bytes,
+    schemas: dict[int, Schema],
+    channels: dict[int, McapChannel],
+    metadata: dict[str, dict[str, str]] | None,
+) -> None:
+    """A schema, channel or metadata record, kept."""
+    stream = ReadDataStream(io.BytesIO(body))
+    if opcode == Opcode.CHANNEL:
+        channel = McapChannel.read(stream)
+        channels[channel.id] = channel
+    elif opcode == Opcode.SCHEMA:
+        schema = Schema.read(stream)
+        schemas[schema.id] = schema
+    elif opcode == Opcode.METADATA and metadata is not None:
+        record = Metadata.read(stream)
+        metadata[record.name] = dict(record.metadata)
+
+
+def _chunk_data(body: bytes) -> bytes:
+    """A chunk record's records, decompressed."""
+    start, end, size, crc, length = _CHUNK.unpack_from(body)
+    at = _CHUNK.size + length
+    compression = body[_CHUNK.size : at].decode()
+    (records,) = struct.unpack_from("<Q", body, at)
+    chunk = Chunk(
+        message_start_time=start, message_end_time=end, uncompressed_size=size,
+        uncompressed_crc=crc, compression=compression, data=body[at + 8 : at + 8 + records],
+    )  # fmt: skip
+    stream, size = get_chunk_data_stream(chunk)
+    return stream.read(size)
 
 
 def _chunk(
-    chunk: Chunk,
+    data: bytes,
     schemas: dict[int, Schema],
     channels: dict[int, McapChannel],
     wanted: frozenset[str] | None,
@@ -395,9 +445,7 @@ def _chunk(
     """A chunk's messages (its schemas and channels registered on the way), parsed with
     one unpack a message: what the mcap library's reader does a field at a time, and a
     message of a topic not ``wanted`` is skipped before its data is copied."""
-    stream, size = get_chunk_data_stream(chunk)
-    data = stream.read(size)
-    at = 0
+    size, at = len(data), 0
     while at < size:
         opcode, length = _RECORD.unpack_from(data, at)
         body, at = at + _RECORD.size, at + _RECORD.size + length
@@ -414,12 +462,8 @@ def _chunk(
                     publish_time=publish_time, data=data[body + _MESSAGE.size : at],
                 )  # fmt: skip
                 yield schemas.get(channel.schema_id), channel, message
-        elif opcode == Opcode.CHANNEL:
-            channel = McapChannel.read(ReadDataStream(io.BytesIO(data[body:at])))
-            channels[channel.id] = channel
-        elif opcode == Opcode.SCHEMA:
-            schema = Schema.read(ReadDataStream(io.BytesIO(data[body:at])))
-            schemas[schema.id] = schema
+        elif opcode in (Opcode.CHANNEL, Opcode.SCHEMA):
+            _declare(opcode, data[body:at], schemas, channels, None)
 
 
 def _messages(
@@ -756,8 +800,10 @@ class _Output:
         self.write(channel, ns, message.encode(), publish)
 
     def json(self, topic: str, schema: dict[str, Any], row: Any, ns: int, publish: int) -> None:
-        schema_id = self.schema(schema["title"], schema["title"], "jsonschema",
-                                view.schema_json(schema))  # fmt: skip
+        schema_id = self.schemas.get(schema["title"])
+        if schema_id is None:
+            schema_id = self.schema(schema["title"], schema["title"], "jsonschema",
+                                    view.schema_json(schema))  # fmt: skip
         channel = self.channel(topic, "json", schema_id, {})
         self.write(channel, ns, json.dumps(row).encode(), publish)
 
