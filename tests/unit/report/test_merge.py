@@ -22,7 +22,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from federation.core.channels import CHANNEL_FIELDS, json_schema
-from federation.report.merge import MERGE_METADATA, THIN_S, Thinned, write_merged
+from federation.report.merge import MERGE_METADATA, THIN_S, Thinned, _Series, write_merged
 from federation.report.mergeview import FOXGLOVE_TYPES
 
 KIRUNA, ROME = "kiruna/knatte", "rome/pinocchio"
@@ -316,3 +316,64 @@ def test_a_later_segment_is_the_same_agent_with_its_gap_shown(tmp_path: Path) ->
     assert f"{gaps[0]['gap_s']:.3f} s".encode() in logs[0][1]
     assert any("segment 2 (rome-pinocchio.seg2.mcap) begins after a gap" in n for n in result.notes)
     assert layout.read_text().count(f"/{ROME}/pose/sent.heading") == 1
+
+
+def test_a_series_on_disk_interpolates_and_searches_as_over_every_row() -> None:
+    """Points across several blocks of a temporary file (:class:`_Series`): the value at
+    any time, before, between, on and after the points, is numpy's over every point,
+    and the rows either side of it are bisect's; a lookup holds two blocks."""
+    rng = random.Random(2)
+    series = _Series(3)
+    t = np.cumsum([rng.uniform(0.01, 0.1) for _ in range(3 * _Series.BLOCK + 17)])
+    y, z = np.array([rng.gauss(0, 1) for _ in t]), np.array([rng.gauss(0, 1) for _ in t])
+    for row in zip(t, y, z, strict=True):
+        series.append(*row)
+    queries = [t[0] - 1, t[-1] + 1, *t[:: _Series.BLOCK], *t[_Series.BLOCK - 2 : _Series.BLOCK + 2]]
+    queries += [rng.uniform(t[0] - 0.5, t[-1] + 0.5) for _ in range(2000)]
+    try:
+        for q in queries:
+            assert series.interp(q) == float(np.interp(q, t, y)), q
+            k = int(np.searchsorted(t, q, side="right"))
+            assert series.near(q, 2) == [float(z[i]) for i in (k - 1, k) if 0 <= i < len(t)], q
+            assert len(series._cache) <= 2
+        assert np.array_equal(series.column(1), y) and len(series) == len(t)
+    finally:
+        series.close()
+
+
+def test_the_offset_estimate_is_in_the_clock_channel(run: Path) -> None:
+    """The merged file's /LAB/NAME/clock rows marked ``point`` are the thinned estimate:
+    interpolated, they give Rome's estimate at every /reference stamp within twice the
+    thinning tolerance; the clock record is a summary that counts them."""
+    write_merged(run)
+    meta, messages = _read(run / "merged.mcap")
+    rows = [json.loads(m.data) for _s, c, m in messages if c.topic == f"/{ROME}/clock"]
+    points = sorted((r["t_exec"], r["offset_s"]) for r in rows if r["point"])
+    assert len(points) == int(meta[f"{ROME} clock"]["offset_points"]) > 2
+    assert sum(not r["point"] for r in rows) == int(meta[f"{ROME} clock"]["status_lines"]) == 20
+    assert float(meta[f"{ROME} clock"]["reference_bound_max_s"]) == BOUND
+    kt, ky = np.array(points).T
+    checked = 0
+    for _s, channel, message in messages:
+        if channel.topic == f"/{ROME}/reference":
+            data = json.loads(message.data)
+            estimate = data["t_sim"] - data["t_exec"]
+            assert abs(np.interp(data["t_exec"], kt, ky) - estimate) <= 2 * THIN_S + 1e-12
+            checked += 1
+    assert checked == 1000
+    assert not any(c.topic == f"/{KIRUNA}/clock" and json.loads(m.data)["point"]
+                   for _s, c, m in messages)  # fmt: skip  # the reference: no estimate
+
+
+def test_a_recording_cut_short_merges_up_to_its_end_with_a_note(run: Path) -> None:
+    """Rome's file cut at two thirds (its agent killed, no footer): what it holds is
+    merged and a note names the file; its metadata records (written at the end) are not."""
+    path = run / "rome-pinocchio.mcap"
+    data = path.read_bytes()
+    path.write_bytes(data[: 2 * len(data) // 3])
+    result, _ = write_merged(run)
+    assert any(n.startswith("rome-pinocchio.mcap: damaged") for n in result.notes), result.notes
+    meta, messages = _read(run / "merged.mcap")
+    sent = [m for _s, c, m in messages if c.topic == f"/{ROME}/pose/sent"]
+    assert 300 < len(sent) < 1000 and f"{ROME} fedlab.run" not in meta
+    assert result.late == 0
