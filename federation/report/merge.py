@@ -23,9 +23,12 @@ two last fields, ``t_ref`` (s) and ``t_ref_bound`` (s, the error bound of its st
 the agent's ``reference_bound`` from its status lines, the larger of those either
 side, plus the interpolation's; null before its first estimate). The original log
 time is each message's publish time and its sequence is kept, each agent's metadata
-records are copied (named ``LAB/NAME RECORD``), and its clock (estimate points, bounds,
-host truth) is a metadata record ``LAB/NAME clock`` and the channel
-``/LAB/NAME/clock``: the original files can be rebuilt from the merged one (drop the
+records are copied (named ``LAB/NAME RECORD``), and its clock is the channel
+``/LAB/NAME/clock`` (a row at each point of the thinned estimate, ``point`` true, and
+at each status line, each with its bound and the host truth where known) and a
+summary in the metadata record ``LAB/NAME clock`` (its file, size, source, how many
+points and status lines, the largest bound stated, the wall and host-truth lines):
+the original files can be rebuilt from the merged one (drop the
 two fields, log time from publish time, ``/tf`` and ``/pose`` again from
 ``/pose/sent``). Messages without an own-clock stamp (another program's channels) are
 placed by their log time through the agent's wall-clock-to-own-clock line, whose
@@ -38,13 +41,24 @@ says ``segment`` (and ``source_file``), its metadata records named
 ``LAB/NAME.segN RECORD``, and a Log line on ``/LAB/NAME/log`` at its first message
 stating the gap since the segment before, on reference time.
 
-Streaming: a first pass reads each file's ``/reference``, ``/status``, ``/control`` and
-``/sync/exchange`` and keeps the offset estimate thinned (:class:`Thinned`: points only
-where a line through them would leave ``THIN_S``), one number per status line and the
-last status; the second reads every file once, in log-time order, holds each agent's
-messages for ``REORDER_S`` (a message's stamp precedes its log time by less) to order
-them by reference time, and merges the agents with :func:`heapq.merge`. Nothing grows
-with the number of messages but the status lines' bounds (16 bytes a second).
+Streaming, in a fixed memory: a first pass reads each file's ``/reference``,
+``/status``, ``/control`` and ``/sync/exchange`` and writes the offset estimate thinned
+(:class:`Thinned`: points only where a line through them would leave ``THIN_S``) and
+each status line's own clock, bound, log time and host time to temporary files
+(:class:`_Series`); the second reads every file once, in file
+order (the recorder writes in log-time order; ordering by log time would load each
+file's chunk index, megabytes), reads the estimate and the bounds back from those
+files a block at a time in step with the messages, holds each agent's messages for
+``REORDER_S`` (a message's stamp precedes its log time by less) to order them by
+reference time, and merges the agents with :func:`heapq.merge`. What is held is then
+the interpreter and its libraries, per agent a window of ``REORDER_S`` of messages and
+two blocks of each series, and the writer's chunk being built (``OUTPUT_CHUNK``).
+Two things still grow with the run, both small: the writer's index of the chunks
+written (about 1 KiB a MiB of output, written into the file's summary at its end), and,
+for a moment at the end of each file's first pass, its status lines' own clock and
+times loaded for the wall-clock line and the epoch's median (about 100 bytes a status
+line: 9 MiB for a day at one line a second).
+
 Foxglove's types and the layout: :mod:`federation.report.mergeview`.
 """
 
