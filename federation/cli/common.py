@@ -34,6 +34,7 @@ __all__ = [
     "add_timeout_flag",
     "add_zenoh_flags",
     "agent_id",
+    "count",
     "exit_on_sigterm",
     "federation_name",
     "integer_in",
@@ -421,6 +422,17 @@ def _number(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, not {text!r}")
     return value
+
+
+def count(text: str) -> int:
+    """Argument type: a whole number of at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"at least 1, not {text!r}")
+    return n
 
 
 def positive(text: str) -> float:
