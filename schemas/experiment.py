@@ -84,6 +84,15 @@ class StandIn(_Model):
         description=f"seconds the leader must be silent before the twin takes its role "
         f"(at least the role's lease, {LEASE} s)",
     )
+    skew: float = Field(
+        0.2,
+        gt=0,
+        lt=LEASE / 4,
+        description="seconds: the largest error bound of an agent's reference time (its "
+        "one-way delay to the reference plus its estimate's bound) with which it may hold, "
+        "claim or follow the role; above the slowest such path, under a quarter of the "
+        f"{LEASE} s lease",
+    )
 
 
 STRICTNESS: tuple[RejoinPolicy, ...] = ("auto", "operator", "never")

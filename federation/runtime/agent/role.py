@@ -121,7 +121,7 @@ class RoleKeeping:
             return
         self.leader = experiment.leader
         self.stand_in = AgentId.parse(experiment.stand_in.agent)
-        self.terms = Terms(after=experiment.stand_in.after)
+        self.terms = Terms(after=experiment.stand_in.after, skew=experiment.stand_in.skew)
         if self.kind != "follower":
             self.keeper = Keeper(str(owner.me), self.kind, str(self.leader), self.terms)
         if self.kind == "follower":  # the stand-in's clock is read on its every pose

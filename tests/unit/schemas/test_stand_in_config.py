@@ -37,6 +37,7 @@ def test_a_stand_in_is_read_with_its_defaults(tmp_path: Path) -> None:
     e = load_experiment(_write(tmp_path, 'stand_in = { agent = "rome/twin", preset = "knatte" }'))
     assert e.stand_in is not None
     assert (e.stand_in.agent, e.stand_in.preset, e.stand_in.after) == ("rome/twin", "knatte", 2.0)
+    assert e.stand_in.skew == 0.2  # above the 40 ms of Kiruna to Rome and its queueing
 
 
 def test_no_stand_in_by_default(tmp_path: Path) -> None:
@@ -47,6 +48,8 @@ def test_no_stand_in_by_default(tmp_path: Path) -> None:
     ("stand_in", "why"),
     [
         ('stand_in = { agent = "rome/twin", preset = "knatte", after = 0.5 }', "stand_in.after"),
+        ('stand_in = { agent = "rome/twin", preset = "knatte", skew = 0.25 }', "stand_in.skew"),
+        ('stand_in = { agent = "rome/twin", preset = "knatte", skew = 0 }', "stand_in.skew"),
         ('stand_in = { agent = "rome/twin", preset = "gizmo" }', "stand_in.preset"),
         ('stand_in = { agent = "twin", preset = "knatte" }', "stand_in.agent"),
         ('stand_in = { agent = "rome/twin", preset = "knatte", fly = 1 }', "stand_in.fly"),
