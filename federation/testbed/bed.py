@@ -255,7 +255,7 @@ class Testbed:
         self.run(lab, "nft", "-f", "-", stdin=ruleset)
 
     def spawn(
-        self, lab: str, name: str, argv: Sequence[str], binds: Binds = ()
+        self, lab: str, name: str, argv: Sequence[str], binds: Binds = (), nice: int | None = None
     ) -> subprocess.Popen[bytes]:
         """Start ``argv`` in ``lab``'s namespace as a tracked process (``ip netns exec``
         execs the command, so the pid is the command's own; ``binds``, pairs of
@@ -266,12 +266,13 @@ class Testbed:
         first, and what the testbed measures is the path, not the neighbours' load (at
         the default niceness, four test workers on two cores pause a leader between
         poses long enough to hold its follower on a clean path). Threads the process
-        starts later inherit it."""
+        starts later inherit it. ``nice``: another niceness, for a process that is not
+        the lab's (a load or an attacker that would run on a host of its own)."""
         proc = self.fleet.spawn(
             name, ["ip", "netns", "exec", self.ns[lab], *with_binds(binds, argv)]
         )
         with contextlib.suppress(OSError):  # not root: as it is
-            os.setpriority(os.PRIO_PROCESS, proc.pid, LAB_NICE)
+            os.setpriority(os.PRIO_PROCESS, proc.pid, LAB_NICE if nice is None else nice)
         return proc
 
     def fedlab(
