@@ -155,6 +155,9 @@ class _Series:
         self._file = tempfile.TemporaryFile()  # noqa: SIM115
         self._buffer = array("d")  # rows appended, not yet in the file
         self._cache: dict[int, list[np.ndarray]] = {}  # the last two blocks read, by column
+        # The last lookups' brackets: messages come in time order, most fall in the same.
+        self._between = (math.inf, -math.inf, 0.0, 0.0)  # t0 < t < t1: y0, y1 (column 1)
+        self._near: tuple[float, float, int, list[float]] = (math.inf, -math.inf, -1, [])
 
     def __len__(self) -> int:
         return self.n
@@ -166,6 +169,8 @@ class _Series:
         self.n += 1
         if len(self._buffer) >= self.BLOCK * self.width:
             self._flush()
+        self._between = (math.inf, -math.inf, 0.0, 0.0)
+        self._near = (math.inf, -math.inf, -1, [])
 
     def _flush(self) -> None:
         if self._buffer:
@@ -191,19 +196,35 @@ class _Series:
     def _locate(self, t: float) -> int:
         return max(0, bisect_right(self.firsts, t) - 1)
 
-    def interp(self, t: float, column: int = 1) -> float:
-        """``column`` at ``t`` of the first, linear between rows, as :func:`numpy.interp`
-        over every row gives it (the end rows' values outside them)."""
+    def interp(self, t: float) -> float:
+        """The second number at ``t`` of the first, linear between rows, as
+        :func:`numpy.interp` over every row gives it (the end rows' values outside
+        them; the firsts strictly increasing). Strictly inside the last bracket looked
+        up it is numpy's formula, ``slope * (t - t0) + y0``, without the lookup."""
+        t0, t1, y0, y1 = self._between
+        if t0 < t < t1:
+            return (y1 - y0) / (t1 - t0) * (t - t0) + y0
         columns = self.block(self._locate(t))
-        return float(np.interp(t, columns[0], columns[column]))
+        x, y = columns[0], columns[1]
+        k = int(np.searchsorted(x, t, side="right"))
+        if 0 < k < len(x):
+            self._between = (float(x[k - 1]), float(x[k]), float(y[k - 1]), float(y[k]))
+        return float(np.interp(t, x, y))
 
     def near(self, t: float, column: int) -> list[float]:
         """``column`` of the rows ``k - 1`` and ``k`` that exist, ``k`` the number of rows
         whose first is ``t`` or less (:func:`bisect.bisect_right` over every row)."""
-        j = self._locate(t)
-        columns = self.block(j)
-        k = int(np.searchsorted(columns[0], t, side="right"))
-        return [float(columns[column][i]) for i in (k - 1, k) if 0 <= i < len(columns[0])]
+        low, high, kept, values = self._near
+        if kept == column and low <= t < high:
+            return values
+        columns = self.block(self._locate(t))
+        x = columns[0]
+        k = int(np.searchsorted(x, t, side="right"))
+        values = [float(columns[column][i]) for i in (k - 1, k) if 0 <= i < len(x)]
+        low = float(x[k - 1]) if k > 0 else -math.inf
+        high = float(x[k]) if k < len(x) else math.inf
+        self._near = (low, high, column, values)
+        return values
 
     def rows(self) -> Iterator[list[np.ndarray]]:
         """Every row once, as the columns of blocks in order."""

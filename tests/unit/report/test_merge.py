@@ -320,8 +320,9 @@ def test_a_later_segment_is_the_same_agent_with_its_gap_shown(tmp_path: Path) ->
 
 def test_a_series_on_disk_interpolates_and_searches_as_over_every_row() -> None:
     """Points across several blocks of a temporary file (:class:`_Series`): the value at
-    any time, before, between, on and after the points, is numpy's over every point,
-    and the rows either side of it are bisect's; a lookup holds two blocks."""
+    any time, before, between, on and after the points, in any order and in time order
+    (the last bracket reused), is numpy's over every point to the bit, and the rows
+    either side of it are bisect's; a lookup holds two blocks."""
     rng = random.Random(2)
     series = _Series(3)
     t = np.cumsum([rng.uniform(0.01, 0.1) for _ in range(3 * _Series.BLOCK + 17)])
@@ -330,6 +331,8 @@ def test_a_series_on_disk_interpolates_and_searches_as_over_every_row() -> None:
         series.append(*row)
     queries = [t[0] - 1, t[-1] + 1, *t[:: _Series.BLOCK], *t[_Series.BLOCK - 2 : _Series.BLOCK + 2]]
     queries += [rng.uniform(t[0] - 0.5, t[-1] + 0.5) for _ in range(2000)]
+    # And in time order, several in each bracket, as a recording's messages come.
+    queries += sorted(rng.uniform(t[0] - 0.5, t[-1] + 0.5) for _ in range(4 * len(t)))
     try:
         for q in queries:
             assert series.interp(q) == float(np.interp(q, t, y)), q
