@@ -156,7 +156,7 @@ class _Series:
         self._buffer = array("d")  # rows appended, not yet in the file
         self._cache: dict[int, list[np.ndarray]] = {}  # the last two blocks read, by column
         # The last lookups' brackets: messages come in time order, most fall in the same.
-        self._between = (math.inf, -math.inf, 0.0, 0.0)  # t0 < t < t1: y0, y1 (column 1)
+        self._between = (math.inf, -math.inf, 0.0, 0.0)  # t0 <= t < t1: y0, y1
         self._near: tuple[float, float, int, list[float]] = (math.inf, -math.inf, -1, [])
 
     def __len__(self) -> int:
@@ -199,11 +199,11 @@ class _Series:
     def interp(self, t: float) -> float:
         """The second number at ``t`` of the first, linear between rows, as
         :func:`numpy.interp` over every row gives it (the end rows' values outside
-        them; the firsts strictly increasing). Strictly inside the last bracket looked
-        up it is numpy's formula, ``slope * (t - t0) + y0``, without the lookup."""
+        them; the firsts strictly increasing). In the last bracket looked up it is
+        numpy's formula, ``slope * (t - t0) + y0`` (``y0`` at ``t0``), without the lookup."""
         t0, t1, y0, y1 = self._between
-        if t0 < t < t1:
-            return (y1 - y0) / (t1 - t0) * (t - t0) + y0
+        if t0 <= t < t1:  # numpy's: the row's value on it, else along the bracket
+            return y0 if t == t0 else (y1 - y0) / (t1 - t0) * (t - t0) + y0
         columns = self.block(self._locate(t))
         x, y = columns[0], columns[1]
         k = int(np.searchsorted(x, t, side="right"))
