@@ -206,11 +206,7 @@ def _run_latency(args: argparse.Namespace) -> int:
 # -- scale ---------------------------------------------------------------------------
 def _agents(text: str) -> int:
     """Argument type: an agent count of at least 2 (a leader and a follower)."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if n < 2:
+    if (n := count(text)) < 2:
         raise argparse.ArgumentTypeError(f"at least 2 (a leader and a follower), not {text!r}")
     return n
 
