@@ -20,10 +20,11 @@ first exchange rather than after the paper's 10 s sync phase: a start needs a lo
 estimate, and a test of the run's lifecycle needs no more than that."""
 
 
-def write_experiment(path: Path, duration: float, name: str = "lifecycle") -> Path:
-    """A two-lab experiment (KNATTE leads, PINOCCHIO follows) of ``duration`` s."""
+def write_experiment(path: Path, duration: float, name: str = "lifecycle", more: str = "") -> Path:
+    """A two-lab experiment (KNATTE leads, PINOCCHIO follows) of ``duration`` s;
+    ``more``: top-level TOML lines added before its tables."""
     path.write_text(
-        f'name = "{name}"\nduration = {duration}\nstart_delay = 1.5\n'
+        f'name = "{name}"\nduration = {duration}\nstart_delay = 1.5\n{more}'
         "[maneuver]\nstill = 1.0\nduration = 10.0\namplitude_deg = 20.0\n"
         f'[[participants]]\nagent = "{LEADER}"\nrole = "leader"\nplatform = "knatte"\n'
         f'[[participants]]\nagent = "{FOLLOWER}"\nrole = "follower"\nplatform = "pinocchio"\n'

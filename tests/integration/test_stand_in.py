@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from lifecycle import fedlab, runs_dir
+from lifecycle import fedlab, runs_dir, write_experiment
 from loopback import FOLLOWER, LEADER, Agent, LabPair, Labs, Tap
 
 from federation.core import keys
@@ -35,16 +35,8 @@ LOCKED = 25.0  # s: three agents start on shared cores, then their estimates loc
 
 
 def _experiment(path: Path) -> Path:
-    path.write_text(
-        f'name = "standin"\nduration = {RUN}\nstart_delay = 1.5\n'
-        f'stand_in = {{ agent = "{TWIN}", preset = "knatte", after = {AFTER} }}\n'
-        "[maneuver]\nstill = 1.0\nduration = 10.0\namplitude_deg = 20.0\n"
-        f'[[participants]]\nagent = "{LEADER}"\nrole = "leader"\nplatform = "knatte"\n'
-        f'[[participants]]\nagent = "{FOLLOWER}"\nrole = "follower"\nplatform = "pinocchio"\n'
-        f'follow = "{LEADER}"\n',
-        encoding="utf-8",
-    )
-    return path
+    stand_in = f'stand_in = {{ agent = "{TWIN}", preset = "knatte", after = {AFTER} }}\n'
+    return write_experiment(path, RUN, name="standin", more=stand_in)
 
 
 def _agents(labs: Labs, pair: LabPair, experiment: Path) -> dict[str, Agent]:
