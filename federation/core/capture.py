@@ -86,6 +86,8 @@ class Capture:
         self.rate = max(self.rate - dv, min(self.rate + dv, wanted))
         self.heading = wrap_angle(self.heading + self.rate * dt)
         left = wrap_angle(target + target_rate * dt - self.heading)
-        if abs(left) <= HEADING_TOL and abs(target_rate - self.rate) <= RATE_TOL:
+        # Captured once the scenario's rate is within one step's change (and RATE_TOL):
+        # the step that hands over to it then asks no more than the limits allow.
+        if abs(left) <= HEADING_TOL and abs(target_rate - self.rate) <= min(RATE_TOL, dv):
             self.captured = True
         return self.heading, self.rate
