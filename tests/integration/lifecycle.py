@@ -20,15 +20,25 @@ first exchange rather than after the paper's 10 s sync phase: a start needs a lo
 estimate, and a test of the run's lifecycle needs no more than that."""
 
 
-def write_experiment(path: Path, duration: float, name: str = "lifecycle", more: str = "") -> Path:
+def write_experiment(
+    path: Path, duration: float, name: str = "lifecycle", more: str = "", raw: str | None = None
+) -> Path:
     """A two-lab experiment (KNATTE leads, PINOCCHIO follows) of ``duration`` s;
-    ``more``: top-level TOML lines added before its tables."""
+    ``more``: top-level TOML lines added before its tables; ``raw`` (LAB/NAME): a third
+    participant, a follower of the leader without latency compensation (it tracks the
+    heading as received)."""
+    third = (
+        f'[[participants]]\nagent = "{raw}"\nrole = "follower"\nplatform = "pinocchio"\n'
+        f'follow = "{LEADER}"\nlatency_compensation = false\n'
+        if raw is not None
+        else ""
+    )
     path.write_text(
         f'name = "{name}"\nduration = {duration}\nstart_delay = 1.5\n{more}'
         "[maneuver]\nstill = 1.0\nduration = 10.0\namplitude_deg = 20.0\n"
         f'[[participants]]\nagent = "{LEADER}"\nrole = "leader"\nplatform = "knatte"\n'
         f'[[participants]]\nagent = "{FOLLOWER}"\nrole = "follower"\nplatform = "pinocchio"\n'
-        f'follow = "{LEADER}"\n',
+        f'follow = "{LEADER}"\n{third}',
         encoding="utf-8",
     )
     return path
@@ -39,13 +49,19 @@ def runs_dir(labs: Labs, who: str) -> Path:
     return labs.tmp / f"host-{who.split('/')[0]}" / "runs"
 
 
-def participants(labs: Labs, pair: LabPair, experiment: Path, *extra: str) -> dict[str, Agent]:
-    """KNATTE on Kiruna's router and PINOCCHIO on Rome's, both in ``experiment``."""
+def participants(
+    labs: Labs, pair: LabPair, experiment: Path, *extra: str, raw: str | None = None
+) -> dict[str, Agent]:
+    """KNATTE on Kiruna's router and PINOCCHIO on Rome's, both in ``experiment``; with
+    ``raw`` (a Rome agent, see :func:`write_experiment`) that one too, on Rome's."""
+    placed = [(LEADER, pair.kiruna), (FOLLOWER, pair.rome)]
+    if raw is not None:
+        placed.append((raw, pair.rome))
     return {
         who: labs.agent(
             who, at, "--experiment", str(experiment), "--runs-dir", str(runs_dir(labs, who)), *extra
         )
-        for who, at in ((LEADER, pair.kiruna), (FOLLOWER, pair.rome))
+        for who, at in placed
     }
 
 
