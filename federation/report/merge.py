@@ -20,8 +20,9 @@ each one's scatter, in the ``fedlab.merge`` metadata record; it leaves out the
 recorder's latency, the time from a stamp to its record, under a millisecond, which
 makes :math:`E` late by as much). Each JSON message gains
 two last fields, ``t_ref`` (s) and ``t_ref_bound`` (s, the error bound of its stamp:
-the agent's ``reference_bound`` from its status lines, the larger of those either
-side, plus the interpolation's; null before its first estimate). The original log
+its status lines' ``reference_bound`` plus its one-way delay to the reference, as its
+pose stamps state it, the larger of those either side, plus the interpolation's; null
+before its first estimate). The original log
 time is each message's publish time and its sequence is kept, each agent's metadata
 records are copied (named ``LAB/NAME RECORD``), and its clock is the channel
 ``/LAB/NAME/clock`` (a row at each point of the thinned estimate, ``point`` true, and
@@ -542,6 +543,13 @@ class _Survey:
             self.references[data["reference"]] += 1
         ready = data.get("ready")
         bound = _number(ready.get("reference_bound")) if isinstance(ready, dict) else None
+        if bound is not None and data.get("reference") != data.get("agent"):
+            # The estimate's own bound leaves out the path: its stamps' bound is the
+            # one-way delay to the reference plus it, as the agent's pose stamps state.
+            peers = data.get("peers")
+            peer = peers.get(data.get("reference")) if isinstance(peers, dict) else None
+            delay = _number(peer.get("delay")) if isinstance(peer, dict) else None
+            bound = None if delay is None else bound + delay
         if bound is not None:
             clock.bound_max = bound if clock.bound_max is None else max(clock.bound_max, bound)
         host = _number(data.get("host_monotonic"))

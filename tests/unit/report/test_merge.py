@@ -354,7 +354,7 @@ def test_the_offset_estimate_is_in_the_clock_channel(run: Path) -> None:
     points = sorted((r["t_exec"], r["offset_s"]) for r in rows if r["point"])
     assert len(points) == int(meta[f"{ROME} clock"]["offset_points"]) > 2
     assert sum(not r["point"] for r in rows) == int(meta[f"{ROME} clock"]["status_lines"]) == 20
-    assert float(meta[f"{ROME} clock"]["reference_bound_max_s"]) == BOUND
+    assert float(meta[f"{ROME} clock"]["reference_bound_max_s"]) == BOUND + 0.04  # + delay
     kt, ky = np.array(points).T
     checked = 0
     for _s, channel, message in messages:
