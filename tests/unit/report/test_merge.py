@@ -22,7 +22,8 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from federation.core.channels import CHANNEL_FIELDS, json_schema
-from federation.report.merge import MERGE_METADATA, THIN_S, Thinned, _Series, write_merged
+from federation.report.merge import MERGE_METADATA, write_merged
+from federation.report.mergeclock import THIN_S, Thinned, _Series
 from federation.report.mergeview import FOXGLOVE_TYPES
 
 KIRUNA, ROME = "kiruna/knatte", "rome/pinocchio"
