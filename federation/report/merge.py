@@ -46,19 +46,21 @@ Streaming, in a fixed memory: a first pass reads each file's ``/reference``,
 ``/status``, ``/control`` and ``/sync/exchange`` and writes the offset estimate thinned
 (:class:`Thinned`: points only where a line through them would leave ``THIN_S``) and
 each status line's own clock, bound, log time and host time to temporary files
-(:class:`_Series`); the second reads every file once, in file
-order (the recorder writes in log-time order; ordering by log time would load each
-file's chunk index, megabytes), reads the estimate and the bounds back from those
-files a block at a time in step with the messages, holds each agent's messages for
-``REORDER_S`` (a message's stamp precedes its log time by less) to order them by
-reference time, and merges the agents with :func:`heapq.merge`. What is held is then
-the interpreter and its libraries, per agent a window of ``REORDER_S`` of messages and
-two blocks of each series, and the writer's chunk being built (``OUTPUT_CHUNK``).
-Two things still grow with the run, both small: the writer's index of the chunks
-written (about 1 KiB a MiB of output, written into the file's summary at its end), and,
-for a moment at the end of each file's first pass, its status lines' own clock and
-times loaded for the wall-clock line and the epoch's median (about 100 bytes a status
-line: 9 MiB for a day at one line a second).
+(``mergeclock._Series``); the second reads every file once, in file order (the recorder
+writes in log-time order; ordering by log time would load each file's chunk index,
+megabytes), reads the estimate and the bounds back from those files a block at a time
+in step with the messages, holds each agent's messages for ``REORDER_S`` (a message's
+stamp precedes its log time by less) to order them by reference time, and merges the
+agents with :func:`heapq.merge`. What is held is then the interpreter and its
+libraries, per agent a window of ``REORDER_S`` of messages and two blocks of each
+series, and the writer's chunk being built (``OUTPUT_CHUNK``). Two things still grow
+with the run, both small: the writer's index of the chunks written (about 1.8 KiB a MiB
+of output, written into the file's summary at its end), and, for a moment at the end of
+each file's first pass, its status lines' own clock and times loaded for the wall-clock
+line and the epoch's median (about 100 bytes a status line: 9 MiB for a day at one line
+a second). Measured (``fedlab bench merge``, 4 agents): peaks of 81.0, 81.0, 82.5 and
+86.3 MiB for 100, 300, 1,007 and 2,063 MiB of recordings, of which 62.3 MiB is the
+interpreter and libraries; at 2 GiB the sampled memory rose 5 MiB across the second pass.
 
 The first pass, each agent's clock and the epoch: :mod:`federation.report.mergeclock`.
 Foxglove's types and the layout: :mod:`federation.report.mergeview`.
@@ -124,7 +126,8 @@ MERGE_LIBRARY = "fedlab merge"  # the merged file's header's library: what marks
 OUTPUT_CHUNK = 4 * 2**20
 """Bytes (uncompressed) of a merged file's chunk. The writer keeps one index entry per
 chunk (a few KiB with its channels' offsets) until it writes the summary: larger
-chunks, fewer entries (about 1 KiB per MiB written)."""
+chunks, fewer entries (about 1.8 KiB per MiB written: a chunk of 4 MiB is about 1 MiB
+compressed, its entry 1.8 KiB with 36 channels)."""
 REORDER_S = 2.0  # s a message is held to be ordered by reference time
 _SOURCE_NOTES = {
     "none": "{}: no estimate of the reference clock; its messages left out",
