@@ -381,3 +381,16 @@ def test_a_recording_cut_short_merges_up_to_its_end_with_a_note(run: Path) -> No
     sent = [m for _s, c, m in messages if c.topic == f"/{ROME}/pose/sent"]
     assert 300 < len(sent) < 1000 and f"{ROME} fedlab.run" not in meta
     assert result.late == 0
+
+
+def test_a_merged_file_in_the_folder_is_not_read_as_a_recording(run: Path) -> None:
+    """A merged file already in the run folder under another name (told by its header,
+    without reading its summary) is left out: merging again gives the same agents,
+    messages and notes, and no record of it."""
+    first, _ = write_merged(run, run / "earlier.mcap")
+    again, _ = write_merged(run)
+    assert again.agents == first.agents == [KIRUNA, ROME]
+    assert again.messages_in == first.messages_in and again.messages_out == first.messages_out
+    assert again.notes == first.notes  # read as a recording, it would be one with no clock
+    meta, _ = _read(run / "merged.mcap")
+    assert not [name for name in meta if "earlier" in json.dumps(meta[name])]
