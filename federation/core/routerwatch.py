@@ -41,10 +41,13 @@ class RouterWatch:
     def transport(self, zid: str, is_router: bool, up: bool, now: float) -> Note | None:
         """A transport to ``zid`` opened (``up``) or closed."""
         if not is_router:
+            self._locators.pop(zid, None)
             return None
         if up:
             self._routers.add(zid)
             if self._lost_at is not None:
+                if zid in self._locators:  # its link's event came first
+                    return self._back(self._locators[zid], now)
                 self._pending.add(zid)  # said when its link opens, with the locator
             return None
         if zid not in self._routers:
@@ -63,16 +66,15 @@ class RouterWatch:
 
     def link(self, zid: str, locator: str, up: bool, now: float) -> Note | None:
         """A link to ``zid`` at ``locator`` opened (``up``) or closed."""
-        if not up:
-            if zid in self._routers:
-                self._locators[zid] = locator
-            return None
-        if zid not in self._routers:
-            return None
+        # Kept whatever the order its transport's events come in (each listener runs on
+        # a thread of its own): the transport's close then names the locator.
         self._locators[zid] = locator
-        if zid not in self._pending:
+        if not up or zid not in self._pending:
             return None
         self._pending.discard(zid)
+        return self._back(locator, now)
+
+    def _back(self, locator: str, now: float) -> Note:
         lost_at, self._lost_at = self._lost_at, None
         after = "" if lost_at is None else f" after {now - lost_at:.1f} s without one"
         return Note(logging.INFO, f"{self.who}: the router at {locator} is back{after}")

@@ -309,7 +309,10 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     assert pub["sent"]["pose_1mb"] >= 0.5 * 50 * PUBLISH_S, pub
     assert poses.get("largest", 0) <= limits.SMALL_LIMIT, poses.get("largest")
     assert statuses.get("largest", 0) <= status_cap, statuses.get("largest")
-    assert poses.get("count", 0) >= 0.5 * pose_hz * span, "the cap's poses did not cross"
+    # As many as the cap passes, or as the insider sent: at niceness 10 on shared cores
+    # it may send fewer than the cap.
+    passable = min(pose_hz * span, pub["sent"]["pose_max"])
+    assert poses.get("count", 0) >= 0.5 * passable, ("the cap's poses did not cross", pub)
     # Downsampling passes one message per 1/cap s, the first at once.
     allowed = (pose_hz * span + 2) * limits.SMALL_LIMIT + (status_hz * span + 2) * status_cap
     assert rome_bytes <= allowed, (rome_bytes, allowed)

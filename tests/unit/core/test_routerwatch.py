@@ -69,3 +69,18 @@ def test_a_router_whose_link_was_never_seen_is_named_by_its_zid() -> None:
     watch.transport(A, True, True, 0.0)
     note = watch.transport(A, True, False, 1.0)
     assert note is not None and "the router at zid aaaa is gone" in note.text
+
+
+def test_either_order_of_the_two_listeners_names_the_endpoint() -> None:
+    """Each listener runs on a thread of its own, so a link's event may come before its
+    transport's (the history at start, a router's return) or after (a close)."""
+    watch = RouterWatch("agent kiruna/knatte")
+    assert watch.link(A, AT, True, 0.0) is None  # the history's link first
+    assert watch.transport(A, True, True, 0.0) is None
+    gone = watch.transport(A, True, False, 10.0)  # the transport's close first
+    assert gone is not None and f"the router at {AT} is gone" in gone.text
+    assert watch.link(A, AT, False, 10.0) is None
+    assert watch.link(A, AT, True, 12.5) is None  # back: the link's event first
+    back = watch.transport(A, True, True, 12.5)
+    assert back is not None
+    assert back.text == f"agent kiruna/knatte: the router at {AT} is back after 2.5 s without one"
