@@ -66,8 +66,10 @@ class Participant(_Model):
     )
 
 
-LEASE = Terms().lease
-"""s: the role's lease (:mod:`federation.core.standin`), the least ``after`` may be."""
+ROLE_TERMS = Terms()
+"""The role's default terms (:mod:`federation.core.standin`): the defaults below."""
+LEASE = ROLE_TERMS.lease
+"""s: the role's lease, the least ``after`` may be."""
 
 
 class StandIn(_Model):
@@ -78,14 +80,14 @@ class StandIn(_Model):
         description="the platform preset the twin flies: the leader's"
     )
     after: float = Field(
-        2.0,
+        ROLE_TERMS.after,
         ge=LEASE,
         le=60,
         description=f"seconds the leader must be silent before the twin takes its role "
         f"(at least the role's lease, {LEASE} s)",
     )
     skew: float = Field(
-        0.2,
+        ROLE_TERMS.skew,
         gt=0,
         lt=LEASE / 4,
         description="seconds: the largest error bound of an agent's reference time (its "

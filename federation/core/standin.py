@@ -116,7 +116,7 @@ class Terms:
 
     lease: float = 1.0
     after: float = 2.0
-    skew: float = 0.05
+    skew: float = 0.2
 
     def __post_init__(self) -> None:
         if not (self.lease > 0 and self.skew >= 0):
