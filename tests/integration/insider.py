@@ -4,18 +4,20 @@
 
 As a script it is one of those processes, writing what it did as JSON::
 
-    python insider.py flood   CONFIG OUT --sessions 10 --seconds 2 --rate 50
+    python insider.py flood   CONFIG OUT --sessions 10 --rounds 100 --rate 50
     python insider.py publish CONFIG OUT --seconds 4 --status-bytes 9472
     python insider.py watch   CONFIG OUT KEY
 
 ``flood`` opens one session after another (shared memory turned back on in each, an
-attacker's choice), each sending, at ``--rate``, a 1 MB sync query to the leader and
-1 MB puts on the insider's own pose and status keys for ``--seconds``. ``publish`` sends
-on its own keys at once: 1 MB poses at 50 Hz, poses of the largest size the routers
-pass (:data:`federation.deploy.limits.SMALL_LIMIT`) at 500 Hz and statuses of
-``--status-bytes`` at 100 Hz. ``watch`` (another lab's operator) subscribes to ``KEY``
-and writes, per key, what arrived: count, bytes, largest, and each arrival's time and
-size. Times are ``time.monotonic()``, one clock for every process on the host (network
+attacker's choice), each sending ``--rounds`` rounds of a 1 MB sync query to the
+leader and 1 MB puts on the insider's own pose and status keys, at ``--rate`` rounds a
+second at most (on busy cores a session lasts longer; it never sends less).
+``publish`` sends on its own keys at once: 1 MB poses at 50 Hz, poses of the largest
+size the routers pass (:data:`federation.deploy.limits.SMALL_LIMIT`) at 500 Hz and
+statuses of ``--status-bytes`` at 100 Hz, and writes when it sent each pose of the
+largest size. ``watch`` (another lab's operator) subscribes to ``KEY`` and writes, per
+key, what arrived: count, bytes, largest, and each arrival's time and size. Times are
+``time.monotonic()``, one clock for every process on the host (network
 namespaces share it). Each stops on SIGTERM and writes what it has.
 """
 
@@ -96,11 +98,19 @@ class _Replies:
                 self.err += 1
 
 
-def _paced(rate: float, seconds: float, stop: threading.Event, step: Callable[[int], None]) -> int:
-    """Call ``step(i)`` at ``rate`` Hz for ``seconds`` (or until ``stop``); how many."""
+def _paced(
+    rate: float,
+    stop: threading.Event,
+    step: Callable[[int], None],
+    *,
+    seconds: float = float("inf"),
+    count: float = float("inf"),
+) -> int:
+    """Call ``step(i)`` on a schedule of ``rate`` Hz for ``seconds`` or ``count`` calls,
+    whichever ends first (or until ``stop``); how many. Late calls catch up."""
     start = time.monotonic()
     i = 0
-    while not stop.is_set():
+    while not stop.is_set() and i < count:
         now = time.monotonic()
         if now - start >= seconds:
             break
@@ -110,7 +120,7 @@ def _paced(rate: float, seconds: float, stop: threading.Event, step: Callable[[i
     return i
 
 
-def flood(config: Path, out: Path, sessions: int, seconds: float, rate: float) -> None:
+def flood(config: Path, out: Path, sessions: int, rounds: int, rate: float) -> None:
     stop = _stop_on_sigterm()
     done: list[dict[str, Any]] = []
     for _ in range(sessions):
@@ -126,12 +136,12 @@ def flood(config: Path, out: Path, sessions: int, seconds: float, rate: float) -
                 s.put(f"{EVIL}/status", JUNK)
 
             started = time.monotonic()
-            rounds = _paced(rate, seconds, stop, step)
+            sent = _paced(rate, stop, step, count=rounds)
             ended = time.monotonic()
             stop.wait(QUERY_TIMEOUT + 0.3)  # the last queries' timeouts
         with replies.lock:
             done.append(
-                {"opened": opened, "started": started, "ended": ended, "rounds": rounds,
+                {"opened": opened, "started": started, "ended": ended, "rounds": sent,
                  "replies": replies.ok, "errors": replies.err}
             )  # fmt: skip
         write_json(out, {"sessions": done, "finished": False})
@@ -140,16 +150,20 @@ def flood(config: Path, out: Path, sessions: int, seconds: float, rate: float) -
 
 def publish(config: Path, out: Path, seconds: float, status_bytes: int) -> None:
     """At 500 Hz a pose of :data:`SMALL_LIMIT` bytes; every tenth tick a 1 MB pose
-    (50 Hz) and every fifth a status of ``status_bytes`` (100 Hz)."""
+    (50 Hz) and every fifth a status of ``status_bytes`` (100 Hz); when each pose of
+    :data:`SMALL_LIMIT` bytes was sent (what a router's downsampling can pass depends on
+    their spacing)."""
     stop = _stop_on_sigterm()
     sent = {"pose_1mb": 0, "pose_max": 0, "status_max": 0}
     small, status = bytes(SMALL_LIMIT), bytes(status_bytes)
+    pose_max_times: list[float] = []
     with zenoh.open(evil_config(config)) as session:
         pose = session.declare_publisher(f"{EVIL}/pose")
         stat = session.declare_publisher(f"{EVIL}/status")
 
         def step(i: int) -> None:
             pose.put(small)
+            pose_max_times.append(time.monotonic())
             sent["pose_max"] += 1
             if i % 10 == 0:
                 pose.put(JUNK)
@@ -159,11 +173,15 @@ def publish(config: Path, out: Path, seconds: float, status_bytes: int) -> None:
                 sent["status_max"] += 1
 
         started = time.monotonic()
-        ticks = _paced(500.0, seconds, stop, step)
+        ticks = _paced(500.0, stop, step, seconds=seconds)
         ended = time.monotonic()
         pose.undeclare()  # type: ignore[no-untyped-call]
         stat.undeclare()  # type: ignore[no-untyped-call]
-    write_json(out, {"started": started, "ended": ended, "ticks": ticks, "sent": sent})
+    write_json(
+        out,
+        {"started": started, "ended": ended, "ticks": ticks, "sent": sent,
+         "pose_max_times": pose_max_times},
+    )  # fmt: skip
 
 
 def watch(config: Path, out: Path, key: str) -> None:
@@ -212,7 +230,7 @@ def main(argv: list[str] | None = None) -> None:
         p.add_argument("out", type=Path, help="JSON file of what was done or seen")
         if mode == "flood":
             p.add_argument("--sessions", type=int, default=10)
-            p.add_argument("--seconds", type=float, default=2.0, help="per session")
+            p.add_argument("--rounds", type=int, default=100, help="per session")
             p.add_argument("--rate", type=float, default=50.0, help="rounds a second")
         elif mode == "publish":
             p.add_argument("--seconds", type=float, default=4.0)
@@ -221,7 +239,7 @@ def main(argv: list[str] | None = None) -> None:
             p.add_argument("key", help="key expression to subscribe to")
     args = parser.parse_args(argv)
     if args.mode == "flood":
-        flood(args.config, args.out, args.sessions, args.seconds, args.rate)
+        flood(args.config, args.out, args.sessions, args.rounds, args.rate)
     elif args.mode == "publish":
         publish(args.config, args.out, args.seconds, args.status_bytes)
     else:

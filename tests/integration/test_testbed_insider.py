@@ -11,10 +11,11 @@ Kiruna certificate, shared memory turned back on in its own config) is a process
 Kiruna's namespace; Rome's operator watches the insider's keys from Rome.
 
 1. Ten sessions one after another, each sending 1 MB sync queries to the leader and
-   1 MB puts on the insider's own pose and status keys at 50 Hz for ``FLOOD_S``
-   seconds: the Kiruna router and the leader grow by at most 10 MB each (RSS from
-   /proc, before and after a settle); no query is answered, the leader counts none
-   (none reached it) and the packet stage carries none of it across the WAN.
+   1 MB puts on the insider's own pose and status keys, ``ROUNDS`` rounds at 50 Hz
+   at most (``FLOOD_S`` seconds on idle cores): the Kiruna router and the leader grow
+   by at most 10 MB each (RSS from /proc, before and after a settle); no query is
+   answered, the leader counts none (none reached it) and the packet stage carries
+   none of it across the WAN.
 2. The insider publishing 1 MB poses at 50 Hz on its own pose key, with poses of the
    largest size passed at 500 Hz and statuses of the largest size at 100 Hz: Rome
    receives nothing over the size caps, and the insider's share of the WAN stays
@@ -73,7 +74,8 @@ pytestmark = [
 INSIDER = Path(__file__).with_name("insider.py")
 SESSIONS = 10
 FLOOD_S = float(os.environ.get("FEDLAB_INSIDER_FLOOD_S", "1"))  # per session; the issue: 2
-FLOOD_RATE = 50.0  # rounds a second: a 1 MB query, a 1 MB pose and a 1 MB status each
+FLOOD_RATE = 50.0  # rounds a second at most: a 1 MB query, a 1 MB pose and a 1 MB status
+ROUNDS = round(FLOOD_RATE * FLOOD_S)  # per session, however long the host lets it take
 PUBLISH_S = 4.0
 INSIDER_NICE = 10  # the insider's own host is not the lab's: on these shared cores its
 # processes run behind the lab's (the testbed's LAB_NICE), which still pay for what they
@@ -131,6 +133,17 @@ def stage_bytes(bed: Testbed, after: float) -> tuple[float, int]:
 
     assert wait_for(written, 5.0, 0.05), f"the stage wrote no counters: {bed.log('stage')[-1000:]}"
     return float(snaps[0]["seconds"]), int(snaps[0]["backward"]["bytes"])
+
+
+def downsampled(times: list[float], hz: float) -> int:
+    """How many of messages sent at ``times`` a downsampling rule of ``hz`` passes, were
+    they to reach it as sent: a message passes when ``1/hz`` has gone by since the last
+    one passed (Zenoh's ``downsampling`` interceptor), the first at once."""
+    passed, last = 0, float("-inf")
+    for t in times:
+        if t - last >= 1.0 / hz:
+            passed, last = passed + 1, t
+    return passed
 
 
 def ready(agent: Agent) -> bool:
@@ -219,11 +232,11 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
         bed.spawn(
             "kiruna", "flood",
             [sys.executable, str(INSIDER), "flood", dep.installed("agents", "evil.json5"),
-             str(flooded), "--sessions", str(SESSIONS), "--seconds", f"{FLOOD_S:g}",
+             str(flooded), "--sessions", str(SESSIONS), "--rounds", str(ROUNDS),
              "--rate", f"{FLOOD_RATE:g}"],
             kiruna, nice=INSIDER_NICE,
         )  # fmt: skip
-        wait_exit(bed, "flood", SESSIONS * (FLOOD_S + 5) + 30)
+        wait_exit(bed, "flood", SESSIONS * (4 * FLOOD_S + 5) + 30)
         flood_end = time.monotonic()
         wan_t1, wan_b1 = stage_bytes(bed, flood_end)
         # Settled: the follower's status lines from a second after the flood.
@@ -263,6 +276,7 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     took = time.monotonic() - t0
 
     rounds = [s["rounds"] for s in flood["sessions"]]
+    lasted = [round(s["ended"] - s["started"], 2) for s in flood["sessions"]]
     sent = sum(rounds)
     answered = sum(s["replies"] for s in flood["sessions"])
     timeouts = sum(s["errors"] for s in flood["sessions"])
@@ -272,14 +286,17 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     rome_bytes = poses.get("bytes", 0) + statuses.get("bytes", 0)
     sync_counters = {k: v for k, v in line["counters"].items() if "sync" in k}
     wan_rate = ((pub_b1 - pub_b0) - baseline * (pub_t1 - pub_t0)) / span
+    passable = downsampled(pub["pose_max_times"], pose_hz)
     print(
         f"\nready in {ready_after:.1f} s; WAN baseline {baseline / 1024:.1f} KiB/s towards Rome"
-        f"\n{SESSIONS} sessions x {FLOOD_S:g} s x (1 MB sync query, 1 MB pose, 1 MB status) at "
-        f"{FLOOD_RATE:g} Hz: {sent} rounds ({rounds}), {answered} answered, {timeouts} timeouts; "
+        f"\n{SESSIONS} sessions x {ROUNDS} x (1 MB sync query, 1 MB pose, 1 MB status) at "
+        f"{FLOOD_RATE:g} Hz at most: {sent} rounds in {lasted} s, {answered} answered, "
+        f"{timeouts} timeouts; "
         "growth "
         + ", ".join(f"{n} {g:+.1f} MB (from {before[n]:.0f})" for n, g in growth.items())
         + f"; WAN beyond baseline during the flood {crossed_in_flood / 1024:+.1f} KiB"
-        f"\npublished in {span:.2f} s: {json.dumps(pub['sent'])}; Rome received pose "
+        f"\npublished in {span:.2f} s: {json.dumps(pub['sent'])}, of the largest poses "
+        f"{passable} at most {pose_hz:g} Hz; Rome received pose "
         f"{poses.get('count', 0)} (largest {poses.get('largest', 0)} B), status "
         f"{statuses.get('count', 0)} (largest {statuses.get('largest', 0)} B): "
         f"{rome_bytes / span / 1024:.1f} KiB/s; at the stage beyond baseline "
@@ -293,10 +310,11 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
 
     # 1. Ten sessions, each flooding; memory bounded; nothing answered, nothing crossed.
     assert flood["finished"] and len(flood["sessions"]) == SESSIONS, flood
-    # Each session flooded for its seconds, at the rate its host let it (a 1 MB put
-    # waits for its fragments to be queued: on busy cores a round takes longer).
-    assert all(s["ended"] - s["started"] >= FLOOD_S and s["rounds"] > 0 for s in flood["sessions"])
-    assert sent >= 0.5 * SESSIONS * FLOOD_RATE * FLOOD_S, rounds
+    # Each session sent its rounds at the rate its host let it, never faster than the
+    # flood's (a 1 MB put waits for its fragments to be queued: on busy cores a round
+    # takes longer, and the session with it).
+    assert rounds == [ROUNDS] * SESSIONS, rounds
+    assert min(lasted) >= (ROUNDS - 1) / FLOOD_RATE, lasted
     assert growth["router-kiruna"] <= GROWTH_MB and growth["knatte"] <= GROWTH_MB, growth
     # Dropped at Kiruna: nothing answered, and every query ended in an error (its
     # timeout; one run counted 419 errors for 417 queries).
@@ -309,10 +327,10 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     assert pub["sent"]["pose_1mb"] >= 0.5 * 50 * PUBLISH_S, pub
     assert poses.get("largest", 0) <= limits.SMALL_LIMIT, poses.get("largest")
     assert statuses.get("largest", 0) <= status_cap, statuses.get("largest")
-    # As many as the cap passes, or as the insider sent: at niceness 10 on shared cores
-    # it may send fewer than the cap.
-    passable = min(pose_hz * span, pub["sent"]["pose_max"])
-    assert poses.get("count", 0) >= 0.5 * passable, ("the cap's poses did not cross", pub)
+    # As many as the cap passes of what the insider sent when it sent it: at niceness 10
+    # on shared cores it sends fewer, or late and in bursts, of which one passes (under
+    # two busy loops: 223 of 238, 214 of 224, 230 of 236 crossed).
+    assert poses.get("count", 0) >= 0.8 * passable, ("the cap's poses did not cross", passable)
     # Downsampling passes one message per 1/cap s, the first at once.
     allowed = (pose_hz * span + 2) * limits.SMALL_LIMIT + (status_hz * span + 2) * status_cap
     assert rome_bytes <= allowed, (rome_bytes, allowed)
