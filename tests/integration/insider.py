@@ -90,6 +90,10 @@ class _Replies:
         self.ok = 0
         self.err = 0
 
+    def ended(self) -> int:
+        with self.lock:
+            return self.ok + self.err
+
     def __call__(self, reply: zenoh.Reply) -> None:
         with self.lock:
             if reply.ok is not None:
@@ -138,7 +142,10 @@ def flood(config: Path, out: Path, sessions: int, rounds: int, rate: float) -> N
             started = time.monotonic()
             sent = _paced(rate, stop, step, count=rounds)
             ended = time.monotonic()
-            stop.wait(QUERY_TIMEOUT + 0.3)  # the last queries' timeouts
+            # The last queries' timeouts: every query ends in a reply or an error.
+            deadline = time.monotonic() + QUERY_TIMEOUT + 2.0
+            while replies.ended() < sent and time.monotonic() < deadline:
+                stop.wait(0.01)
         with replies.lock:
             done.append(
                 {"opened": opened, "started": started, "ended": ended, "rounds": sent,

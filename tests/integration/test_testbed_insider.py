@@ -24,7 +24,9 @@ Kiruna's namespace; Rome's operator watches the insider's keys from Rome.
    subscriber and, with the packets' headers, at the packet stage.
 3. Through both, the follower keeps syncing and is never held.
 
-``FLOOD_S`` is 1 s a session here (the whole file took 44 to 51 s on two shared cores);
+``FLOOD_S`` is 0.5 s a session here, 25 rounds: what a session sends does not matter,
+its being a new session does (each mapped its sender's 16 MiB shared-memory pool for good
+under the old configs: test_insider_flood.py).
 ``FEDLAB_INSIDER_FLOOD_S=2 pytest -s tests/integration/test_testbed_insider.py`` floods
 for the issue's 2 s. Figures are printed with ``-s``. Needs root, nftables and
 /dev/net/tun; skips saying which is missing. Every process is stopped by pid and every
@@ -73,10 +75,10 @@ pytestmark = [
 
 INSIDER = Path(__file__).with_name("insider.py")
 SESSIONS = 10
-FLOOD_S = float(os.environ.get("FEDLAB_INSIDER_FLOOD_S", "1"))  # per session; the issue: 2
+FLOOD_S = float(os.environ.get("FEDLAB_INSIDER_FLOOD_S", "0.5"))  # a session; the issue: 2
 FLOOD_RATE = 50.0  # rounds a second at most: a 1 MB query, a 1 MB pose and a 1 MB status
 ROUNDS = round(FLOOD_RATE * FLOOD_S)  # per session, however long the host lets it take
-PUBLISH_S = 4.0
+PUBLISH_S = 3.0
 INSIDER_NICE = 10  # the insider's own host is not the lab's: on these shared cores its
 # processes run behind the lab's (the testbed's LAB_NICE), which still pay for what they
 # receive of its floods; at the lab's niceness it starved the leader (a stale hold).
@@ -215,7 +217,7 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
 
         # The WAN's own traffic, to set the attacks' bytes against.
         base_t0, base_b0 = stage_bytes(bed, time.monotonic())
-        time.sleep(3.0)  # a span of the stage's counters, not a wait for an event
+        time.sleep(2.0)  # a span of the stage's counters, not a wait for an event
         base_t1, base_b1 = stage_bytes(bed, time.monotonic())
         baseline = (base_b1 - base_b0) / (base_t1 - base_t0)  # bytes/s towards Rome
 
@@ -328,9 +330,10 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
     assert poses.get("largest", 0) <= limits.SMALL_LIMIT, poses.get("largest")
     assert statuses.get("largest", 0) <= status_cap, statuses.get("largest")
     # As many as the cap passes of what the insider sent when it sent it: at niceness 10
-    # on shared cores it sends fewer, or late and in bursts, of which one passes (under
-    # two busy loops: 223 of 238, 214 of 224, 230 of 236 crossed).
-    assert poses.get("count", 0) >= 0.8 * passable, ("the cap's poses did not cross", passable)
+    # on shared cores it sends fewer, or late and in bursts, of which one passes; the
+    # router, late too, sees some closer together than sent (under two busy loops: 223 of
+    # 238, 214 of 224, 230 of 236 crossed; beside three other tests 112 of 129).
+    assert poses.get("count", 0) >= 0.6 * passable, ("the cap's poses did not cross", passable)
     # Downsampling passes one message per 1/cap s, the first at once.
     allowed = (pose_hz * span + 2) * limits.SMALL_LIMIT + (status_hz * span + 2) * status_cap
     assert rome_bytes <= allowed, (rome_bytes, allowed)
