@@ -102,14 +102,17 @@ def run_one(
     seed: int = 1,
     delay: float = paper.ONE_WAY_DELAY,
     start_after: float = START_AFTER,
+    sync_window: float | None = None,
 ) -> dict[str, Any]:
     """One formation run across the testbed with ``loss`` on the path; its figures.
 
     ``seconds`` of run time (the experiment's 5 s still and 10 s ramp, then the
     circle); ``seed`` seeds the packet stage and the platforms' noise (as
     ``fedlab demo --scenario formation --seed``); the run is started ``start_after`` s
-    after the agents' launch, or once every agent is locked if later. Raises :class:`RunFailed` (or
-    :class:`~federation.testbed.TestbedError`) saying why a run did not complete."""
+    after the agents' launch, or once every agent is locked if later; ``sync_window``
+    (s) is each agent's ``--sync-window`` (None: the agent's default, the paper's 10 s
+    sync phase). Raises :class:`RunFailed` (or :class:`~federation.testbed.TestbedError`)
+    saying why a run did not complete."""
     out.mkdir(parents=True, exist_ok=True)
     for stale in [
         *out.glob("*.mcap"),
@@ -130,7 +133,7 @@ def run_one(
     with Testbed(
         out, path, kiruna_ports=t["ports"], sysctls=sysctls, seed=seed, rome_hosts=2
     ) as bed:
-        timing = _fly(bed, spec, experiment, run_id, out, start_after)
+        timing = _fly(bed, spec, experiment, run_id, out, start_after, sync_window)
         stage = bed.stage_stats()
     meta = _meta(spec, run_id, delay, loss)
     (out / "run.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
@@ -185,6 +188,7 @@ def _fly(
     run_id: str,
     out: Path,
     start_after: float,
+    sync_window: float | None = None,
 ) -> dict[str, float]:
     """Routers and agents in their hosts, every agent synchronized, the run started with
     ``fedlab ctl start`` and flown to its end, the agents stopped (each closes its
@@ -198,6 +202,7 @@ def _fly(
         bed.fedlab(host, f"router-{lab}", [*args, "--lab", lab])
     status = _status(out, spec)
     launched = time.monotonic()
+    window = [] if sync_window is None else ["--sync-window", f"{sync_window:g}"]
     for agent in status:
         lab, name = agent.split("/")
         bed.fedlab(
@@ -207,7 +212,7 @@ def _fly(
              "-e", f"tcp/127.0.0.1:{PORT}", "--clock-offset", f"{SCENARIO_CLOCKS[lab]}",
              "--status-period", "0.5", "--status-json", str(status[agent]),
              "--record", str(out / f"{recording_stem(agent)}.mcap"),
-             "--runs-dir", str(out / "runs")],
+             "--runs-dir", str(out / "runs"), *window],
         )  # fmt: skip
 
     def modes() -> dict[str, Any]:
@@ -223,7 +228,7 @@ def _fly(
         )
 
     if not wait_for(
-        lambda: all(locked(last_status(s)) for s in status.values()), SYNC_TIMEOUT, 0.5
+        lambda: all(locked(last_status(s)) for s in status.values()), SYNC_TIMEOUT, 0.1
     ):
         raise RunFailed(
             f"not every agent locked to the reference in {SYNC_TIMEOUT:g} s: {_where(out)}"

@@ -6,7 +6,9 @@ Kiruna, and the run scored by the report's formation figure.
 
 One short run (10 s of run time; the benchmark flies 60 s at 0, 1 and 5 % three times,
 benchmarks/network-formation-60s.json): it shows that the run is flown across the
-lossy path and scored, not what the loss costs (the benchmark's ratio says that).
+lossy path and scored, not what the loss costs (the benchmark's ratio says that). The
+agents lock their estimates over a 2 s sync window rather than the paper's 10 s (the
+benchmark's): a start needs a locked estimate, and this claim no more than that.
 Needs root, nftables and /dev/net/tun; skips saying which is missing.
 """
 
@@ -28,11 +30,12 @@ from federation.testbed import PREFIX, leftover_namespaces, missing
 WHY = missing()
 pytestmark = [
     pytest.mark.integration,
-    pytest.mark.scenario,  # about 32 s: three routers and agents lock across the lossy path
+    pytest.mark.scenario,  # about 20 s: three routers and agents lock across the lossy path
     pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
 ]
 
 SECONDS = 10.0  # s of run time
+SYNC_WINDOW = 2.0  # s of each agent's sync window (the benchmark: the paper's 10 s)
 LOSS = 0.05
 AGENTS = {"kiruna/knatte", "rome/pinocchio", "lab3/generic"}
 
@@ -47,7 +50,9 @@ def no_leaks() -> Iterator[None]:
 
 def test_formation_across_the_lossy_path_is_flown_and_scored(tmp_path: Path) -> None:
     # Started as soon as every agent is locked (the benchmark waits 30 s for all alike).
-    result = formation_network.run_one(LOSS, SECONDS, tmp_path, seed=1, start_after=0.0)
+    result = formation_network.run_one(
+        LOSS, SECONDS, tmp_path, seed=1, start_after=0.0, sync_window=SYNC_WINDOW
+    )
     print({k: v for k, v in result.items() if k not in ("counters", "per_platform")})
     # The loss was real: the stage dropped packets both ways, near the 5 % asked for.
     for way in ("forward", "backward"):
