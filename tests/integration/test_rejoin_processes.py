@@ -1,8 +1,9 @@
 """Rejoining a run under way, with real processes over two routers and the link
-emulator (40 ms one way): a simulated follower killed (SIGKILL) at run time ~6 s of a
-20 s run and started again rejoins on its own (its platform's default, ``auto``) within
-5 s of its start, at the present run time, and flies the run to its end with the
-leader, on the same run id and end instant. ``fedlab collect`` gathers both its
+emulator (40 ms one way): a simulated follower killed (SIGKILL) a few seconds into a
+12.5 s run, once its recording has a chunk on disk, and started again rejoins on its
+own (its platform's default, ``auto``) within 5 s of its start, at the present run
+time, and flies the run to its end with the leader, on the same run id and end
+instant. ``fedlab collect`` gathers both its
 segments; ``fedlab report`` shows one run, the follower's two segments and the gap
 between them, and the run completed by the leader."""
 
@@ -13,15 +14,36 @@ import time
 from pathlib import Path
 
 import pytest
-from lifecycle import as_json, fedlab, participants, write_experiment
+from inprocess import fedlab_here
+from lifecycle import as_json, participants, runs_dir, write_experiment
 from loopback import FOLLOWER, LEADER, Labs
+from mcap.opcode import Opcode
+from mcap.writer import MCAP0_MAGIC
+
+from federation.fleet.launch import wait_for
 
 pytestmark = pytest.mark.integration
 
 LOCKED = 25.0  # s: the agents start (slow on a busy host), then the estimate locks 2 s in
-RUN = 14.0  # s of run time
-KILL_AT = 4.0  # s of run time at which the follower is killed
+# s of run time: the kill (2 to 3 s in), its restart and rejoining (4 to 7 s on cores
+# shared with parallel tests), and a few seconds flown after it.
+RUN = 12.5
+KILL_AT = 1.0  # s of run time before the follower is killed: the run is under way
 REJOIN_WITHIN = 5.0  # s after its session is up
+
+
+def _chunks(path: Path) -> int:
+    """Complete chunk records in the MCAP file at ``path``, one being written (records:
+    an opcode byte, a little-endian uint64 length, the body)."""
+    data = path.read_bytes() if path.exists() else b""
+    at, chunks = len(MCAP0_MAGIC), 0
+    while at + 9 <= len(data):
+        opcode, length = data[at], int.from_bytes(data[at + 1 : at + 9], "little")
+        at += 9 + length
+        if at > len(data):  # cut short: still being written
+            break
+        chunks += opcode == Opcode.CHUNK
+    return chunks
 
 
 def _rejoined(line: dict[str, object]) -> bool:
@@ -32,6 +54,11 @@ def _rejoined(line: dict[str, object]) -> bool:
 def test_a_killed_follower_started_again_rejoins_and_flies_to_the_end(
     labs: Labs, tmp_path: Path
 ) -> None:
+    t0 = time.monotonic()
+
+    def phase(what: str) -> None:  # where the test's time goes, printed on a failure
+        print(f"{time.monotonic() - t0:6.2f} s  {what}")
+
     pair = labs.pair(link=["--delay-ms", "40"])
     experiment = write_experiment(tmp_path / "exp.toml", RUN)
     # The restarted follower joins once its estimate of the reference clock locks, a
@@ -43,15 +70,24 @@ def test_a_killed_follower_started_again_rejoins_and_flies_to_the_end(
         timeout=LOCKED,
         what="locked, waiting",
     )
-    started, _ = fedlab(
+    phase("the follower locked, waiting")
+    started = fedlab_here(
         "ctl", "start", "--experiment", str(experiment), "--run-id", "rejoin",
         "-e", pair.kiruna.endpoint,
     )  # fmt: skip
     assert started.returncode == 0, started.stdout + started.stderr
-    line = follower.until(
+    phase("ctl start returned")
+    follower.until(
         lambda s: (s.get("run_time") or 0.0) >= KILL_AT, timeout=15, what=f"run time {KILL_AT} s"
     )
+    # Killed once its recording has a chunk on disk (the kill loses only the chunk being
+    # gathered), at the run time of a status line written after that chunk.
+    recording = runs_dir(labs, FOLLOWER) / "rejoin" / f"{FOLLOWER.replace('/', '-')}.mcap"
+    assert wait_for(lambda: _chunks(recording) > 0, 15), f"no chunk written to {recording}"
+    chunked = time.monotonic()
+    line = follower.until(lambda s: s["host_monotonic"] > chunked, 5, "a line after the chunk")
     follower.kill()
+    phase("the follower killed")
     killed_at = line["run_time"]
     end_at = line["start_at"] + RUN  # the run's end instant on reference time
 
@@ -62,11 +98,12 @@ def test_a_killed_follower_started_again_rejoins_and_flies_to_the_end(
     # rejoining's.
     up = follower.until(lambda s: s["host_monotonic"] > begun, REJOIN_WITHIN + 10, "up again")
     joined = follower.until(_rejoined, timeout=REJOIN_WITHIN + 5, what="rejoined")
+    phase("the follower rejoined")
     rejoin_s = joined["host_monotonic"] - up["host_monotonic"]
     started_s = up["host_monotonic"] - begun
-    for line in follower.log().splitlines():  # when it came up, synced and rejoined
-        if "rejoin" in line or " up in federation" in line:
-            print(line)
+    for text in follower.log().splitlines():  # when it came up, synced and rejoined
+        if "rejoin" in text or " up in federation" in text:
+            print(text)
     transition = joined["transition"]
     gap = transition["run_time"] - killed_at
     print(
@@ -84,16 +121,18 @@ def test_a_killed_follower_started_again_rejoins_and_flies_to_the_end(
     assert done["transition"]["event"] == "done"
     assert done["transition"]["at"] == pytest.approx(end_at, abs=1e-6)  # the others' end
     led = leader.until(lambda s: s["mode"] == "done", timeout=5, what="the leader done")
+    phase("both done")
     assert led["transition"]["at"] == pytest.approx(end_at, abs=1e-6)
     assert led["hold"] == "done" and done["hold"] == "done"
     rejoined_at = transition["run_time"]
 
     out = tmp_path / "collected"
-    collected, _ = fedlab(
+    collected = fedlab_here(
         "collect", "rejoin", "--out", str(out), "--experiment", str(experiment), "--json",
         "-e", pair.kiruna.endpoint,
     )  # fmt: skip
     assert collected.returncode == 0, collected.stdout + collected.stderr
+    phase("collected")
     got = as_json(collected)
     stem = FOLLOWER.replace("/", "-")
     assert {f"{stem}.mcap", f"{stem}.seg2.mcap", f"{stem}.seg2.jsonl"} <= set(
@@ -111,8 +150,9 @@ def test_a_killed_follower_started_again_rejoins_and_flies_to_the_end(
     assert second == [pytest.approx(rejoined_at, abs=1e-6), pytest.approx(RUN)]
     assert follower_part["gaps_s"] == [[first[1], second[0]]]
 
-    report, _ = fedlab("report", str(out), "--out", str(out / "report"))
+    report = fedlab_here("report", str(out), "--out", str(out / "report"))
     assert report.returncode == 0, report.stdout + report.stderr
+    phase("reported")
     summary = json.loads((out / "report" / "summary.json").read_text())
     assert summary["run"]["participants"] == parts
     text = (out / "report" / "report.md").read_text()
