@@ -61,12 +61,13 @@ def _agents(labs: Labs, pair: LabPair, experiment: Path) -> dict[str, Agent]:
 
 def _start(experiment: Path, endpoint: str) -> None:
     """``fedlab ctl start`` of the run, tried again (at most :data:`START_TRIES` times)
-    while its preflight refuses only because a participant is held (role): on starved
-    cores (two routers, the link, three agents and ctl on two shared cores beside other
-    tests) the stand-in's acknowledgements can pause past the leader's lease (its claim
-    lapses 0.8 s after the last one: a 1 s lease less the 0.2 s skew), and its follower
-    holds, as it must, until the next. Every refusal is printed; any other refusal
-    fails at once."""
+    while its preflight refuses only because a participant is held (role). The follower
+    counts the leader's claim while ``t + skew < until = A + lease - 2 skew``, 0.4 s
+    past the stamp ``A`` the stand-in last acknowledged (lease 1 s, skew 0.2 s); that
+    stamp has crossed the link three times (leader, stand-in, leader, follower: 0.12 s)
+    and waited up to two 0.1 s message periods, so a stall of a tenth of a second on
+    shared cores lets the claim expire for 50-100 ms and the follower holds, as it
+    must. Every refusal is printed; any other refusal fails at once."""
     for k in range(START_TRIES):
         started, _ = fedlab(
             "ctl", "start", "--experiment", str(experiment), "--run-id", "standin",
