@@ -48,6 +48,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -200,14 +201,33 @@ def _check(n: int, mode: str, labs: int, group: int) -> None:
 
 def _start_routers(fleet: Fleet, endpoints: list[str], cores: frozenset[int] | None) -> None:
     """A router per lab listening on its endpoint, every lab but the first dialling the
-    first (a star), each on ``cores`` if given."""
+    first (a star), each on ``cores`` if given: then it returns once each router has
+    pinned itself there (a router pins its process as it starts; on busy cores that
+    comes after its workers have begun)."""
+    names = []
     for lab, ep in enumerate(endpoints):
         args = ["router", "--lab", f"lab{lab}", "-l", ep]
         if lab:
             args += ["-e", endpoints[0]]
         if cores is not None:
             args += ["--cpus", format_cpus(cores)]
-        fleet.start(f"router-lab{lab}", args)
+        names.append(f"router-lab{lab}")
+        fleet.start(names[-1], args)
+    if cores is None:
+        return
+
+    def pinned(name: str) -> bool:
+        try:
+            return usable_cpus(fleet.procs[name].pid) == cores
+        except OSError:  # it ended: said below
+            return False
+
+    for name in names:
+        if not wait_for(partial(pinned, name), 30.0, 0.05):
+            raise RuntimeError(
+                f"{name} (pid {fleet.procs[name].pid}) did not pin itself to cores "
+                f"{format_cpus(cores)} within 30 s; its log: {fleet.log_path(name)}"
+            )
 
 
 def _worker_argv(

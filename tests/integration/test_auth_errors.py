@@ -16,7 +16,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import shutil
-import time
 from pathlib import Path
 
 import pytest
@@ -99,22 +98,26 @@ def test_an_authentication_failure_says_what_failed(labs: Labs, tmp_path: Path, 
         ),
         "password": lambda: cfg("transport/auth/usrpwd/password", "not-the-password"),
     }[kind]()
-    started = time.time()  # the wall clock: the agent's log lines are stamped on it
     agent = start_agent(labs, fed, who, *bad)  # waits for its router for ever, as deployed
     # ctl as the same identity, with its default --timeout
     done, took = fedlab("ctl", "status", "-c", str(fed.zenoh_config(who)), *bad, timeout=60)
     assert wait_for(lambda: WARNED in agent.log(), timeout=20), agent.log()[-3000:]
-    line = next(x for x in agent.log().splitlines() if WARNED in x)
-    warned = logged_at(line) - started
+    log = agent.log().splitlines()
+    line = next(x for x in log if WARNED in x)
+    # From its first line (its config read, its session about to open): a Python
+    # process's own start took up to 10 s on cores shared with parallel tests.
+    warned = logged_at(line) - logged_at(log[0])
     said = done.stderr.strip()[-600:]
-    print(f"\n{kind}: agent warned {warned:.1f} s after its start: {line}\n"
+    print(f"\n{kind}: agent warned {warned:.1f} s after its first line: {line}\n"
           f"ctl status exit {done.returncode} after {took:.1f} s: {said}")  # fmt: skip
     for word in words:
         assert word in line, line
         assert word in done.stderr, done.stderr
     assert "Zenoh config" not in line  # the file is named
     assert done.returncode == 1 and took < 15
-    assert warned < 10  # its process start (about 2 s on a busy host) included
+    # TLS refusals were told 1.2 to 1.4 s after the first line (once when the process
+    # took 10 s to start), a refused login 5.7 s (the login is tried to its timeout).
+    assert warned < 8
     assert agent.alive() and agent.last() is None  # still waiting: no session, no status
     assert agent.stop() == 0
 

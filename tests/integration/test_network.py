@@ -144,8 +144,8 @@ def test_a_ten_second_cut_holds_fast_and_recovers_without_a_stale_burst(tmp_path
     # How fast pose and sync come back is a speed figure, measured and committed by
     # `fedlab bench network` (benchmarks/network-tcp-tuned-60s.json): here only that
     # they do come back, within a bound a loaded CI host keeps.
-    assert cut["pose_back_after_s"] <= 5.0
-    assert cut["sync_back_after_s"] <= 5.0
+    assert cut["pose_back_after_s"] <= 5.0, cut
+    assert cut["sync_back_after_s"] <= 5.0, cut
     assert cut["released_after_s"] is not None
     # No pose queued through the cut reaches the controller.
     assert cut["oldest_pose_after_return_ms"] <= (ONE_WAY + 0.01 + MAX_STALE) * 1e3
