@@ -15,8 +15,9 @@ from collections.abc import Iterable
 
 import numpy as np
 import pytest
+from rehearsed import Rehearsals
 
-from agents.rehearsal import DelayLine, adaptive_run, docking_run, formation_run, rehearse
+from agents.rehearsal import DelayLine, adaptive_run, docking_run, rehearse
 from agents.workspace import Area, Frame
 from federation.core.counters import Count
 from federation.core.keys import AgentId
@@ -60,9 +61,11 @@ def test_delay_line_delivers_in_order_after_the_delay() -> None:
     assert got is not None and got.pose.x == 2.0
 
 
-def test_formation_compensation_halves_the_error_at_250_ms() -> None:
-    comp = formation_run(FORMATION, 0.25, compensate=True, seed=0)
-    raw = formation_run(FORMATION, 0.25, compensate=False, seed=0)
+# The formation and adaptive runs are the session's (tests/unit/rehearsed.py): the
+# benchmark's rows (tests/unit/bench/test_bench_scenarios.py) judge the same seeded runs.
+def test_formation_compensation_halves_the_error_at_250_ms(rehearsals: Rehearsals) -> None:
+    comp = rehearsals.formation_run(FORMATION, 0.25, compensate=True, seed=0)
+    raw = rehearsals.formation_run(FORMATION, 0.25, compensate=False, seed=0)
     print(f"250 ms: compensated {comp['error_rms_m']:.4f} m, raw {raw['error_rms_m']:.4f} m")
     assert raw["error_rms_m"] >= 2.0 * comp["error_rms_m"]
     for run in (comp, raw):
@@ -70,8 +73,8 @@ def test_formation_compensation_halves_the_error_at_250_ms() -> None:
             assert counters == {"workspace_clamped": 0, "workspace_holds": 0}
 
 
-def test_formation_at_40_ms() -> None:
-    run = formation_run(FORMATION, 0.04, compensate=True, seed=0)
+def test_formation_at_40_ms(rehearsals: Rehearsals) -> None:
+    run = rehearsals.formation_run(FORMATION, 0.04, compensate=True, seed=0)
     assert run["error_rms_m"] < 0.03
     assert all(c["workspace_holds"] == 0 for c in run["workspace"].values())
     assert set(run["per_platform"]) == {"kiruna/knatte", "rome/pinocchio", "lab3/generic"}
@@ -118,9 +121,11 @@ def test_docking_over_40_ms_keeps_every_platform_in_its_area() -> None:
 
 
 @pytest.mark.parametrize(("amplitude", "seconds"), [(30.0, 20.0), (60.0, 30.0), (90.0, 40.0)])
-def test_adaptive_follower_tracks_brisk_leaders_closer(amplitude: float, seconds: float) -> None:
-    fixed = adaptive_run(amplitude, seconds, None, seed=0)
-    adaptive = adaptive_run(amplitude, seconds, AdaptiveConfig(), seed=0)
+def test_adaptive_follower_tracks_brisk_leaders_closer(
+    amplitude: float, seconds: float, rehearsals: Rehearsals
+) -> None:
+    fixed = rehearsals.adaptive_run(amplitude, seconds, None, seed=0)
+    adaptive = rehearsals.adaptive_run(amplitude, seconds, AdaptiveConfig(), seed=0)
     assert adaptive["scale_max"] > 1.0
     assert adaptive["heading_error_rms_deg"] < fixed["heading_error_rms_deg"]
 

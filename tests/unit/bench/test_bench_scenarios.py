@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from rehearsed import Rehearsals
 
 from federation import cli
 from federation.bench import scenarios
@@ -16,7 +17,12 @@ EXPERIMENTS = ROOT / "deploy" / "experiments"
 
 
 # The three parts of a run, one test each (the benchmark's parts run on separate workers).
-def test_a_formation_row_for_every_delay_with_and_without_compensation() -> None:
+# Their runs are the session's (tests/unit/rehearsed.py): tests/unit/agents/test_rehearsal.py
+# judges the same seeded formation and adaptive runs.
+def test_a_formation_row_for_every_delay_with_and_without_compensation(
+    rehearsals: Rehearsals, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(scenarios, "formation_run", rehearsals.formation_run)
     formation = scenarios.formation_rows(EXPERIMENTS / "formation.toml", seeds=1)
     rows = {(r["delay_s"], r["latency_compensation"]): r for r in formation}
     assert set(rows) == {(d, c) for d in scenarios.DELAYS for c in (True, False)}
@@ -30,7 +36,10 @@ def test_a_docking_seed_succeeds() -> None:
     assert scenarios.docking_outcomes(EXPERIMENTS / "docking.toml", seeds=1)["successes"] == 1
 
 
-def test_an_adaptive_row_for_every_maneuver() -> None:
+def test_an_adaptive_row_for_every_maneuver(
+    rehearsals: Rehearsals, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(scenarios, "adaptive_run", rehearsals.adaptive_run)
     assert [a["amplitude_deg"] for a in scenarios.adaptive_rows()] == [
         amplitude for amplitude, _ in scenarios.ADAPTIVE_MANEUVERS
     ]
