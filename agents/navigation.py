@@ -140,6 +140,7 @@ class NavigationFilter:
         kf.Q = np.zeros((8, 8))
         self.kf = kf
         self._u = np.zeros((3, 1))
+        self._eye = np.eye(8)
         self._z = np.zeros((3, 1))
         self._dt = -1.0
         self._t: float | None = None
@@ -206,7 +207,7 @@ class NavigationFilter:
             u[0, 0] = c * ax - s * ay
             u[1, 0] = s * ax + c * ay
             u[2, 0] = 0.5 * (prev.gyro + imu.gyro)
-            kf.predict(u=u)
+            self._predict(u)
             px, py, vx, vy, g = self._sums
             ux, uy = float(u[0, 0]), float(u[1, 0])
             self._sums = (
@@ -227,16 +228,45 @@ class NavigationFilter:
         self._imu = imu
         self._gyro = imu.gyro
 
+    def _predict(self, u: np.ndarray) -> None:
+        """:math:`\\hat{x}^+ = F \\hat{x} + B u`, :math:`P^+ = F P F^T + Q`: the
+        arithmetic of ``KalmanFilter.predict`` (its fading memory is 1), operation for
+        operation, less the prior's copies it keeps and this filter never reads (a
+        control step's time goes to the filter's bookkeeping otherwise)."""
+        kf = self.kf
+        f = kf.F
+        kf.x = np.dot(f, kf.x) + np.dot(kf.B, u)
+        kf.P = np.dot(np.dot(f, kf.P), f.T) + kf.Q
+
+    def _update(self, z: np.ndarray) -> None:
+        """The Kalman update with ``z`` (3 x 1) in the Joseph form, as
+        ``KalmanFilter.update`` computes it, operation for operation, less the copies of
+        the measurement and the posterior it keeps and this filter never reads:
+
+        .. math::
+
+            S = H P H^T + R, \\quad K = P H^T S^{-1}, \\quad
+            \\hat{x}^+ = \\hat{x} + K (z - H \\hat{x}), \\quad
+            P^+ = (I - K H) P (I - K H)^T + K R K^T
+        """
+        kf = self.kf
+        h, r, p = kf.H, kf.R, kf.P
+        y = z - np.dot(h, kf.x)
+        pht = np.dot(p, h.T)
+        k = np.dot(pht, np.linalg.inv(np.dot(h, pht) + r))
+        kf.x = kf.x + np.dot(k, y)
+        i_kh = self._eye - np.dot(k, h)
+        kf.P = np.dot(np.dot(i_kh, p), i_kh.T) + np.dot(np.dot(k, r), k.T)
+
     def correct(self, now: float, fix: Pose, age: float = 0.0) -> None:
         """Update with a vision fix (x, y, heading) taken ``age`` s before ``now`` (s),
         the filter's time: call :meth:`predict` up to ``now`` first. ValueError for an
         ``age`` the history does not reach back (:meth:`reaches`): taken as of now, it
         would be a lagging fix taken as a current one."""
-        kf = self.kf
         z = self._z
         try:
             z[0, 0], z[1, 0], z[2, 0] = self._measured(fix, age)
-            kf.update(z)
+            self._update(z)
         finally:
             self._h_age(0.0)
         self.fixes += 1
