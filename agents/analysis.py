@@ -1,4 +1,4 @@
-"""Heading-loop margins with python-control: how much link delay the loop can bear.
+"""Heading-loop margins: how much link delay the loop can bear.
 
 The heading loop of one platform, with pulse-width modulation taken as its
 average torque (valid when the PWM period is short against the loop's time
@@ -10,10 +10,18 @@ constants):
     C(s) = K_p + \\frac{K_i}{s} + K_d s \\quad \\text{(Eq. 2)}, \\qquad
     L(s) = C(s) P(s)
 
-Gain and phase margins come from :func:`control.stability_margins`; the delay
-margin is the phase margin over the crossover frequency, :math:`\\tau_m = \\phi_m / \\omega_c`:
-the pure delay that, added in the loop, takes it to the edge of instability.
-A link delay above a quarter of it is flagged.
+On :math:`s = j\\omega`, :math:`L = -(K_p + j(K_d\\omega - K_i/\\omega)) / (I\\omega^2)`,
+so the margins have closed forms (python-control's ``stability_margins`` gives the same
+to 1e-12, tests/unit/agents/test_analysis.py; an agent does not import it, whose
+scipy and matplotlib cost a second of start-up): the gain crossovers
+:math:`|L| = 1` are the positive roots :math:`u = \\omega^2` of
+:math:`I^2u^3 - K_d^2u^2 + (2K_dK_i - K_p^2)u - K_i^2 = 0`, the phase margin there is
+:math:`\\operatorname{atan2}(K_d\\omega - K_i/\\omega, K_p)` (the smallest, if several),
+and the phase crosses -180 degrees at :math:`\\omega^2 = K_i/K_d`, where the gain margin
+is :math:`I K_i / (K_d K_p)` (none without an integral or a derivative term: infinite).
+The delay margin is the phase margin over the crossover frequency,
+:math:`\\tau_m = \\phi_m / \\omega_c`: the pure delay that, added in the loop, takes
+it to the edge of instability. A link delay above a quarter of it is flagged.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-import control
+import numpy as np
 
 from schemas.platform import PlatformConfig
 
@@ -61,20 +69,25 @@ class Margins:
 
 
 def heading_margins(config: PlatformConfig) -> Margins:
-    c = config.control
-    s = control.tf("s")
-    loop = (c.kp + c.ki / s + c.kd * s) / (config.inertia * s**2)
-    gm, pm, _sm, _wpc, wgc, _wms = control.stability_margins(loop)
-    if not (math.isfinite(pm) and wgc > 0):
+    """The margins of ``config``'s heading loop (the module says how); ValueError when
+    the loop has no gain crossover."""
+    c, inertia = config.control, config.inertia
+    kp, ki, kd = c.kp, c.ki, c.kd
+    roots = np.roots([inertia * inertia, -kd * kd, 2 * kd * ki - kp * kp, -ki * ki])
+    crossovers = [math.sqrt(r.real) for r in roots if r.real > 0 and abs(r.imag) <= 1e-9 * abs(r)]
+    if not crossovers or kp <= 0:
         raise ValueError(f"{config.name}: the heading loop has no gain crossover (check gains)")
+    margins = [(math.degrees(math.atan2(kd * w - ki / w, kp)), w) for w in crossovers]
+    pm, wgc = min(margins, key=lambda m: abs(m[0]))
+    gm = inertia * ki / (kd * kp) if ki > 0 and kd > 0 else math.inf
     return Margins(
         platform=config.name,
-        kp=c.kp,
-        ki=c.ki,
-        kd=c.kd,
-        inertia=config.inertia,
-        gain_margin=float(gm),
-        phase_margin_deg=float(pm),
-        crossover_rad_s=float(wgc),
-        delay_margin_s=math.radians(pm) / float(wgc),
+        kp=kp,
+        ki=ki,
+        kd=kd,
+        inertia=inertia,
+        gain_margin=gm,
+        phase_margin_deg=pm,
+        crossover_rad_s=wgc,
+        delay_margin_s=math.radians(pm) / wgc,
     )

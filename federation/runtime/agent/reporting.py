@@ -12,6 +12,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 import zenoh
 
+from agents.analysis import Margins, heading_margins
 from federation.core.channels import Channel
 from federation.core.counters import Count
 from federation.core.ring import FloatRing
@@ -20,7 +21,6 @@ from federation.runtime.status import loop_stats
 from schemas.messages import Readiness, Status
 
 if TYPE_CHECKING:
-    from agents.analysis import Margins  # imports python-control: only for a physical platform
     from agents.interface import Platform
     from federation.runtime.agent.commands import RunControl
     from federation.runtime.agent.intake import PoseIntake
@@ -66,8 +66,6 @@ def _margins(platform: Platform) -> Margins | None:
     config = platform.config
     if config is None:
         return None
-    from agents.analysis import heading_margins
-
     try:
         return heading_margins(config)
     except ValueError as error:

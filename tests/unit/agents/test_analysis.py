@@ -1,4 +1,4 @@
-"""Heading-loop margins against a hand calculation."""
+"""Heading-loop margins against a hand calculation and python-control's."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 
+import control
 import numpy as np
 import pytest
 
@@ -39,6 +40,39 @@ def test_margins_match_hand_calculation(preset: str) -> None:
     assert m.phase_margin_deg == pytest.approx(pm, abs=0.01)
     assert m.delay_margin_s == pytest.approx(math.radians(pm) / wc, rel=1e-4)
     print(f"{preset}: wc {wc:.3f} rad/s, PM {pm:.1f} deg, delay margin {m.delay_margin_s:.3f} s")
+
+
+def _gains() -> list[tuple[float, float, float, float]]:
+    """Every preset's (kp, ki, kd, inertia), and 40 drawn at random (some unstable,
+    some without an integral term)."""
+    presets = [load_platform(name) for name in ("knatte", "pinocchio", "generic")]
+    rng = np.random.default_rng(7)
+    drawn = [
+        (rng.uniform(0.01, 5.0), rng.uniform(0.0, 1.0) * (k % 5 != 0), rng.uniform(0.01, 5.0),
+         rng.uniform(0.1, 10.0))
+        for k in range(40)
+    ]  # fmt: skip
+    return [(p.control.kp, p.control.ki, p.control.kd, p.inertia) for p in presets] + drawn
+
+
+@pytest.mark.parametrize("gains", _gains())
+def test_closed_forms_match_python_control(gains: tuple[float, float, float, float]) -> None:
+    kp, ki, kd, inertia = gains
+    config = load_platform("generic")
+    config = config.model_copy(
+        update={
+            "inertia": inertia,
+            "control": config.control.model_copy(update={"kp": kp, "ki": ki, "kd": kd}),
+        }
+    )
+    m = heading_margins(config)
+    s = control.tf("s")
+    gm, pm, _sm, _wpc, wgc, _wms = control.stability_margins(
+        (kp + ki / s + kd * s) / (inertia * s**2)
+    )
+    assert m.phase_margin_deg == pytest.approx(pm, rel=1e-9, abs=1e-9)
+    assert m.crossover_rad_s == pytest.approx(wgc, rel=1e-9)
+    assert m.gain_margin == pytest.approx(gm, rel=1e-9)  # inf without an integral term
 
 
 def test_warning_at_a_quarter_of_the_delay_margin() -> None:
