@@ -32,7 +32,6 @@ RUN = 8.0  # s of run time: the twin flies over 3 s of it after the switch
 KILL_AT = 2.5  # s of run time at which the leader is killed (1.5 s into the maneuver)
 AFTER = 1.5  # s of the leader's silence before the stand-in claims
 LOCKED = 25.0  # s: three agents start on shared cores, then their estimates lock
-START_TRIES = 3  # ctl start's tries while its preflight finds the follower held (role)
 
 
 def _experiment(path: Path) -> Path:
@@ -60,25 +59,12 @@ def _agents(labs: Labs, pair: LabPair, experiment: Path) -> dict[str, Agent]:
 
 
 def _start(experiment: Path, endpoint: str) -> None:
-    """``fedlab ctl start`` of the run, tried again (at most :data:`START_TRIES` times)
-    while its preflight refuses only because a participant is held (role). The follower
-    counts the leader's claim while ``t + skew < until = A + lease - 2 skew``, 0.4 s
-    past the stamp ``A`` the stand-in last acknowledged (lease 1 s, skew 0.2 s); that
-    stamp has crossed the link three times (leader, stand-in, leader, follower: 0.12 s)
-    and waited up to two 0.1 s message periods, so a stall of a tenth of a second on
-    shared cores lets the claim expire for 50-100 ms and the follower holds, as it
-    must. Every refusal is printed; any other refusal fails at once."""
-    for k in range(START_TRIES):
-        started, _ = fedlab(
-            "ctl", "start", "--experiment", str(experiment), "--run-id", "standin",
-            "-e", endpoint,
-        )  # fmt: skip
-        said = started.stdout + started.stderr
-        if started.returncode == 0:
-            return
-        print(f"ctl start, try {k + 1}: refused\n{said}")
-        assert "preflight failed" in said and "held (role)" in said, said
-    raise AssertionError(f"ctl start refused {START_TRIES} times: {said}")
+    """``fedlab ctl start`` of the run: its preflight finds every participant ready."""
+    started, _ = fedlab(
+        "ctl", "start", "--experiment", str(experiment), "--run-id", "standin",
+        "-e", endpoint,
+    )  # fmt: skip
+    assert started.returncode == 0, started.stdout + started.stderr
 
 
 def _claims(tap: Tap[tuple[float, dict[str, Any]]]) -> list[tuple[float, dict[str, Any]]]:

@@ -19,6 +19,7 @@ from federation.core import keys, wire
 from federation.core.angles import wrap_angle
 from federation.core.holds import Hold
 from federation.core.keys import AgentId
+from federation.core.standin import Terms
 from federation.runtime.agent import AgentRuntime
 from federation.runtime.agent.twin import Twin
 from federation.runtime.clock import ExecClock
@@ -239,8 +240,8 @@ def test_a_leader_flies_only_acknowledged_and_holds_deposed_until_a_handback(
     )
     lead.step()
     assert not lead.role_held() and lead.status()["claim"]["holding"]
-    # No acknowledgement for a lease: it lapses and holds.
-    for _ in range(25):
+    # No acknowledgement for a lease (and a quarter second): it lapses and holds.
+    for _ in range(round((Terms().lease + 0.25) / 0.05)):
         lead.step()
     assert lead.role_held() and "lease lapsed" in lead.status()["claim"]["why"]
     # The stand-in took epoch 2: deposed, held, and it says how it comes back.
@@ -288,7 +289,7 @@ def test_the_stand_ins_twin_exists_only_while_it_holds_the_role(tmp_path: Path) 
         s.hear(claim(LEAD, "leader", 1, t, True, asking=True, until=t + 0.9))
         s.agent.role.on_leader_pose(_Sample(LEAD, "pose", wire.encode_pose(t, last)))  # type: ignore[arg-type]
 
-    for _ in range(40):  # 2 s: past its quiet period, it acknowledges
+    for _ in range(round((Terms().quiet + 0.2) / 0.05)):  # past its quiet period, it acks
         leader_asks()
         s.step()
     status = s.status()

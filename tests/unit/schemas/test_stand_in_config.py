@@ -48,7 +48,7 @@ def test_no_stand_in_by_default(tmp_path: Path) -> None:
     ("stand_in", "why"),
     [
         ('stand_in = { agent = "rome/twin", preset = "knatte", after = 0.5 }', "stand_in.after"),
-        ('stand_in = { agent = "rome/twin", preset = "knatte", skew = 0.25 }', "stand_in.skew"),
+        ('stand_in = { agent = "rome/twin", preset = "knatte", skew = 0.4 }', "stand_in.skew"),
         ('stand_in = { agent = "rome/twin", preset = "knatte", skew = 0 }', "stand_in.skew"),
         ('stand_in = { agent = "rome/twin", preset = "gizmo" }', "stand_in.preset"),
         ('stand_in = { agent = "twin", preset = "knatte" }', "stand_in.agent"),
