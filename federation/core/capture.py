@@ -16,8 +16,11 @@ with
 asked follows the braking curve :math:`\\omega_c = \\omega + \\mathrm{sign}(e)
 \\sqrt{2 \\alpha_{max} |e|}` of the heading error :math:`e = \\psi - \\psi_c` (wrapped),
 so the error closes without overshoot once the limits allow. Once within
-:data:`HEADING_TOL` and :data:`RATE_TOL` of the scenario it is captured: the scenario's
-reference passes through unchanged from then on.
+:data:`HEADING_TOL` and :data:`RATE_TOL` of the scenario, and within one step's change
+of the scenario's rate one step on (the scenario's own acceleration, from its last two
+rates, counted: a sinusoid turning at the limit asked 1.7 times it on the hand-over's
+step when it was not), it is captured: the scenario's reference passes through unchanged
+from then on.
 
 Safety: a target, a rate, a ``dt`` or a starting state that is not finite gives a
 reference that is not finite (NaN) and leaves the capture as it was; on it the GNC chain
@@ -66,6 +69,7 @@ class Capture:
         self.heading = wrap_angle(heading)
         self.rate = max(-limits.max_rate, min(limits.max_rate, rate))
         self.captured = False
+        self._last_target_rate: float | None = None  # the scenario's rate a step ago
 
     def step(self, target: float, target_rate: float, dt: float) -> tuple[float, float]:
         """The reference ``dt`` s (>= 0) after the last one, toward the scenario's
@@ -86,8 +90,12 @@ class Capture:
         self.rate = max(self.rate - dv, min(self.rate + dv, wanted))
         self.heading = wrap_angle(self.heading + self.rate * dt)
         left = wrap_angle(target + target_rate * dt - self.heading)
-        # Captured once the scenario's rate is within one step's change (and RATE_TOL):
-        # the step that hands over to it then asks no more than the limits allow.
-        if abs(left) <= HEADING_TOL and abs(target_rate - self.rate) <= min(RATE_TOL, dv):
-            self.captured = True
+        # Captured once the scenario's rate a step on (its acceleration from its last
+        # two rates) is within one step's change (and RATE_TOL): the step that hands over
+        # to it then asks no more than the limits allow.
+        last, self._last_target_rate = self._last_target_rate, target_rate
+        if last is not None and abs(left) <= HEADING_TOL:
+            ahead = 2.0 * target_rate - last
+            if max(abs(target_rate - self.rate), abs(ahead - self.rate)) <= min(RATE_TOL, dv):
+                self.captured = True
         return self.heading, self.rate

@@ -62,9 +62,38 @@ def test_once_captured_the_scenario_passes_through() -> None:
     assert capture.step(1.234, -0.1, DT) == (1.234, -0.1)
 
 
-def test_a_reference_already_there_is_captured_at_once() -> None:
+def test_a_reference_already_there_is_captured_on_its_second_step() -> None:
+    # The first step gives the scenario's rate; the second its acceleration too.
     capture = Capture(0.0, 0.0, Limits(0.5, 0.3))
+    assert capture.step(0.0, 0.0, DT) == (0.0, 0.0) and not capture.captured
     assert capture.step(0.0, 0.0, DT) == (0.0, 0.0) and capture.captured
+
+
+def test_the_hand_over_step_asks_no_more_than_the_limit() -> None:
+    # A sinusoid whose acceleration peaks at the limit, met from many starting
+    # headings, rates and phases: no step of the reference, the hand-over's included,
+    # changes the rate by more than max_accel x dt (it asked 1.71 times that when the
+    # hand-over ignored the scenario's own acceleration).
+    lim = Limits(0.5, 0.125)
+    amplitude = math.radians(20.0)
+    omega = math.sqrt(lim.max_accel / amplitude)
+    worst, captured = 0.0, 0
+    for h0 in [x * 0.04 for x in range(-10, 11)]:
+        for r0 in (-0.05, 0.0, 0.05):
+            for t0 in [x * 0.74 for x in range(6)]:
+                capture, prev = Capture(h0, r0, lim), None
+                for k in range(2000):  # bounded: 20 s at 100 Hz
+                    t = t0 + k * 0.01
+                    _, rate = capture.step(
+                        amplitude * math.sin(omega * t), amplitude * omega * math.cos(omega * t),
+                        0.01,
+                    )  # fmt: skip
+                    if prev is not None:
+                        worst = max(worst, abs(rate - prev) / 0.01)
+                    prev = rate
+                captured += capture.captured
+    assert captured > 0  # hand-overs happened
+    assert worst <= lim.max_accel * (1 + 1e-9), worst / lim.max_accel
 
 
 def test_it_takes_the_short_way_round() -> None:
