@@ -236,6 +236,10 @@ def _steepest(f: Follow) -> float:
     if f.window is not None:
         keep = (t >= f.window[0]) & (t <= f.window[1])
         t, h = t[keep], h[keep]
+    # Samples on one instant (a frozen run's, a repeated stamp) would make the gradient
+    # infinite there and name them the fastest turn: the first of each instant is kept.
+    distinct = np.concatenate(([True], np.diff(t) > 0)) if len(t) else np.array([], bool)
+    t, h = t[distinct], h[distinct]
     if len(t) < 3:
         return float(f.sent[0][len(f.sent[0]) // 2])
     rate = np.gradient(np.unwrap(h), t)
