@@ -64,7 +64,6 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -72,16 +71,29 @@ from agents.sensors import ImuSample
 from federation.core.angles import wrap_angle
 from federation.core.wire import Pose
 
-if TYPE_CHECKING:
-    from filterpy.kalman import KalmanFilter
-
 __all__ = ["NavigationFilter"]
 
 _X, _Y, _PSI, _VX, _VY, _BG, _BAX, _BAY = range(8)
 
 
+class _Matrices:
+    """The Kalman filter's state and matrices, named as filterpy's ``KalmanFilter``
+    names them: its predict and update are :meth:`NavigationFilter._predict` and
+    ``_update`` (filterpy's arithmetic, operation for operation: a test runs both), so
+    an agent does not import filterpy, whose scipy costs half a second at its start."""
+
+    def __init__(self, dim_x: int, dim_z: int, dim_u: int):
+        self.x = np.zeros((dim_x, 1))
+        self.P = np.eye(dim_x)
+        self.F = np.eye(dim_x)
+        self.B = np.zeros((dim_x, dim_u))
+        self.Q = np.eye(dim_x)
+        self.H = np.zeros((dim_z, dim_x))
+        self.R = np.eye(dim_z)
+
+
 class NavigationFilter:
-    """IMU/vision Kalman filter (a :class:`filterpy.kalman.KalmanFilter` inside).
+    """IMU/vision Kalman filter.
 
     Parameters
     ----------
@@ -121,11 +133,7 @@ class NavigationFilter:
         self._q_accel = accel_noise**2 + unmodelled_accel**2
         self._q_bg = gyro_bias_walk**2
         self._q_ba = accel_bias_walk**2
-        # Imported here: filterpy brings scipy, 60 MiB and half a second at start that a
-        # process of kinematic agents (a bench worker, a gateway) never uses.
-        from filterpy.kalman import KalmanFilter
-
-        kf: KalmanFilter = KalmanFilter(dim_x=8, dim_z=3, dim_u=3)
+        kf = _Matrices(dim_x=8, dim_z=3, dim_u=3)
         if initial is None:
             initial = Pose()
         start = [initial.x, initial.y, initial.heading, initial.vx, initial.vy, 0.0, 0.0, 0.0]
