@@ -34,6 +34,10 @@ RAW = "rome/raw"  # the second follower of the leader, tracking its heading as r
 DELAY = 0.040  # s: the link emulator's one-way delay, both directions
 
 
+# The raw follower's trail is judged per sample against the delay the run met: beside
+# parallel tests the receiver's own queueing added spikes (up to 151 ms against a
+# 43.4 ms median) and its trail came out 8.7 ms off the delay and wait it was judged by.
+@pytest.mark.timing
 def test_a_merged_run_gives_the_reports_separations_and_true_offsets(
     labs: Labs, tmp_path: Path
 ) -> None:

@@ -144,8 +144,11 @@ def test_a_ten_second_cut_holds_fast_and_recovers_without_a_stale_burst(tmp_path
     # How fast pose and sync come back is a speed figure, measured and committed by
     # `fedlab bench network` (benchmarks/network-tcp-tuned-60s.json): here only that
     # they do come back, within a bound a loaded CI host keeps.
-    assert cut["pose_back_after_s"] <= 5.0, cut
-    assert cut["sync_back_after_s"] <= 5.0, cut
+    # After a cut past the lease, Rome's router redials at most every 4 s (1 s growing
+    # to 4 s): back within that and a fresh session's set-up (5.08 s seen beside
+    # parallel tests, 0.5 to 1.6 s on an idle host, docs/deploy.md).
+    assert cut["pose_back_after_s"] <= 6.0, cut
+    assert cut["sync_back_after_s"] <= 6.0, cut
     assert cut["released_after_s"] is not None
     # No pose queued through the cut reaches the controller.
     assert cut["oldest_pose_after_return_ms"] <= (ONE_WAY + 0.01 + MAX_STALE) * 1e3
