@@ -64,6 +64,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -76,20 +77,20 @@ __all__ = ["NavigationFilter"]
 _X, _Y, _PSI, _VX, _VY, _BG, _BAX, _BAY = range(8)
 
 
+@dataclass
 class _Matrices:
     """The Kalman filter's state and matrices, named as filterpy's ``KalmanFilter``
     names them: its predict and update are :meth:`NavigationFilter._predict` and
     ``_update`` (filterpy's arithmetic, operation for operation: a test runs both), so
     an agent does not import filterpy, whose scipy costs half a second at its start."""
 
-    def __init__(self, dim_x: int, dim_z: int, dim_u: int):
-        self.x = np.zeros((dim_x, 1))
-        self.P = np.eye(dim_x)
-        self.F = np.eye(dim_x)
-        self.B = np.zeros((dim_x, dim_u))
-        self.Q = np.eye(dim_x)
-        self.H = np.zeros((dim_z, dim_x))
-        self.R = np.eye(dim_z)
+    x: np.ndarray
+    P: np.ndarray
+    F: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
 
 
 class NavigationFilter:
@@ -133,20 +134,21 @@ class NavigationFilter:
         self._q_accel = accel_noise**2 + unmodelled_accel**2
         self._q_bg = gyro_bias_walk**2
         self._q_ba = accel_bias_walk**2
-        kf = _Matrices(dim_x=8, dim_z=3, dim_u=3)
         if initial is None:
             initial = Pose()
         start = [initial.x, initial.y, initial.heading, initial.vx, initial.vy, 0.0, 0.0, 0.0]
-        kf.x = np.array(start, dtype=np.float64).reshape(8, 1)
         sp, sh, sv, sg, sa = initial_sigma
-        kf.P = np.diag([sp**2, sp**2, sh**2, sv**2, sv**2, sg**2, sa**2, sa**2])
-        kf.H = np.zeros((3, 8))
-        kf.H[0, _X] = kf.H[1, _Y] = kf.H[2, _PSI] = 1.0
-        kf.R = np.diag([position_noise**2, position_noise**2, heading_noise**2])
-        kf.F = np.eye(8)
-        kf.B = np.zeros((8, 3))
-        kf.Q = np.zeros((8, 8))
-        self.kf = kf
+        h = np.zeros((3, 8))
+        h[0, _X] = h[1, _Y] = h[2, _PSI] = 1.0
+        self.kf = _Matrices(
+            x=np.array(start, dtype=np.float64).reshape(8, 1),
+            P=np.diag([sp**2, sp**2, sh**2, sv**2, sv**2, sg**2, sa**2, sa**2]),
+            F=np.eye(8),
+            B=np.zeros((8, 3)),
+            Q=np.zeros((8, 8)),
+            H=h,
+            R=np.diag([position_noise**2, position_noise**2, heading_noise**2]),
+        )
         self._u = np.zeros((3, 1))
         self._eye = np.eye(8)
         self._z = np.zeros((3, 1))
