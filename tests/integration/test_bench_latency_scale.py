@@ -59,12 +59,9 @@ def scale(n: int, tmp_path: Path) -> tuple[list[dict[str, Any]], dict[str, Any]]
         figures = {k: r.get(k) for k in LOSS_FIGURES}
         assert r["samples"] > 0 and r["p50_ms"] > 0, figures
         assert len(r["lost"]) == n - 1 and r["loss"] == sum(r["lost"]) / r["expected"], figures
-        # Under 1 % lost but for the poses a follower drops by design: those that arrive
-        # later than its hold threshold never reach its controller (fail closed), and on
-        # a host shared with parallel tests a starved follower or router makes some late.
-        dropped = r.get("stale_dropped", [0] * len(r["lost"]))
-        unexplained = sum(max(0, lost - d) for lost, d in zip(r["lost"], dropped, strict=True))
-        assert unexplained < 0.01 * r["expected"], figures
+        # Under 1 % lost, those a follower drops as stale (late past its hold threshold)
+        # included; the figures say how many of each follower's losses those were.
+        assert r["loss"] < 0.01, figures
         assert r["cpu_cores"] > 0 and r["cpu_per_agent"] == pytest.approx(r["cpu_cores"] / r["n"])
         assert r["rss_mib"], r  # sampled after warm-up
         assert r["group"] == 2, r  # fedlab's workers and the bare floor tick in pairs
