@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from agents.docking import FINAL, ContactState, contact_state
+from agents.flown import FollowedModel
 from agents.formation import slot_errors
 from agents.guidance import HeadingEstimator, Reference, ReferenceManeuver
 from agents.scenario import ScenarioGuidance
@@ -395,8 +396,8 @@ def attitude_run(
     """The paper's attitude-tracking experiment in simulated time: the leader flies its
     maneuver on run time, each follower tracks the heading it receives from the agent
     it follows (with ``compensate``, predicted to now by a
-    :class:`~agents.guidance.HeadingEstimator` with the maneuver as its input), as the
-    agent runtime does.
+    :class:`~agents.guidance.HeadingEstimator` with the maneuver as the leader's preset
+    flies it as its input: :mod:`agents.flown`), as the agent runtime does.
 
     Returns
     -------
@@ -412,10 +413,13 @@ def attitude_run(
     maneuver = ReferenceManeuver(m.still, m.duration, math.radians(m.amplitude_deg))
     platforms = _platforms(experiment, seed)
     follows = {p.agent: p.follow for p in experiment.participants if p.follow is not None}
+    presets = {p.agent: experiment.follow_preset(p) for p in experiment.participants}
 
     def guidance_of(agent: str) -> Callable[..., Reference]:
         followed = follows.get(agent)
         estimator = HeadingEstimator()
+        preset = presets[agent]
+        model = FollowedModel(None if preset is None else load_platform(preset))
 
         def guidance(
             t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
@@ -426,7 +430,8 @@ def attitude_run(
             if got is None:
                 return Reference()
             sample = PoseSample(*got)
-            return Reference(*estimator.reference(sample, t, compensate, maneuver, run_time))
+            profile = None if run_time is None else model.profile(maneuver, run_time)
+            return Reference(*estimator.reference(sample, t, compensate, profile, run_time))
 
         return guidance
 
@@ -468,8 +473,9 @@ def adaptive_run(
 ) -> dict[str, Any]:
     """A leader flies the raised-cosine maneuver (``amplitude_deg`` out and back in
     ``maneuver_s``); a follower tracks the heading it receives (latency compensated: a
-    :class:`~agents.guidance.HeadingEstimator` with the maneuver as its input, as the
-    agent runtime does), with its preset's gains (``adaptive`` None) or scheduled ones.
+    :class:`~agents.guidance.HeadingEstimator` with the maneuver as the leader's preset
+    flies it as its input, as the agent runtime does), with its preset's gains
+    (``adaptive`` None) or scheduled ones.
 
     Returns the follower's heading error against the leader (truth, RMS and max, deg,
     over the maneuver), its valve-open time (s) and the scale its gains reached."""
@@ -488,6 +494,7 @@ def adaptive_run(
         return Reference(*maneuver(run_time)) if run_time is not None else Reference()
 
     estimator = HeadingEstimator()
+    model = FollowedModel(load_platform(leader))
 
     def follow_guidance(
         t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
@@ -497,7 +504,8 @@ def adaptive_run(
             return Reference()
         if gains is not None:
             gains.observe(got[0], got[1].omega)
-        return Reference(*estimator.reference(PoseSample(*got), t, True, maneuver, run_time))
+        profile = None if run_time is None else model.profile(maneuver, run_time)
+        return Reference(*estimator.reference(PoseSample(*got), t, True, profile, run_time))
 
     members = [_Member("leader", lead, lead_guidance), _Member("follower", follow, follow_guidance)]
     _links(members, delay, 0.002, seed)

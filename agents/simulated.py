@@ -52,6 +52,9 @@ class Plant:
         table's shape, so every run sees the same table).
     x, y, heading : float
         Starting pose, m and rad (at rest).
+    ideal : bool
+        Sensors without noise or bias: the preset's nominal response
+        (:mod:`agents.flown`).
 
     The caller schedules the samples: :attr:`imu_sensor` and :attr:`vision_sensor`
     carry :class:`~agents.sensors.Sampler` clocks at the configured rates.
@@ -65,6 +68,7 @@ class Plant:
         x: float = 0.0,
         y: float = 0.0,
         heading: float = 0.0,
+        ideal: bool = False,
     ):
         self.config = config
         self.params = BodyParams.from_config(config)
@@ -75,13 +79,18 @@ class Plant:
         imu_rng, vision_rng = (
             np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2)
         )
-        i = config.imu
-        self.imu_sensor = Imu(
-            i.rate, i.gyro_noise, i.gyro_bias, i.accel_noise, i.accel_bias, imu_rng
-        )
-        v = config.vision
+        i, v = config.imu, config.vision
         coverage = Coverage(v.width, v.height, v.origin[0], v.origin[1])
-        self.vision_sensor = Vision(v.rate, v.position_noise, v.heading_noise, coverage, vision_rng)
+        if ideal:
+            self.imu_sensor = Imu(i.rate, 0.0, 0.0, 0.0, (0.0, 0.0), imu_rng)
+            self.vision_sensor = Vision(v.rate, 0.0, 0.0, coverage, vision_rng)
+        else:
+            self.imu_sensor = Imu(
+                i.rate, i.gyro_noise, i.gyro_bias, i.accel_noise, i.accel_bias, imu_rng
+            )
+            self.vision_sensor = Vision(
+                v.rate, v.position_noise, v.heading_noise, coverage, vision_rng
+            )
         self.state: npt.NDArray[np.float64] = np.array(
             [x, y, heading, 0.0, 0.0, 0.0], dtype=np.float64
         )
@@ -186,13 +195,14 @@ class SimulatedPlatform(WithChain):
         x: float = 0.0,
         y: float = 0.0,
         heading: float = 0.0,
+        ideal: bool = False,
     ):
         self.config = config
         self.rate: float = config.control.rate
         self._tick = 1.0 / self.rate
         if disturbance is None:
             disturbance = config.disturbance.enabled
-        self.plant = Plant(config, seed, disturbance, x, y, heading)
+        self.plant = Plant(config, seed, disturbance, x, y, heading, ideal)
         self.chain = GncChain(config, position_hold=position_hold)
         self._t0: float | None = None
         self._k = 0

@@ -166,6 +166,13 @@ class AgentConfig(_Model):
         "and control are built for; none: knatte",
     )
     seed: int = Field(0, description="seed of the simulated platform's noise")
+    follow_preset: str | None = Field(
+        None,
+        description="a follower's model of how the followed platform flies the maneuver: its "
+        "preset name (knatte, pinocchio) or platform file, flown by a noise-free twin as the "
+        "heading filter's input (from --experiment: the followed participant's platform); "
+        "none: the maneuver itself",
+    )
     maneuver: ManeuverConfig = Field(default_factory=ManeuverConfig)
     wait_start: bool = Field(
         False,
@@ -229,7 +236,7 @@ class AgentConfig(_Model):
     def _platform(cls, value: str) -> str:
         return validate_platform_spec(value)
 
-    @field_validator("platform_preset")
+    @field_validator("platform_preset", "follow_preset")
     @classmethod
     def _platform_preset(cls, value: str | None) -> str | None:
         if value is None:

@@ -30,6 +30,7 @@ from pydantic import Field, model_validator
 from federation.core.keys import DEFAULT_FEDERATION, AgentId
 from federation.core.standin import Terms
 from schemas.config import AgentRef, ManeuverConfig, RejoinPolicy, _Model, _name, load_model
+from schemas.platform import DEFAULT_KIND, platform_kind
 from schemas.scenario import (
     AdaptiveConfig,
     DockingConfig,
@@ -259,6 +260,19 @@ class ExperimentConfig(_Model):
 
     def participant(self, agent: AgentId) -> Participant | None:
         return next((p for p in self.participants if p.agent == str(agent)), None)
+
+    def follow_preset(self, part: Participant) -> str | None:
+        """The preset (name or platform file) the leader flies, if ``part`` follows the
+        leader and the leader's platform is a preset (a serial platform's experiment
+        platform is its preset): the follower's model of how the leader flies the
+        maneuver (:mod:`agents.flown`). None otherwise: a kinematic or plug-in leader,
+        or a follower of a follower (it does not fly the maneuver)."""
+        followed = self.participant(AgentId.parse(part.follow)) if part.follow else None
+        if followed is None or followed.role != "leader":
+            return None
+        return (
+            followed.platform if platform_kind(followed.platform)[0].kind == DEFAULT_KIND else None
+        )
 
 
 def load_experiment(path: str | Path) -> ExperimentConfig:

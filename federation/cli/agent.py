@@ -343,6 +343,7 @@ def _experiment_part(
         # agent it follows, would start it early or late by that agent's clock).
         "reference": str(experiment.leader),
         "latency_compensation": part.latency_compensation,
+        "follow_preset": experiment.follow_preset(part),
         "maneuver": experiment.maneuver.model_dump(),
         "wait_start": True,
         "experiment": str(path),

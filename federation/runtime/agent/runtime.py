@@ -46,6 +46,7 @@ from typing import Any
 
 import zenoh
 
+from agents.flown import FollowedModel
 from agents.guidance import HeadingEstimator, Track
 from agents.platform import Platform, make_platform
 from agents.scenario import ScenarioGuidance, make_scenario
@@ -135,6 +136,9 @@ class AgentRuntime:
         self.pose = wire.Pose()
         self.guidance = (0.0, 0.0)  # last heading and rate references
         self.heading_estimator = HeadingEstimator()  # a follower's, over the followed samples
+        # Its input: the maneuver as the followed platform's preset flies it, if known.
+        preset = config.follow_preset
+        self.followed_model = FollowedModel(None if preset is None else load_platform(preset))
         # When they were computed: t_exec, host monotonic, t_sim, run time.
         self.guidance_at: tuple[float, float, float | None, float | None] = (0.0, 0.0, None, None)
         self.safety = Safety(self.platform)  # every hold and release
@@ -434,12 +438,14 @@ class AgentRuntime:
             now = t_sim
         else:
             now = self.timebase.peer_time(self.follow, t_exec)
-        # The maneuver is the filter's input only while the run's time runs.
-        running = run_time is not None and self.run_state.mode == "running"
+        # The maneuver (as the followed platform flies it) is the filter's input only
+        # while the run's time runs.
+        profile = None
+        if run_time is not None and self.run_state.mode == "running":
+            profile = self.followed_model.profile(self.maneuver, run_time)
         return self.heading_estimator.reference(
-            received, now, self.config.latency_compensation,
-            self.maneuver if running else None, run_time,
-        )  # fmt: skip
+            received, now, self.config.latency_compensation, profile, run_time
+        )
 
     def control_step(self) -> None:
         """Run state, watches, guidance and one platform step (the platform's rate)."""
