@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from inprocess import fedlab_here
+from lifecycle import QUICK_LOCK
 from loopback import Labs
 
 from federation.fleet.launch import wait_for
 from federation.report.status import clock_line
+from federation.runtime.control import START_IN_MIN
 from federation.runtime.recorder import read_messages
 
 pytestmark = pytest.mark.integration
@@ -21,18 +23,22 @@ EXPERIMENT = ROOT / "deploy" / "experiments" / "attitude-tracking.toml"
 
 
 def ctl(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "federation", "ctl", *args],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+    """``fedlab ctl ARGS`` in the test's process: what is timed here is the agents'
+    start and hold, from the instants ctl stamps, not ctl's own process."""
+    return fedlab_here("ctl", *args)
 
 
 @pytest.mark.timing
 def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None:
+    """The paper's experiment file, each agent locking its estimate 2 s after its first
+    exchange (QUICK_LOCK), not after the paper's 10 s sync phase: on loopback the
+    follower started 0.04 ms from the common instant after 10 s, 0.05 to 0.53 ms after
+    2 s (three runs), the bound asserted 10 ms. The start is announced the least ctl
+    allows ahead (START_IN_MIN, 1 s)."""
     pair = labs.pair()
     agents = {
         who: labs.agent(
-            who, at, "--experiment", str(EXPERIMENT),
+            who, at, "--experiment", str(EXPERIMENT), *QUICK_LOCK,
             "--clock-offset", "26.42" if at is pair.rome else "0", record=True,
         )
         for who, at in {"kiruna/knatte": pair.kiruna, "rome/pinocchio": pair.rome}.items()
@@ -45,7 +51,10 @@ def test_start_is_simultaneous_and_abort_holds_within_200_ms(labs: Labs) -> None
         timeout=30,
         what="locked on the reference clock (preflight), waiting for the start",
     )
-    started = ctl("start", "--experiment", str(EXPERIMENT), "--in", "2", "-e", pair.rome.endpoint)
+    started = ctl(
+        "start", "--experiment", str(EXPERIMENT), "--in", f"{START_IN_MIN:g}",
+        "-e", pair.rome.endpoint,
+    )  # fmt: skip
     assert started.returncode == 0, started.stdout + started.stderr
     assert wait_for(
         lambda: all((a.last() or {}).get("mode") == "running" for a in agents.values()),
