@@ -148,7 +148,9 @@ class HeadingFilter:
 
 class HeadingEstimator:
     """A follower's heading reference: a Kalman filter over the received samples on the
-    sender's time, the followed agent's maneuver (known to both sides) as its input.
+    sender's time, the followed agent's maneuver (known to both sides) as its input:
+    the maneuver as the followed platform's preset flies it, where the follower knows
+    that preset (:class:`agents.flown.FollowedModel`), else the maneuver itself.
 
     The state is the followed heading and rate :math:`x = (\\psi, \\omega)`. Between
     two instants :math:`t_0 < t_1` of the sender's time it moves on as the maneuver
