@@ -16,11 +16,13 @@ before run time 0 and stepped at the preset's control rate along run time. Its h
 and rate are the profile; the filter's samples then correct only what the twin does not
 know (the real platform's noise, bias and table).
 
-Cost: one twin step (about 0.1 ms) per control period of the preset, done by
-:meth:`FlownManeuver.advance` at most ``max_steps`` at a time, so a follower that joins
-a run under way catches up over a few control steps instead of stalling one; until it
-has, the plain maneuver is the profile (:meth:`FlownManeuver.profile`). It keeps the
-last ``memory`` seconds; a run time before them (a new run) starts the twin afresh.
+Cost: one twin step (about 35 us) per control period of the preset (100 Hz on the
+presets), done by :meth:`FlownManeuver.advance` at most ``max_steps`` at a time: in a
+run, one per control step of a follower at the same rate; a follower that joins a run
+under way catches up at 16 a step (about 0.6 ms of its 10 ms), 16 times run time,
+instead of stalling a step; until it has, the plain maneuver is the profile
+(:meth:`FlownManeuver.profile`). It keeps the last ``memory`` seconds; a run time
+before them (a new run) starts the twin afresh.
 """
 
 from __future__ import annotations
