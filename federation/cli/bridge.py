@@ -28,7 +28,7 @@ from federation.cli.common import (
 )
 from federation.core.estimators import ESTIMATORS
 from schemas.bridge import UdpBridgeConfig
-from schemas.config import validate
+from schemas.config import AgentConfig, validate
 
 __all__ = ["add", "run"]
 
@@ -214,6 +214,12 @@ def _add_ros2(kinds: Any) -> None:
     )  # fmt: skip
     p.add_argument("--status-period", type=positive, metavar="S", help="joined agent: status (1)")
     p.add_argument(
+        "--sync-window", type=positive, metavar="S",
+        help="joined agent: seconds of reference time its estimate of the reference clock "
+        f"averages, and locks after ({AgentConfig.model_fields['sync_window'].default:g}, the "
+        "paper's sync phase)",
+    )  # fmt: skip
+    p.add_argument(
         "--status-json", type=Path, metavar="FILE", help="joined agent: append status lines here"
     )
     p.add_argument("--duration", type=positive, metavar="S", help="stop after this many seconds")
@@ -224,7 +230,7 @@ def ros2_join_config(args: argparse.Namespace) -> Any:
     """The joined agent's AgentConfig from the flags (None without --as); ConfigError naming
     the flag if one is bad."""
     from federation.bridge.ros2_core import ros_topic
-    from schemas.config import AgentConfig, ConfigError
+    from schemas.config import ConfigError
 
     if args.as_agent is None:
         if args.odom is not None:
@@ -244,6 +250,8 @@ def ros2_join_config(args: argparse.Namespace) -> Any:
     }  # fmt: skip
     if args.status_period is not None:
         data["status_period"] = args.status_period
+    if args.sync_window is not None:
+        data["sync_window"] = args.sync_window
     return validate(AgentConfig, data, "command line")
 
 
