@@ -15,6 +15,7 @@ from loopback import FOLLOWER, LEADER, Labs
 
 from federation.core import keys
 from federation.fleet.launch import free_port, wait_for
+from federation.runtime.control import START_IN_MIN
 from federation.runtime.recorder import read_messages, read_metadata
 
 pytestmark = pytest.mark.integration
@@ -116,16 +117,22 @@ def test_a_run_ends_in_done_and_a_second_starts_without_restarts(
 def test_abort_is_honoured_within_100_ms_after_poisoned_commands(
     labs: Labs, tmp_path: Path
 ) -> None:
+    """ctl runs in the test's process (the hold is timed from the instant ctl stamps on
+    sending the abort, nothing here is about ctl's own process), each start announced
+    the least ctl allows ahead (START_IN_MIN, 1 s) rather than the experiment's 1.5 s."""
     import zenoh
+    from inprocess import fedlab_here
     from loopback import client_config
+
+    soon = f"{START_IN_MIN:g}"
 
     pair = labs.pair()
     experiment = write_experiment(tmp_path / "exp.toml", 60)
     agents = participants(labs, pair, experiment, *QUICK_LOCK)
     agents[FOLLOWER].until(locked, timeout=LOCKED, what="reference clock locked")
-    started, _ = fedlab(
+    started = fedlab_here(
         "ctl", "start", "--experiment", str(experiment), "--run-id", "poisoned",
-        "-e", pair.rome.endpoint,
+        "--in", soon, "-e", pair.rome.endpoint,
     )  # fmt: skip
     assert started.returncode == 0, started.stdout + started.stderr
     for agent in agents.values():
@@ -149,7 +156,7 @@ def test_abort_is_honoured_within_100_ms_after_poisoned_commands(
         assert (10**30, "seq out of range") in outcomes
         assert (now_ms + 30_000, "ignored") in outcomes  # admitted, but resume while running
 
-    aborted, _ = fedlab("ctl", "abort", "--json", "-e", pair.rome.endpoint)
+    aborted = fedlab_here("ctl", "abort", "--json", "-e", pair.rome.endpoint)
     result = as_json(aborted)
     assert aborted.returncode == 0 and result["ok"], aborted.stdout + aborted.stderr
     sent = result["sent_monotonic"]  # this host's monotonic clock, as the agents'
@@ -164,12 +171,12 @@ def test_abort_is_honoured_within_100_ms_after_poisoned_commands(
         assert line["hold"] == "aborted" and line["ready"]["platform"] is False
 
     # A start is refused until an operator resets; then a new run starts, no restart.
-    refused, _ = fedlab("ctl", "start", "--experiment", str(experiment), "-e", pair.rome.endpoint)
+    refused = fedlab_here("ctl", "start", "--experiment", str(experiment), "-e", pair.rome.endpoint)
     assert refused.returncode == 1 and "mode aborted" in refused.stdout, refused.stdout
-    reset, _ = fedlab("ctl", "reset", "--experiment", str(experiment), "-e", pair.rome.endpoint)
+    reset = fedlab_here("ctl", "reset", "--experiment", str(experiment), "-e", pair.rome.endpoint)
     assert reset.returncode == 0, reset.stdout + reset.stderr
-    again, _ = fedlab(
-        "ctl", "start", "--experiment", str(experiment), "--duration", "2",
+    again = fedlab_here(
+        "ctl", "start", "--experiment", str(experiment), "--duration", "2", "--in", soon,
         "-e", pair.kiruna.endpoint,
     )  # fmt: skip
     assert again.returncode == 0, again.stdout + again.stderr
