@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from lifecycle import QUICK_LOCK, fedlab, participants, runs_dir, write_experiment
+from inprocess import fedlab_here
+from lifecycle import QUICK_LOCK, participants, runs_dir, write_experiment
 from loopback import FLOAT_SLACK, FOLLOWER, LEADER, Labs
 from mcap.reader import make_reader
 
@@ -46,7 +48,9 @@ def test_a_merged_run_gives_the_reports_separations_and_true_offsets(
     agents = participants(labs, pair, experiment, *QUICK_LOCK, raw=RAW)
     for who in (FOLLOWER, RAW):
         agents[who].until(lambda s: (s.get("ready") or {}).get("reference_locked"), timeout=30)
-    started, _ = fedlab(
+    # ctl, report and merge run in the test's process (what is judged is what they read
+    # and write, not their processes).
+    started = fedlab_here(
         "ctl", "start", "--experiment", str(experiment), "--run-id", "merged",
         "--max-bound", "0.05", "-e", pair.kiruna.endpoint,
     )  # fmt: skip
@@ -63,11 +67,13 @@ def test_a_merged_run_gives_the_reports_separations_and_true_offsets(
         assert wait_for((folder / f"{stem}.manifest.json").exists, timeout=10), who
         shutil.copy(folder / f"{stem}.mcap", run / f"{stem}.mcap")
 
-    reported, _ = fedlab("report", str(run), "--out", str(tmp_path / "report"))
+    reported = fedlab_here("report", str(run), "--out", str(tmp_path / "report"))
     assert reported.returncode == 0, reported.stdout + reported.stderr
     summary = json.loads((tmp_path / "report" / "summary.json").read_text())
     expected = {f["follower"]: f for f in summary["followers"]}
-    merged, took = fedlab("merge", str(run))
+    merging = time.monotonic()
+    merged = fedlab_here("merge", str(run))
+    took = time.monotonic() - merging
     print(merged.stdout, f"merge took {took:.2f} s")
     assert merged.returncode == 0, merged.stdout + merged.stderr
     assert (run / "merged.layout.json").exists()
@@ -154,7 +160,7 @@ def _clock_errors(who: str, rows: list[dict[str, Any]]) -> tuple[list[dict[str, 
 def _same_report_from_the_merged_file(run: Path, expected: dict[str, Any], out: Path) -> None:
     """``fedlab report RUN_DIR`` once merged reads the merged file and writes the
     summary.json the per-agent files gave: every field equal, floats exactly."""
-    reported, _ = fedlab("report", str(run), "--out", str(out))
+    reported = fedlab_here("report", str(run), "--out", str(out))
     assert reported.returncode == 0, reported.stdout + reported.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert expected["source"]["kind"] == "recordings"
