@@ -31,7 +31,7 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 from inprocess import fedlab_here
-from loopback import LEADER, Agent, Labs, PoseTap
+from loopback import LEADER, STATUS_PERIOD, Agent, Labs, PoseTap
 
 from federation.core import wire
 from federation.core.keys import AgentId
@@ -445,7 +445,8 @@ def test_a_joined_ros2_platform_is_told_to_hold_unless_its_run_runs(
     locks its estimate 2 s after its first exchange (--sync-window 2, as QUICK_LOCK: a
     start needs a locked estimate, not the paper's 10 s sync phase); each start is
     announced the least ctl allows ahead (START_IN_MIN); ctl runs in the test's process
-    (the hold is timed from the instant ctl stamps on sending the abort)."""
+    (the hold is timed from the instant ctl stamps on sending the abort) and discovers
+    for two status periods."""
     pair = labs.pair()
     runs = labs.tmp / "runs"
     leader = labs.leader(pair.kiruna, "--wait-start", "--runs-dir", str(runs))
@@ -462,10 +463,16 @@ def test_a_joined_ros2_platform_is_told_to_hold_unless_its_run_runs(
         state = StateReader(dds, ROVER)
         state.until(True, "waiting", timeout=3)  # a late subscriber learns it at once
 
+        # ctl hears every agent out there within two of their status periods (0.5 s
+        # each: the leader's STATUS_PERIOD, the rover's --status-period in start_bridge)
+        # rather than in its 1.5 s default, sized for agents at 1 s.
+        discover = f"{2 * STATUS_PERIOD:g}"
+
         def ctl(*args: str) -> dict[str, Any]:
             done = fedlab_here(
-                "ctl", *args, "--reference", LEADER, "--json", "-e", pair.kiruna.endpoint
-            )
+                "ctl", *args, "--reference", LEADER, "--discover", discover, "--json",
+                "-e", pair.kiruna.endpoint,
+            )  # fmt: skip
             assert done.returncode == 0, done.stdout + done.stderr
             return json.loads(done.stdout)  # type: ignore[no-any-return]
 
