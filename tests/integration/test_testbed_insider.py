@@ -53,6 +53,7 @@ from federation.core.linkwatch import MAX_STALE
 from federation.deploy import limits
 from federation.fleet.launch import wait_for
 from federation.link.packet import PacketOptions
+from federation.runtime.control import START_IN_MIN
 from federation.testbed import PREFIX, Testbed, deployment, leftover_namespaces, missing
 from federation.testbed.deployment import (
     AGENTS,
@@ -214,7 +215,7 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
             )
         assert wait_for(lambda: read_json(watched).get("ready"), 20.0), bed.log("watcher")[-2000:]
         # Kiruna's operator starts a run: the follower follows the leader's pose.
-        start_run(bed, dep, duration=600, start_in=1.5)
+        start_run(bed, dep, duration=600, start_in=START_IN_MIN)
         follower.until(
             lambda line: line["mode"] == "running" and line["hold"] is None, 20, "following"
         )
@@ -235,7 +236,9 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
         served_before = leader.latest()["counters"].get("sync_requests_served", 0)
         flooded = tmp_path / "flood.json"
         flood_start = time.monotonic()
-        wan_t0, wan_b0 = stage_bytes(bed, flood_start)
+        # The flood's span at the stage begins at the baseline's last counters (written
+        # before the flood starts, so the span holds all of it), not at the next ones.
+        wan_t0, wan_b0 = base_t1, base_b1
         bed.spawn(
             "kiruna", "flood",
             [sys.executable, str(INSIDER), "flood", dep.installed("agents", "evil.json5"),
