@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from lifecycle import QUICK_LOCK, as_json, fedlab, participants, runs_dir, write_experiment
-from loopback import FOLLOWER, LEADER, Labs
+from loopback import FOLLOWER, LEADER, STATUS_PERIOD, Labs
 
 from federation.core import keys
 from federation.fleet.launch import free_port, wait_for
@@ -156,7 +156,10 @@ def test_abort_is_honoured_within_100_ms_after_poisoned_commands(
         assert (10**30, "seq out of range") in outcomes
         assert (now_ms + 30_000, "ignored") in outcomes  # admitted, but resume while running
 
-    aborted = fedlab_here("ctl", "abort", "--json", "-e", pair.rome.endpoint)
+    # Sent at once; ctl then hears who confirms it for two of the agents' status periods.
+    aborted = fedlab_here(
+        "ctl", "abort", "--discover", f"{2 * STATUS_PERIOD:g}", "--json", "-e", pair.rome.endpoint
+    )
     result = as_json(aborted)
     assert aborted.returncode == 0 and result["ok"], aborted.stdout + aborted.stderr
     sent = result["sent_monotonic"]  # this host's monotonic clock, as the agents'

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from inprocess import fedlab_here
 from lifecycle import QUICK_LOCK
-from loopback import Labs
+from loopback import STATUS_PERIOD, Labs
 
 from federation.core.angles import wrap_angles
 from federation.fleet.launch import Fleet, wait_for
@@ -136,11 +136,13 @@ def test_a_serial_follower_tracks_as_well_as_a_simulated_one(
         )  # fmt: skip
     end = STILL + DURATION + 2.0
     # The maneuver starts STILL s into the run. ctl runs in the test's process (nothing
-    # here is about ctl's own), the start the least it allows ahead; no recording here:
-    # preflight's recording check overridden.
+    # here is about ctl's own), the start the least it allows ahead, and discovers for
+    # two of the agents' status periods; no recording here: preflight's recording
+    # check overridden.
     started = fedlab_here(
         "ctl", "start", "--reference", "kiruna/knatte", "--in", f"{START_IN_MIN:g}",
-        "--duration", str(end + 5.0), "--force", "-e", router.endpoint,
+        "--discover", f"{2 * STATUS_PERIOD:g}", "--duration", str(end + 5.0), "--force",
+        "-e", router.endpoint,
     )  # fmt: skip
     assert started.returncode == 0, started.stdout + started.stderr
     leader.until(
