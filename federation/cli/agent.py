@@ -343,7 +343,7 @@ def _experiment_part(
         # agent it follows, would start it early or late by that agent's clock).
         "reference": str(experiment.leader),
         "latency_compensation": part.latency_compensation,
-        "follow_preset": experiment.follow_preset(part),
+        "follow_preset": _follow_preset(experiment, part, path),
         "maneuver": experiment.maneuver.model_dump(),
         "wait_start": True,
         "experiment": str(path),
@@ -354,6 +354,29 @@ def _experiment_part(
         **({} if record else {"runs_dir": "runs"}),
         **_scenario_part(experiment, me),
     }, "platform" in part.model_fields_set
+
+
+def _follow_preset(experiment: Any, part: Any, path: Path) -> str | None:
+    """The leader's preset for a follower's heading filter (agents.flown), if it loads on
+    this host: a leader's platform file that only the leader's host has leaves the
+    follower on the maneuver itself, saying so, rather than refusing to start."""
+    preset: str | None = experiment.follow_preset(part)
+    if preset is None:
+        return None
+    from schemas.platform import load_platform
+
+    try:
+        load_platform(preset)
+    except ConfigError as e:
+        log.warning(
+            "%s: the leader's platform %s does not load here (%s): the heading filter "
+            "moves along the maneuver itself",
+            path,
+            preset,
+            e,
+        )
+        return None
+    return preset
 
 
 def _scenario_part(experiment: Any, me: Any) -> dict[str, Any]:

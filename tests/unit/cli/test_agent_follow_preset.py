@@ -56,3 +56,11 @@ def test_a_follow_preset_that_is_no_preset_fails_at_load_naming_the_field() -> N
     assert build_agent_config(None, None, {**base, "follow_preset": "pinocchio"}).follow_preset == (
         "pinocchio"
     )
+
+
+def test_a_leader_platform_file_missing_here_leaves_the_maneuver_and_says_so(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    missing = tmp_path / "elsewhere" / "leader.toml"  # only the leader's host has it
+    assert config(tmp_path, str(missing), "pinocchio").follow_preset is None  # type: ignore[attr-defined]
+    assert "does not load here" in caplog.text and str(missing) in caplog.text
