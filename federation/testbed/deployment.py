@@ -189,15 +189,18 @@ def start_run(
     duration: float,
     start_in: float = 1.5,
     timeout: float = 60.0,
+    discover: float | None = None,
 ) -> None:
     """Kiruna's operator starts a run of ``duration`` s in ``start_in`` s (``fedlab ctl
-    start``, process ``ctl``). A start that does not exit with 0 within ``timeout`` s
-    raises :class:`TestbedError` with its log."""
+    start``, process ``ctl``), ctl listening ``discover`` s for the agents' statuses
+    (None: its default, for agents publishing once a second). A start that does not
+    exit with 0 within ``timeout`` s raises :class:`TestbedError` with its log."""
     binds: Binds = dep.binds("kiruna")
+    listen = [] if discover is None else ["--discover", f"{discover:g}"]
     proc = bed.fedlab(
         "kiruna", "ctl",
-        ["ctl", "start", "--duration", f"{duration:g}", "--in", f"{start_in:g}", "--json",
-         "-c", dep.installed("operators", "ctl.json5")],
+        ["ctl", "start", "--duration", f"{duration:g}", "--in", f"{start_in:g}", *listen,
+         "--json", "-c", dep.installed("operators", "ctl.json5")],
         binds,
     )  # fmt: skip
     try:

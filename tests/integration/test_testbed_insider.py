@@ -85,6 +85,7 @@ INSIDER_NICE = 10  # the insider's own host is not the lab's: on these shared co
 # processes run behind the lab's (the testbed's LAB_NICE), which still pay for what they
 # receive of its floods; at the lab's niceness it starved the leader (a stale hold).
 GROWTH_MB = 10.0
+STATUS_PERIOD = 0.25  # s between the leader's and the follower's status lines
 ONE_WAY = 0.040  # s, the paper's path
 WAN = PacketOptions(delay=ONE_WAY, jitter=0.003)
 
@@ -199,7 +200,7 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
         for who in (LEADER, FOLLOWER):
             name = who.split("/")[1]
             status = tmp_path / f"{name}.jsonl"
-            start_agent(bed, dep, name, status, ["--status-period", "0.25"])
+            start_agent(bed, dep, name, status, ["--status-period", f"{STATUS_PERIOD:g}"])
             agents[who] = Agent(bed.fleet, name, [], who=who, status=status)
         leader, follower = agents[LEADER], agents[FOLLOWER]
         bed.spawn(
@@ -215,14 +216,16 @@ def test_an_insiders_floods_and_oversized_samples_in_the_testbed(tmp_path: Path)
             )
         assert wait_for(lambda: read_json(watched).get("ready"), 20.0), bed.log("watcher")[-2000:]
         # Kiruna's operator starts a run: the follower follows the leader's pose.
-        start_run(bed, dep, duration=600, start_in=START_IN_MIN)
+        # ctl hears both agents within two of their status periods.
+        start_run(bed, dep, duration=600, start_in=START_IN_MIN, discover=2 * STATUS_PERIOD)
         follower.until(
             lambda line: line["mode"] == "running" and line["hold"] is None, 20, "following"
         )
         ready_after = time.monotonic() - t0
 
         # The WAN's own traffic, to set the attacks' bytes against.
-        base_t0, base_b0 = stage_bytes(bed, time.monotonic())
+        # From the stage's last counters (written within its second), not its next ones.
+        base_t0, base_b0 = stage_bytes(bed, time.monotonic() - 1.0)
         time.sleep(2.0)  # a span of the stage's counters, not a wait for an event
         base_t1, base_b1 = stage_bytes(bed, time.monotonic())
         baseline = (base_b1 - base_b0) / (base_t1 - base_t0)  # bytes/s towards Rome
