@@ -100,7 +100,10 @@ def test_router_restart_sync_resumes_within_5_s(labs: Labs) -> None:
 @pytest.mark.timing  # the step's size is read from one exchange: off by its queueing
 def test_clock_step_is_detected_and_estimates_reset(labs: Labs) -> None:
     router = labs.router("kiruna")
-    leader = agent(labs, LEADER, router, "--clock-step", "6:0.5")
+    # The step at 5 s of the leader's clock: past both estimates' warm-up (three
+    # exchanges), the leader's the slower, querying its follower once a second from
+    # about 0.5 s on (four or five exchanges before the step; 6 s gave one more).
+    leader = agent(labs, LEADER, router, "--clock-step", "5:0.5")
     follower = agent(labs, FOLLOWER, router)
 
     stepped = follower.until(
