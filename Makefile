@@ -34,20 +34,29 @@ docs: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# The suite in two passes, both always run (either failing fails the target): every test
-# on parallel workers, less those marked `timing`; then the `timing` tests one at a time
-# (real-time bounds on a closed loop, an abort's latency, a start's spread: claims about
-# processes that have the cores to themselves). Sync accuracy is judged against the
-# bound each estimate states in the same run, so it holds on shared cores.
+# The suite in two passes, both always run (either failing fails the target). First every
+# test not marked `timing`: those marked `testbed` one after another in a lane of their own
+# (one network testbed runs on a host at a time; their lab processes run ahead of the
+# rest), beside the others on parallel workers; the lane's output follows the workers'.
+# Then the `timing` tests one at a time (real-time bounds on a closed loop, an abort's
+# latency, a start's spread: claims about processes that have the cores to themselves).
+# Sync accuracy is judged against the bound each estimate states in the same run, so it
+# holds on shared cores.
 WORKERS ?= 4
+LANE := .testbed-lane
 
 test: lint typecheck
-	$(BIN)/pytest tests -n $(WORKERS) --dist worksteal -m "not timing"; parallel=$$?; \
+	rm -rf $(LANE) && mkdir -p $(LANE)
+	$(BIN)/pytest tests -m "testbed and not timing" -p no:cacheprovider \
+		--basetemp=$(LANE)/tmp > $(LANE)/log 2>&1 & lane=$$!; \
+	$(BIN)/pytest tests -n $(WORKERS) --dist worksteal -m "not timing and not testbed"; \
+	parallel=$$?; wait $$lane; testbed=$$?; \
+	echo "--- the testbed lane (pytest -m 'testbed and not timing') ---"; cat $(LANE)/log; \
 	$(BIN)/pytest tests -m timing; timing=$$?; \
-	[ $$parallel = 0 ] && [ $$timing = 0 ]
+	[ $$parallel = 0 ] && [ $$testbed = 0 ] && [ $$timing = 0 ]
 
 check: lint typecheck
 	$(BIN)/pytest tests/unit -n auto -m "not timing" -q
 
 clean:
-	rm -rf $(VENV) runs .site .mypy_cache .ruff_cache .pytest_cache
+	rm -rf $(VENV) runs .site .mypy_cache .ruff_cache .pytest_cache $(LANE)

@@ -64,12 +64,3 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     if not collection_path.name.startswith("test_"):
         return None
     return "mark.timing" not in collection_path.read_text(encoding="utf-8")
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Tests marked ``testbed`` first, in their order: one testbed runs on a host at a
-    time (federation.testbed.bed.HOST_LOCK), and a worker given them all at the head of
-    its share runs them one after another from the start, while the others take the rest
-    of its share from its tail (xdist's work stealing), instead of each waiting for the
-    lock near the end."""
-    items.sort(key=lambda item: item.get_closest_marker("testbed") is None)
