@@ -20,6 +20,7 @@ adaptive gains) sees the same noise.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -29,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from agents.docking import FINAL, ContactState, contact_state
-from agents.flown import FollowedModel
+from agents.flown import FlownManeuver
 from agents.formation import slot_errors
 from agents.guidance import HeadingEstimator, Reference, ReferenceManeuver
 from agents.scenario import ScenarioGuidance
@@ -385,6 +386,26 @@ def rehearse(
 # ---------------------------------------------------------------- attitude tracking
 
 
+@functools.cache
+def _flown(preset: str, maneuver: ReferenceManeuver, until: float) -> FlownManeuver:
+    """``maneuver`` as ``preset`` flies it (:mod:`agents.flown`) up to run time ``until``,
+    flown once for every rehearsal that asks: the twin has no noise, so every seed and
+    delay would fly it alike (it was more than half of a rehearsal's time)."""
+    flown = FlownManeuver(maneuver, load_platform(preset), memory=until + 2.0, max_steps=1 << 30)
+    flown.advance(until)
+    return flown
+
+
+def _profile(
+    flown: FlownManeuver | None, maneuver: ReferenceManeuver, run_time: float | None
+) -> Callable[[float], tuple[float, float]] | None:
+    """The heading filter's input at ``run_time``: the leader's twin where the follower
+    knows its preset (as the agent runtime's FollowedModel), else the maneuver."""
+    if run_time is None:
+        return None
+    return maneuver if flown is None else flown.profile(run_time)
+
+
 def attitude_run(
     experiment: ExperimentConfig,
     delay: float,
@@ -419,7 +440,7 @@ def attitude_run(
         followed = follows.get(agent)
         estimator = HeadingEstimator()
         preset = presets[agent]
-        model = FollowedModel(None if preset is None else load_platform(preset))
+        flown = None if preset is None else _flown(preset, maneuver, duration)
 
         def guidance(
             t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
@@ -430,7 +451,7 @@ def attitude_run(
             if got is None:
                 return Reference()
             sample = PoseSample(*got)
-            profile = None if run_time is None else model.profile(maneuver, run_time)
+            profile = _profile(flown, maneuver, run_time)
             return Reference(*estimator.reference(sample, t, compensate, profile, run_time))
 
         return guidance
@@ -494,7 +515,7 @@ def adaptive_run(
         return Reference(*maneuver(run_time)) if run_time is not None else Reference()
 
     estimator = HeadingEstimator()
-    model = FollowedModel(load_platform(leader))
+    flown = _flown(leader, maneuver, still + maneuver_s + 5.0)
 
     def follow_guidance(
         t: float, run_time: float | None, others: Mapping[str, tuple[float, Pose]], own: Pose
@@ -504,7 +525,7 @@ def adaptive_run(
             return Reference()
         if gains is not None:
             gains.observe(got[0], got[1].omega)
-        profile = None if run_time is None else model.profile(maneuver, run_time)
+        profile = _profile(flown, maneuver, run_time)
         return Reference(*estimator.reference(PoseSample(*got), t, True, profile, run_time))
 
     members = [_Member("leader", lead, lead_guidance), _Member("follower", follow, follow_guidance)]
