@@ -348,9 +348,15 @@ def test_a_contested_leader_holds_the_follower(
     released = time.monotonic() - started
 
     # A second replier on the leader's sync key: contested again, by its replies.
+    # The contest is seen when a reply arrives, the hold applied at the next control step:
+    # a status line between the two shows the contest without the hold yet.
     impostor.declare()
     again = follower.until(
-        lambda line: "sync replies" in line["contested"].get(LEADER, ""), 5, "sync contest"
+        lambda line: (
+            "sync replies" in line["contested"].get(LEADER, "") and line.get("hold") == "contested"
+        ),
+        5,
+        "held on a sync contest",
     )
     assert again["hold"] == "contested"
     impostor.close()
