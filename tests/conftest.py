@@ -64,3 +64,19 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     if not collection_path.name.startswith("test_"):
         return None
     return "mark.timing" not in collection_path.read_text(encoding="utf-8")
+
+
+# Test folders of pure computation (simulated time; no process, socket or pty, and no
+# real clock): make test runs them at nice 5, beside the real processes.
+COMPUTATION = ("unit/core/", "unit/report/", "unit/bench/", "unit/agents/")
+REAL_TIME = ("unit/agents/test_serial_platform.py", "unit/agents/test_interface.py")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Marks ``computation`` the tests in :data:`COMPUTATION`'s folders (less
+    :data:`REAL_TIME`'s files)."""
+    root = Path(__file__).parent
+    for item in items:
+        where = item.path.relative_to(root).as_posix()
+        if where.startswith(COMPUTATION) and not where.startswith(REAL_TIME):
+            item.add_marker(pytest.mark.computation)

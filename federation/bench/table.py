@@ -48,6 +48,7 @@ FILES: dict[str, str] = {
     "merge-2gib.json": (
         "fedlab bench merge --size 2048 --repeats 1 --json-out benchmarks/merge-2gib.json"
     ),
+    "replay-paper.json": "fedlab bench replay --repeats 3 --json-out benchmarks/replay-paper.json",
 }
 """The current result of each benchmark, and the command that made it (the full command
 of each is in benchmarks/README.md, or inside the file)."""
@@ -343,6 +344,26 @@ def _formation_network_rows(folder: Path) -> list[Row]:
     return out
 
 
+def _replay_rows(folder: Path) -> list[Row]:
+    """The follower against a replayed leader over the paper's maneuver; the baseline is
+    its error against the live leader, flown in the same repeat."""
+    name = "replay-paper.json"
+    d = _load(folder, name)
+    done = [r for r in d["repeats"] if "ratio" in r]
+    m, link = d["maneuver"], d["link"]
+    return [
+        (
+            f"replay, the paper's maneuver ({m['amplitude_deg']:g} deg, {m['run_s']:g} s run), "
+            f"{link['delay_ms']:g} ms link",
+            f"follower's heading RMS error against the replayed leader / against the live "
+            f"one, median (min to max) of {len(done)} repeats; baseline: against the live one",
+            _ratio(d["summary"]["ratio"]),
+            f"{d['summary']['rms_live_deg_median']:.3f} deg",
+            name,
+        )
+    ]
+
+
 _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _sync_rows,
     _latency_rows,
@@ -354,6 +375,7 @@ _SECTIONS: tuple[Callable[[Path], list[Row]], ...] = (
     _transparency_rows,
     _formation_network_rows,
     _merge_rows,
+    _replay_rows,
 )
 
 

@@ -353,6 +353,7 @@ def _experiment_part(
         # Every run recorded on this host, unless a recording names one file for all.
         **({} if record else {"runs_dir": "runs"}),
         **_scenario_part(experiment, me),
+        **({"seed": part.seed} if part.seed is not None else {}),
     }, "platform" in part.model_fields_set
 
 
@@ -382,17 +383,15 @@ def _follow_preset(experiment: Any, part: Any, path: Path) -> str | None:
 def _scenario_part(experiment: Any, me: Any) -> dict[str, Any]:
     """A formation, docking or adaptive-gain part, or a plug-in scenario's (none for plain
     attitude tracking): an agent whose scenario reads every other agent's pose watches
-    them all; a participant's seed, if given."""
+    them all."""
     from agents.registry import scenario_class
 
     scenario = experiment.part(me)
     if scenario is None:
         return {}
-    part = experiment.participant(me)
     return {
         "scenario": scenario.model_dump(),
         **({"watch_all": True} if scenario_class(experiment.kind).watch_all else {}),
-        **({"seed": part.seed} if part.seed is not None else {}),
     }
 
 

@@ -1,4 +1,4 @@
-"""``fedlab bench sync|latency|scale|memory|network|network-formation|scenarios|merge``:
+"""``fedlab bench sync|latency|scale|memory|network|network-formation|scenarios|merge|replay``:
 benchmarks, beside
 baselines run alongside; ``fedlab bench table``: their headline figures from benchmarks/.
 
@@ -15,7 +15,7 @@ from typing import Any
 
 from federation.bench import latency, memory, scale, sync, table
 from federation.bench import merge as merge_bench
-from federation.cli import bench_network
+from federation.cli import bench_network, bench_replay
 from federation.cli.common import Formatter, Subparsers, count, positive
 
 __all__ = ["add", "run"]
@@ -24,7 +24,7 @@ __all__ = ["add", "run"]
 def add(sub: Subparsers) -> None:
     p = sub.add_parser(
         "bench",
-        help="benchmarks: sync accuracy, latency, scale, memory, merge",
+        help="benchmarks: sync accuracy, latency, scale, memory, merge, replay",
         formatter_class=Formatter,
         description="Benchmarks; each prints a table, or JSON with --json.",
         epilog=(
@@ -37,6 +37,7 @@ def add(sub: Subparsers) -> None:
             "  fedlab bench network-formation --seconds 60 --repeats 3 --json-out FILE\n"
             "  fedlab bench scenarios --json > benchmarks/scenarios.json\n"
             "  fedlab bench merge --size 2048 --json-out benchmarks/merge-2gib.json\n"
+            "  fedlab bench replay --repeats 3 --json-out benchmarks/replay-paper.json\n"
             "  fedlab bench table   # the README's table, from benchmarks/"
         ),
     )
@@ -49,6 +50,7 @@ def add(sub: Subparsers) -> None:
     bench_network.add_network_formation(benches)
     _add_scenarios(benches)
     _add_merge(benches)
+    bench_replay.add_replay(benches)
     _add_table(benches)
     p.set_defaults(func=run)
 
@@ -59,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     runs |= {"memory": _run_memory, "network": bench_network.run_network}
     runs |= {"scenarios": _run_scenarios, "merge": _run_merge, "table": _run_table}
     runs |= {"network-formation": bench_network.run_network_formation}
+    runs |= {"replay": bench_replay.run_replay}
     return runs[args.bench](args)
 
 

@@ -129,7 +129,10 @@ def add(sub: Subparsers) -> None:
         type=nonnegative,
         default=1.5,
         metavar="S",
-        help="at most S s to collect statuses (with --experiment: until each participant's is in)",
+        help=(
+            "at most S s to collect statuses (with --experiment: until each participant's is "
+            "in); start then waits S s at most for every preflight check to pass"
+        ),
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     add_timeout_flag(p)

@@ -566,14 +566,17 @@ class RunState:
 
     def run_time(self, t_sim: float | None) -> float | None:
         """Seconds of experiment so far (None before the start or without sync); held at
-        the duration once done, and at the abort's run time once aborted."""
+        the duration once done, and at the abort's run time once aborted. Never past the
+        duration: ``t_sim`` read between the end's instant and the update that applies it
+        (a status built then) is still at most the end."""
         if t_sim is None or self.start_at is None or self.mode in ("waiting", "armed"):
             return None
         if self.mode in ("frozen", "done", "aborted"):
             if self.frozen_at is None:
                 return None
             return max(0.0, self.frozen_at - self.start_at - self.frozen_total)
-        return max(0.0, t_sim - self.start_at - self.frozen_total)
+        run_time = max(0.0, t_sim - self.start_at - self.frozen_total)
+        return run_time if self.duration is None else min(run_time, self.duration)
 
     def fraction(self, t_sim: float | None) -> float | None:
         """Share of the duration flown (0 to 1), None without a duration or a run."""

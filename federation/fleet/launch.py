@@ -7,11 +7,14 @@ here is tracked and stopped (SIGTERM, then SIGKILL after a grace period).
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import random
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
@@ -29,13 +32,67 @@ _ON_CORES = (
 )
 
 
+PORTS = range(20000, 32768)
+"""Where :func:`free_port` looks: below Linux's default ephemeral range (32768 to 60999),
+so that no outgoing connection is given the port before its listener binds it."""
+RESERVED_FOR = 120.0
+"""s a port handed out by :func:`free_port` is kept from every other call on this host."""
+
+
 def free_port(host: str = "127.0.0.1") -> int:
-    """A TCP port on ``host`` that nothing listens on right now."""
+    """A port on ``host`` that nothing binds right now, for TCP nor UDP (a router listens
+    on both), and that no call on this host (in any process) handed out in the last
+    :data:`RESERVED_FOR` s. Parallel tests each start routers: two processes binding port
+    0 one after the other may each be given the same port, and then one test's agents
+    join the other's federation. Each port handed out is reserved by a file created
+    with O_EXCL in a directory of this user's."""
+    reserved = _reservations()
+    start = random.randrange(len(PORTS))
+    for i in range(len(PORTS)):
+        port = PORTS[(start + i) % len(PORTS)]
+        if _unbound(host, port) and _reserve(reserved, port):
+            return port
+    raise OSError(errno.EADDRINUSE, f"no free port on {host} in {PORTS.start}-{PORTS.stop - 1}")
+
+
+def _reservations() -> Path | None:
+    """The directory of reserved ports (None if it cannot be made: nothing is reserved)."""
+    folder = Path(tempfile.gettempdir()) / f"fedlab-ports-{os.getuid()}"
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+    except OSError:
+        return None
+    return folder
+
+
+def _reserve(folder: Path | None, port: int) -> bool:
+    """Reserve ``port``: False if another call holds it. A reservation older than
+    :data:`RESERVED_FOR` is removed, and the port taken by a later call."""
+    if folder is None:
+        return True
+    path = folder / str(port)
+    try:
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        return True
+    except FileExistsError:
+        with contextlib.suppress(OSError):
+            if time.time() - path.stat().st_mtime > RESERVED_FOR:
+                path.unlink()
+        return False
+    except OSError:
+        return True  # a directory that takes no file: the bind check alone
+
+
+def _unbound(host: str, port: int) -> bool:
+    """Whether ``port`` on ``host`` can be bound for TCP and for UDP now."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        port: int = s.getsockname()[1]
-        return port
+    for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        with socket.socket(family, kind) as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                return False
+    return True
 
 
 class Fleet:

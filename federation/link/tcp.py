@@ -100,7 +100,10 @@ class _StreamPipe(TimedQueue[None]):
             if self.close_dst or not transport.can_write_eof():
                 transport.close()
             else:
-                transport.write_eof()
+                try:
+                    transport.write_eof()
+                except OSError:  # the destination's peer is gone already (ENOTCONN)
+                    transport.close()
         self.src.conn.pipe_ended()
 
     def abort(self) -> None:

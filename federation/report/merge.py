@@ -72,8 +72,9 @@ import heapq
 import itertools
 import json
 import math
+import tomllib
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, NamedTuple
@@ -86,6 +87,7 @@ from mcap.records import Header, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
+from pydantic import ValidationError
 
 from federation.core.channels import FOXGLOVE_CHANNELS, Channel
 from federation.report import mergeview as view
@@ -103,7 +105,9 @@ from federation.report.mergeclock import (
     survey,
 )
 from federation.runtime.mcapfile import as_metadata
+from federation.runtime.scene import corridor_entity
 from schemas.config import ConfigError
+from schemas.scenario import DockingConfig
 
 __all__ = [
     "MERGE_METADATA",
@@ -279,6 +283,7 @@ class _Output:
         self.last = -1
         self.late = 0
         self.written = 0
+        self.docking: DockingConfig | None = None  # its corridor drawn with the target
 
     def schema(self, key: Any, name: str, encoding: str, data: bytes) -> int:
         if key not in self.schemas:
@@ -388,6 +393,7 @@ def _merge(
     if experiment_json is not None:
         writer.add_metadata("experiment.json", {"json": experiment_json})
     out = _Output(writer)
+    out.docking = _docking(clocks, experiment_json, notes)
     before: dict[str, dict[str, Any]] = {}
     streams = [_mapped(c, i, when, notes) for i, c in enumerate(mapped)]
     for item in heapq.merge(*streams):
@@ -403,6 +409,36 @@ def _merge(
         )
     writer.add_metadata(MERGE_METADATA, result.metadata())
     return result
+
+
+def _docking(
+    clocks: Sequence[AgentClock], experiment_json: str | None, notes: list[str]
+) -> DockingConfig | None:
+    """The run's ``[docking]`` table, if its experiment is a docking one: from the folder's
+    ``experiment.json``, else from the experiment file each recording carries (its
+    ``fedlab.run`` metadata). One that does not load is noted and nothing is drawn."""
+    texts: list[tuple[str, str, Callable[[str], Any]]] = []
+    if experiment_json:
+        texts.append(("experiment.json", experiment_json, json.loads))
+    for c in clocks:  # every agent's recording carries the same file: each text once
+        text = (c.metadata.get("fedlab.run") or {}).get("experiment")
+        if text and not text.startswith("unreadable") and text not in {t for _, t, _ in texts}:
+            texts.append((f"{c.label}'s recorded experiment", text, tomllib.loads))
+    for where, text, parse in texts:
+        try:
+            spec = parse(text)
+            if not isinstance(spec, dict) or spec.get("kind") != "docking":
+                continue
+            return DockingConfig.model_validate(spec.get("docking"))
+        except ValidationError as error:
+            e = error.errors()[0]
+            field = ".".join(["docking", *map(str, e["loc"])])
+            notes.append(f"{where}: its [docking] table does not load ({field}: {e['msg']}): "
+                         "no corridor drawn")  # fmt: skip
+        except ValueError as error:  # JSON and TOML errors
+            first = str(error).splitlines()[0]
+            notes.append(f"{where}: does not parse ({first}): no corridor drawn")
+    return None
 
 
 def _truths(clocks: Sequence[AgentClock], reference: str, notes: list[str]) -> None:
@@ -519,6 +555,8 @@ def _write_status(
     before[agent] = {"hold": decoded.get("hold"), "peers": decoded.get("peers")}
     for line in lines:
         out.foxglove(f"/{agent}/log", line, ns, publish, agent)
+    if out.docking is not None and agent == out.docking.target:
+        entities.append(corridor_entity(out.docking, ns))
     out.foxglove("/scene", SceneUpdate(entities=entities), ns, publish, agent)
     if frame is not None:
         out.foxglove("/tf", frame, ns, publish, agent)

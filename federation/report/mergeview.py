@@ -15,7 +15,9 @@ topic                          schema                     from
                                                           that publishes one)
 ``/LAB/NAME/pose``             foxglove.PoseInFrame       each pose sent, common frame
 ``/scene``                     foxglove.SceneUpdate       each platform's footprint and
-                                                          its lab's work area (statuses)
+                                                          its lab's work area (statuses);
+                                                          a docking run's corridor, in
+                                                          the target's frame
 ``/LAB/NAME/log``              foxglove.Log               control events (commands, start,
                                                           end, ignored commands), holds
                                                           and their reasons, peers joining

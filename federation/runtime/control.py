@@ -3,8 +3,9 @@ and the preflight table (``fedlab ctl status``).
 
 ``start`` first checks every participant (:mod:`federation.core.preflight`:
 present, waiting, synchronized with the reference, platform ready, recording)
-and starts nothing unless all pass (``force`` overrides and says what it
-overrode). It names the run (``run_id``: the experiment's name and the UTC time,
+and starts nothing unless all pass on the participants' latest statuses within the
+discovery time (a hold of a moment refuses nothing; ``force`` overrides and says what
+it overrode). It names the run (``run_id``: the experiment's name and the UTC time,
 unless given), syncs with the reference agent (the experiment's leader) exactly
 as agents do, and announces a start at a reference time some seconds ahead,
 with the run's duration; every agent begins when its own synchronized clock
@@ -611,12 +612,21 @@ def _preflight_start(
     it: _Issuing, seen: dict[str, Any], ref: AgentId, max_bound: float, force: bool
 ) -> tuple[list[Row], list[str]]:
     """The preflight rows of a start on ``ref``'s clock and the failures ``force``
-    overrides; PreflightFailed if one fails without ``force``."""
+    overrides; PreflightFailed if one fails without ``force``. A check failing for a
+    moment (a hold while a pose is late on a loaded link) refuses nothing: the table is
+    made again at each new status, for ``discover`` s at most, until every check passes
+    on the participants' latest statuses."""
     experiment = it.experiment
     # Each participant must count time on the clock the start's instant is on.
     participants = [p.agent for p in experiment.participants] if experiment else list(seen)
-    rows = preflight(participants, seen, it.fed.ages(), max_bound, reference=str(ref))
-    failed = blocking(rows)
+    deadline = time.monotonic() + it.discover
+    while True:
+        latest = it.fed.snapshot()
+        rows = preflight(participants, latest, it.fed.ages(), max_bound, reference=str(ref))
+        failed = blocking(rows)
+        if not failed or force or (left := deadline - time.monotonic()) <= 0:
+            break
+        it.fed.wait_new(left)
     overridden = [f"{r.agent}: {m}" for r in failed for m in r.missing]
     if failed and not force:
         raise PreflightFailed(rows)

@@ -34,12 +34,14 @@ from agents.workspace import Area, Frame
 from federation.core.channels import COMMON_FRAME
 from schemas.messages import Workspace
 from schemas.platform import load_platform
+from schemas.scenario import DockingConfig
 
 __all__ = [
     "COMMON_FRAME",
     "DEFAULT_FOOTPRINT",
     "area_corners",
     "area_entity",
+    "corridor_entity",
     "footprint",
     "platform_entity",
     "rotation",
@@ -47,6 +49,7 @@ __all__ = [
 ]
 
 DEFAULT_FOOTPRINT = 0.3  # m, side of the square drawn for a platform with no preset
+CORRIDOR_BEYOND = 0.5  # m: how far the corridor is drawn past the hold point
 
 
 _PRESET = re.compile(r"[a-z0-9_-]{1,63}")
@@ -115,33 +118,79 @@ def platform_entity(agent: str, side: float, ns: int) -> SceneEntity:
     )
 
 
+def _floor_line(
+    points: list[tuple[float, float]], kind: LinePrimitiveLineType, thickness: float, color: Color
+) -> LinePrimitive:
+    """A line on the floor through ``points`` (m) of its entity's frame."""
+    return LinePrimitive(
+        type=kind,
+        pose=Pose(position=Vector3(), orientation=rotation(0.0)),
+        thickness=thickness,
+        scale_invariant=False,
+        points=[Point3(x=x, y=y, z=0.0) for x, y in points],
+        color=color,
+    )
+
+
+def _label(x: float, y: float, text: str, color: Color) -> TextPrimitive:
+    """A label just above the floor at (``x``, ``y``) of its entity's frame."""
+    return TextPrimitive(
+        pose=Pose(position=Vector3(x=x, y=y, z=0.05), orientation=rotation(0.0)),
+        billboard=True,
+        font_size=12.0,
+        scale_invariant=True,
+        color=color,
+        text=text,
+    )
+
+
 def area_entity(agent: str, corners: list[tuple[float, float]], ns: int) -> SceneEntity:
     """A work area's outline in the common frame (a closed line on the floor), labelled
     with its lab at its first corner."""
-    identity = Pose(position=Vector3(), orientation=rotation(0.0))
-    x0, y0 = corners[0]
+    green = Color(r=0.3, g=0.85, b=0.4, a=1.0)
     return SceneEntity(
         timestamp=stamp(ns),
         frame_id=COMMON_FRAME,
         id=f"area:{agent}",
+        lines=[_floor_line(corners, LinePrimitiveLineType.LineLoop, 0.02, green)],
+        texts=[_label(*corners[0], f"{agent.split('/')[0]} work area", green)],
+    )
+
+
+def corridor_points(docking: DockingConfig) -> list[list[tuple[float, float]]]:
+    """The docking corridor in the target's body frame (m), as the chaser's guidance
+    checks it (:mod:`agents.docking`): its two edges, :math:`|l| = (s - L)\\tan\\alpha`
+    plus the hold tolerance, from the contact point (:math:`s = L`, the contact distance
+    along the port, the body's +x) to :data:`CORRIDOR_BEYOND` past the hold point; and
+    the hold point's mark across the axis."""
+    contact, tolerance = docking.contact_distance, docking.hold_tolerance
+    hold = contact + docking.hold_distance
+    far = hold + CORRIDOR_BEYOND
+    slope = math.tan(math.radians(docking.corridor_deg))
+
+    def half(s: float) -> float:
+        return (s - contact) * slope + tolerance
+
+    return [
+        [(contact, tolerance), (far, half(far))],
+        [(contact, -tolerance), (far, -half(far))],
+        [(hold, half(hold)), (hold, -half(hold))],
+    ]
+
+
+def corridor_entity(docking: DockingConfig, ns: int) -> SceneEntity:
+    """The docking corridor on the floor, locked to the target's frame (it moves and
+    turns with the target), labelled at the hold point."""
+    yellow = Color(r=0.95, g=0.8, b=0.2, a=1.0)
+    hold = docking.contact_distance + docking.hold_distance
+    return SceneEntity(
+        timestamp=stamp(ns),
+        frame_id=docking.target,
+        id=f"corridor:{docking.target}",
+        frame_locked=True,
         lines=[
-            LinePrimitive(
-                type=LinePrimitiveLineType.LineLoop,
-                pose=identity,
-                thickness=0.02,
-                scale_invariant=False,
-                points=[Point3(x=x, y=y, z=0.0) for x, y in corners],
-                color=Color(r=0.3, g=0.85, b=0.4, a=1.0),
-            )
+            _floor_line(line, LinePrimitiveLineType.LineStrip, 0.01, yellow)
+            for line in corridor_points(docking)
         ],
-        texts=[
-            TextPrimitive(
-                pose=Pose(position=Vector3(x=x0, y=y0, z=0.05), orientation=rotation(0.0)),
-                billboard=True,
-                font_size=12.0,
-                scale_invariant=True,
-                color=Color(r=0.3, g=0.85, b=0.4, a=1.0),
-                text=f"{agent.split('/')[0]} work area",
-            )
-        ],
+        texts=[_label(hold, 0.0, f"docking corridor of {docking.chaser}", yellow)],
     )

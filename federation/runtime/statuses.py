@@ -60,6 +60,11 @@ class Federation:
                     return
                 self._new_status.wait(left)
 
+    def wait_new(self, timeout: float) -> None:
+        """Wait until the next status arrives, ``timeout`` s at most."""
+        with self._lock:
+            self._new_status.wait(max(0.0, timeout))
+
     def snapshot(self) -> dict[str, dict[str, Any]]:
         with self._lock:
             return dict(self.status)

@@ -24,20 +24,13 @@ from loopback import FLOAT_SLACK, LEADER, Agent, Labs, Tap, answer_sync, client_
 
 from federation.core import wire
 from federation.core.paper import CLOCK_OFFSET
-from federation.fleet.launch import Fleet, wait_for
+from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import read_status
 
 LEGACY = "rome/legacy"
 LEGACY_OFFSET = CLOCK_OFFSET  # the legacy agent's clock minus the host's monotonic clock
 LEGACY_POSE = (1.25, -0.5, 0.3, 0.0, 0.0, 0.0)  # tests/integration/legacy_agent.py
 LEGACY_AGENT = Path(__file__).with_name("legacy_agent.py")
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def start_bridge(labs: Labs, *args: str) -> Agent:
@@ -110,7 +103,7 @@ def test_legacy_udp_agent_syncs_with_a_fedlab_leader_through_the_bridge(
     router = labs.router("kiruna")
     # The leader queries the bridged agent every 0.1 s, not once a second.
     leader = labs.leader(router, "--sync-others-period", "0.1")
-    bridge_port, legacy_port = free_udp_port(), free_udp_port()
+    bridge_port, legacy_port = free_port(), free_port()
     start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
     # No --follow: the bridge finds the leader by its status.
     bridge = start_bridge(
@@ -223,7 +216,7 @@ def test_a_bridge_refuses_a_name_already_in_the_federation(labs: Labs, fleet: Fl
     router = labs.router("kiruna")
     leader = labs.leader(router)
     leader.wait_status(timeout=10)
-    bridge_port, legacy_port = free_udp_port(), free_udp_port()
+    bridge_port, legacy_port = free_port(), free_port()
     argv = [
         "bridge", "udp", "--as", LEADER, "--listen", f"127.0.0.1:{bridge_port}",
         "--peer", f"127.0.0.1:{legacy_port}", "-e", router.endpoint,
@@ -259,7 +252,7 @@ def test_a_second_process_answering_for_the_legacy_agent_stops_the_bridge_for_go
 
     watch = racer.liveliness().declare_subscriber(key, on_token)
     try:
-        bridge_port, legacy_port = free_udp_port(), free_udp_port()
+        bridge_port, legacy_port = free_port(), free_port()
         start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
         bridge = start_bridge(
             labs,
@@ -304,7 +297,7 @@ def test_the_legacy_agent_gets_no_reply_while_aborted_or_without_its_leader(
 
     router = labs.router("kiruna")
     leader = labs.leader(router)
-    bridge_port, legacy_port = free_udp_port(), free_udp_port()
+    bridge_port, legacy_port = free_port(), free_port()
     start_legacy(fleet, "legacy", legacy_port, bridge_port, LEGACY_OFFSET)
     bridge = start_bridge(
         labs, "--listen", f"127.0.0.1:{bridge_port}", "--peer", f"127.0.0.1:{legacy_port}",

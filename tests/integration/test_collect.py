@@ -28,7 +28,8 @@ from federation.runtime.collect import collect, finalize, sha256_file, zenoh_fet
 from federation.runtime.recorder import read_messages, read_metadata
 from schemas.messages import CHUNK_SIZE
 
-pytestmark = pytest.mark.integration
+# In make test's lane, beside the parallel workers (pyproject.toml's markers).
+pytestmark = [pytest.mark.integration, pytest.mark.lane]
 
 MB = 1 << 20
 

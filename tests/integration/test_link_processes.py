@@ -327,6 +327,14 @@ def test_udp_loss_and_reordering_at_the_configured_rates(
                 s.send(struct.pack("!I", i) + b"." * 32)
                 if i % 50 == 49:
                     time.sleep(0.005)  # stay far below the socket buffers
+                    # And at most about 150 on the way: a link (or this receiver) starved
+                    # on a loaded host for a moment would have its socket's buffer
+                    # overflow, and the kernel drop what was never read.
+                    sent = i + 1
+                    wait_for(
+                        lambda: len(received) >= (1 - loss) ** 2 * sent - 150,  # noqa: B023
+                        timeout=2.0, interval=0.002,
+                    )  # fmt: skip
             receiver.join(20.0)
         assert link.stop() == 0
     stats = link.stats()

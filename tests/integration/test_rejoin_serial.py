@@ -126,8 +126,12 @@ def test_a_serial_follower_restarted_mid_run_stays_held_until_admitted(
     )
     watched = [s for s in follower.lines() if s["host_monotonic"] >= held_from]
     assert len(watched) >= HELD_FOR / STATUS_PERIOD, watched
+    # status.hold names the standing hold first in federation/core/holds.py's order: a
+    # leader's pose late on the loaded host (315 ms once) sets a stale hold, which
+    # outranks the admit's wait and closes the same valves.
     for line in watched:
-        assert line["mode"] == "waiting" and line["hold"] == "waiting", line
+        assert line["mode"] == "waiting" and line["hold"] in ("waiting", "stale"), line
+    assert any(line["hold"] == "waiting" for line in watched), watched
     opened = [v for v in _valves(events)[before:] if v["mask"]]
     assert not opened, f"a valve opened without an admit: {opened[:3]}"
     held_s = time.monotonic() - begun

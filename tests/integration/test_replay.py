@@ -21,6 +21,7 @@ from loopback import FOLLOWER, LEADER, Labs, Process, client_config
 
 from federation.core import keys, wire
 from federation.fleet.launch import wait_for
+from federation.report import tracking
 from federation.report.analysis import best_shift
 from federation.runtime.mcapfile import read_messages
 from federation.runtime.replayfile import Recording
@@ -62,16 +63,7 @@ def ready(line: dict[str, Any]) -> bool:
 def heading_rms_deg(follower: Path, leader: Path) -> float:
     """RMS (deg) of the follower's heading sent minus the leader's at the same run time,
     over the maneuver (``MOVING``), from the two recordings."""
-    led = list(Recording(leader, LEADER).poses())
-    flown = [p for p in Recording(follower, FOLLOWER).poses() if p.run_time is not None]
-    t_led = np.array([p.run_time for p in led])
-    h_led = np.unwrap([p.pose.heading for p in led])
-    t = np.array([p.run_time for p in flown])
-    h = np.unwrap([p.pose.heading for p in flown])
-    inside = (t >= MOVING[0]) & (t <= MOVING[1])
-    assert inside.sum() > 40, f"{follower.name}: {inside.sum()} poses in the maneuver"
-    error = h[inside] - np.interp(t[inside], t_led, h_led)
-    return float(np.degrees(np.sqrt(np.mean(error**2))))
+    return tracking.recorded_error(follower, leader, MOVING, FOLLOWER, LEADER).rms_deg
 
 
 def start(exp: Path, run_id: str, endpoint: str) -> None:
@@ -118,6 +110,10 @@ class Heard:
         self.session.close()  # type: ignore[no-untyped-call]
 
 
+# The trail within 5 ms holds while the ghost's poses flow with no gap past the link
+# watch's threshold: a claim about the host's time. Beside the parallel suite a starved
+# replay process left a 172 ms gap, a safe hold, and a 56.7 ms trail after the capture.
+@pytest.mark.timing
 def test_a_replayed_leader_drives_a_live_follower(labs: Labs, tmp_path: Path) -> None:
     router = labs.router("kiruna")
     # A short live run, both recorded: the leader's recording is the one replayed.

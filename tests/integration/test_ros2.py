@@ -154,7 +154,10 @@ def dds(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[DomainParti
     started in the test inherit the same CYCLONEDDS_URI and ROS_DOMAIN_ID."""
     config = tmp_path / "cyclonedds.xml"
     config.write_text(LOOPBACK_DDS)
-    domain = 10 + os.getpid() % 200
+    # One domain per pytest process of a run: the parallel workers gw0 to gw3 take 11 to
+    # 14, any other 10 (a domain shared by two tests at once mixes their bridges' topics).
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    domain = 10 + (int(worker[2:]) + 1 if worker.startswith("gw") else 0)
     monkeypatch.setenv("CYCLONEDDS_URI", config.as_uri())
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     participant = DomainParticipant(domain)
@@ -225,9 +228,18 @@ def test_every_agent_is_on_ros2_as_odometry_and_tf(labs: Labs, dds: DomainPartic
         first_after = time.monotonic() - created
         odom = received[0]
 
-        # The pose the leader published, in the common frame, within 1e-9.
-        sample = matching(tap.received(), odom)
-        assert sample is not None, (odom, tap.received()[-3:])
+        # The pose the leader published, in the common frame, within 1e-9. The tap's
+        # Zenoh callback and the DDS reader run on threads of their own in this process:
+        # the sample may reach the tap after its odometry reached the reader.
+        found: list[wire.PoseSample] = []
+
+        def tapped() -> bool:
+            sample = matching(tap.received(), odom)
+            found[:] = [] if sample is None else [sample]
+            return bool(found)
+
+        assert wait_for(tapped, timeout=2.0, interval=0.01), (odom, tap.received()[-3:])
+        sample = found[0]
         assert odom.header.frame_id == "fedlab_common"
         assert odom.child_frame_id == "kiruna/knatte"
         assert odom.pose.pose.position.z == 0.0
@@ -264,7 +276,10 @@ def test_every_agent_is_on_ros2_as_odometry_and_tf(labs: Labs, dds: DomainPartic
         assert wait_for(got_frames, timeout=3, interval=0.02), sorted(frames)
         tf = frames["kiruna/knatte"]
         assert tf.header.frame_id == "fedlab_common"
-        assert matching(tap.received(), _as_odometry(tf)) is not None
+        as_odometry = _as_odometry(tf)
+        assert wait_for(
+            lambda: matching(tap.received(), as_odometry) is not None, timeout=2.0, interval=0.01
+        ), (tf, tap.received()[-3:])
         print(f"first odometry {first_after * 1e3:.0f} ms after the reader was created")
 
         # The type hashes ROS 2 (Iron and later) announces, in the writers' USER_DATA.

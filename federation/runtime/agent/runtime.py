@@ -161,6 +161,7 @@ class AgentRuntime:
         self.role.switched = self.heading_estimator.reset
         self.recording_server: RecordingServer | None = None
         self._clock_stepped = False
+        self._blocking_shown: Hold | None = None  # the blocking hold of the last step
         self._pose_sn = 0  # sequence number in the pose samples' source info
         self._declared: list[Any] = []
         self._pose_pub: Any = None
@@ -483,6 +484,13 @@ class AgentRuntime:
         self.guidance_at = (t_exec, host, t_sim, run_time)
         self.pose = self.platform.step(t_exec, *self.guidance, self.track)
         self.watches.watch_area(t_exec, host)
+        # A hold that blocks a start, set or lifted, is reported at this step, not at the
+        # next periodic status (up to a second on): preflight reads the latest status, and
+        # one that shows a stale link's hold already lifted would refuse a start.
+        blocking = self.safety.blocking()
+        if blocking != self._blocking_shown:
+            self._blocking_shown = blocking
+            self.commands.status_now = True
         if self.commands.status_now:
             self.commands.status_now = False
             self.publish_status()

@@ -340,6 +340,18 @@ def test_the_run_is_done_after_its_duration_and_run_time_holds() -> None:
     assert state.fraction(40.0) == 1.0
 
 
+def test_run_time_read_past_the_end_before_the_update_is_the_duration() -> None:
+    # A status built between the end's instant and the control step that applies it
+    # (a rejoined follower recorded 13.5003 s of a 13.5 s run as running).
+    state = RunState()
+    state.command(Cmd("start", at=5.0, duration=10.0), t_sim=1.0)
+    state.update(14.99)
+    assert state.mode == "running"
+    assert state.run_time(15.0003) == 10.0
+    assert state.update(15.0003) == [Event("done", 15.0)]
+    assert state.run_time(15.0003) == 10.0
+
+
 def test_frozen_time_does_not_count_towards_the_duration() -> None:
     state = RunState()
     state.command(Cmd("start", at=0.0, duration=10.0), t_sim=0.0)

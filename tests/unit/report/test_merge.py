@@ -25,6 +25,9 @@ from federation.core.channels import CHANNEL_FIELDS, json_schema
 from federation.report.merge import MERGE_METADATA, write_merged
 from federation.report.mergeclock import THIN_S, Thinned, _Series
 from federation.report.mergeview import FOXGLOVE_TYPES
+from federation.runtime.replayfile import Recording
+from federation.runtime.scene import corridor_points
+from schemas.scenario import DockingConfig
 
 KIRUNA, ROME = "kiruna/knatte", "rome/pinocchio"
 ROME_AHEAD = 26.42  # s, Rome's clock minus Kiruna's (the reference)
@@ -46,6 +49,7 @@ def _record(
     pad: int = 0,
     dt: float = 0.02,
     first: int = 0,
+    experiment: str = "",
 ) -> None:
     """A recording as the recorder writes it: JSON channels with their schemas, log time
     the host's wall clock (``wall_off`` s off UTC) a millisecond after each stamp; steps
@@ -62,7 +66,9 @@ def _record(
                 json.dumps(json_schema(channel)).encode(),
             )  # fmt: skip
             ids[str(channel)] = writer.register_channel(str(channel), "json", schema, {})
-        writer.add_metadata("fedlab.run", {"agent": agent, "host": "one-host"})
+        writer.add_metadata(
+            "fedlab.run", {"agent": agent, "host": "one-host", "experiment": experiment}
+        )
 
         def put(topic: str, t_ref: float, message: dict[str, Any]) -> None:
             ns = round((WALL + wall_off + t_ref + 0.001) * 1e9)
@@ -206,6 +212,76 @@ def test_every_foxglove_typed_channel_decodes_with_the_schema_the_file_carries(r
     assert any(line.startswith("started") for line in rome_log)
     assert "hold: link_lost" in rome_log and any("hold lifted" in line for line in rome_log)
     assert any(f"peer {KIRUNA} joined" in line for line in rome_log)
+
+
+DOCKING = f"""name = "dock"
+kind = "docking"
+[docking]
+target = "{KIRUNA}"
+chaser = "{ROME}"
+contact_distance = 0.6
+corridor_deg = 20.0
+"""
+
+
+def _scene(folder: Path) -> list[Any]:
+    """Every entity of the merged file's ``/scene``, decoded."""
+    _, messages = _read(folder / "merged.mcap")
+    return [
+        entity
+        for schema, channel, message in messages
+        if channel.topic == "/scene"
+        for entity in _protobuf_class(schema).FromString(message.data).entities
+    ]
+
+
+def test_a_docking_run_draws_its_corridor_locked_to_the_target(tmp_path: Path) -> None:
+    folder = tmp_path / "run"
+    folder.mkdir()
+    _record(folder / "kiruna-knatte.mcap", KIRUNA, 300, experiment=DOCKING)
+    _record(folder / "rome-pinocchio.mcap", ROME, 300, experiment=DOCKING)
+    write_merged(folder)
+    corridors = [e for e in _scene(folder) if e.id == f"corridor:{KIRUNA}"]
+    assert len(corridors) == 6  # one with each of the target's statuses
+    drawn = corridors[0]
+    assert drawn.frame_id == KIRUNA and drawn.frame_locked  # moves and turns with the target
+    docking = DockingConfig(target=KIRUNA, chaser=ROME, contact_distance=0.6, corridor_deg=20.0)
+    lines = [[(p.x, p.y) for p in line.points] for line in drawn.lines]
+    assert lines == corridor_points(docking)
+    # The edges open at the corridor's half-angle from the contact point, the hold
+    # tolerance either side of the axis, as the chaser's guidance checks it.
+    (x0, y0), (x1, y1) = lines[0]
+    assert (x0, y0) == (0.6, docking.hold_tolerance)
+    assert math.degrees(math.atan2(y1 - y0, x1 - x0)) == pytest.approx(20.0)
+    assert lines[2][0][0] == pytest.approx(0.6 + docking.hold_distance)  # the hold point
+
+
+def test_no_corridor_without_a_docking_table_that_loads(run: Path, tmp_path: Path) -> None:
+    write_merged(run)
+    assert not [e for e in _scene(run) if e.id.startswith("corridor:")]  # attitude tracking
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    broken = DOCKING.replace("corridor_deg = 20.0", "corridor_deg = 95.0")
+    _record(folder / "kiruna-knatte.mcap", KIRUNA, 100, experiment=broken)
+    _record(folder / "rome-pinocchio.mcap", ROME, 100)
+    result, _ = write_merged(folder)
+    assert not [e for e in _scene(folder) if e.id.startswith("corridor:")]
+    (note,) = [n for n in result.notes if "corridor" in n]
+    assert "[docking] table does not load" in note and "corridor_deg" in note, note
+
+
+def test_a_merged_file_replays_each_agent_as_its_own_recording_does(run: Path) -> None:
+    # fedlab replay reads a merged file too: each agent's poses on their recorded run
+    # time, the same as from its own recording, and the platform it flew.
+    write_merged(run)
+    for agent in (KIRUNA, ROME):
+        own = list(Recording(run / f"{agent.replace('/', '-')}.mcap", agent).poses())
+        merged = Recording(run / "merged.mcap", agent)
+        assert merged.merged and merged.platform_of(agent) == "pinocchio"
+        assert len(own) > 500 and list(merged.poses()) == own, agent
+    assert Recording(run / "merged.mcap", KIRUNA).knows(ROME)
+    with pytest.raises(ValueError, match="no poses sent by lab/nobody recorded"):
+        Recording(run / "merged.mcap", "lab/nobody")
 
 
 def test_each_original_recording_can_be_rebuilt_from_the_merged_file(run: Path) -> None:

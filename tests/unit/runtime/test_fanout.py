@@ -7,6 +7,7 @@ import threading
 import time
 from collections.abc import Callable
 
+import pytest
 import zenoh
 
 from federation.core import wire
@@ -98,6 +99,9 @@ def test_the_start_up_heap_is_frozen() -> None:
         gc.unfreeze()  # the test process keeps collecting as before
 
 
+# Real time: ticks counted over 1 s of the loop (7 of 20 at nice 10 beside make test's
+# real processes, ci141).
+@pytest.mark.timing
 def test_agents_run_together_on_one_thread(session: zenoh.Session) -> None:
     """Two agents on one session, one thread, one shared pose subscription: each
     ticks at its rate, the follower gets the leader's pose, both stop on time."""

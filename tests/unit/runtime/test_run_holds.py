@@ -800,3 +800,36 @@ def test_a_valve_command_not_confirmed_shows_in_status_and_preflight() -> None:
     f.agent.platform.valves_confirmed = True  # type: ignore[attr-defined]
     status = f.agent.status()
     assert status.valves_confirmed is True and "confirmed" not in status.ready.platform_detail
+
+
+def test_a_start_blocking_hold_set_or_lifted_is_reported_at_once() -> None:
+    """A stale link's hold, set and lifted while waiting for a run, each publishes a
+    status at its step (the loop's once-a-second status aside): preflight reads the
+    latest status, so a hold lifted must not still show in it for up to a second."""
+    f = Follower()
+    f.synced()
+    f.pose()
+    f.step()
+    f.step()
+    assert f.agent.hold is None or f.agent.hold == "waiting", f.agent.hold
+    quiet = len(f.statuses)
+    for _ in range(5):  # the pose fresh: nothing to report between periodic statuses
+        f.pose()
+        f.step()
+    assert len(f.statuses) == quiet
+    f.step(1.0)  # the leader's pose stops: stale hold
+    assert f.agent.safety.blocking() == "stale"
+    assert len(f.statuses) == quiet + 1
+    held = json.loads(f.statuses[-1])["ready"]
+    assert not held["platform"] and held["platform_detail"] == "held (stale)"
+    f.step()  # still stale: nothing new to say
+    assert len(f.statuses) == quiet + 1
+    # The pose flows again and a sync completes since: the link watch lifts the hold.
+    f.pose()
+    f.step()
+    f.sync()
+    f.pose()
+    f.step()
+    assert f.agent.safety.blocking() is None
+    assert len(f.statuses) == quiet + 2
+    assert json.loads(f.statuses[-1])["ready"]["platform"]
