@@ -89,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     from federation.runtime.monitor import printable
     from schemas.experiment import load_experiment
 
-    console = Console(stderr=args.json)
+    # soft_wrap: every line is text, and one naming a path is never broken inside it.
+    console = Console(stderr=args.json, soft_wrap=True)
     experiment = load_experiment(args.experiment) if args.experiment else None
     federation = experiment.federation if experiment else args.federation
     expected = {p.agent for p in experiment.participants} if experiment else None

@@ -69,9 +69,12 @@ def run(args: argparse.Namespace) -> int:
     console.print(
         summary_table(summary, f"fedlab report {args.run_dir}: this run beside the paper")
     )
+    # soft_wrap: a line naming files is never broken inside a path, so it can be copied.
     for note in summary["notes"]:
-        console.print(f"[yellow]note:[/] {note}", highlight=False)
+        console.print(f"[yellow]note:[/] {note}", highlight=False, soft_wrap=True)
     source = summary["source"]
-    console.print(f"read {source['kind']}: {', '.join(source['files'])}", highlight=False)
-    console.print(f"wrote to {out}: {', '.join(summary['files'])}", highlight=False)
+    console.print(
+        f"read {source['kind']}: {', '.join(source['files'])}", highlight=False, soft_wrap=True
+    )
+    console.print(f"wrote to {out}: {', '.join(summary['files'])}", highlight=False, soft_wrap=True)
     return 0

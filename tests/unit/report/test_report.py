@@ -485,11 +485,12 @@ def test_damaged_recordings_are_recovered_or_skipped_with_a_note(
 def test_cli_writes_into_out_and_prints_the_table(
     run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert cli.main(["report", str(run_dir), "--out", str(tmp_path)]) == 0
+    out = tmp_path / ("a-folder-with-a-long-name-" * 4)  # wider than the 80-column console
+    assert cli.main(["report", str(run_dir), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "delay median (ms)" in printed and "40.0" in printed
-    assert str(tmp_path) in printed
-    assert (tmp_path / "summary.json").exists()
+    assert f"wrote to {out}: summary.json" in printed  # the path whole, on one line
+    assert (out / "summary.json").exists()
     assert not (run_dir / "summary.json").exists()  # --out kept the run directory clean
 
 
