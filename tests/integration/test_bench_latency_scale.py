@@ -48,9 +48,10 @@ LOSS_FIGURES = ("mode", "loss", "lost", "expected", "stale_dropped", "stale_hold
 
 
 def scale(n: int, tmp_path: Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """``fedlab bench scale`` of ``n`` agents, fedlab then the bare floor, 5 s each:
-    its rows, checked as every row must be, by mode; and its summary."""
-    out = bench("scale", "--agents", str(n), "--seconds", "5", "--mode", "default",
+    """``fedlab bench scale`` of ``n`` agents, fedlab then the bare floor, 4 s each
+    after the bench's 3 s settling: its rows, checked as every row must be, by mode; and
+    its summary."""
+    out = bench("scale", "--agents", str(n), "--seconds", "4", "--mode", "default",
                 "--mode", "bare", "--group", "2", "--out", str(tmp_path), timeout=240)  # fmt: skip
     assert isinstance(out, dict)
     rows = out["rows"]

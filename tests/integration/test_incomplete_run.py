@@ -1,7 +1,7 @@
 """A run's record says what happened, with real processes: a follower stopped (SIGTERM,
-as an operator's Ctrl-C) at run time ~3 s of an 8 s run, started again to serve its
+as an operator's Ctrl-C) at run time ~3 s of a 6 s run, started again to serve its
 recording; ``fedlab collect`` and ``fedlab report`` say it reached ~3 s and did not
-complete, and that the leader completed its 8 s."""
+complete, and that the leader completed its 6 s."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from loopback import FOLLOWER, LEADER, Labs
 pytestmark = pytest.mark.integration
 
 LOCKED = 25.0  # s: the agents start (slow on a busy host), then the estimate locks 2 s in
-RUN = 8.0  # s of run time
+RUN = 6.0  # s of run time
 STOP_AT = 3.0  # s of run time at which the follower is stopped
 
 
