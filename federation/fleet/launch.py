@@ -22,7 +22,7 @@ from typing import IO
 
 from federation.runtime.cpus import format_cpus, usable_cpus
 
-__all__ = ["Fleet", "free_port", "wait_for"]
+__all__ = ["Fleet", "free_port", "free_ports", "wait_for"]
 
 # Sets the process's cores, then becomes the command (same pid, threads inherit them).
 _ON_CORES = (
@@ -46,13 +46,32 @@ def free_port(host: str = "127.0.0.1") -> int:
     0 one after the other may each be given the same port, and then one test's agents
     join the other's federation. Each port handed out is reserved by a file created
     with O_EXCL in a directory of this user's."""
+    return free_ports(1, host).start
+
+
+def free_ports(count: int, host: str = "127.0.0.1") -> range:
+    """``count`` consecutive ports on ``host``, each as :func:`free_port` hands one out:
+    unbound and reserved (for a command that takes the first and numbers the rest, as
+    ``fedlab deploy generate --port P`` gives the labs' routers P, P + 1, ...)."""
     reserved = _reservations()
-    start = random.randrange(len(PORTS))
-    for i in range(len(PORTS)):
-        port = PORTS[(start + i) % len(PORTS)]
-        if _unbound(host, port) and _reserve(reserved, port):
-            return port
-    raise OSError(errno.EADDRINUSE, f"no free port on {host} in {PORTS.start}-{PORTS.stop - 1}")
+    starts = max(0, len(PORTS) - count + 1)  # the first ports a run of count can begin at
+    first = random.randrange(starts) if starts else 0
+    for i in range(starts):
+        start = PORTS.start + (first + i) % starts
+        ports = range(start, start + count)
+        taken = []
+        for port in ports:
+            if not (_unbound(host, port) and _reserve(reserved, port)):
+                break
+            taken.append(port)
+        else:
+            return ports
+        for port in taken:  # a run cut short: its reservations are given back
+            _release(reserved, port)
+    raise OSError(
+        errno.EADDRINUSE,
+        f"no {count} free consecutive port(s) on {host} in {PORTS.start}-{PORTS.stop - 1}",
+    )
 
 
 def _reservations() -> Path | None:
@@ -81,6 +100,13 @@ def _reserve(folder: Path | None, port: int) -> bool:
         return False
     except OSError:
         return True  # a directory that takes no file: the bind check alone
+
+
+def _release(folder: Path | None, port: int) -> None:
+    """Give back a reservation this call made."""
+    if folder is not None:
+        with contextlib.suppress(OSError):
+            (folder / str(port)).unlink()
 
 
 def _unbound(host: str, port: int) -> bool:

@@ -10,14 +10,13 @@ one host without editing the federation file by hand.
 from __future__ import annotations
 
 import shlex
-import socket
 import time
 from pathlib import Path
 
 import pytest
 from lifecycle import fedlab
 
-from federation.fleet.launch import Fleet, free_port
+from federation.fleet.launch import Fleet, free_ports
 
 pytestmark = pytest.mark.integration
 
@@ -43,23 +42,8 @@ def readme_commands() -> list[list[str]]:
     return commands
 
 
-def two_free_ports() -> int:
-    """A port p with p + 1 free as well (the two labs' routers), at most 50 tries."""
-    for _ in range(50):
-        port = free_port()
-        if port >= 65535:
-            continue
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", port + 1))
-            except OSError:
-                continue
-        return port
-    raise AssertionError("no two consecutive free ports in 50 tries")
-
-
 def test_the_readme_rehearsal_runs_as_written(fleet: Fleet, tmp_path: Path) -> None:
-    port = two_free_ports()
+    port = free_ports(2).start  # the two labs' routers: port and port + 1, both reserved
     fed = tmp_path / "fed"
 
     def here(word: str) -> str:
