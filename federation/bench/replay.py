@@ -50,6 +50,7 @@ from federation.fleet.launch import Fleet, free_port, wait_for
 from federation.report.status import last_status
 from federation.report.tracking import recorded_error
 from federation.runtime.replayfile import Recording
+from federation.runtime.runs import software_versions
 
 __all__ = [
     "BOUND",
@@ -330,19 +331,16 @@ def _reached(path: Path, agent: str) -> dict[str, Any]:
 
 def summary(repeats: list[dict[str, Any]]) -> dict[str, Any]:
     """The median ratio and its range over the repeats that ran to their end."""
-    ratios = [r["ratio"] for r in repeats if "ratio" in r]
-    if not ratios:
+    done = [r for r in repeats if "ratio" in r]
+    if not done:
         return {"repeats_done": 0, "repeats_failed": len(repeats)}
+    ratios = [r["ratio"] for r in done]
     return {
-        "repeats_done": len(ratios),
-        "repeats_failed": len(repeats) - len(ratios),
+        "repeats_done": len(done),
+        "repeats_failed": len(repeats) - len(done),
         "ratio": {"median": statistics.median(ratios), "min": min(ratios), "max": max(ratios)},
-        "rms_live_deg_median": statistics.median(
-            r["rms_live_deg"] for r in repeats if "ratio" in r
-        ),
-        "rms_replayed_deg_median": statistics.median(
-            r["rms_replayed_deg"] for r in repeats if "ratio" in r
-        ),
+        "rms_live_deg_median": statistics.median(r["rms_live_deg"] for r in done),
+        "rms_replayed_deg_median": statistics.median(r["rms_replayed_deg"] for r in done),
     }
 
 
@@ -369,18 +367,6 @@ def _link(delay_ms: float) -> dict[str, Any]:
     return {"delay_ms": 0.0, "where": "loopback, no link emulated"}
 
 
-def commit() -> str | None:
-    """This checkout's commit (short), if it is a git checkout."""
-    try:
-        done = subprocess.run(
-            ["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "--short", "HEAD"],
-            capture_output=True, text=True, timeout=10, check=False,
-        )  # fmt: skip
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    return done.stdout.strip() or None
-
-
 def run(
     repeats: int,
     work_dir: Path | None = None,
@@ -399,7 +385,8 @@ def run(
     if sync_window is not None and not sync_window > 0:
         raise ValueError(f"sync window {sync_window:g} s: must be positive")
     say = progress or (lambda _text: None)
-    head = commit()  # the code that runs: read before the repeats, which take minutes
+    # The code that runs (short commit): read before the repeats, which take minutes.
+    head = software_versions()["git_commit"][:7] or None
     results: list[dict[str, Any]] = []
     with contextlib.ExitStack() as stack:
         if work_dir is None:

@@ -621,12 +621,13 @@ def _preflight_start(
     participants = [p.agent for p in experiment.participants] if experiment else list(seen)
     deadline = time.monotonic() + it.discover
     while True:
+        looked = it.fed.count
         latest = it.fed.snapshot()
         rows = preflight(participants, latest, it.fed.ages(), max_bound, reference=str(ref))
         failed = blocking(rows)
         if not failed or force or (left := deadline - time.monotonic()) <= 0:
             break
-        it.fed.wait_new(left)
+        it.fed.wait_new(looked, left)
     overridden = [f"{r.agent}: {m}" for r in failed for m in r.missing]
     if failed and not force:
         raise PreflightFailed(rows)

@@ -24,6 +24,7 @@ class Federation:
         self.status: dict[str, dict[str, Any]] = {}
         self.received: dict[str, float] = {}  # agent -> time.monotonic() of its last status
         self.mismatched = 0  # statuses whose agent is not the one their key names: ignored
+        self.count = 0  # statuses taken so far (for wait_new)
         self._lock = threading.Lock()
         self._new_status = threading.Condition(self._lock)
         self._sub = session.declare_subscriber(
@@ -44,6 +45,7 @@ class Federation:
             with self._lock:
                 self.status[status["agent"]] = status
                 self.received[status["agent"]] = time.monotonic()
+                self.count += 1
                 self._new_status.notify_all()
         except (ValueError, KeyError, TypeError):
             pass  # a malformed status is the monitor's business, not ctl's
@@ -60,10 +62,12 @@ class Federation:
                     return
                 self._new_status.wait(left)
 
-    def wait_new(self, timeout: float) -> None:
-        """Wait until the next status arrives, ``timeout`` s at most."""
+    def wait_new(self, after: int, timeout: float) -> None:
+        """Wait until a status arrives after the ``after``-th (:attr:`count` when the
+        caller last looked; one that came meanwhile returns at once), ``timeout`` s at
+        most."""
         with self._lock:
-            self._new_status.wait(max(0.0, timeout))
+            self._new_status.wait_for(lambda: self.count != after, max(0.0, timeout))
 
     def snapshot(self) -> dict[str, dict[str, Any]]:
         with self._lock:

@@ -566,6 +566,8 @@ def _fake_federation(
     """A federation whose agents report ``statuses`` (``before`` until ctl has put)."""
 
     class Fed:
+        count = 0  # as Federation's: statuses taken (every one is in from the start)
+
         def __init__(self, session: Any, federation: str) -> None:
             self.session = session
 

@@ -87,3 +87,18 @@ def test_force_starts_at_once_saying_what_it_overrode() -> None:
     _, overridden = control._preflight_start(it, fed.snapshot(), AgentId.parse(LEADER), 0.010, True)
     assert time.monotonic() - t0 < 0.5
     assert overridden == [f"{FOLLOWER}: platform: held (stale)"]
+
+
+def test_a_status_that_came_after_the_last_look_ends_the_wait_at_once() -> None:
+    """One taken between ctl's look at the statuses and its wait (a subscriber's thread
+    runs meanwhile) is not missed: the wait returns without waiting for the next."""
+    _, fed = issuing(discover=1.5)
+    put(fed, status(LEADER))
+    looked = fed.count
+    put(fed, status(FOLLOWER))  # after the look, before the wait
+    t0 = time.monotonic()
+    fed.wait_new(looked, 2.0)
+    assert time.monotonic() - t0 < 0.5
+    t0 = time.monotonic()
+    fed.wait_new(fed.count, 0.2)  # nothing new: the whole timeout
+    assert time.monotonic() - t0 >= 0.2
