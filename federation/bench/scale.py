@@ -88,7 +88,9 @@ One each by default. Groups of 8 (``--group 8``) cost a third less CPU per agent
 but send bursts that lose a pose in some runs at 64 agents, which the default
 must not do (docs/scale.md, "Wake-ups")."""
 BARE = Path(__file__).with_name("baselines") / "zenoh_scale.py"
-SETTLE = 3.0  # s after start before samples count (discovery, routes)
+SETTLE = 3.0
+"""s after the workers are started before samples count (discovery, routes), by
+default (``--settle``)."""
 DEFAULT_AGENTS = (2, 8, 16, 32, 64)
 """Agent counts run when none is given."""
 
@@ -236,18 +238,18 @@ def _start_routers(fleet: Fleet, endpoints: list[str], cores: frozenset[int] | N
 def _worker_argv(
     mode: str, endpoint: str, seconds: float, out: Path, group: int, leader: str, mine: list[str]
 ) -> list[str]:
-    """The command of a lab's worker process hosting the agents ``mine``: the bare floor
-    (:data:`BARE`) or fedlab's (:func:`worker`)."""
+    """The command of a lab's worker process hosting the agents ``mine`` for ``seconds``:
+    the bare floor (:data:`BARE`) or fedlab's (:func:`worker`)."""
     if mode == "bare":
-        return [sys.executable, str(BARE), endpoint, f"{seconds + SETTLE}", str(out),
+        return [sys.executable, str(BARE), endpoint, f"{seconds}", str(out),
                 str(STATUS_BYTES), str(group), leader, *mine]  # fmt: skip
     return [sys.executable, "-m", "federation.bench.scale", "worker", endpoint,
-            f"{seconds + SETTLE}", str(out), mode, str(group), *mine]  # fmt: skip
+            f"{seconds}", str(out), mode, str(group), *mine]  # fmt: skip
 
 
 @dataclass
 class _Measured:
-    """What a run's processes cost, measured from the end of :data:`SETTLE` on."""
+    """What a run's processes cost, measured from the end of the settling on."""
 
     hosting: dict[str, list[str]]  # the cores the routers and the workers may run on
     workers: list[str]  # the workers' process names
@@ -285,7 +287,7 @@ def _measure(fleet: Fleet, seconds: float, n: int) -> _Measured:
     cpu0 = {name: _cpu_seconds(p.pid) for name, p in fleet.procs.items()}
     threads0 = [_thread_cpu(fleet.procs[w].pid) for w in workers]
     t0 = time.monotonic()
-    end = t0 + max(1.0, seconds - 1.0)  # workers run seconds + SETTLE: still alive then
+    end = t0 + max(1.0, seconds - 1.0)  # workers run settle + seconds: still alive then
     rss = _sample_rss(fleet, workers, seconds, t0, end)
     cpu = {name: _cpu_seconds(p.pid) - cpu0[name] for name, p in fleet.procs.items()}
     wall = time.monotonic() - t0
@@ -312,14 +314,16 @@ def run_one(
     labs: int = LABS,
     group: int = GROUP,
     pin_routers: bool = False,
+    settle: float = SETTLE,
 ) -> dict[str, Any]:
     """Run ``n`` agents (at least 2: a leader and a follower) over ``labs`` labs for
     ``seconds`` in configuration ``mode`` (:data:`MODES`), each worker's agents ticking
     in groups of ``group`` (fedlab and bare alike); with ``pin_routers`` the routers
     run on the first core this process may use (``fedlab router --cpus``) and the
-    workers on the others (:func:`hosting_cores`). Returns ``n``, ``mode``, ``group``,
-    ``pin_routers``, ``cores`` (the cores the routers and the workers may run on,
-    as the kernel has them),
+    workers on the others (:func:`hosting_cores`). Samples count from ``settle``
+    seconds after the workers are started (each runs ``settle + seconds``). Returns
+    ``n``, ``mode``, ``group``, ``pin_routers``, ``settle``, ``cores`` (the cores the
+    routers and the workers may run on, as the kernel has them),
     ``cpu_cores`` (all processes), ``cpu_workers_cores``, ``cpu_routers_cores``,
     ``cpu_per_agent`` (all processes' over ``n``), ``worker_threads_ms`` (the
     workers' CPU by thread name, ms per agent-second), ``worker_threads_kernel_ms``
@@ -340,11 +344,16 @@ def run_one(
         for lab in range(labs):
             mine = [name for (i, name) in agents if i == lab]
             if mine:
-                argv = _worker_argv(mode, endpoints[lab], seconds, out, group, leader, mine)
+                argv = _worker_argv(
+                    mode, endpoints[lab], settle + seconds, out, group, leader, mine
+                )
                 fleet.spawn(f"worker-lab{lab}", argv, cpus=worker_cores)
-        time.sleep(SETTLE)
+        time.sleep(settle)
         m = _measure(fleet, seconds, n)
-    scores = _score_bare(out, leader) if mode == "bare" else _score(out, agents, seconds)
+    if mode == "bare":
+        scores = _score_bare(out, leader, settle)
+    else:
+        scores = _score(out, agents, seconds, settle)
     cpu, wall, workers = m.cpu, m.wall, m.workers
     total = sum(cpu.values()) / wall
     return {
@@ -353,6 +362,7 @@ def run_one(
         "mode": mode,
         "group": group,
         "pin_routers": pin_routers,
+        "settle": settle,
         "cores": m.hosting,
         **scores,
         "cpu_cores": total,
@@ -371,10 +381,14 @@ def run_one(
 
 
 def _latency_and_loss(
-    sent: list[float], received: list[list[tuple[float, float]]], to_host: Any
+    sent: list[float],
+    received: list[list[tuple[float, float]]],
+    to_host: Any,
+    settle: float = SETTLE,
 ) -> dict[str, Any]:
     """Pose latency (ms) and loss from the leader's sent stamps and each follower's
-    (stamp, host arrival) pairs; ``to_host`` maps a leader stamp to host time."""
+    (stamp, host arrival) pairs, from ``settle`` seconds after each follower's first
+    pose; ``to_host`` maps a leader stamp to host time."""
     sent_t = np.asarray(sent)
     latencies: list[float] = []
     lost_each: list[int] = []
@@ -385,7 +399,7 @@ def _latency_and_loss(
             lost_each.append(len(sent_t))
             continue
         t_recv = np.array([g[0] for g in got])
-        first = t_recv.min() + SETTLE  # count from when routes had settled
+        first = t_recv.min() + settle  # count from when routes had settled
         window = sent_t[(sent_t >= first) & (sent_t <= t_recv.max())]
         arrived = set(t_recv.tolist())
         expected += len(window)
@@ -403,7 +417,7 @@ def _latency_and_loss(
     }
 
 
-def _score_bare(out: Path, leader: str) -> dict[str, Any]:
+def _score_bare(out: Path, leader: str, settle: float = SETTLE) -> dict[str, Any]:
     sent: list[float] = []
     received: list[list[tuple[float, float]]] = []
     replies = 0
@@ -414,16 +428,18 @@ def _score_bare(out: Path, leader: str) -> dict[str, Any]:
         received += [[(t, h) for t, h in pairs] for pairs in data["received"].values()]
         replies += sum(data["replies"].values())
         seconds = data["seconds"]
-    scores = _latency_and_loss(sent, received, lambda t: t)
+    scores = _latency_and_loss(sent, received, lambda t: t, settle)
     return {
         **scores,
         "sync_per_s": replies / seconds if seconds else float("nan"),
         # Its leader stamps its poses with host time.
-        **_pose_gaps(sorted(sent), _listening(received)),
+        **_pose_gaps(sorted(sent), _listening(received, settle)),
     }
 
 
-def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str, Any]:
+def _score(
+    out: Path, agents: list[tuple[int, str]], seconds: float, settle: float = SETTLE
+) -> dict[str, Any]:
     from federation.runtime.recorder import read_messages
 
     leader = agents[0][1]
@@ -445,20 +461,20 @@ def _score(out: Path, agents: list[tuple[int, str]], seconds: float) -> dict[str
         if got and published:
             # The same window as the loss: from when routes had settled to the leader's
             # last pose (after it, every follower holds: the run is over).
-            start = min(h for _, h in got) + SETTLE
+            start = min(h for _, h in got) + settle
             holds.append(_counted_between(mine["/status"], "stale_holds", start, published[-1]))
             dropped.append(
                 _counted_between(mine["/status"], "pose_stale_dropped", start, published[-1])
             )
         else:  # it lost every pose the leader sent: those it dropped are its whole run's
             dropped.append(_counted_between(mine["/status"], "pose_stale_dropped", -inf, inf))
-    scores = _latency_and_loss(sent, received, lambda t: (t - a) / b)
+    scores = _latency_and_loss(sent, received, lambda t: (t - a) / b, settle)
     return {
         **scores,
-        "sync_per_s": _exchanges(last) / (seconds + SETTLE),
+        "sync_per_s": _exchanges(last) / (seconds + settle),
         **_hold_scores(holds),
         "stale_dropped": dropped,
-        **_pose_gaps(published, _listening(received)),
+        **_pose_gaps(published, _listening(received, settle)),
     }
 
 
@@ -518,14 +534,16 @@ def _pose_gaps(published: list[float], window: tuple[float, float] | None = None
     }
 
 
-def _listening(received: list[list[tuple[float, float]]]) -> tuple[float, float] | None:
+def _listening(
+    received: list[list[tuple[float, float]]], settle: float = SETTLE
+) -> tuple[float, float] | None:
     """The host-time window in which every follower was listening (the steady state):
     from when the last to start had its routes settled to the last arrival of the
     first to stop (those that received nothing are counted lost, not here)."""
     listened = [got for got in received if got]
     if not listened:
         return None
-    start = max(min(h for _, h in got) for got in listened) + SETTLE
+    start = max(min(h for _, h in got) for got in listened) + settle
     return start, min(max(h for _, h in got) for got in listened)
 
 
@@ -539,6 +557,7 @@ def run(
     group: int = GROUP,
     progress: Callable[[int, int, str], None] | None = None,
     pin_routers: bool = False,
+    settle: float = SETTLE,
 ) -> list[dict[str, Any]]:
     """:func:`run_one` for each of ``runs`` repeats, agent count in ``ns`` and
     configuration in ``modes`` (interleaved, so that the host's load falls on all
@@ -552,7 +571,7 @@ def run(
             for mode in modes:
                 if progress is not None:
                     progress(k, n, mode)
-                row = run_one(n, seconds, out, mode, labs, group, pin_routers)
+                row = run_one(n, seconds, out, mode, labs, group, pin_routers, settle)
                 rows.append({**row, "run": k})
     return rows
 

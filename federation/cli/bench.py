@@ -229,6 +229,11 @@ def _add_scale(benches: Subparsers) -> None:
     )  # fmt: skip
     p.add_argument("--seconds", type=positive, default=20.0, metavar="S", help="seconds per N")
     p.add_argument(
+        "--settle", type=positive, default=scale.SETTLE, metavar="S",
+        help="seconds from the workers' start before samples count: discovery and routes "
+        f"(default {scale.SETTLE:g}; each run lasts settle + seconds)",
+    )  # fmt: skip
+    p.add_argument(
         "--mode", action="append", choices=scale.MODES,
         help="configurations to run (repeatable; default all: default = no sync_with, "
         "tuned = followers sync_with the leader, bare = bare zenoh-python, the floor)",
@@ -272,7 +277,7 @@ def _run_scale(args: argparse.Namespace) -> int:
 
     results = scale.run(list(args.agents or scale.DEFAULT_AGENTS), args.seconds, args.out,
                         modes, args.labs, args.runs, args.group, progress,
-                        args.pin_routers)  # fmt: skip
+                        args.pin_routers, args.settle)  # fmt: skip
     if args.json:
         if args.runs == 1 and len(modes) == 1:
             print(json.dumps(results, indent=1))

@@ -26,12 +26,13 @@ def test_the_cli_refuses_a_group_of_no_agents(capsys: pytest.CaptureFixture[str]
 def test_repeats_interleave_counts_and_modes_and_report_progress(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    ran: list[tuple[int, str, int, bool]] = []
+    ran: list[tuple[int, str, int, bool, float]] = []
 
     def fake_run_one(
-        n: int, seconds: float, out: Path, mode: str, labs: int, group: int, pin_routers: bool
-    ) -> dict[str, object]:
-        ran.append((n, mode, group, pin_routers))
+        n: int, seconds: float, out: Path, mode: str, labs: int, group: int, pin_routers: bool,
+        settle: float,
+    ) -> dict[str, object]:  # fmt: skip
+        ran.append((n, mode, group, pin_routers, settle))
         return {"n": n, "mode": mode}
 
     monkeypatch.setattr(scale, "run_one", fake_run_one)
@@ -41,10 +42,11 @@ def test_repeats_interleave_counts_and_modes_and_report_progress(
     order = [(k, n, m) for k in range(2) for n in (2, 4) for m in ("default", "bare")]
     assert seen == order  # each repeat runs every count and mode before the next
     assert [(r["run"], r["n"], r["mode"]) for r in rows] == order
-    assert {(g, pin) for _, _, g, pin in ran} == {(3, False)}
+    assert {(g, pin, settle) for _, _, g, pin, settle in ran} == {(3, False, scale.SETTLE)}
     ran.clear()
-    scale.run([2], 1.0, tmp_path, ("default", "bare"), pin_routers=True)
-    assert [pin for *_, pin in ran] == [True, True]  # fedlab and the floor on the same hosting
+    scale.run([2], 1.0, tmp_path, ("default", "bare"), pin_routers=True, settle=1.5)
+    # fedlab and the floor on the same hosting, settling alike
+    assert [(pin, settle) for *_, pin, settle in ran] == [(True, 1.5), (True, 1.5)]
 
 
 def test_routers_get_the_first_core_and_workers_the_others(monkeypatch: pytest.MonkeyPatch) -> None:
