@@ -1,5 +1,5 @@
 """``fedlab bench replay``'s machinery with real processes on loopback, on a short
-maneuver (3 s, 20 deg) and a 2 s sync window rather than the paper's: a router, the
+maneuver (3 s, 20 deg) and a 1 s sync window rather than the paper's: a router, the
 leader, the follower behind the 40 ms link, the run, the fresh follower against the
 leader's replay, both RMS errors, their ratio, and the exit status the bound gives it;
 and a repeat that fails (an agent not ready in time) is named, exits 1, and leaves no
@@ -42,7 +42,7 @@ def running_under(folder: Path) -> list[str]:
 def test_the_bench_flies_live_then_against_the_replay(tmp_path: Path) -> None:
     out = tmp_path / "result.json"
     done, _ = fedlab(
-        "bench", "replay", "--repeats", "1", "--maneuver-seconds", "3", "--sync-window", "2",
+        "bench", "replay", "--repeats", "1", "--maneuver-seconds", "3", "--sync-window", "1",
         "--work-dir", str(tmp_path / "work"), "--json-out", str(out), timeout=150,
     )  # fmt: skip
     assert out.exists(), done.stdout + done.stderr
@@ -55,7 +55,7 @@ def test_the_bench_flies_live_then_against_the_replay(tmp_path: Path) -> None:
     if not within:
         assert f"repeat 0: ratio {r['ratio']:.3f} exceeds {replay.BOUND:g}" in done.stderr
     assert result["command"] == (
-        f"fedlab bench replay --repeats 1 --maneuver-seconds 3 --sync-window 2 --json-out {out}"
+        f"fedlab bench replay --repeats 1 --maneuver-seconds 3 --sync-window 1 --json-out {out}"
     )
     assert result["link"]["delay_ms"] == 40.0
     print(
