@@ -98,7 +98,7 @@ def _start_run(
     from federation.core import keys
     from federation.core.keys import AgentId
     from federation.runtime.clock import ExecClock
-    from federation.runtime.control import reference_now
+    from federation.runtime.refclock import reference_now
     from federation.runtime.session import build_config
     from schemas.config import ManeuverConfig, ZenohOptions
     from schemas.messages import Command

@@ -24,7 +24,7 @@ from federation.cli import build_parser, main
 from federation.cli.common import open_interruptible, signal_handlers_kept, stop_on_signals
 from federation.core.keys import AgentId
 from federation.fleet.launch import free_port
-from federation.runtime import control
+from federation.runtime import control, refclock
 from federation.runtime.router import load_router_config
 from federation.runtime.session import ConnectError
 from schemas import export
@@ -750,8 +750,8 @@ def test_a_silent_reference_is_given_up_after_a_few_queries_not_twenty() -> None
     session = Silent()
     t0 = time.monotonic()
     with pytest.raises(ConnectError, match="reference agent lab/a did not answer"):
-        control.reference_now(session, "default", AgentId("lab", "a"), control.ExecClock())
-    assert session.queries == control.REFERENCE_UNANSWERED == 3
+        refclock.reference_now(session, "default", AgentId("lab", "a"), control.ExecClock())
+    assert session.queries == refclock.REFERENCE_UNANSWERED == 3
     assert time.monotonic() - t0 < 5.0  # a silent leader had held ctl 20 s
 
 

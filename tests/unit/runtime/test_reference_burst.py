@@ -1,4 +1,4 @@
-"""ctl's look at the reference clock (``control.reference_sync``): a first exchange, then
+"""ctl's look at the reference clock (``refclock.reference_sync``): a first exchange, then
 the rest of the burst in flight together, over a stand-in path with a delay each way
 and a reference whose clock is 100 s ahead; and the faults: a reference that answers
 for a while and then nothing, one that answers once, one that answers only with errors,
@@ -17,7 +17,7 @@ import pytest
 from federation.core import wire
 from federation.core.keys import AgentId
 from federation.core.sync import serve
-from federation.runtime import control
+from federation.runtime import refclock
 from federation.runtime.clock import ExecClock
 from federation.runtime.session import ConnectError
 
@@ -87,10 +87,10 @@ class _Path:
 def look(monkeypatch: pytest.MonkeyPatch, path: _Path) -> tuple[float, float, float]:
     """ctl's look at the reference through ``path``: the reference time it gives, what
     ctl's clock read then plus :data:`AHEAD`, and the seconds it took."""
-    monkeypatch.setattr(control, "SyncQuerier", path)
+    monkeypatch.setattr(refclock, "SyncQuerier", path)
     clock = ExecClock()
     t0 = time.monotonic()
-    ref_now = control.reference_now(object(), "default", AgentId("lab", "ref"), clock)
+    ref_now = refclock.reference_now(object(), "default", AgentId("lab", "ref"), clock)
     return ref_now, clock.now() + AHEAD, time.monotonic() - t0
 
 
@@ -99,7 +99,7 @@ def test_the_burst_is_in_flight_together_and_gives_the_reference_time(
 ) -> None:
     path = _Path(0.04, lambda i: "reply")
     ref_now, truth, _ = look(monkeypatch, path)
-    assert path.sent == control.REFERENCE_BURST
+    assert path.sent == refclock.REFERENCE_BURST
     # The first alone, then the rest 20 ms apart over an 80 ms round trip: several at once.
     assert path.most_in_flight >= 3
     # A symmetric path: the offset is the clocks' own, but for the timers' lateness.
@@ -111,7 +111,7 @@ def test_a_reference_that_falls_silent_mid_burst_gives_an_instant_from_what_it_a
 ) -> None:
     path = _Path(0.01, lambda i: "reply" if i < 8 else "none")
     ref_now, truth, took = look(monkeypatch, path)
-    assert path.sent == control.REFERENCE_BURST
+    assert path.sent == refclock.REFERENCE_BURST
     assert ref_now == pytest.approx(truth, abs=0.02)
     assert took < 5.0  # each unanswered request waits 1 s at most, all at once
 
@@ -123,7 +123,7 @@ def test_a_reference_that_answers_once_then_falls_silent_gives_no_instant(
     path = _Path(0.01, lambda i: "reply" if i == 0 else "none")
     with pytest.raises(ConnectError, match="reference agent lab/ref did not answer"):
         look(monkeypatch, path)
-    assert path.sent == control.REFERENCE_BURST
+    assert path.sent == refclock.REFERENCE_BURST
 
 
 def test_a_reference_that_answers_only_with_errors_is_given_up_after_a_few(
@@ -132,7 +132,7 @@ def test_a_reference_that_answers_only_with_errors_is_given_up_after_a_few(
     path = _Path(0.01, lambda i: "error")
     with pytest.raises(ConnectError, match="reference agent lab/ref did not answer"):
         look(monkeypatch, path)
-    assert path.sent == control.REFERENCE_UNANSWERED
+    assert path.sent == refclock.REFERENCE_UNANSWERED
 
 
 def test_a_reference_that_answers_the_third_query_gets_the_whole_burst(
@@ -141,5 +141,5 @@ def test_a_reference_that_answers_the_third_query_gets_the_whole_burst(
     # The route comes up late: two queries go unanswered, the third is answered.
     path = _Path(0.01, lambda i: "none" if i < 2 else "reply")
     ref_now, truth, _ = look(monkeypatch, path)
-    assert path.sent == 2 + control.REFERENCE_BURST
+    assert path.sent == 2 + refclock.REFERENCE_BURST
     assert ref_now == pytest.approx(truth, abs=0.02)
