@@ -79,19 +79,24 @@ def test_formation_delay_with_compensation_costs_less_than_without() -> None:
     assert on <= 1.1 < off
 
 
+@pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize("delay", transparency.DELAYS)
-def test_attitude_tracking_with_compensation_does_not_show_the_distance(delay: float) -> None:
+def test_attitude_tracking_with_compensation_does_not_show_the_distance(
+    delay: float, seed: int
+) -> None:
     # The claim (issue 42, part 5): with compensation, at most 1.1 at 40 and 250 ms, the
-    # median and each of seeds 0-2, over the whole run as `fedlab bench scenarios` flies it.
-    # A delay a test: each flies the seeds' baselines and its delay (parallel workers).
+    # median and each of seeds 0-2, over the whole run as `fedlab bench scenarios` flies it
+    # (each seed at most 1.1 puts their median there too). A delay and a seed a test, so
+    # that parallel workers share them: each flies the seed's baseline and its delay as
+    # `scenario_rows` does (a delay of all three seeds took up to 30.0 s at nice 5 beside
+    # the real-process tests, ci179).
     assert transparency.DELAYS == (0.04, 0.25)
-    (row,) = scenario_rows(
-        "attitude-tracking", ATTITUDE, seeds=3, delays=(delay,), compensations=(True,)
-    )
-    assert row["delay_s"] == delay
-    print(f"attitude, {delay * 1e3:.0f} ms, compensated: ratios {row['ratio']}")
-    assert all(r is not None and r <= 1.1 for r in row["ratio"])
-    assert row["ratio_stats"]["median"] <= 1.1
+    figure = FIGURES["attitude-tracking"]
+    baseline = figure.error(ATTITUDE, 0.0, True, seed, None, 0.0)
+    error = figure.error(ATTITUDE, delay, True, seed, None, transparency.JITTER)
+    r = ratio(error, baseline)
+    print(f"attitude, {delay * 1e3:.0f} ms, seed {seed}, compensated: ratio {r}")
+    assert r is not None and r <= 1.1
 
 
 def test_attitude_excess_with_dead_reckoning_is_its_rate_reference(
