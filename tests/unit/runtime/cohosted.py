@@ -1,13 +1,13 @@
 """Agents hosted together in one process, for the runtime's tests of what they share
 (sync links, pose feeds): their configurations, the agents started on one session's
-shared subscriptions, links and clock, a loop that runs them for a while, and a sync
-reply made by hand from a chosen replier."""
+shared subscriptions, links and clock, a loop that runs them for a while or for a
+number of one agent's ticks, and a sync reply made by hand from a chosen replier."""
 
 from __future__ import annotations
 
 import json
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -64,6 +64,47 @@ def run_for(agents: list[AgentRuntime], seconds: float) -> None:
         run_together(agents, stop, spread=0.05)
     finally:
         timer.cancel()
+
+
+class Tally:
+    """The calls an agent's loop makes of one of its periodic tasks (``task``:
+    ``publish_pose`` at its pose rate, ``send_sync_requests`` at its sync rate).
+
+    A claim about what arrives per tick of the sender holds on a host that stalls the
+    process, where a claim per second of wall time does not: the loop skips the ticks
+    a stall made it miss, so fewer are sent, not fewer delivered."""
+
+    def __init__(self, agent: AgentRuntime, task: str):
+        self.n = 0
+        self._stop_at: tuple[int, threading.Event] | None = None
+        inner: Callable[..., Any] = getattr(agent, task)
+
+        def counted(*args: Any) -> Any:
+            result = inner(*args)
+            self.n += 1
+            if self._stop_at is not None and self.n >= self._stop_at[0]:
+                self._stop_at[1].set()
+            return result
+
+        setattr(agent, task, counted)
+
+    def stop_at(self, n: int, stop: threading.Event) -> None:
+        self._stop_at = (n, stop)
+
+
+def run_ticks(agents: list[AgentRuntime], tally: Tally, n: int, timeout: float) -> None:
+    """Run ``agents`` until ``tally`` has counted ``n`` more calls: ``timeout`` s at
+    most, and an AssertionError if they did not come."""
+    stop = threading.Event()
+    target = tally.n + n
+    tally.stop_at(target, stop)
+    timer = threading.Timer(timeout, stop.set)
+    timer.start()
+    try:
+        run_together(agents, stop, spread=0.05)
+    finally:
+        timer.cancel()
+    assert tally.n >= target, f"{n - (target - tally.n)} of {n} ticks within {timeout:g} s"
 
 
 class Payload:
