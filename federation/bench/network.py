@@ -39,8 +39,10 @@ best-effort pose as QUIC datagrams) and ``quic-stream`` (QUIC, one stream for al
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
+import statistics
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -51,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from federation.core import paper
+from federation.core.sync import DELAY_WINDOW
 from federation.fleet.launch import wait_for
 from federation.link.packet import PacketOptions
 from federation.testbed import ADDR, Testbed, TestbedError
@@ -372,6 +375,24 @@ def _pct(values: list[float] | np.ndarray, q: float) -> float | None:
     return None if a.size == 0 else float(np.percentile(a, q))
 
 
+def _beyond_delay(
+    poses: list[dict[str, Any]], latency: list[float], exchanges: list[dict[str, Any]]
+) -> list[float]:
+    """Each received pose's latency (s) less the follower's estimate of the one-way
+    delay when it arrived: the median of the last ``DELAY_WINDOW`` exchanges with the
+    leader before it, as the follower's sync client keeps it (poses before the first
+    exchange left out)."""
+    with_leader = [x for x in exchanges if x.get("peer") == LEADER]
+    at = [x["host_monotonic"] for x in with_leader]
+    delays = [x["delay"] for x in with_leader]
+    beyond = []
+    for pose, late in zip(poses, latency, strict=True):
+        k = bisect.bisect_right(at, pose["host_monotonic"])
+        if k:
+            beyond.append(late - statistics.median(delays[max(0, k - DELAY_WINDOW) : k]))
+    return beyond
+
+
 def score(
     follower: Path,
     leader: Path,
@@ -398,6 +419,7 @@ def score(
     end = min(f["/status"][-1]["host_monotonic"], lmsg["/pose/sent"][-1]["host_monotonic"])
     poses = [p for p in f["/pose/received"] if start <= p["host_monotonic"] <= end]
     latency = [p["host_monotonic"] - leader_host(p["t"]) for p in poses]
+    beyond = _beyond_delay(poses, latency, f["/sync/exchange"])
     errors = []
     for x in f["/sync/exchange"]:
         if x["host_monotonic"] < start or x.get("estimate") is None:
@@ -435,6 +457,9 @@ def score(
             "p99": _ms(_pct(latency, 99)),
             "max": _ms(max(latency) if latency else None),
         },
+        # A pose's age on arrival beyond the follower's estimate of the link's delay
+        # then: it is dropped on arrival once past the stale threshold.
+        "pose_age_beyond_delay_ms": {"max": _ms(max(beyond) if beyond else None)},
         "sync_error_ms": {
             "p50": _ms(_pct(errors, 50)),
             "p95": _ms(_pct(errors, 95)),

@@ -38,6 +38,7 @@ from federation.core import wire
 
 __all__ = [
     "DEFAULT_WINDOW",
+    "DELAY_WINDOW",
     "Estimator",
     "Exchange",
     "PaperEstimator",
@@ -49,6 +50,9 @@ __all__ = [
 
 DEFAULT_WINDOW = 10.0
 """Seconds of reference time over which the paper averages the offset (Eq. 6)."""
+
+DELAY_WINDOW = 50
+"""Exchanges whose one-way delays' median is a client's estimate of the link's delay."""
 
 
 class Exchange:
@@ -280,7 +284,7 @@ class SyncClient:
         self,
         estimator: Estimator,
         timeout: float = 0.5,
-        delay_window: int = 50,
+        delay_window: int = DELAY_WINDOW,
         step_margin: float = 0.002,
     ):
         if not timeout > 0:

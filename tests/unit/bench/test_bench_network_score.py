@@ -31,7 +31,13 @@ def _recordings(
         "/status": status,
         "/pose/received": [{"host_monotonic": t + DELAY, "t": t} for t in sends],
         "/sync/exchange": [
-            {"host_monotonic": 0.5 + 0.1 * k, "t3": 0.5 + 0.1 * k, "estimate": 0.0}
+            {
+                "host_monotonic": 0.5 + 0.1 * k,
+                "t3": 0.5 + 0.1 * k,
+                "estimate": 0.0,
+                "peer": network.LEADER,
+                "delay": DELAY,
+            }
             for k in range(int((end - 0.5) / 0.1))
         ],
         "/control": [{"host_monotonic": h, "event": "stale_hold"} for h in holds],
@@ -76,3 +82,29 @@ def test_the_leaders_longest_pause_between_poses_is_reported(
 def test_a_pause_before_the_scored_start_is_not_the_runs(monkeypatch: pytest.MonkeyPatch) -> None:
     result = _score(monkeypatch, _recordings(20.0, (2.0, 3.0), holds=[]), sync_phase=5.0)
     assert result["sender_gap_max_ms"] == pytest.approx(PERIOD * 1e3, abs=1.0)
+
+
+def test_a_poses_age_is_judged_beyond_the_delay_the_follower_estimated_then(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The stale rule's own terms: a pose's latency less the median of the follower's
+    last DELAY_WINDOW exchanges with the leader before it arrived."""
+    recordings = _recordings(20.0, None, [])
+    follower = recordings["follower"]
+    exchanges = follower["/sync/exchange"]
+    for x in exchanges[-60:]:  # the host's queueing raises the last 60 exchanges' delay
+        x["delay"] = 0.06
+    exchanges.append({"host_monotonic": 19.0, "peer": "lab/other", "delay": 5.0})  # not the leader
+    exchanges.sort(key=lambda x: x["host_monotonic"])
+    late = {"host_monotonic": 19.5 + 0.3, "t": 19.5}  # 300 ms old
+    follower["/pose/received"].append(late)
+    result = _score(monkeypatch, recordings, sync_phase=1.0)
+    assert result["pose_latency_ms"]["max"] == pytest.approx(300.0)
+    # Judged against 60 ms (the last 50 exchanges' median), not the path's 40 ms.
+    assert result["pose_age_beyond_delay_ms"]["max"] == pytest.approx(240.0)
+    # Against the earlier exchanges' 40 ms where those are the last 50.
+    for x in exchanges[-60:]:
+        x["delay"] = DELAY
+    assert _score(monkeypatch, recordings, sync_phase=1.0)["pose_age_beyond_delay_ms"][
+        "max"
+    ] == pytest.approx(260.0)
