@@ -56,8 +56,11 @@ def cohosted(
             agent.close()
 
 
-def run_for(agents: list[AgentRuntime], seconds: float) -> None:
-    stop = threading.Event()
+def run_for(
+    agents: list[AgentRuntime], seconds: float, stop: threading.Event | None = None
+) -> None:
+    """Run ``agents`` on this thread for ``seconds``, or until ``stop`` is set."""
+    stop = stop or threading.Event()
     timer = threading.Timer(seconds, stop.set)
     timer.start()
     try:
@@ -98,12 +101,7 @@ def run_ticks(agents: list[AgentRuntime], tally: Tally, n: int, timeout: float) 
     stop = threading.Event()
     target = tally.n + n
     tally.stop_at(target, stop)
-    timer = threading.Timer(timeout, stop.set)
-    timer.start()
-    try:
-        run_together(agents, stop, spread=0.05)
-    finally:
-        timer.cancel()
+    run_for(agents, timeout, stop)
     assert tally.n >= target, f"{n - (target - tally.n)} of {n} ticks within {timeout:g} s"
 
 
